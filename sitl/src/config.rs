@@ -1,0 +1,467 @@
+//! Sensor descriptions and simulator settings.
+//!
+//! The camera and IMU descriptions here are shared: the simulator draws
+//! measurements with them and the estimator (in the `cmsckf` crate) models the
+//! same sensors with them, so the two cannot drift apart. Every field carries
+//! its unit in its name or doc, and [`Validate`] rejects non-finite or
+//! out-of-range values with a message that names the field and the fix.
+
+use serde::{Deserialize, Serialize};
+
+/// Standard gravity used by default (m/s²).
+pub const DEFAULT_GRAVITY_MPS2: f64 = 9.81;
+
+/// A configuration value that is wrong, with the field's full name and how to
+/// fix it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("config field `{field}`: {problem}; {fix}")]
+pub struct FieldError {
+    pub field: String,
+    pub problem: String,
+    pub fix: String,
+}
+
+/// Range checks that name the field.
+pub struct Check<'a> {
+    prefix: &'a str,
+}
+
+impl<'a> Check<'a> {
+    pub fn new(prefix: &'a str) -> Self {
+        Self { prefix }
+    }
+    fn name(&self, field: &str) -> String {
+        if self.prefix.is_empty() {
+            field.to_string()
+        } else {
+            format!("{}.{}", self.prefix, field)
+        }
+    }
+    /// `lo ≤ v ≤ hi` and finite.
+    pub fn range(&self, field: &str, v: f64, lo: f64, hi: f64) -> Result<(), FieldError> {
+        if !v.is_finite() {
+            return Err(FieldError {
+                field: self.name(field),
+                problem: format!("{v} is not a finite number"),
+                fix: format!("set a number between {lo} and {hi}"),
+            });
+        }
+        if v < lo || v > hi {
+            return Err(FieldError {
+                field: self.name(field),
+                problem: format!("{v} is out of range"),
+                fix: format!("set a value between {lo} and {hi}"),
+            });
+        }
+        Ok(())
+    }
+    /// `lo < v ≤ hi` and finite.
+    pub fn positive(&self, field: &str, v: f64, hi: f64) -> Result<(), FieldError> {
+        self.range(field, v, 0.0, hi)?;
+        if v <= 0.0 {
+            return Err(FieldError {
+                field: self.name(field),
+                problem: format!("{v} must be greater than zero"),
+                fix: format!("set a value in (0, {hi}]"),
+            });
+        }
+        Ok(())
+    }
+    pub fn all_finite(&self, field: &str, v: &[f64], lo: f64, hi: f64) -> Result<(), FieldError> {
+        for (i, x) in v.iter().enumerate() {
+            self.range(&format!("{field}[{i}]"), *x, lo, hi)?;
+        }
+        Ok(())
+    }
+    pub fn fail(&self, field: &str, problem: impl Into<String>, fix: impl Into<String>) -> FieldError {
+        FieldError {
+            field: self.name(field),
+            problem: problem.into(),
+            fix: fix.into(),
+        }
+    }
+}
+
+/// Anything that can check its own values.
+pub trait Validate {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError>;
+}
+
+/// IMU noise model (continuous-time densities, as in Kalibr / OpenVINS).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ImuConfig {
+    /// Accelerometer white noise density (m/s²/√Hz).
+    pub accel_noise_density: f64,
+    /// Accelerometer bias random walk (m/s³/√Hz).
+    pub accel_random_walk: f64,
+    /// Gyroscope white noise density (rad/s/√Hz).
+    pub gyro_noise_density: f64,
+    /// Gyroscope bias random walk (rad/s²/√Hz).
+    pub gyro_random_walk: f64,
+    /// Gravity magnitude (m/s²).
+    pub gravity_mps2: f64,
+}
+
+impl Default for ImuConfig {
+    fn default() -> Self {
+        // OpenVINS's simulator values, typical of a MEMS IMU.
+        Self {
+            accel_noise_density: 2.0e-3,
+            accel_random_walk: 3.0e-3,
+            gyro_noise_density: 1.6968e-4,
+            gyro_random_walk: 1.9393e-5,
+            gravity_mps2: DEFAULT_GRAVITY_MPS2,
+        }
+    }
+}
+
+impl Validate for ImuConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let c = Check::new(prefix);
+        c.positive("accel_noise_density", self.accel_noise_density, 1.0)?;
+        c.positive("accel_random_walk", self.accel_random_walk, 1.0)?;
+        c.positive("gyro_noise_density", self.gyro_noise_density, 1.0)?;
+        c.positive("gyro_random_walk", self.gyro_random_walk, 1.0)?;
+        c.range("gravity_mps2", self.gravity_mps2, 9.7, 9.9)
+    }
+}
+
+/// Lens distortion model.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum CameraModelKind {
+    /// Pinhole with radial-tangential distortion `[k1, k2, p1, p2]`.
+    PinholeRadtan,
+    /// Pinhole with equidistant (fisheye) distortion `[k1, k2, k3, k4]`.
+    PinholeEquidistant,
+}
+
+/// Camera intrinsics, distortion, resolution and extrinsics.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// `pinhole-radtan` or `pinhole-equidistant`.
+    pub model: CameraModelKind,
+    /// Image width (px).
+    pub width_px: u32,
+    /// Image height (px).
+    pub height_px: u32,
+    /// Focal lengths and principal point `[fx, fy, cx, cy]` (px).
+    pub intrinsics: [f64; 4],
+    /// Distortion coefficients (unitless); meaning depends on `model`.
+    pub distortion: [f64; 4],
+    /// Camera position in the body frame, `p_C_in_B` (m).
+    pub p_C_in_B_m: [f64; 3],
+    /// Camera orientation in the body frame, `q_B_C` as `[x, y, z, w]`
+    /// (Hamilton; rotates camera vectors into the body frame).
+    pub q_B_C_xyzw: [f64; 4],
+    /// Pixel measurement noise, one sigma (px).
+    pub pixel_noise_px: f64,
+    /// Frame rate (Hz).
+    pub rate_hz: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        // Forward-looking camera: optical axis = body x, image right = body y,
+        // image down = body z. R_B_C has columns x_C = y_B, y_C = z_B, z_C = x_B.
+        Self {
+            model: CameraModelKind::PinholeRadtan,
+            width_px: 752,
+            height_px: 480,
+            intrinsics: [458.654, 457.296, 367.215, 248.375],
+            distortion: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05],
+            p_C_in_B_m: [0.10, 0.0, 0.02],
+            q_B_C_xyzw: [0.5, 0.5, 0.5, 0.5],
+            pixel_noise_px: 1.0,
+            rate_hz: 30.0,
+        }
+    }
+}
+
+impl Validate for CameraConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let c = Check::new(prefix);
+        if self.width_px < 16 || self.width_px > 16384 {
+            return Err(c.fail(
+                "width_px",
+                format!("{} is out of range", self.width_px),
+                "set 16..16384",
+            ));
+        }
+        if self.height_px < 16 || self.height_px > 16384 {
+            return Err(c.fail(
+                "height_px",
+                format!("{} is out of range", self.height_px),
+                "set 16..16384",
+            ));
+        }
+        c.all_finite("intrinsics", &self.intrinsics, 1.0, 1e5)?;
+        c.all_finite("distortion", &self.distortion, -10.0, 10.0)?;
+        c.all_finite("p_C_in_B_m", &self.p_C_in_B_m, -10.0, 10.0)?;
+        c.all_finite("q_B_C_xyzw", &self.q_B_C_xyzw, -1.0, 1.0)?;
+        let n = self.q_B_C_xyzw.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if (n - 1.0).abs() > 1e-3 {
+            return Err(c.fail(
+                "q_B_C_xyzw",
+                format!("norm {n:.6} is not 1"),
+                "give a unit quaternion [x, y, z, w]",
+            ));
+        }
+        c.positive("pixel_noise_px", self.pixel_noise_px, 100.0)?;
+        c.positive("rate_hz", self.rate_hz, 1000.0)
+    }
+}
+
+/// Simulated feature tracks (a KLT-like front end over a landmark field).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct FeatureSimConfig {
+    /// Tracks kept per frame; new landmarks are spawned in view when fewer
+    /// are visible (count).
+    pub per_frame: usize,
+    /// Nearest depth at which new landmarks are spawned (m).
+    pub depth_min_m: f64,
+    /// Farthest depth at which new landmarks are spawned (m).
+    pub depth_max_m: f64,
+    /// Landmarks farther than this are not detected (m).
+    pub max_range_m: f64,
+    /// Probability per frame that a live track is lost (0..1).
+    pub track_loss_prob: f64,
+    /// Probability that a landmark that comes back into view is re-identified
+    /// with its old id, which is what produces loop closures (0..1).
+    pub reid_prob: f64,
+    /// Probability per observation of an outlier (0..1): half are wrong ids,
+    /// half gross pixel errors.
+    pub outlier_prob: f64,
+}
+
+impl Default for FeatureSimConfig {
+    fn default() -> Self {
+        Self {
+            per_frame: 100,
+            depth_min_m: 5.0,
+            depth_max_m: 30.0,
+            max_range_m: 60.0,
+            track_loss_prob: 0.03,
+            reid_prob: 0.9,
+            outlier_prob: 0.01,
+        }
+    }
+}
+
+impl Validate for FeatureSimConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let c = Check::new(prefix);
+        if self.per_frame == 0 || self.per_frame > 2000 {
+            return Err(c.fail(
+                "per_frame",
+                format!("{} is out of range", self.per_frame),
+                "set 1..2000",
+            ));
+        }
+        c.positive("depth_min_m", self.depth_min_m, 1e4)?;
+        c.positive("depth_max_m", self.depth_max_m, 1e4)?;
+        if self.depth_max_m < self.depth_min_m {
+            return Err(c.fail("depth_max_m", "is below depth_min_m", "set depth_max_m ≥ depth_min_m"));
+        }
+        c.positive("max_range_m", self.max_range_m, 1e5)?;
+        c.range("track_loss_prob", self.track_loss_prob, 0.0, 1.0)?;
+        c.range("reid_prob", self.reid_prob, 0.0, 1.0)?;
+        c.range("outlier_prob", self.outlier_prob, 0.0, 1.0)
+    }
+}
+
+/// Simulated GNSS receiver and constellation.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct GnssSimConfig {
+    /// Whether pseudoranges are generated.
+    pub enabled: bool,
+    /// Epoch rate (Hz).
+    pub rate_hz: f64,
+    /// Geodetic origin of the NED world frame: `[lat_deg, lon_deg, height_m]`
+    /// (WGS-84 ellipsoidal height).
+    pub origin_llh: [f64; 3],
+    /// GPS week of the start of the flight (full week number).
+    pub start_week: u32,
+    /// GPS time of week at the start of the flight (s).
+    pub start_tow_s: f64,
+    /// Pseudorange noise at zenith, one sigma (m); it grows as 1/sin(elevation).
+    pub pseudorange_noise_m: f64,
+    /// Pseudorange-rate noise at zenith, one sigma (m/s).
+    pub pseudorange_rate_noise_mps: f64,
+    /// Satellites below this elevation are not tracked (deg).
+    pub elevation_mask_deg: f64,
+    /// Receiver clock drift random walk, `c·δṫ` (m/s/√s).
+    pub clock_drift_rw_mps_per_sqrt_s: f64,
+    /// Receiver clock bias white frequency noise, `c·δt` (m/√s).
+    pub clock_bias_rw_m_per_sqrt_s: f64,
+    /// Initial receiver clock bias `c·δt` (m).
+    pub clock_bias0_m: f64,
+    /// Initial receiver clock drift `c·δṫ` (m/s).
+    pub clock_drift0_mps: f64,
+    /// Probability per satellite and epoch of a multipath outlier (0..1).
+    pub multipath_prob: f64,
+    /// Size of a multipath outlier (m).
+    pub multipath_m: f64,
+    /// Whether an ionospheric delay is added (Klobuchar-like, 5 m at zenith
+    /// by day).
+    pub ionosphere: bool,
+}
+
+impl Default for GnssSimConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            rate_hz: 1.0,
+            // Sydney, near the paper's authors.
+            origin_llh: [-33.8840, 151.1990, 40.0],
+            start_week: 2443,
+            start_tow_s: 345_600.0,
+            pseudorange_noise_m: 0.5,
+            pseudorange_rate_noise_mps: 0.05,
+            elevation_mask_deg: 10.0,
+            clock_drift_rw_mps_per_sqrt_s: 0.01,
+            clock_bias_rw_m_per_sqrt_s: 0.02,
+            clock_bias0_m: 12_000.0,
+            clock_drift0_mps: 15.0,
+            multipath_prob: 0.005,
+            multipath_m: 30.0,
+            ionosphere: false,
+        }
+    }
+}
+
+impl Validate for GnssSimConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let c = Check::new(prefix);
+        c.positive("rate_hz", self.rate_hz, 20.0)?;
+        c.range("origin_llh[0]", self.origin_llh[0], -90.0, 90.0)?;
+        c.range("origin_llh[1]", self.origin_llh[1], -180.0, 180.0)?;
+        c.range("origin_llh[2]", self.origin_llh[2], -500.0, 10_000.0)?;
+        if self.start_week < 1024 || self.start_week > 10_000 {
+            return Err(c.fail(
+                "start_week",
+                format!("{} is out of range", self.start_week),
+                "give the full GPS week, e.g. 2443",
+            ));
+        }
+        c.range("start_tow_s", self.start_tow_s, 0.0, 604_799.0)?;
+        c.positive("pseudorange_noise_m", self.pseudorange_noise_m, 1e3)?;
+        c.positive("pseudorange_rate_noise_mps", self.pseudorange_rate_noise_mps, 1e2)?;
+        c.range("elevation_mask_deg", self.elevation_mask_deg, 0.0, 60.0)?;
+        c.range(
+            "clock_drift_rw_mps_per_sqrt_s",
+            self.clock_drift_rw_mps_per_sqrt_s,
+            0.0,
+            100.0,
+        )?;
+        c.range(
+            "clock_bias_rw_m_per_sqrt_s",
+            self.clock_bias_rw_m_per_sqrt_s,
+            0.0,
+            100.0,
+        )?;
+        c.range("clock_bias0_m", self.clock_bias0_m, -3e5, 3e5)?;
+        c.range("clock_drift0_mps", self.clock_drift0_mps, -1e3, 1e3)?;
+        c.range("multipath_prob", self.multipath_prob, 0.0, 1.0)?;
+        c.range("multipath_m", self.multipath_m, 0.0, 1e4)
+    }
+}
+
+/// Everything the simulator needs besides the scenario, seed and duration.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    pub imu: ImuConfig,
+    /// IMU sample rate (Hz).
+    pub imu_rate_hz: f64,
+    /// One-sigma spread of the true initial accelerometer bias (m/s²).
+    pub accel_bias0_sigma: f64,
+    /// One-sigma spread of the true initial gyroscope bias (rad/s).
+    pub gyro_bias0_sigma: f64,
+    pub camera: CameraConfig,
+    pub features: FeatureSimConfig,
+    pub gnss: GnssSimConfig,
+}
+
+impl SimConfig {
+    pub fn new() -> Self {
+        Self {
+            imu_rate_hz: 100.0,
+            accel_bias0_sigma: 0.02,
+            gyro_bias0_sigma: 0.002,
+            ..Default::default()
+        }
+    }
+
+    /// Parses TOML, rejecting unknown keys, and validates every value.
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        let mut base: toml::Value = toml::Value::try_from(Self::new()).map_err(|e| e.to_string())?;
+        let over: toml::Value = toml::from_str(text).map_err(|e| e.to_string())?;
+        merge(&mut base, over);
+        let cfg: Self = base.try_into().map_err(|e: toml::de::Error| e.to_string())?;
+        cfg.validate("").map_err(|e| e.to_string())?;
+        Ok(cfg)
+    }
+}
+
+fn merge(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(bv) => merge(bv, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
+impl Validate for SimConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let p = |s: &str| {
+            if prefix.is_empty() {
+                s.to_string()
+            } else {
+                format!("{prefix}.{s}")
+            }
+        };
+        let c = Check::new(prefix);
+        self.imu.validate(&p("imu"))?;
+        c.positive("imu_rate_hz", self.imu_rate_hz, 4000.0)?;
+        c.range("accel_bias0_sigma", self.accel_bias0_sigma, 0.0, 10.0)?;
+        c.range("gyro_bias0_sigma", self.gyro_bias0_sigma, 0.0, 1.0)?;
+        self.camera.validate(&p("camera"))?;
+        self.features.validate(&p("features"))?;
+        self.gnss.validate(&p("gnss"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid() {
+        SimConfig::new().validate("").unwrap();
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let e = SimConfig::from_toml("[imu]\naccel_noise_density = nan\n").unwrap_err();
+        assert!(e.contains("imu.accel_noise_density") && e.contains("finite"), "{e}");
+        let e = SimConfig::from_toml("[camera]\npixel_noise_px = -1.0\n").unwrap_err();
+        assert!(e.contains("camera.pixel_noise_px"), "{e}");
+        let e = SimConfig::from_toml("[features]\nbogus = 1\n").unwrap_err();
+        assert!(e.contains("bogus"), "{e}");
+        let e = SimConfig::from_toml("imu_rate_hz = inf\n").unwrap_err();
+        assert!(e.contains("imu_rate_hz"), "{e}");
+    }
+}

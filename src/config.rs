@@ -1,0 +1,551 @@
+//! The daemon's configuration: serde structs matching `config/default.toml`.
+//!
+//! Every field is documented with its unit. Unknown keys are rejected
+//! (`deny_unknown_fields`), missing keys take the defaults below, and
+//! [`Config::validate`] rejects non-finite and out-of-range values with a
+//! message that names the field and says how to fix it.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+pub use cmsckf_sitl::config::{CameraConfig, CameraModelKind, Check, FieldError, ImuConfig, Validate};
+
+/// Errors from loading a config file.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config '{path}': {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("config '{path}': {message}")]
+    Parse { path: String, message: String },
+    #[error("config '{path}': {source}")]
+    Field { path: String, source: FieldError },
+}
+
+/// The whole configuration.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub mavlink: MavlinkConfig,
+    pub features: FeaturesConfig,
+    pub camera: CameraConfig,
+    pub imu: ImuConfig,
+    pub estimator: EstimatorConfig,
+    pub init: InitConfig,
+    pub keyframe: KeyframeConfig,
+    pub compressed: CompressedConfig,
+    pub gnss: GnssConfig,
+    pub output: OutputConfig,
+    pub log: LogConfig,
+}
+
+/// The MAVLink link to the autopilot.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct MavlinkConfig {
+    /// Address in the `mavlink` crate's syntax: `udpin:`, `udpout:`,
+    /// `tcpout:`, `serial:<dev>:<baud>`.
+    pub address: String,
+    /// The vehicle's MAVLink system id (1..=255).
+    pub system_id: u8,
+    /// Our component id (197 = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
+    pub component_id: u8,
+    /// The autopilot's component id (1 = MAV_COMP_ID_AUTOPILOT1).
+    pub autopilot_component_id: u8,
+    /// IMU rate requested with MAV_CMD_SET_MESSAGE_INTERVAL (Hz).
+    pub imu_rate_hz: f64,
+}
+
+impl Default for MavlinkConfig {
+    fn default() -> Self {
+        Self {
+            address: "udpin:0.0.0.0:14550".into(),
+            system_id: 1,
+            component_id: 197,
+            autopilot_component_id: 1,
+            imu_rate_hz: 100.0,
+        }
+    }
+}
+
+/// Which clock the front end stamps its frames with.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum FeatureClock {
+    /// The autopilot's boot clock (`HIGHRES_IMU.time_usec`).
+    Autopilot,
+    /// The companion computer's `CLOCK_MONOTONIC`, mapped through TIMESYNC.
+    Monotonic,
+}
+
+/// The feature socket from the camera front end.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct FeaturesConfig {
+    /// Path of the Unix-domain stream socket (created with mode 0600).
+    pub socket: String,
+    /// `autopilot` or `monotonic`.
+    pub clock: FeatureClock,
+    /// Longest accepted line (bytes).
+    pub max_line_bytes: usize,
+    /// Most features accepted in one frame (count).
+    pub max_features: usize,
+}
+
+impl Default for FeaturesConfig {
+    fn default() -> Self {
+        Self {
+            socket: "/run/cmsckf/features.sock".into(),
+            clock: FeatureClock::Autopilot,
+            max_line_bytes: 65_536,
+            max_features: 1000,
+        }
+    }
+}
+
+/// Estimator mode.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Sliding window only, no keyframes.
+    Msckf,
+    /// Every keyframe in the state and updated: the optimal reference.
+    Full,
+    /// Keyframes as Schmidt nuisance states (never corrected).
+    Schmidt,
+    /// Local/global partition with compressed global updates.
+    Compressed,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 4] = [Mode::Msckf, Mode::Full, Mode::Schmidt, Mode::Compressed];
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Msckf => "msckf",
+            Mode::Full => "full",
+            Mode::Schmidt => "schmidt",
+            Mode::Compressed => "compressed",
+        }
+    }
+}
+
+impl std::str::FromStr for Mode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Mode::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!("unknown mode '{s}': expected msckf, full, schmidt or compressed"))
+    }
+}
+
+/// The filter.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct EstimatorConfig {
+    /// `msckf`, `full`, `schmidt` or `compressed`.
+    pub mode: Mode,
+    /// Clones in the sliding window (count).
+    pub max_clones: usize,
+    /// Fewest observations for a track to be used (count).
+    pub min_track_len: usize,
+    /// Probability of the per-track χ² gate (0..1).
+    pub chi2_gate_prob: f64,
+    /// Nearest accepted triangulated depth (m).
+    pub min_depth_m: f64,
+    /// Farthest accepted triangulated depth (m).
+    pub max_depth_m: f64,
+    /// Largest accepted condition number of the triangulation's normal
+    /// matrix (unitless).
+    pub max_triangulation_cond: f64,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::Compressed,
+            max_clones: 11,
+            min_track_len: 3,
+            chi2_gate_prob: 0.95,
+            min_depth_m: 0.3,
+            max_depth_m: 300.0,
+            max_triangulation_cond: 1e6,
+        }
+    }
+}
+
+/// Initial uncertainty of the filter.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct InitConfig {
+    /// Length of the static IMU segment used for roll, pitch and gyro bias (s).
+    pub static_window_s: f64,
+    /// Initial yaw when the autopilot does not give one (deg, from north).
+    pub yaw_deg: f64,
+    /// Initial attitude sigma, roll and pitch (deg).
+    pub sigma_tilt_deg: f64,
+    /// Initial yaw sigma (deg).
+    pub sigma_yaw_deg: f64,
+    /// Initial position sigma (m).
+    pub sigma_position_m: f64,
+    /// Initial velocity sigma (m/s).
+    pub sigma_velocity_mps: f64,
+    /// Initial accelerometer bias sigma (m/s²).
+    pub sigma_accel_bias_mps2: f64,
+    /// Initial gyroscope bias sigma (rad/s).
+    pub sigma_gyro_bias_radps: f64,
+}
+
+impl Default for InitConfig {
+    fn default() -> Self {
+        Self {
+            static_window_s: 1.0,
+            yaw_deg: 0.0,
+            sigma_tilt_deg: 0.5,
+            sigma_yaw_deg: 1.0,
+            sigma_position_m: 0.05,
+            sigma_velocity_mps: 0.05,
+            sigma_accel_bias_mps2: 0.05,
+            sigma_gyro_bias_radps: 0.005,
+        }
+    }
+}
+
+/// Keyframes (the map kept for loop closure).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct KeyframeConfig {
+    /// Time between keyframes (s).
+    pub interval_s: f64,
+    /// Most keyframes kept; the oldest is marginalised (count).
+    pub max: usize,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        Self {
+            interval_s: 5.0,
+            max: 1000,
+        }
+    }
+}
+
+/// Compressed mode.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CompressedConfig {
+    /// Radius of the local region around its centre (m).
+    pub local_radius_m: f64,
+}
+
+impl Default for CompressedConfig {
+    fn default() -> Self {
+        Self { local_radius_m: 25.0 }
+    }
+}
+
+/// Where raw GNSS observations come from.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum GnssSource {
+    Mavlink,
+    Stream,
+    Off,
+}
+
+/// Ionosphere handling.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum IonoMode {
+    Off,
+    Klobuchar,
+    IonoFree,
+    Auto,
+}
+
+/// Raw GNSS.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct GnssConfig {
+    /// `mavlink` (RTCM3 in GPS_RTCM_DATA), `stream` or `off`.
+    pub source: GnssSource,
+    /// For `stream`: `serial:/dev/ttyUSB0:115200`, `tcp:host:port` or `file:path`.
+    pub stream: String,
+    /// RTCM reference-station id of the drone's own receiver; 0 = accept the
+    /// configured MAVLink source instead.
+    pub rover_station_id: u16,
+    /// Constellations to use, comma separated: G, E, R, C, J.
+    pub systems: String,
+    /// `off`, `klobuchar`, `iono-free` or `auto`.
+    pub iono: IonoMode,
+    /// Satellites below this elevation are not used (deg).
+    pub elevation_mask_deg: f64,
+    /// Full GPS week near the data, to resolve MT1019's 10-bit week; 0 =
+    /// resolve against the system clock.
+    pub week_hint: u32,
+}
+
+impl Default for GnssConfig {
+    fn default() -> Self {
+        Self {
+            source: GnssSource::Mavlink,
+            stream: String::new(),
+            rover_station_id: 0,
+            systems: "G,E".into(),
+            iono: IonoMode::Auto,
+            elevation_mask_deg: 10.0,
+            week_hint: 0,
+        }
+    }
+}
+
+/// Messages sent to the autopilot.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// VISION_POSITION_ESTIMATE rate (Hz); ArduPilot needs at least 4.
+    pub rate_hz: f64,
+    /// Also send ODOMETRY (331) with velocity.
+    pub odometry: bool,
+    /// Send SET_GPS_GLOBAL_ORIGIN once the GNSS origin is known.
+    pub set_gps_origin: bool,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 30.0,
+            odometry: false,
+            set_gps_origin: false,
+        }
+    }
+}
+
+/// The MCAP flight log.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// Output path, with strftime-style `%Y%m%d-%H%M%S`; empty = no log.
+    pub path: String,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        Self {
+            path: "cmsckf-%Y%m%d-%H%M%S.mcap".into(),
+        }
+    }
+}
+
+impl Config {
+    /// Parses TOML text (unknown keys are errors) and validates it.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let cfg: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: origin.to_string(),
+            message: e.to_string(),
+        })?;
+        cfg.validate().map_err(|source| ConfigError::Field {
+            path: origin.to_string(),
+            source,
+        })?;
+        Ok(cfg)
+    }
+
+    /// Reads and validates a config file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+
+    /// Checks every value; the error names the field and the fix.
+    pub fn validate(&self) -> Result<(), FieldError> {
+        let m = &self.mavlink;
+        let c = Check::new("mavlink");
+        let schemes = ["udpin:", "udpout:", "udpbcast:", "tcpin:", "tcpout:", "serial:"];
+        if !schemes.iter().any(|s| m.address.starts_with(s)) {
+            return Err(c.fail(
+                "address",
+                format!("'{}' has no known scheme", m.address),
+                "use udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
+            ));
+        }
+        if m.system_id == 0 {
+            return Err(c.fail(
+                "system_id",
+                "0 is the broadcast id",
+                "set the vehicle's system id, 1..255",
+            ));
+        }
+        if m.component_id == 0 {
+            return Err(c.fail(
+                "component_id",
+                "0 is the broadcast id",
+                "use 197 (visual-inertial odometry)",
+            ));
+        }
+        c.positive("imu_rate_hz", m.imu_rate_hz, 2000.0)?;
+
+        let c = Check::new("features");
+        if self.features.socket.is_empty() {
+            return Err(c.fail("socket", "is empty", "give a path such as /run/cmsckf/features.sock"));
+        }
+        if !(256..=16 << 20).contains(&self.features.max_line_bytes) {
+            return Err(c.fail(
+                "max_line_bytes",
+                format!("{} is out of range", self.features.max_line_bytes),
+                "set 256..16777216",
+            ));
+        }
+        if !(1..=100_000).contains(&self.features.max_features) {
+            return Err(c.fail(
+                "max_features",
+                format!("{} is out of range", self.features.max_features),
+                "set 1..100000",
+            ));
+        }
+
+        self.camera.validate("camera")?;
+        self.imu.validate("imu")?;
+
+        let e = &self.estimator;
+        let c = Check::new("estimator");
+        if !(2..=100).contains(&e.max_clones) {
+            return Err(c.fail(
+                "max_clones",
+                format!("{} is out of range", e.max_clones),
+                "set 2..100 (11 is typical)",
+            ));
+        }
+        if e.min_track_len < 2 || e.min_track_len > e.max_clones + 1 {
+            return Err(c.fail(
+                "min_track_len",
+                format!("{} is out of range", e.min_track_len),
+                "set 2..=max_clones+1",
+            ));
+        }
+        c.range("chi2_gate_prob", e.chi2_gate_prob, 0.5, 0.999_999)?;
+        c.positive("min_depth_m", e.min_depth_m, 1e3)?;
+        c.positive("max_depth_m", e.max_depth_m, 1e6)?;
+        if e.max_depth_m <= e.min_depth_m {
+            return Err(c.fail(
+                "max_depth_m",
+                "is not above min_depth_m",
+                "set max_depth_m > min_depth_m",
+            ));
+        }
+        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)?;
+
+        let i = &self.init;
+        let c = Check::new("init");
+        c.range("static_window_s", i.static_window_s, 0.1, 60.0)?;
+        c.range("yaw_deg", i.yaw_deg, -360.0, 360.0)?;
+        c.positive("sigma_tilt_deg", i.sigma_tilt_deg, 90.0)?;
+        c.positive("sigma_yaw_deg", i.sigma_yaw_deg, 180.0)?;
+        c.positive("sigma_position_m", i.sigma_position_m, 1e4)?;
+        c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
+        c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;
+        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)?;
+
+        let c = Check::new("keyframe");
+        c.positive("interval_s", self.keyframe.interval_s, 3600.0)?;
+        if self.keyframe.max > 100_000 {
+            return Err(c.fail("max", format!("{} is out of range", self.keyframe.max), "set 0..100000"));
+        }
+        Check::new("compressed").positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
+
+        let g = &self.gnss;
+        let c = Check::new("gnss");
+        if g.source == GnssSource::Stream && g.stream.is_empty() {
+            return Err(c.fail(
+                "stream",
+                "is empty but source = \"stream\"",
+                "give serial:DEV:BAUD, tcp:HOST:PORT or file:PATH",
+            ));
+        }
+        for s in g.systems.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            if !["G", "E", "R", "C", "J"].contains(&s) {
+                return Err(c.fail(
+                    "systems",
+                    format!("unknown system '{s}'"),
+                    "use a comma-separated list of G, E, R, C, J",
+                ));
+            }
+        }
+        c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
+        if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
+            return Err(c.fail(
+                "week_hint",
+                format!("{} is out of range", g.week_hint),
+                "give a full GPS week (e.g. 2443) or 0",
+            ));
+        }
+        Check::new("output").range("rate_hz", self.output.rate_hz, 1.0, 500.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn default_toml() -> String {
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/default.toml")).unwrap()
+    }
+
+    #[test]
+    fn default_file_equals_the_defaults_and_documents_every_field() {
+        let text = default_toml();
+        let cfg = Config::from_toml(&text, "default.toml").unwrap();
+        assert_eq!(cfg, Config::default());
+        // Every key of every section appears in the file with a comment.
+        let v = toml::Value::try_from(Config::default()).unwrap();
+        for (section, table) in v.as_table().unwrap() {
+            assert!(text.contains(&format!("[{section}]")), "section [{section}] missing");
+            for key in table.as_table().unwrap().keys() {
+                let line = text
+                    .lines()
+                    .find(|l| l.trim_start().starts_with(&format!("{key} =")))
+                    .unwrap_or_else(|| panic!("{section}.{key} missing from default.toml"));
+                assert!(line.contains('#'), "{section}.{key} has no comment: {line}");
+            }
+        }
+    }
+
+    #[test]
+    fn errors_name_the_field_and_the_fix() {
+        let e = Config::from_toml("[estimator]\nmode = \"fast\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("mode") && e.contains("fast"), "{e}");
+        let e = Config::from_toml("[keyframe]\nintervall_s = 5\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("intervall_s"), "{e}");
+        let e = Config::from_toml("[compressed]\nlocal_radius_m = nan\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("compressed.local_radius_m") && e.contains("finite"), "{e}");
+        let e = Config::from_toml("[imu]\ngyro_noise_density = -1.0\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("imu.gyro_noise_density"), "{e}");
+        let e = Config::from_toml("[mavlink]\naddress = \"http://x\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("mavlink.address") && e.contains("udpin:"), "{e}");
+        let e = Config::from_toml("[gnss]\nsystems = \"G,X\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("gnss.systems"), "{e}");
+        let e = Config::from_toml("[output]\nrate_hz = 0.5\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("output.rate_hz"), "{e}");
+        let e = Config::load(Path::new("/nonexistent/cmsckf.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/nonexistent/cmsckf.toml"), "{e}");
+    }
+}

@@ -1,0 +1,360 @@
+//! Feature tracks: triangulation, the camera measurement model and its
+//! Jacobians, and the projection onto the left null space of `H_f`
+//! (README.md §3).
+
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, Vector2, Vector3};
+
+use super::math::skew;
+
+/// Camera mounting on the body.
+#[derive(Clone, Copy, Debug)]
+pub struct Extrinsic {
+    pub R_B_C: Matrix3<f64>,
+    pub p_C_in_B: Vector3<f64>,
+}
+
+/// A pose that observed a feature: a clone or a keyframe.
+#[derive(Clone, Copy, Debug)]
+pub struct View {
+    pub R_W_B: Matrix3<f64>,
+    pub p_B_in_W: Vector3<f64>,
+    /// Maps the state's rotation error to the world-frame perturbation:
+    /// identity for clones, `J_l(δ̂)` for keyframes (README §4).
+    pub chart: Matrix3<f64>,
+}
+
+/// One observation: undistorted normalised coordinates and the whitening
+/// matrix `W` (noise of `W z` is unit).
+#[derive(Clone, Copy, Debug)]
+pub struct Obs {
+    pub view: usize,
+    pub xn: Vector2<f64>,
+    pub W: Matrix2<f64>,
+}
+
+/// Why a track was not used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Reject {
+    TooFewObservations,
+    NonFinite,
+    PoorParallax,
+    BadDepth,
+    NotConverged,
+    Chi2,
+}
+
+impl Reject {
+    pub fn name(self) -> &'static str {
+        match self {
+            Reject::TooFewObservations => "too_few_observations",
+            Reject::NonFinite => "non_finite",
+            Reject::PoorParallax => "poor_parallax",
+            Reject::BadDepth => "bad_depth",
+            Reject::NotConverged => "not_converged",
+            Reject::Chi2 => "chi2",
+        }
+    }
+}
+
+/// Landmark in the camera frame of a view (README §3, eq. C1):
+/// `p_C = R_B_Cᵀ (R_W_Bᵀ (p_f − p_B) − p_C_in_B)`.
+pub fn point_in_camera(v: &View, e: &Extrinsic, p_f: &Vector3<f64>) -> Vector3<f64> {
+    e.R_B_C.transpose() * (v.R_W_B.transpose() * (p_f - v.p_B_in_W) - e.p_C_in_B)
+}
+
+/// `∂(x/z, y/z)/∂p_C`.
+fn proj_jacobian(p_c: &Vector3<f64>) -> Matrix2x3<f64> {
+    let iz = 1.0 / p_c.z;
+    Matrix2x3::new(iz, 0.0, -p_c.x * iz * iz, 0.0, iz, -p_c.y * iz * iz)
+}
+
+/// Predicted normalised coordinates and the Jacobians with respect to the
+/// view's pose error `[δθ, δp]` (2×6) and the landmark (2×3) (README §3,
+/// eqs. C2–C4): `∂p_C/∂δθ = R_B_Cᵀ R_W_Bᵀ [p_f − p_B]× · chart`,
+/// `∂p_C/∂δp = −R_B_Cᵀ R_W_Bᵀ`, `∂p_C/∂p_f = R_B_Cᵀ R_W_Bᵀ`.
+pub fn measure(
+    v: &View,
+    e: &Extrinsic,
+    p_f: &Vector3<f64>,
+) -> (Vector2<f64>, nalgebra::Matrix2x6<f64>, Matrix2x3<f64>) {
+    let p_c = point_in_camera(v, e, p_f);
+    let jp = proj_jacobian(&p_c);
+    let r_cw = e.R_B_C.transpose() * v.R_W_B.transpose();
+    let d_th = r_cw * skew(&(p_f - v.p_B_in_W)) * v.chart;
+    let mut h_pose = nalgebra::Matrix2x6::zeros();
+    h_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jp * d_th));
+    h_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-jp * r_cw));
+    (Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), h_pose, jp * r_cw)
+}
+
+/// Triangulation limits.
+#[derive(Clone, Copy, Debug)]
+pub struct TriangulationLimits {
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    pub max_cond: f64,
+}
+
+/// Triangulates a landmark from its observations (README §3, eq. T1–T2):
+/// a linear initial guess from the bearing rays,
+/// `Σ (I − bbᵀ) p = Σ (I − bbᵀ) c`, whose conditioning measures the
+/// parallax, then Gauss–Newton on the whitened reprojection error.
+pub fn triangulate(
+    views: &[View],
+    e: &Extrinsic,
+    obs: &[Obs],
+    lim: &TriangulationLimits,
+) -> Result<Vector3<f64>, Reject> {
+    if obs.len() < 2 {
+        return Err(Reject::TooFewObservations);
+    }
+    let mut a = Matrix3::zeros();
+    let mut b = Vector3::zeros();
+    for o in obs {
+        let v = &views[o.view];
+        let r_wc = v.R_W_B * e.R_B_C;
+        let c = v.p_B_in_W + v.R_W_B * e.p_C_in_B;
+        let dir = (r_wc * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize();
+        let m = Matrix3::identity() - dir * dir.transpose();
+        a += m;
+        b += m * c;
+    }
+    if !a.iter().all(|x| x.is_finite()) || !b.iter().all(|x| x.is_finite()) {
+        return Err(Reject::NonFinite);
+    }
+    let eig = a.symmetric_eigenvalues();
+    let (lo, hi) = (eig.min(), eig.max());
+    if lo <= 0.0 || hi / lo > lim.max_cond {
+        return Err(Reject::PoorParallax);
+    }
+    let mut p = a.cholesky().ok_or(Reject::PoorParallax)?.solve(&b);
+    // Gauss–Newton on Σ |W (z − h(p))|².
+    let mut cost_prev = f64::INFINITY;
+    for _ in 0..10 {
+        let mut jtj = Matrix3::zeros();
+        let mut jtr = Vector3::zeros();
+        let mut cost = 0.0;
+        for o in obs {
+            let v = &views[o.view];
+            let p_c = point_in_camera(v, e, &p);
+            if p_c.z < lim.min_depth_m {
+                return Err(Reject::BadDepth);
+            }
+            let (z, _, hf) = measure(v, e, &p);
+            let r = o.W * (o.xn - z);
+            let j = o.W * hf;
+            jtj += j.transpose() * j;
+            jtr += j.transpose() * r;
+            cost += r.norm_squared();
+        }
+        let Some(ch) = jtj.cholesky() else {
+            return Err(Reject::PoorParallax);
+        };
+        let dp = ch.solve(&jtr);
+        p += dp;
+        if !p.iter().all(|x| x.is_finite()) {
+            return Err(Reject::NonFinite);
+        }
+        if dp.norm() < 1e-8 * (1.0 + p.norm()) || (cost_prev - cost).abs() < 1e-12 {
+            break;
+        }
+        cost_prev = cost;
+    }
+    for o in obs {
+        let d = point_in_camera(&views[o.view], e, &p).z;
+        if !(lim.min_depth_m..=lim.max_depth_m).contains(&d) {
+            return Err(Reject::BadDepth);
+        }
+    }
+    Ok(p)
+}
+
+/// The stacked, whitened residual of a track and its Jacobians with respect
+/// to the views' poses (`2m × 6·n_views`) and the landmark (`2m × 3`).
+pub fn track_system(
+    views: &[View],
+    e: &Extrinsic,
+    obs: &[Obs],
+    p_f: &Vector3<f64>,
+) -> (DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
+    let m = obs.len();
+    let mut hx = DMatrix::zeros(2 * m, 6 * views.len());
+    let mut hf = DMatrix::zeros(2 * m, 3);
+    let mut r = DVector::zeros(2 * m);
+    for (i, o) in obs.iter().enumerate() {
+        let (z, hp, hfi) = measure(&views[o.view], e, p_f);
+        hx.view_mut((2 * i, 6 * o.view), (2, 6)).copy_from(&(o.W * hp));
+        hf.view_mut((2 * i, 0), (2, 3)).copy_from(&(o.W * hfi));
+        r.rows_mut(2 * i, 2).copy_from(&(o.W * (o.xn - z)));
+    }
+    (hx, hf, r)
+}
+
+/// Projects `r = H_x δx + H_f δp_f + n` onto the left null space of `H_f`
+/// (README §3, eq. N1) with Householder reflections: `Qᵀ H_f = [R; 0]`, so
+/// the last `2m − 3` rows of `Qᵀ H_x` and `Qᵀ r` are free of `δp_f`. With
+/// whitened (unit) noise the projected noise stays unit.
+pub fn nullspace_project(hx: DMatrix<f64>, hf: DMatrix<f64>, r: DVector<f64>) -> (DMatrix<f64>, DVector<f64>) {
+    let rows = hf.nrows();
+    let qr = hf.qr();
+    let mut hx = hx;
+    let mut r = DMatrix::from_column_slice(rows, 1, r.as_slice());
+    qr.q_tr_mul(&mut hx);
+    qr.q_tr_mul(&mut r);
+    let keep = rows - 3;
+    (
+        hx.rows(3, keep).into_owned(),
+        DVector::from_column_slice(&r.as_slice()[3..]),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::math::exp_so3;
+
+    fn ext() -> Extrinsic {
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(0.5, 0.5, 0.5, 0.5));
+        Extrinsic {
+            R_B_C: q.to_rotation_matrix().into_inner(),
+            p_C_in_B: Vector3::new(0.1, 0.0, 0.02),
+        }
+    }
+
+    fn view(yaw: f64, p: Vector3<f64>, chart: Matrix3<f64>) -> View {
+        View {
+            R_W_B: exp_so3(&Vector3::new(0.05, -0.02, yaw))
+                .to_rotation_matrix()
+                .into_inner(),
+            p_B_in_W: p,
+            chart,
+        }
+    }
+
+    /// Projection Jacobians (clone and keyframe chart) against central
+    /// differences.
+    #[test]
+    fn measurement_jacobians_match_finite_differences() {
+        let e = ext();
+        let p_f = Vector3::new(12.0, 3.0, -2.0);
+        let delta = Vector3::new(0.01, -0.02, 0.015);
+        let jl = crate::estimator::math::left_jacobian(&delta);
+        for chart in [Matrix3::identity(), jl] {
+            let v0 = view(0.1, Vector3::new(1.0, 0.5, -3.0), chart);
+            let (_, hp, hf) = measure(&v0, &e, &p_f);
+            let h = 1e-6;
+            for k in 0..6 {
+                let perturb = |s: f64| {
+                    let mut v = v0;
+                    if k < 3 {
+                        // Rotation error in the chart: R = Exp(δ + ε) R0 with
+                        // R0 = Exp(−δ) R̂ when chart = J_l(δ); Exp(ε) R̂ otherwise.
+                        let mut eps = Vector3::zeros();
+                        eps[k] = s;
+                        let r = if chart == Matrix3::identity() {
+                            exp_so3(&eps).to_rotation_matrix().into_inner() * v0.R_W_B
+                        } else {
+                            let r0 = exp_so3(&(-delta)).to_rotation_matrix().into_inner() * v0.R_W_B;
+                            exp_so3(&(delta + eps)).to_rotation_matrix().into_inner() * r0
+                        };
+                        v.R_W_B = r;
+                    } else {
+                        v.p_B_in_W[k - 3] += s;
+                    }
+                    measure(&v, &e, &p_f).0
+                };
+                let col = (perturb(h) - perturb(-h)) / (2.0 * h);
+                assert!(
+                    (col - hp.column(k)).norm() < 1e-7,
+                    "pose col {k}: {col} vs {}",
+                    hp.column(k)
+                );
+            }
+            for k in 0..3 {
+                let mut d = Vector3::zeros();
+                d[k] = h;
+                let col = (measure(&v0, &e, &(p_f + d)).0 - measure(&v0, &e, &(p_f - d)).0) / (2.0 * h);
+                assert!((col - hf.column(k)).norm() < 1e-8);
+            }
+        }
+    }
+
+    fn synthetic(p_f: &Vector3<f64>) -> (Vec<View>, Vec<Obs>) {
+        let e = ext();
+        let views: Vec<_> = (0..5)
+            .map(|i| {
+                view(
+                    0.02 * i as f64,
+                    Vector3::new(0.0, 0.6 * i as f64, -3.0),
+                    Matrix3::identity(),
+                )
+            })
+            .collect();
+        let obs = (0..5)
+            .map(|i| Obs {
+                view: i,
+                xn: measure(&views[i], &e, p_f).0,
+                W: Matrix2::identity() * 400.0,
+            })
+            .collect();
+        (views, obs)
+    }
+
+    #[test]
+    fn triangulation_recovers_the_point_and_its_jacobian() {
+        let e = ext();
+        let lim = TriangulationLimits {
+            min_depth_m: 0.2,
+            max_depth_m: 100.0,
+            max_cond: 1e6,
+        };
+        let p_f = Vector3::new(15.0, 2.0, -1.0);
+        let (views, obs) = synthetic(&p_f);
+        let p = triangulate(&views, &e, &obs, &lim).unwrap();
+        assert!((p - p_f).norm() < 1e-8, "{p}");
+        // The Gauss–Newton Jacobian (W·H_f) against finite differences of
+        // the whitened residual.
+        let (_, hf, r0) = track_system(&views, &e, &obs, &p);
+        let h = 1e-6;
+        for k in 0..3 {
+            let mut d = Vector3::zeros();
+            d[k] = h;
+            let (_, _, rp) = track_system(&views, &e, &obs, &(p + d));
+            let (_, _, rm) = track_system(&views, &e, &obs, &(p - d));
+            // r = W (z − h), so ∂r/∂p = −W H_f.
+            let col = (rp - rm) / (2.0 * h);
+            assert!((col + hf.column(k)).norm() < 1e-5, "{k}");
+        }
+        assert!(r0.norm() < 1e-6);
+        // Degenerate inputs are rejected, never a panic.
+        assert_eq!(
+            triangulate(&views, &e, &obs[..1], &lim),
+            Err(Reject::TooFewObservations)
+        );
+        let behind = Vector3::new(-15.0, 2.0, -1.0);
+        let (v2, o2) = synthetic(&behind);
+        assert!(triangulate(&v2, &e, &o2, &lim).is_err());
+        let mut nan = obs.clone();
+        nan[2].xn.x = f64::NAN;
+        assert_eq!(triangulate(&views, &e, &nan, &lim), Err(Reject::NonFinite));
+        // Parallel rays: every view at the same place.
+        let same: Vec<_> = views.iter().map(|_| views[0]).collect();
+        let o3: Vec<_> = obs.iter().map(|o| Obs { xn: obs[0].xn, ..*o }).collect();
+        assert_eq!(triangulate(&same, &e, &o3, &lim), Err(Reject::PoorParallax));
+    }
+
+    #[test]
+    fn nullspace_projection_removes_the_landmark() {
+        let e = ext();
+        let p_f = Vector3::new(15.0, 2.0, -1.0);
+        let (views, obs) = synthetic(&p_f);
+        let (hx, hf, r) = track_system(&views, &e, &obs, &p_f);
+        let (hx2, r2) = nullspace_project(hx.clone(), hf.clone(), r);
+        assert_eq!(hx2.nrows(), 2 * obs.len() - 3);
+        assert_eq!(r2.len(), 2 * obs.len() - 3);
+        // Applying the same transform to H_f leaves zeros in the kept rows.
+        let (hf2, _) = nullspace_project(hf.clone(), hf, DVector::zeros(2 * obs.len()));
+        assert!(hf2.amax() < 1e-9, "{}", hf2.amax());
+        assert!(hx2.amax() > 1.0);
+    }
+}

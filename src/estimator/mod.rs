@@ -1,0 +1,1147 @@
+//! The estimator: an MSCKF with keyframes, in four modes (`msckf`, `full`,
+//! `schmidt`, `compressed`).
+//!
+//! It is pure: no I/O, no tokio, no wall clock. Every timestamp is passed in,
+//! and every equation is derived in `src/estimator/README.md` (cited as §n).
+//!
+//! Error-state layout of the covariance `P` (the *local* part in compressed
+//! mode): `[IMU (15) | local keyframes (6 each) | clones (6 each)]`. Each
+//! pose block is `[δθ, δp]`. In `compressed` mode the global keyframes live in
+//! [`Global`]: `P_LG(0)`, `P_GG(0)` frozen at the last global update plus the
+//! accumulated `Φ`, `Ψ` and `q` (§5).
+
+pub mod feature;
+pub mod frontend;
+pub mod math;
+pub mod propagate;
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, UnitQuaternion, Vector3};
+
+use crate::config::{Config, ImuConfig, Mode};
+use feature::{Extrinsic, Obs, Reject, TriangulationLimits, View};
+pub use frontend::NormObs;
+use math::{exp_so3, left_jacobian};
+pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
+use propagate::{P as P_OFF, TH};
+
+/// Bound on buffered, not yet integrated IMU samples.
+const IMU_BUFFER_CAP: usize = 4096;
+
+/// Estimator settings taken from the config.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub mode: Mode,
+    pub max_clones: usize,
+    pub min_track_len: usize,
+    pub chi2_gate_prob: f64,
+    pub tri: TriangulationLimits,
+    pub keyframe_interval_s: f64,
+    pub keyframe_max: usize,
+    pub local_radius_m: f64,
+    pub imu: ImuConfig,
+    pub ext: Extrinsic,
+}
+
+impl Settings {
+    pub fn from_config(c: &Config) -> Self {
+        let cam = cmsckf_sitl::camera::Camera::from_config(&c.camera);
+        Self {
+            mode: c.estimator.mode,
+            max_clones: c.estimator.max_clones,
+            min_track_len: c.estimator.min_track_len,
+            chi2_gate_prob: c.estimator.chi2_gate_prob,
+            tri: TriangulationLimits {
+                min_depth_m: c.estimator.min_depth_m,
+                max_depth_m: c.estimator.max_depth_m,
+                max_cond: c.estimator.max_triangulation_cond,
+            },
+            keyframe_interval_s: c.keyframe.interval_s,
+            keyframe_max: c.keyframe.max,
+            local_radius_m: c.compressed.local_radius_m,
+            imu: c.imu.clone(),
+            ext: Extrinsic {
+                R_B_C: cam.T_B_C.rotation.to_rotation_matrix().into_inner(),
+                p_C_in_B: cam.T_B_C.translation.vector,
+            },
+        }
+    }
+}
+
+/// Rejected inputs.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum InputError {
+    #[error("non-finite IMU sample at t = {0} s")]
+    NonFiniteImu(f64),
+    #[error("IMU time {t_s} s is not after the previous {prev_s} s")]
+    ImuTimeBackwards { t_s: f64, prev_s: f64 },
+    #[error("frame time {t_s} s is before the filter time {filter_s} s")]
+    FrameTimeBackwards { t_s: f64, filter_s: f64 },
+    #[error("IMU buffer full ({0} samples); oldest dropped")]
+    ImuOverflow(usize),
+}
+
+/// A sliding-window clone of the body pose.
+#[derive(Clone, Copy, Debug)]
+struct CloneState {
+    seq: u64,
+    q_W_B: UnitQuaternion<f64>,
+    p_B_in_W: Vector3<f64>,
+}
+
+/// A keyframe observation of a landmark.
+#[derive(Clone, Copy, Debug)]
+struct KfObs {
+    obs: NormObs,
+    /// Set once the landmark has left view after the keyframe: only then can
+    /// a later track use it (a revisit), and it is used at most once (§4).
+    eligible: bool,
+}
+
+/// A keyframe: the body pose at its creation, held in a chart
+/// `R = Exp(δ) R₀` so that its corrections add (§4).
+#[derive(Clone, Debug)]
+pub struct Keyframe {
+    pub id: u64,
+    pub t_s: f64,
+    q0_W_B: UnitQuaternion<f64>,
+    delta: Vector3<f64>,
+    pub p_B_in_W: Vector3<f64>,
+    obs: BTreeMap<u64, KfObs>,
+}
+
+impl Keyframe {
+    pub fn q_W_B(&self) -> UnitQuaternion<f64> {
+        exp_so3(&self.delta) * self.q0_W_B
+    }
+}
+
+/// The compressed-mode global part (§5), held in the coordinates whitened
+/// by `P_LL(0) = L Lᵀ` (§5, eq. W1): the products then stay well scaled.
+#[derive(Clone, Debug)]
+struct Global {
+    /// Global keyframe ids, in the order of `P_GG0`.
+    ids: Vec<u64>,
+    /// `C = L⁻¹ P_LG(0)`.
+    C: DMatrix<f64>,
+    P_GG0: DMatrix<f64>,
+    /// `Φ(k,0) L`: maps whitened local errors at the last global update to
+    /// the current local errors; it starts at `L`.
+    Phi: DMatrix<f64>,
+    /// `Lᵀ Ψ L = Σ (HΦL)ᵀ S⁻¹ (HΦL)`.
+    Psi: DMatrix<f64>,
+    /// `Lᵀ q = Σ (HΦL)ᵀ S⁻¹ r`.
+    q: DVector<f64>,
+}
+
+/// Counters since start.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Stats {
+    pub imu_samples: u64,
+    pub frames: u64,
+    pub tracks_used: u64,
+    pub rejected: BTreeMap<&'static str, u64>,
+    pub updates: u64,
+    pub loop_closure_updates: u64,
+    pub global_updates: u64,
+    pub keyframes_created: u64,
+    pub keyframes_marginalised: u64,
+}
+
+/// What one camera frame did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameReport {
+    pub tracks_used: usize,
+    pub rejected: BTreeMap<&'static str, u64>,
+    /// NIS of each accepted track with its degrees of freedom.
+    pub nis: Vec<(f64, usize)>,
+    pub residual_rms: f64,
+    pub keyframe_created: bool,
+    pub global_updates: usize,
+    pub loop_closure_tracks: usize,
+}
+
+/// A landmark's observations in the window.
+#[derive(Clone, Debug, Default)]
+struct Track {
+    obs: Vec<(u64, NormObs)>,
+}
+
+/// The filter.
+#[derive(Clone, Debug)]
+pub struct Estimator {
+    s: Settings,
+    g_W: Vector3<f64>,
+    t_s: f64,
+    imu: ImuState,
+    last_meas: Option<ImuMeas>,
+    imu_buf: VecDeque<ImuMeas>,
+    /// Transition accumulated since the cross-covariances were last synced.
+    f_acc: Mat15,
+    P: DMatrix<f64>,
+    clones: VecDeque<CloneState>,
+    next_seq: u64,
+    keyframes: BTreeMap<u64, Keyframe>,
+    /// Keyframes in `P`, in order.
+    local_kfs: Vec<u64>,
+    global: Option<Global>,
+    centre_W: Vector3<f64>,
+    tracks: BTreeMap<u64, Track>,
+    /// Landmark → keyframes holding an observation of it.
+    kf_by_landmark: BTreeMap<u64, BTreeSet<u64>>,
+    /// Landmarks seen at a recent keyframe that have not yet left view.
+    pending_eligible: BTreeSet<u64>,
+    next_kf_id: u64,
+    last_kf_t_s: f64,
+    pub stats: Stats,
+}
+
+/// The full state in a fixed order (IMU, clones, keyframes by id), for
+/// comparing modes: the nominal values and the covariance.
+#[derive(Clone, Debug)]
+pub struct Snapshot {
+    pub x: DVector<f64>,
+    pub P: DMatrix<f64>,
+}
+
+impl Snapshot {
+    /// Largest element-wise difference relative to the largest magnitude,
+    /// over state and covariance separately; returns the worse.
+    pub fn max_rel_diff(&self, other: &Snapshot) -> f64 {
+        if self.x.len() != other.x.len() || self.P.shape() != other.P.shape() {
+            return f64::INFINITY;
+        }
+        let rel = |a: &[f64], b: &[f64]| {
+            let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+            a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs())) / scale
+        };
+        // Covariance relative to its largest entry; state per element,
+        // relative to max(|x|, 1).
+        let xs = self
+            .x
+            .iter()
+            .zip(other.x.iter())
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs() / b.abs().max(1.0)));
+        xs.max(rel(self.P.as_slice(), other.P.as_slice()))
+    }
+}
+
+impl Estimator {
+    /// Starts the filter at `t_s` from a state and its 15×15 covariance.
+    pub fn new(s: Settings, t_s: f64, imu: ImuState, P_imu: &Mat15) -> Self {
+        let mut P = DMatrix::zeros(IMU_DIM, IMU_DIM);
+        P.copy_from(P_imu);
+        Self {
+            g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
+            t_s,
+            centre_W: imu.p_B_in_W,
+            imu,
+            last_meas: None,
+            imu_buf: VecDeque::with_capacity(IMU_BUFFER_CAP),
+            f_acc: Mat15::identity(),
+            P,
+            clones: VecDeque::with_capacity(s.max_clones + 2),
+            next_seq: 0,
+            keyframes: BTreeMap::new(),
+            local_kfs: Vec::new(),
+            global: None,
+            tracks: BTreeMap::new(),
+            kf_by_landmark: BTreeMap::new(),
+            pending_eligible: BTreeSet::new(),
+            next_kf_id: 0,
+            last_kf_t_s: f64::NEG_INFINITY,
+            stats: Stats::default(),
+            s,
+        }
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.s.mode
+    }
+    pub fn time_s(&self) -> f64 {
+        self.t_s
+    }
+    pub fn imu_state(&self) -> &ImuState {
+        &self.imu
+    }
+    pub fn keyframes(&self) -> impl Iterator<Item = &Keyframe> {
+        self.keyframes.values()
+    }
+    pub fn n_clones(&self) -> usize {
+        self.clones.len()
+    }
+    pub fn n_global_keyframes(&self) -> usize {
+        self.global.as_ref().map_or(0, |g| g.ids.len())
+    }
+    #[doc(hidden)]
+    pub fn debug_psi_max(&self) -> f64 {
+        self.global.as_ref().map_or(0.0, |g| g.Psi.amax())
+    }
+    pub fn local_dim(&self) -> usize {
+        self.P.nrows()
+    }
+
+    /// Covariance of the body pose `[δθ, δp]` (6×6).
+    pub fn pose_covariance(&self) -> Matrix6<f64> {
+        let idx = [0, 1, 2, 6, 7, 8];
+        Matrix6::from_fn(|i, j| self.P[(idx[i], idx[j])])
+    }
+
+    /// The IMU block of the covariance (15×15).
+    pub fn imu_covariance(&self) -> Mat15 {
+        self.P.fixed_view::<15, 15>(0, 0).into_owned()
+    }
+
+    /// Covariance of a keyframe's pose `[δθ, δp]` (in its chart), if known
+    /// without a global update (local keyframes; global ones at the last
+    /// global update minus what is accumulated since).
+    pub fn keyframe_covariance(&self, id: u64) -> Option<Matrix6<f64>> {
+        if let Some(j) = self.local_kfs.iter().position(|&k| k == id) {
+            let o = IMU_DIM + 6 * j;
+            return Some(self.P.fixed_view::<6, 6>(o, o).into_owned());
+        }
+        let g = self.global.as_ref()?;
+        let j = g.ids.iter().position(|&k| k == id)?;
+        let c = g.C.columns(6 * j, 6);
+        let pgg = g.P_GG0.fixed_view::<6, 6>(6 * j, 6 * j).into_owned() - c.transpose() * &g.Psi * c;
+        Some(Matrix6::from_fn(|r, c| pgg[(r, c)]))
+    }
+
+    // ----------------------------------------------------------------- IMU
+
+    /// Queues an IMU sample; it is integrated when a frame or a query needs
+    /// it. Non-finite or non-increasing samples are rejected.
+    pub fn add_imu(&mut self, m: ImuMeas) -> Result<(), InputError> {
+        if !(m.t_s.is_finite()
+            && m.accel_mps2.iter().all(|v| v.is_finite())
+            && m.gyro_radps.iter().all(|v| v.is_finite()))
+        {
+            *self.stats.rejected.entry("imu_non_finite").or_default() += 1;
+            return Err(InputError::NonFiniteImu(m.t_s));
+        }
+        let prev = self
+            .imu_buf
+            .back()
+            .map(|b| b.t_s)
+            .or(self.last_meas.map(|l| l.t_s))
+            .unwrap_or(f64::NEG_INFINITY);
+        if m.t_s <= prev {
+            *self.stats.rejected.entry("imu_time_backwards").or_default() += 1;
+            return Err(InputError::ImuTimeBackwards {
+                t_s: m.t_s,
+                prev_s: prev,
+            });
+        }
+        self.stats.imu_samples += 1;
+        if self.last_meas.is_none() {
+            // The first sample defines the measurement at the filter time.
+            self.last_meas = Some(ImuMeas {
+                t_s: self.t_s.min(m.t_s),
+                ..m
+            });
+            if m.t_s <= self.t_s {
+                return Ok(());
+            }
+        }
+        let mut res = Ok(());
+        if self.imu_buf.len() == IMU_BUFFER_CAP {
+            self.imu_buf.pop_front();
+            *self.stats.rejected.entry("imu_overflow").or_default() += 1;
+            res = Err(InputError::ImuOverflow(IMU_BUFFER_CAP));
+        }
+        self.imu_buf.push_back(m);
+        res
+    }
+
+    /// Integrates one step from the last measurement to `m` (§2): the
+    /// nominal state, the IMU covariance block and the accumulated
+    /// transition. No allocation.
+    fn step(&mut self, m: ImuMeas) {
+        let Some(m0) = self.last_meas else {
+            self.last_meas = Some(m);
+            return;
+        };
+        if m.t_s <= m0.t_s {
+            return;
+        }
+        let (f, q) = propagate::transition(&self.imu, &m0, &m, &self.s.imu);
+        self.imu = propagate::integrate(&self.imu, &m0, &m, &self.g_W);
+        let pii = self.P.fixed_view::<15, 15>(0, 0).into_owned();
+        let mut new = f * pii * f.transpose() + q;
+        new = (new + new.transpose()) * 0.5;
+        self.P.fixed_view_mut::<15, 15>(0, 0).copy_from(&new);
+        self.f_acc = f * self.f_acc;
+        self.t_s = m.t_s;
+        self.last_meas = Some(m);
+    }
+
+    /// Propagates the filter to `t_s` through the buffered samples,
+    /// interpolating the last one (or holding it if none is later).
+    pub fn propagate_to(&mut self, t_s: f64) {
+        while let Some(&m) = self.imu_buf.front() {
+            if m.t_s > t_s {
+                break;
+            }
+            self.imu_buf.pop_front();
+            self.step(m);
+        }
+        if t_s > self.t_s {
+            if let Some(last) = self.last_meas {
+                let m = match self.imu_buf.front() {
+                    Some(next) => ImuMeas::lerp(&last, next, t_s),
+                    None => ImuMeas { t_s, ..last },
+                };
+                self.step(m);
+            } else {
+                self.t_s = t_s;
+            }
+        }
+    }
+
+    /// The body state predicted to `t_s` through the buffered IMU samples,
+    /// without changing the filter (for low-latency output).
+    pub fn predict(&self, t_s: f64) -> ImuState {
+        let mut x = self.imu;
+        let Some(mut last) = self.last_meas else {
+            return x;
+        };
+        for m in self.imu_buf.iter() {
+            let target = if m.t_s > t_s { ImuMeas::lerp(&last, m, t_s) } else { *m };
+            if target.t_s > last.t_s {
+                x = propagate::integrate(&x, &last, &target, &self.g_W);
+            }
+            last = target;
+            if m.t_s >= t_s {
+                return x;
+            }
+        }
+        if t_s > last.t_s {
+            x = propagate::integrate(&x, &last, &ImuMeas { t_s, ..last }, &self.g_W);
+        }
+        x
+    }
+
+    /// Applies the accumulated IMU transition to the cross-covariances and
+    /// to `Φ` (§2, eq. F4): `P_IX ← F P_IX`, `Φ_I ← F Φ_I`.
+    fn sync(&mut self) {
+        if self.f_acc == Mat15::identity() {
+            return;
+        }
+        let n = self.P.nrows();
+        if n > IMU_DIM {
+            let cross = self.f_acc * self.P.view((0, IMU_DIM), (IMU_DIM, n - IMU_DIM));
+            self.P.view_mut((0, IMU_DIM), (IMU_DIM, n - IMU_DIM)).copy_from(&cross);
+            self.P
+                .view_mut((IMU_DIM, 0), (n - IMU_DIM, IMU_DIM))
+                .copy_from(&cross.transpose());
+        }
+        if let Some(g) = self.global.as_mut() {
+            let c = g.Phi.ncols();
+            let top = self.f_acc * g.Phi.view((0, 0), (IMU_DIM, c));
+            g.Phi.view_mut((0, 0), (IMU_DIM, c)).copy_from(&top);
+        }
+        self.f_acc = Mat15::identity();
+    }
+
+    // ------------------------------------------------------- state layout
+
+    fn kf_offset(&self, local_index: usize) -> usize {
+        IMU_DIM + 6 * local_index
+    }
+    fn clones_offset(&self) -> usize {
+        IMU_DIM + 6 * self.local_kfs.len()
+    }
+    fn clone_offset_by_seq(&self, seq: u64) -> Option<usize> {
+        let first = self.clones.front()?.seq;
+        let i = seq.checked_sub(first)? as usize;
+        (i < self.clones.len()).then(|| self.clones_offset() + 6 * i)
+    }
+
+    /// Inserts 6 new error states `J δx` at `at` (§2, eq. A1):
+    /// `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at `at`), and
+    /// `Φ' = [Φ; JΦ]` in compressed mode.
+    fn augment(&mut self, at: usize, j: &DMatrix<f64>) {
+        let jp = j * &self.P;
+        let jpj = &jp * j.transpose();
+        let n = self.P.nrows();
+        let mut p = DMatrix::zeros(n + 6, n + 6);
+        let map = |i: usize| if i < at { i } else { i + 6 };
+        for c in 0..n {
+            for r in 0..n {
+                p[(map(r), map(c))] = self.P[(r, c)];
+            }
+            for k in 0..6 {
+                p[(at + k, map(c))] = jp[(k, c)];
+                p[(map(c), at + k)] = jp[(k, c)];
+            }
+        }
+        p.view_mut((at, at), (6, 6)).copy_from(&jpj);
+        self.P = p;
+        if let Some(g) = self.global.as_mut() {
+            let jphi = j * &g.Phi;
+            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, 6, 0.0);
+            g.Phi = phi;
+            g.Phi.view_mut((at, 0), (6, jphi.ncols())).copy_from(&jphi);
+        }
+    }
+
+    /// Marginalises 6 error states at `at` (§2, eq. A2).
+    fn remove_block(&mut self, at: usize) {
+        let p = std::mem::replace(&mut self.P, DMatrix::zeros(0, 0));
+        self.P = p.remove_rows(at, 6).remove_columns(at, 6);
+        if let Some(g) = self.global.as_mut() {
+            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0));
+            g.Phi = phi.remove_rows(at, 6);
+        }
+    }
+
+    /// `J` that copies the body pose `[δθ, δp]` out of the IMU block.
+    fn pose_copy_jacobian(&self) -> DMatrix<f64> {
+        let mut j = DMatrix::zeros(6, self.P.nrows());
+        for k in 0..3 {
+            j[(k, TH + k)] = 1.0;
+            j[(3 + k, P_OFF + k)] = 1.0;
+        }
+        j
+    }
+
+    // ------------------------------------------------------------ frames
+
+    /// Processes one camera frame at `t_s` (§3–§5). The IMU samples up to
+    /// (and preferably just past) `t_s` must have been added.
+    pub fn process_frame(&mut self, t_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+        if !t_s.is_finite() || t_s < self.t_s {
+            *self.stats.rejected.entry("frame_time_backwards").or_default() += 1;
+            return Err(InputError::FrameTimeBackwards {
+                t_s,
+                filter_s: self.t_s,
+            });
+        }
+        self.propagate_to(t_s);
+        self.sync();
+        self.stats.frames += 1;
+        let mut report = FrameReport::default();
+
+        // Compressed: leaving the local region triggers a global update and
+        // moves the centre to the vehicle (§5).
+        if self.s.mode == Mode::Compressed && (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m {
+            self.centre_W = self.imu.p_B_in_W;
+            self.global_update(&BTreeSet::new());
+            report.global_updates += 1;
+        }
+
+        let present: BTreeSet<u64> = obs.iter().map(|o| o.landmark_id).collect();
+
+        let make_kf = self.s.mode != Mode::Msckf
+            && self.s.keyframe_max > 0
+            && t_s - self.last_kf_t_s >= self.s.keyframe_interval_s - 1e-9;
+        if make_kf {
+            self.create_keyframe(t_s, obs);
+            report.keyframe_created = true;
+        } else {
+            // New clone of the current pose, appended after the last clone.
+            let j = self.pose_copy_jacobian();
+            let at = self.P.nrows();
+            self.augment(at, &j);
+            let seq = self.next_seq;
+            self.next_seq += 1;
+            self.clones.push_back(CloneState {
+                seq,
+                q_W_B: self.imu.q_W_B,
+                p_B_in_W: self.imu.p_B_in_W,
+            });
+            for o in obs {
+                self.tracks.entry(o.landmark_id).or_default().obs.push((seq, *o));
+            }
+        }
+
+        // Tracks to use now: lost ones, and those that would lose their
+        // oldest observation when the window slides.
+        let oldest = if self.clones.len() > self.s.max_clones {
+            self.clones.front().map(|c| c.seq)
+        } else {
+            None
+        };
+        let ready: Vec<u64> = self
+            .tracks
+            .iter()
+            .filter(|(l, tr)| !present.contains(l) || oldest.is_some_and(|s| tr.obs.first().is_some_and(|o| o.0 == s)))
+            .map(|(l, _)| *l)
+            .collect();
+        let ready_tracks: Vec<(u64, Track)> = ready
+            .iter()
+            .filter_map(|l| self.tracks.remove(l).map(|t| (*l, t)))
+            .collect();
+        self.update_tracks(ready_tracks, &mut report);
+
+        // Keyframe observations become usable once their landmark has left view
+        // (after this frame's update, so only a later re-detection uses them).
+        let newly: Vec<u64> = self
+            .pending_eligible
+            .iter()
+            .copied()
+            .filter(|l| !present.contains(l))
+            .collect();
+        for l in newly {
+            self.pending_eligible.remove(&l);
+            if let Some(kfs) = self.kf_by_landmark.get(&l) {
+                for k in kfs {
+                    if let Some(o) = self.keyframes.get_mut(k).and_then(|kf| kf.obs.get_mut(&l)) {
+                        o.eligible = true;
+                    }
+                }
+            }
+        }
+
+        if let Some(seq) = oldest {
+            // Marginalise the oldest clone; tracks still holding it drop it.
+            if let Some(at) = self.clone_offset_by_seq(seq) {
+                self.remove_block(at);
+            }
+            self.clones.pop_front();
+            for tr in self.tracks.values_mut() {
+                tr.obs.retain(|o| o.0 != seq);
+            }
+            self.tracks.retain(|_, t| !t.obs.is_empty());
+        }
+        Ok(report)
+    }
+
+    fn create_keyframe(&mut self, t_s: f64, obs: &[NormObs]) {
+        if self.keyframes.len() >= self.s.keyframe_max {
+            if let Some(&oldest) = self.keyframes.keys().next() {
+                self.remove_keyframe(oldest);
+            }
+        }
+        let id = self.next_kf_id;
+        self.next_kf_id += 1;
+        let j = self.pose_copy_jacobian();
+        let at = self.clones_offset();
+        self.augment(at, &j);
+        self.local_kfs.push(id);
+        let mut kobs = BTreeMap::new();
+        for o in obs {
+            kobs.insert(
+                o.landmark_id,
+                KfObs {
+                    obs: *o,
+                    eligible: false,
+                },
+            );
+            self.kf_by_landmark.entry(o.landmark_id).or_default().insert(id);
+            self.pending_eligible.insert(o.landmark_id);
+        }
+        self.keyframes.insert(
+            id,
+            Keyframe {
+                id,
+                t_s,
+                q0_W_B: self.imu.q_W_B,
+                delta: Vector3::zeros(),
+                p_B_in_W: self.imu.p_B_in_W,
+                obs: kobs,
+            },
+        );
+        self.last_kf_t_s = t_s;
+        self.stats.keyframes_created += 1;
+    }
+
+    fn remove_keyframe(&mut self, id: u64) {
+        if let Some(j) = self.local_kfs.iter().position(|&k| k == id) {
+            let at = self.kf_offset(j);
+            self.remove_block(at);
+            self.local_kfs.remove(j);
+        } else if let Some(g) = self.global.as_mut() {
+            if let Some(j) = g.ids.iter().position(|&k| k == id) {
+                // Deleting a global state commutes with Ψ and q (§5, eq. G5).
+                let c = std::mem::replace(&mut g.C, DMatrix::zeros(0, 0));
+                g.C = c.remove_columns(6 * j, 6);
+                let pgg = std::mem::replace(&mut g.P_GG0, DMatrix::zeros(0, 0));
+                g.P_GG0 = pgg.remove_rows(6 * j, 6).remove_columns(6 * j, 6);
+                g.ids.remove(j);
+            }
+        }
+        if let Some(kf) = self.keyframes.remove(&id) {
+            for l in kf.obs.keys() {
+                if let Some(s) = self.kf_by_landmark.get_mut(l) {
+                    s.remove(&id);
+                    if s.is_empty() {
+                        self.kf_by_landmark.remove(l);
+                    }
+                }
+            }
+        }
+        self.stats.keyframes_marginalised += 1;
+    }
+
+    /// Triangulates, projects and gates each track, then applies one stacked
+    /// update (§3).
+    fn update_tracks(&mut self, ready: Vec<(u64, Track)>, report: &mut FrameReport) {
+        // Keyframe observations each ready track may use.
+        let mut kf_use: Vec<Vec<u64>> = Vec::with_capacity(ready.len());
+        let mut needed = BTreeSet::new();
+        for (l, _) in &ready {
+            let mut ks = Vec::new();
+            if let Some(set) = self.kf_by_landmark.get(l) {
+                for k in set {
+                    if self
+                        .keyframes
+                        .get(k)
+                        .and_then(|kf| kf.obs.get(l))
+                        .is_some_and(|o| o.eligible)
+                    {
+                        ks.push(*k);
+                    }
+                }
+            }
+            needed.extend(ks.iter().copied());
+            kf_use.push(ks);
+        }
+        // A measurement that touches a global keyframe waits for a global
+        // update that makes it local (§5).
+        if self.s.mode == Mode::Compressed {
+            let gl: BTreeSet<u64> = self
+                .global
+                .as_ref()
+                .map(|g| g.ids.iter().copied().collect())
+                .unwrap_or_default();
+            if needed.iter().any(|k| gl.contains(k)) {
+                self.global_update(&needed);
+                report.global_updates += 1;
+            }
+        }
+
+        let mut rows: Vec<(DMatrix<f64>, DVector<f64>, Vec<usize>)> = Vec::new();
+        let gate_reject = |rep: &mut FrameReport, st: &mut Stats, r: Reject| {
+            *rep.rejected.entry(r.name()).or_default() += 1;
+            *st.rejected.entry(r.name()).or_default() += 1;
+        };
+        for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
+            // Views: the clones of the track, then its keyframes.
+            let mut views = Vec::new();
+            let mut cols = Vec::new();
+            let mut obs = Vec::new();
+            for (seq, o) in &tr.obs {
+                let Some(off) = self.clone_offset_by_seq(*seq) else {
+                    continue;
+                };
+                let c = &self.clones[((seq - self.clones[0].seq) as usize).min(self.clones.len() - 1)];
+                obs.push(Obs {
+                    view: views.len(),
+                    xn: o.xn,
+                    W: o.W,
+                });
+                views.push(View {
+                    R_W_B: c.q_W_B.to_rotation_matrix().into_inner(),
+                    p_B_in_W: c.p_B_in_W,
+                    chart: Matrix3::identity(),
+                });
+                cols.push(off);
+            }
+            let clone_obs = obs.len();
+            for k in &ks {
+                let kf = &self.keyframes[k];
+                let off = self.local_kfs.iter().position(|x| x == k).map(|j| self.kf_offset(j));
+                let o = kf.obs[&l].obs;
+                obs.push(Obs {
+                    view: views.len(),
+                    xn: o.xn,
+                    W: o.W,
+                });
+                views.push(View {
+                    R_W_B: kf.q_W_B().to_rotation_matrix().into_inner(),
+                    p_B_in_W: kf.p_B_in_W,
+                    chart: left_jacobian(&kf.delta),
+                });
+                // A keyframe in the state (local), or a Schmidt/full keyframe.
+                cols.push(off.unwrap_or(usize::MAX));
+            }
+            if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
+                gate_reject(report, &mut self.stats, Reject::TooFewObservations);
+                continue;
+            }
+            let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
+                Ok(p) => p,
+                Err(r) => {
+                    gate_reject(report, &mut self.stats, r);
+                    continue;
+                }
+            };
+            let (hx, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
+            let (hx, r) = feature::nullspace_project(hx, hf, r);
+            if !hx.iter().chain(r.iter()).all(|v| v.is_finite()) {
+                gate_reject(report, &mut self.stats, Reject::NonFinite);
+                continue;
+            }
+            // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1).
+            let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
+            let p_sub = self.P.select_rows(&idx).select_columns(&idx);
+            let s = &hx * p_sub * hx.transpose() + DMatrix::identity(r.len(), r.len());
+            let Some(ch) = s.cholesky() else {
+                gate_reject(report, &mut self.stats, Reject::NonFinite);
+                continue;
+            };
+            let nis = r.dot(&ch.solve(&r));
+            let dof = r.len();
+            if nis > cmsckf_sitl::metrics::chi2_quantile(self.s.chi2_gate_prob, dof) {
+                gate_reject(report, &mut self.stats, Reject::Chi2);
+                continue;
+            }
+            report.nis.push((nis, dof));
+            if !ks.is_empty() {
+                report.loop_closure_tracks += 1;
+                // Each keyframe observation is used at most once.
+                for k in &ks {
+                    if let Some(kf) = self.keyframes.get_mut(k) {
+                        kf.obs.remove(&l);
+                    }
+                    if let Some(set) = self.kf_by_landmark.get_mut(&l) {
+                        set.remove(k);
+                    }
+                }
+            }
+            rows.push((hx, r, idx));
+        }
+        report.tracks_used = rows.len();
+        self.stats.tracks_used += rows.len() as u64;
+        self.stats.loop_closure_updates += report.loop_closure_tracks as u64;
+        if rows.is_empty() {
+            return;
+        }
+        // Stack over the union of the involved columns, in state order
+        // (keyframes by id, then clones by age), so every mode builds the
+        // same matrix whatever else its state holds.
+        let mut union: Vec<usize> = rows.iter().flat_map(|r| r.2.iter().copied()).collect();
+        union.sort_unstable();
+        union.dedup();
+        let m: usize = rows.iter().map(|r| r.1.len()).sum();
+        let mut h = DMatrix::zeros(m, union.len());
+        let mut r = DVector::zeros(m);
+        let mut row = 0;
+        for (hx, rr, idx) in &rows {
+            for (c, col) in idx.iter().enumerate() {
+                let uc = union.binary_search(col).expect("column in union");
+                h.view_mut((row, uc), (hx.nrows(), 1)).copy_from(&hx.column(c));
+            }
+            r.rows_mut(row, rr.len()).copy_from(rr);
+            row += rr.len();
+        }
+        report.residual_rms = (r.norm_squared() / m as f64).sqrt();
+        // QR compression when the stack is taller than the state (§3, eq. Q1).
+        let nc = union.len();
+        let (h, r) = if m > nc {
+            let qr = h.qr();
+            let mut rm = DMatrix::from_column_slice(m, 1, r.as_slice());
+            qr.q_tr_mul(&mut rm);
+            (qr.r(), DVector::from_column_slice(&rm.as_slice()[..nc]))
+        } else {
+            (h, r)
+        };
+        self.ekf_update(&h, &union, &r);
+        self.stats.updates += 1;
+    }
+
+    /// One EKF update with unit measurement noise, in the mode's form (§3
+    /// eq. U1; Schmidt §6; compressed §5 eqs. C1–C3).
+    /// `h` holds the columns `cols` of the full Jacobian; the rest are zero.
+    fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>) {
+        let pht = self.P.select_columns(cols) * h.transpose();
+        let s = h * pht.select_rows(cols) + DMatrix::identity(r.len(), r.len());
+        let Some(ch) = s.clone().cholesky() else {
+            *self.stats.rejected.entry("update_not_pd").or_default() += 1;
+            return;
+        };
+        // Kᵀ = S⁻¹ (H P).
+        let kt = ch.solve(&pht.transpose());
+        let n = self.P.nrows();
+        let mut dx = kt.transpose() * r;
+        if self.s.mode == Mode::Schmidt {
+            // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
+            // P_AS ← P_AS − K_A (H P)_S (§6).
+            let (k0, k1) = (IMU_DIM, self.clones_offset());
+            dx.rows_mut(k0, k1 - k0).fill(0.0);
+            let mut d = kt.transpose() * pht.transpose(); // K H P
+            d.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
+            // Rows of S in K are zero: keep only the active rows' products.
+            for i in k0..k1 {
+                for j in 0..n {
+                    if !(k0..k1).contains(&j) {
+                        d[(i, j)] = d[(j, i)];
+                    }
+                }
+            }
+            self.P -= d;
+        } else {
+            if let Some(g) = self.global.as_mut() {
+                // Ψ += (HΦ)ᵀ S⁻¹ (HΦ), q += (HΦ)ᵀ S⁻¹ r, then Φ ← Φ − K (HΦ).
+                let hphi = h * g.Phi.select_rows(cols);
+                let s_inv_hphi = ch.solve(&hphi);
+                g.Psi += hphi.transpose() * &s_inv_hphi;
+                g.q += hphi.transpose() * ch.solve(r);
+                g.Phi -= kt.transpose() * &hphi;
+            }
+            // P ← P − K S Kᵀ = P − (PHᵀ) S⁻¹ (HP).
+            self.P -= &pht * &kt;
+        }
+        self.P = (&self.P + self.P.transpose()) * 0.5;
+        self.inject(&dx);
+    }
+
+    /// Applies a correction to the local nominal state.
+    fn inject(&mut self, dx: &DVector<f64>) {
+        self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
+        for (j, id) in self.local_kfs.clone().iter().enumerate() {
+            let o = self.kf_offset(j);
+            let kf = self.keyframes.get_mut(id).expect("local keyframe exists");
+            kf.delta += dx.fixed_rows::<3>(o);
+            kf.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+        let co = self.clones_offset();
+        for (i, c) in self.clones.iter_mut().enumerate() {
+            let o = co + 6 * i;
+            c.q_W_B = exp_so3(&dx.fixed_rows::<3>(o).into_owned()) * c.q_W_B;
+            c.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+    }
+
+    // ------------------------------------------------------- compressed
+
+    /// The reconstructed global part: `P_LG = Φ P_LG(0)`,
+    /// `P_GG = P_GG(0) − P_GL(0) Ψ P_LG(0)`, `δx_G = P_GL(0) q` (§5, G1–G3),
+    /// evaluated in whitened coordinates as `(ΦL) C`, `P_GG(0) − Cᵀ(LᵀΨL)C`
+    /// and `Cᵀ(Lᵀq)` (eq. W2).
+    fn reconstruct(&self) -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>)> {
+        let g = self.global.as_ref()?;
+        let p_lg = &g.Phi * &g.C;
+        let psi_c = &g.Psi * &g.C;
+        let mut p_gg = &g.P_GG0 - g.C.transpose() * psi_c;
+        p_gg = (&p_gg + p_gg.transpose()) * 0.5;
+        let dx_g = g.C.transpose() * &g.q;
+        Some((p_lg, p_gg, dx_g))
+    }
+
+    /// Global update, then re-partition around the current centre (§5):
+    /// keyframes within `local_radius_m` of the centre, and those in
+    /// `force_local`, become local.
+    fn global_update(&mut self, force_local: &BTreeSet<u64>) {
+        self.sync();
+        self.stats.global_updates += 1;
+        let nl = self.P.nrows();
+        let (full_p, order) = match self.reconstruct() {
+            Some((p_lg, p_gg, dx_g)) => {
+                let g = self.global.take().expect("reconstruct implies global");
+                for (j, id) in g.ids.iter().enumerate() {
+                    let kf = self.keyframes.get_mut(id).expect("global keyframe exists");
+                    kf.delta += dx_g.fixed_rows::<3>(6 * j);
+                    kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
+                }
+                let ng = p_gg.nrows();
+                let mut full = DMatrix::zeros(nl + ng, nl + ng);
+                full.view_mut((0, 0), (nl, nl)).copy_from(&self.P);
+                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
+                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
+                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
+                let mut order = self.local_kfs.clone();
+                order.extend(g.ids.iter().copied());
+                (full, order)
+            }
+            None => (self.P.clone(), self.local_kfs.clone()),
+        };
+        // Full-state index of each keyframe block.
+        let n_local_kfs = self.local_kfs.len();
+        let n_clone_dim = 6 * self.clones.len();
+        let kf_index = |pos: usize| -> usize {
+            if pos < n_local_kfs {
+                IMU_DIM + 6 * pos
+            } else {
+                nl + 6 * (pos - n_local_kfs)
+            }
+        };
+        let mut new_local = Vec::new();
+        let mut new_global = Vec::new();
+        let mut sorted: Vec<(u64, usize)> = order.iter().enumerate().map(|(p, id)| (*id, p)).collect();
+        sorted.sort_unstable();
+        for (id, pos) in sorted {
+            let kf = &self.keyframes[&id];
+            if force_local.contains(&id) || (kf.p_B_in_W - self.centre_W).norm() <= self.s.local_radius_m {
+                new_local.push((id, pos));
+            } else {
+                new_global.push((id, pos));
+            }
+        }
+        let mut lidx: Vec<usize> = (0..IMU_DIM).collect();
+        for (_, pos) in &new_local {
+            lidx.extend(kf_index(*pos)..kf_index(*pos) + 6);
+        }
+        let co = IMU_DIM + 6 * n_local_kfs;
+        lidx.extend(co..co + n_clone_dim);
+        let gidx: Vec<usize> = new_global
+            .iter()
+            .flat_map(|(_, pos)| kf_index(*pos)..kf_index(*pos) + 6)
+            .collect();
+        self.P = full_p.select_rows(&lidx).select_columns(&lidx);
+        self.local_kfs = new_local.iter().map(|x| x.0).collect();
+        let l = self.P.nrows();
+        self.global = if self.s.mode == Mode::Compressed {
+            let p_lg0 = full_p.select_rows(&lidx).select_columns(&gidx);
+            // Change of basis by L ≈ P_LL(0)^{1/2} (eq. W1). Any invertible L
+            // keeps the algebra exact; a Cholesky factor (with a tiny
+            // diagonal jitter if P_LL(0) is numerically semi-definite) keeps
+            // the accumulated products well scaled.
+            let l_fac = whitening_factor(&self.P);
+            let c = l_fac.solve_lower_triangular(&p_lg0).unwrap_or_else(|| p_lg0.clone());
+            let phi = l_fac;
+            Some(Global {
+                ids: new_global.iter().map(|x| x.0).collect(),
+                C: c,
+                P_GG0: full_p.select_rows(&gidx).select_columns(&gidx),
+                Phi: phi,
+                Psi: DMatrix::zeros(l, l),
+                q: DVector::zeros(l),
+            })
+        } else {
+            None
+        };
+    }
+
+    /// Forces a global update (compressed mode; on shutdown or for a log).
+    pub fn force_global_update(&mut self) {
+        if self.s.mode == Mode::Compressed {
+            self.global_update(&BTreeSet::new());
+        }
+    }
+
+    /// The whole state, reconstructed, in a fixed order: IMU, clones,
+    /// keyframes by id. Does not change the filter.
+    pub fn snapshot(&self) -> Snapshot {
+        let mut est = self.clone();
+        est.sync();
+        let (full_p, kf_pos): (DMatrix<f64>, BTreeMap<u64, usize>) = match est.reconstruct() {
+            Some((p_lg, p_gg, dx_g)) => {
+                let g = est.global.as_ref().expect("global");
+                for (j, id) in g.ids.clone().iter().enumerate() {
+                    let kf = est.keyframes.get_mut(id).expect("kf");
+                    kf.delta += dx_g.fixed_rows::<3>(6 * j);
+                    kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
+                }
+                let nl = est.P.nrows();
+                let ng = p_gg.nrows();
+                let mut full = DMatrix::zeros(nl + ng, nl + ng);
+                full.view_mut((0, 0), (nl, nl)).copy_from(&est.P);
+                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
+                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
+                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
+                let mut pos: BTreeMap<u64, usize> = est
+                    .local_kfs
+                    .iter()
+                    .enumerate()
+                    .map(|(j, id)| (*id, IMU_DIM + 6 * j))
+                    .collect();
+                for (j, id) in g.ids.iter().enumerate() {
+                    pos.insert(*id, nl + 6 * j);
+                }
+                (full, pos)
+            }
+            None => {
+                let pos = est
+                    .local_kfs
+                    .iter()
+                    .enumerate()
+                    .map(|(j, id)| (*id, IMU_DIM + 6 * j))
+                    .collect();
+                (est.P.clone(), pos)
+            }
+        };
+        let mut idx: Vec<usize> = (0..IMU_DIM).collect();
+        let co = est.clones_offset();
+        idx.extend(co..co + 6 * est.clones.len());
+        for off in kf_pos.values() {
+            idx.extend(*off..*off + 6);
+        }
+        let P = full_p.select_rows(&idx).select_columns(&idx);
+        let mut x = Vec::new();
+        let push_q = |x: &mut Vec<f64>, q: &UnitQuaternion<f64>| {
+            let c = q.coords;
+            let s = if c.w < 0.0 { -1.0 } else { 1.0 };
+            x.extend([c.w * s, c.x * s, c.y * s, c.z * s]);
+        };
+        let i = &est.imu;
+        push_q(&mut x, &i.q_W_B);
+        for v in [i.v_B_in_W, i.p_B_in_W, i.b_g, i.b_a] {
+            x.extend(v.iter());
+        }
+        for c in &est.clones {
+            push_q(&mut x, &c.q_W_B);
+            x.extend(c.p_B_in_W.iter());
+        }
+        for id in kf_pos.keys() {
+            let kf = &est.keyframes[id];
+            x.extend(kf.delta.iter());
+            x.extend(kf.p_B_in_W.iter());
+        }
+        Snapshot {
+            x: DVector::from_vec(x),
+            P,
+        }
+    }
+
+    /// Health checks on the covariance and state: finite, symmetric, with a
+    /// positive diagonal. Returns the first problem found.
+    pub fn check_health(&self) -> Result<(), String> {
+        let p = &self.P;
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err("covariance has non-finite entries".into());
+        }
+        for i in 0..p.nrows() {
+            if p[(i, i)] <= 0.0 {
+                return Err(format!("covariance diagonal {i} is {}", p[(i, i)]));
+            }
+        }
+        let i = &self.imu;
+        if ![i.v_B_in_W, i.p_B_in_W, i.b_a, i.b_g]
+            .iter()
+            .all(|v| v.iter().all(|x| x.is_finite()))
+        {
+            return Err("state has non-finite entries".into());
+        }
+        Ok(())
+    }
+}
+
+/// A lower-triangular `L` with `L Lᵀ ≈ P` and a positive diagonal: the
+/// Cholesky factor of `P + λ diag(P)` for the smallest `λ ∈ {0, 1e-12, …}`
+/// that works, else `diag(√P_ii)`.
+fn whitening_factor(p: &DMatrix<f64>) -> DMatrix<f64> {
+    let d = DMatrix::from_diagonal(&p.diagonal().map(|v| v.abs().max(1e-300)));
+    let mut lambda = 0.0;
+    for _ in 0..8 {
+        if let Some(ch) = (p + &d * lambda).cholesky() {
+            let l = ch.l();
+            if l.diagonal().iter().all(|v| *v > 0.0 && v.is_finite()) {
+                return l;
+            }
+        }
+        lambda = if lambda == 0.0 { 1e-12 } else { lambda * 100.0 };
+    }
+    d.map(f64::sqrt)
+}
+
+/// Roll and pitch from the mean specific force of a static segment, with a
+/// given yaw (§7): at rest `f_B = −R_W_Bᵀ g_W`, so the body's down axis in
+/// the world is `R_W_B (−f̂_B)`… solved as the rotation taking `−f̂_B` to
+/// the world's down axis, composed with the yaw.
+pub fn attitude_from_static(mean_accel_B: &Vector3<f64>, yaw_rad: f64) -> Option<UnitQuaternion<f64>> {
+    let n = mean_accel_B.norm();
+    if !(n.is_finite() && n > 5.0 && n < 15.0) {
+        return None;
+    }
+    let f = mean_accel_B / n;
+    // f_B = R_W_Bᵀ (−g ẑ) / g → in the body, world-down is −f.
+    let roll = (-f.y).atan2(-f.z);
+    let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
+    Some(UnitQuaternion::from_euler_angles(roll, pitch, yaw_rad))
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,392 @@
+//! Offline evaluation: runs simulated flights through the estimator,
+//! in-process and deterministically, and scores them against the truth.
+//!
+//! This is what `cmsckf evaluate` prints, and what the consistency and
+//! exactness tests use. Wall-clock timing of each frame is measured here, at
+//! the boundary, never inside the estimator.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use nalgebra::{Matrix6, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::Serialize;
+
+use cmsckf_sitl::camera::Camera;
+use cmsckf_sitl::config::SimConfig;
+use cmsckf_sitl::dataset::Dataset;
+use cmsckf_sitl::metrics;
+
+use crate::config::{Config, Mode};
+use crate::estimator::frontend::{normalise, NormObs};
+use crate::estimator::propagate::{boxplus, Mat15, BA, BG, P, TH, V};
+use crate::estimator::{Estimator, ImuMeas, ImuState, Settings, Stats};
+
+/// The simulator settings that match a daemon config (same camera and IMU).
+pub fn sim_config_for(cfg: &Config) -> SimConfig {
+    let mut s = SimConfig::new();
+    s.camera = cfg.camera.clone();
+    s.imu = cfg.imu.clone();
+    s
+}
+
+/// The initial covariance of the IMU block from `[init]`.
+pub fn initial_covariance(cfg: &Config) -> Mat15 {
+    let i = &cfg.init;
+    let mut p = Mat15::zeros();
+    let set = |p: &mut Mat15, o: usize, s: [f64; 3]| {
+        for k in 0..3 {
+            p[(o + k, o + k)] = s[k] * s[k];
+        }
+    };
+    let tilt = i.sigma_tilt_deg.to_radians();
+    set(&mut p, TH, [tilt, tilt, i.sigma_yaw_deg.to_radians()]);
+    set(&mut p, V, [i.sigma_velocity_mps; 3]);
+    set(&mut p, P, [i.sigma_position_m; 3]);
+    set(&mut p, BG, [i.sigma_gyro_bias_radps; 3]);
+    set(&mut p, BA, [i.sigma_accel_bias_mps2; 3]);
+    p
+}
+
+/// Initial state: the truth at t = 0 perturbed by a draw from the initial
+/// covariance (so the NEES is meaningful from the first sample).
+pub fn init_from_truth(ds: &Dataset, p0: &Mat15, seed: u64) -> ImuState {
+    let t0 = &ds.truth[0];
+    let truth = ImuState {
+        q_W_B: t0.truth.q_W_B,
+        v_B_in_W: t0.truth.v_B_in_W,
+        p_B_in_W: t0.truth.p_B_in_W,
+        b_g: t0.bias.b_g,
+        b_a: t0.bias.b_a,
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(10);
+    let d: Vec<f64> = (0..15)
+        .map(|k| {
+            let z: f64 = StandardNormal.sample(&mut rng);
+            z * p0[(k, k)].sqrt()
+        })
+        .collect();
+    boxplus(&truth, &d)
+}
+
+/// One flight through one mode.
+#[derive(Clone, Debug)]
+pub struct FlightResult {
+    pub mode: Mode,
+    pub t_s: Vec<f64>,
+    pub p_est: Vec<Vector3<f64>>,
+    pub q_est: Vec<UnitQuaternion<f64>>,
+    pub cov_pose: Vec<Matrix6<f64>>,
+    pub p_true: Vec<Vector3<f64>>,
+    pub q_true: Vec<UnitQuaternion<f64>>,
+    pub frame_us: Vec<f64>,
+    pub stats: Stats,
+    pub keyframes: usize,
+    /// Largest relative difference from `full` at any global update
+    /// (compressed runs in lockstep with full only).
+    pub max_rel_diff_vs_full: Option<f64>,
+}
+
+/// Drives one estimator through a dataset.
+pub struct Runner<'a> {
+    ds: &'a Dataset,
+    cam: Camera,
+    sigma_px: f64,
+    pub est: Estimator,
+    imu_next: usize,
+    buf: Vec<NormObs>,
+}
+
+impl<'a> Runner<'a> {
+    pub fn new(ds: &'a Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> Self {
+        let mut c = cfg.clone();
+        c.estimator.mode = mode;
+        let p0 = initial_covariance(&c);
+        let x0 = init_from_truth(ds, &p0, init_seed);
+        Self {
+            ds,
+            cam: Camera::from_config(&c.camera),
+            sigma_px: c.camera.pixel_noise_px,
+            est: Estimator::new(Settings::from_config(&c), ds.truth[0].truth.t_s, x0, &p0),
+            imu_next: 0,
+            buf: Vec::with_capacity(c.features.max_features),
+        }
+    }
+
+    /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
+    /// time spent in the estimator (µs) and the frame's report.
+    pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {
+        let f = &self.ds.frames[k];
+        while self.imu_next < self.ds.imu.len() {
+            // Everything up to the frame, plus the first sample after it so
+            // the estimator can interpolate at the frame time.
+            if self.imu_next > 0 && self.ds.imu[self.imu_next - 1].t_s > f.t_s {
+                break;
+            }
+            let m = &self.ds.imu[self.imu_next];
+            let _ = self.est.add_imu(ImuMeas {
+                t_s: m.t_s,
+                accel_mps2: m.accel_mps2,
+                gyro_radps: m.gyro_radps,
+            });
+            self.imu_next += 1;
+        }
+        let start = Instant::now();
+        normalise(
+            &self.cam,
+            self.sigma_px,
+            f.features.iter().map(|o| (o.landmark_id, o.u_px, o.v_px)),
+            &mut self.buf,
+        );
+        let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();
+        (start.elapsed().as_secs_f64() * 1e6, rep)
+    }
+}
+
+fn record(r: &mut FlightResult, ds: &Dataset, est: &Estimator, t_s: f64) {
+    let x = est.imu_state();
+    let tr = ds.trajectory.sample(t_s);
+    r.t_s.push(t_s);
+    r.p_est.push(x.p_B_in_W);
+    r.q_est.push(x.q_W_B);
+    r.cov_pose.push(est.pose_covariance());
+    r.p_true.push(tr.p_B_in_W);
+    r.q_true.push(tr.q_W_B);
+}
+
+fn empty(mode: Mode) -> FlightResult {
+    FlightResult {
+        mode,
+        t_s: vec![],
+        p_est: vec![],
+        q_est: vec![],
+        cov_pose: vec![],
+        p_true: vec![],
+        q_true: vec![],
+        frame_us: vec![],
+        stats: Stats::default(),
+        keyframes: 0,
+        max_rel_diff_vs_full: None,
+    }
+}
+
+/// Runs one mode over a dataset.
+pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> FlightResult {
+    let mut runner = Runner::new(ds, cfg, mode, init_seed);
+    let mut r = empty(mode);
+    for k in 0..ds.frames.len() {
+        let (us, _) = runner.step_frame(k);
+        r.frame_us.push(us);
+        record(&mut r, ds, &runner.est, ds.frames[k].t_s);
+    }
+    r.stats = runner.est.stats.clone();
+    r.keyframes = runner.est.keyframes().count();
+    r
+}
+
+/// Runs `compressed` and `full` in lockstep and compares them after every
+/// frame with a global update, and at the end after a forced global update.
+pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64) -> (FlightResult, FlightResult) {
+    let mut rc = Runner::new(ds, cfg, Mode::Compressed, init_seed);
+    let mut rf = Runner::new(ds, cfg, Mode::Full, init_seed);
+    let (mut c, mut f) = (empty(Mode::Compressed), empty(Mode::Full));
+    let mut worst: f64 = 0.0;
+    for k in 0..ds.frames.len() {
+        let (us_c, rep) = rc.step_frame(k);
+        let (us_f, _) = rf.step_frame(k);
+        c.frame_us.push(us_c);
+        f.frame_us.push(us_f);
+        record(&mut c, ds, &rc.est, ds.frames[k].t_s);
+        record(&mut f, ds, &rf.est, ds.frames[k].t_s);
+        if rep.global_updates > 0 {
+            worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
+        }
+    }
+    rc.est.force_global_update();
+    worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
+    for (r, run) in [(&mut c, &rc), (&mut f, &rf)] {
+        r.stats = run.est.stats.clone();
+        r.keyframes = run.est.keyframes().count();
+    }
+    c.max_rel_diff_vs_full = Some(worst);
+    (c, f)
+}
+
+/// The per-mode row of the evaluation table.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModeSummary {
+    pub ate_unaligned_m: f64,
+    pub ate_aligned_m: f64,
+    pub rot_rmse_deg: f64,
+    pub nees_mean: f64,
+    pub nees_in_bounds: f64,
+    pub keyframes: f64,
+    pub loop_closure_updates: f64,
+    pub global_updates: f64,
+    pub frame_us_mean: f64,
+    pub frame_us_p99: f64,
+    pub per_seed_ate_unaligned_m: Vec<f64>,
+    pub per_seed_ate_aligned_m: Vec<f64>,
+    pub per_seed_nees_mean: Vec<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_rel_diff_vs_full: Option<f64>,
+}
+
+/// Scores of one flight.
+#[derive(Clone, Copy, Debug)]
+pub struct FlightScore {
+    pub ate: metrics::Ate,
+    pub rot_rmse_deg: f64,
+    pub nees_mean: f64,
+    pub nees_in_bounds: f64,
+}
+
+pub fn score(r: &FlightResult) -> FlightScore {
+    let ate = metrics::ate(&r.p_est, &r.p_true);
+    let rot = metrics::rotation_rmse_deg(&r.q_est, &r.q_true, ate.yaw_rad);
+    let (lo, hi) = (metrics::chi2_quantile(0.025, 6), metrics::chi2_quantile(0.975, 6));
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    let mut inside = 0usize;
+    for i in 0..r.t_s.len() {
+        if let Some(v) = metrics::nees_pose(&r.q_est[i], &r.p_est[i], &r.q_true[i], &r.p_true[i], &r.cov_pose[i]) {
+            sum += v;
+            n += 1;
+            if (lo..=hi).contains(&v) {
+                inside += 1;
+            }
+        }
+    }
+    FlightScore {
+        ate,
+        rot_rmse_deg: rot,
+        nees_mean: sum / n.max(1) as f64,
+        nees_in_bounds: inside as f64 / n.max(1) as f64,
+    }
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    let i = ((v.len() - 1) as f64 * p).round() as usize;
+    v[i]
+}
+
+/// Summarises the runs of one mode over seeds.
+pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
+    let scores: Vec<FlightScore> = runs.iter().map(score).collect();
+    let n = runs.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&FlightScore) -> f64| scores.iter().map(f).sum::<f64>() / n;
+    let mut times: Vec<f64> = runs.iter().flat_map(|r| r.frame_us.iter().copied()).collect();
+    let tmean = times.iter().sum::<f64>() / times.len().max(1) as f64;
+    let p99 = percentile(&mut times, 0.99);
+    let diff = runs
+        .iter()
+        .filter_map(|r| r.max_rel_diff_vs_full)
+        .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |x| x.max(d))));
+    ModeSummary {
+        ate_unaligned_m: mean(&|s| s.ate.unaligned_m),
+        ate_aligned_m: mean(&|s| s.ate.aligned_m),
+        rot_rmse_deg: mean(&|s| s.rot_rmse_deg),
+        nees_mean: mean(&|s| s.nees_mean),
+        nees_in_bounds: mean(&|s| s.nees_in_bounds),
+        keyframes: runs.iter().map(|r| r.keyframes as f64).sum::<f64>() / n,
+        loop_closure_updates: runs.iter().map(|r| r.stats.loop_closure_updates as f64).sum::<f64>() / n,
+        global_updates: runs.iter().map(|r| r.stats.global_updates as f64).sum::<f64>() / n,
+        frame_us_mean: tmean,
+        frame_us_p99: p99,
+        per_seed_ate_unaligned_m: scores.iter().map(|s| s.ate.unaligned_m).collect(),
+        per_seed_ate_aligned_m: scores.iter().map(|s| s.ate.aligned_m).collect(),
+        per_seed_nees_mean: scores.iter().map(|s| s.nees_mean).collect(),
+        max_rel_diff_vs_full: diff,
+    }
+}
+
+/// The whole evaluation: every mode over every seed.
+#[derive(Clone, Debug, Serialize)]
+pub struct Evaluation {
+    pub scenario: String,
+    pub seeds: u64,
+    pub duration_s: f64,
+    pub modes: BTreeMap<String, ModeSummary>,
+}
+
+/// Runs `modes` over seeds `1..=seeds`. When both `full` and `compressed`
+/// are asked for they run in lockstep, and compressed reports its largest
+/// difference from full.
+pub fn evaluate(
+    scenario: &str,
+    modes: &[Mode],
+    seeds: u64,
+    duration_s: Option<f64>,
+    cfg: &Config,
+    sim: &SimConfig,
+    mut progress: impl FnMut(&str),
+) -> Result<Evaluation, cmsckf_sitl::trajectory::TrajectoryError> {
+    let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
+    let mut duration = 0.0;
+    let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
+    for seed in 1..=seeds {
+        let ds = Dataset::generate(scenario, seed, duration_s, sim)?;
+        duration = ds.duration_s;
+        if lockstep {
+            let (c, f) = run_compressed_vs_full(&ds, cfg, seed);
+            progress(&format!(
+                "seed {seed}: compressed vs full max rel diff {:.2e}",
+                c.max_rel_diff_vs_full.unwrap_or(0.0)
+            ));
+            per_mode.entry(Mode::Compressed).or_default().push(c);
+            per_mode.entry(Mode::Full).or_default().push(f);
+        }
+        for &m in modes {
+            if lockstep && (m == Mode::Full || m == Mode::Compressed) {
+                continue;
+            }
+            progress(&format!("seed {seed}: {}", m.name()));
+            per_mode.entry(m).or_default().push(run(&ds, cfg, m, seed));
+        }
+    }
+    Ok(Evaluation {
+        scenario: scenario.to_string(),
+        seeds,
+        duration_s: duration,
+        modes: per_mode
+            .iter()
+            .map(|(m, runs)| (m.name().to_string(), summarise(runs)))
+            .collect(),
+    })
+}
+
+impl Evaluation {
+    /// The human-readable table.
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "scenario {} · {} seeds · {:.0} s\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
+            self.scenario, self.seeds, self.duration_s, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
+        );
+        for m in Mode::ALL {
+            if let Some(r) = self.modes.get(m.name()) {
+                s += &format!(
+                    "{:<11} {:>9.3} {:>9.3} {:>8.3} {:>7.2} {:>6.2} {:>5.1} {:>6.0} {:>6.1} {:>9.0} {:>9.0} {:>10}\n",
+                    m.name(),
+                    r.ate_unaligned_m,
+                    r.ate_aligned_m,
+                    r.rot_rmse_deg,
+                    r.nees_mean,
+                    r.nees_in_bounds,
+                    r.keyframes,
+                    r.loop_closure_updates,
+                    r.global_updates,
+                    r.frame_us_mean,
+                    r.frame_us_p99,
+                    r.max_rel_diff_vs_full.map_or("-".to_string(), |d| format!("{d:.1e}"))
+                );
+            }
+        }
+        s
+    }
+}
