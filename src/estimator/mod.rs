@@ -149,9 +149,41 @@ pub struct Stats {
     pub keyframes_marginalised: u64,
 }
 
+/// Why a global update happened.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GlobalReason {
+    /// The vehicle left the local region.
+    LeftLocalRegion,
+    /// A measurement needs a global keyframe.
+    LoopClosure,
+    /// Asked for (shutdown, log).
+    Forced,
+}
+
+/// Filter events of one frame, in the order they happened.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FilterEvent {
+    GlobalUpdate {
+        reason: GlobalReason,
+        /// Keyframes in the global part before the update.
+        global_before: Vec<u64>,
+        /// Keyframes local after the re-partition.
+        local_after: Vec<u64>,
+    },
+    KeyframeCreated {
+        id: u64,
+    },
+    Update {
+        tracks: usize,
+        /// Keyframes whose poses the update involved.
+        keyframes: Vec<u64>,
+    },
+}
+
 /// What one camera frame did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FrameReport {
+    pub events: Vec<FilterEvent>,
     pub tracks_used: usize,
     pub rejected: BTreeMap<&'static str, u64>,
     /// NIS of each accepted track with its degrees of freedom.
@@ -273,10 +305,6 @@ impl Estimator {
     }
     pub fn n_global_keyframes(&self) -> usize {
         self.global.as_ref().map_or(0, |g| g.ids.len())
-    }
-    #[doc(hidden)]
-    pub fn debug_psi_max(&self) -> f64 {
-        self.global.as_ref().map_or(0.0, |g| g.Psi.amax())
     }
     pub fn local_dim(&self) -> usize {
         self.P.nrows()
@@ -527,7 +555,9 @@ impl Estimator {
         // moves the centre to the vehicle (§5).
         if self.s.mode == Mode::Compressed && (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m {
             self.centre_W = self.imu.p_B_in_W;
-            self.global_update(&BTreeSet::new());
+            report
+                .events
+                .push(self.global_update(&BTreeSet::new(), GlobalReason::LeftLocalRegion));
             report.global_updates += 1;
         }
 
@@ -537,7 +567,8 @@ impl Estimator {
             && self.s.keyframe_max > 0
             && t_s - self.last_kf_t_s >= self.s.keyframe_interval_s - 1e-9;
         if make_kf {
-            self.create_keyframe(t_s, obs);
+            let id = self.create_keyframe(t_s, obs);
+            report.events.push(FilterEvent::KeyframeCreated { id });
             report.keyframe_created = true;
         } else {
             // New clone of the current pose, appended after the last clone.
@@ -608,7 +639,7 @@ impl Estimator {
         Ok(report)
     }
 
-    fn create_keyframe(&mut self, t_s: f64, obs: &[NormObs]) {
+    fn create_keyframe(&mut self, t_s: f64, obs: &[NormObs]) -> u64 {
         if self.keyframes.len() >= self.s.keyframe_max {
             if let Some(&oldest) = self.keyframes.keys().next() {
                 self.remove_keyframe(oldest);
@@ -645,6 +676,7 @@ impl Estimator {
         );
         self.last_kf_t_s = t_s;
         self.stats.keyframes_created += 1;
+        id
     }
 
     fn remove_keyframe(&mut self, id: u64) {
@@ -707,12 +739,15 @@ impl Estimator {
                 .map(|g| g.ids.iter().copied().collect())
                 .unwrap_or_default();
             if needed.iter().any(|k| gl.contains(k)) {
-                self.global_update(&needed);
+                report
+                    .events
+                    .push(self.global_update(&needed, GlobalReason::LoopClosure));
                 report.global_updates += 1;
             }
         }
 
         let mut rows: Vec<(DMatrix<f64>, DVector<f64>, Vec<usize>)> = Vec::new();
+        let mut involved = BTreeSet::new();
         let gate_reject = |rep: &mut FrameReport, st: &mut Stats, r: Reject| {
             *rep.rejected.entry(r.name()).or_default() += 1;
             *st.rejected.entry(r.name()).or_default() += 1;
@@ -801,6 +836,7 @@ impl Estimator {
                     }
                 }
             }
+            involved.extend(ks.iter().copied());
             rows.push((hx, r, idx));
         }
         report.tracks_used = rows.len();
@@ -840,6 +876,10 @@ impl Estimator {
         };
         self.ekf_update(&h, &union, &r);
         self.stats.updates += 1;
+        report.events.push(FilterEvent::Update {
+            tracks: rows.len(),
+            keyframes: involved.into_iter().collect(),
+        });
     }
 
     /// One EKF update with unit measurement noise, in the mode's form (§3
@@ -924,7 +964,8 @@ impl Estimator {
     /// Global update, then re-partition around the current centre (§5):
     /// keyframes within `local_radius_m` of the centre, and those in
     /// `force_local`, become local.
-    fn global_update(&mut self, force_local: &BTreeSet<u64>) {
+    fn global_update(&mut self, force_local: &BTreeSet<u64>, reason: GlobalReason) -> FilterEvent {
+        let global_before = self.global.as_ref().map(|g| g.ids.clone()).unwrap_or_default();
         self.sync();
         self.stats.global_updates += 1;
         let nl = self.P.nrows();
@@ -1003,12 +1044,17 @@ impl Estimator {
         } else {
             None
         };
+        FilterEvent::GlobalUpdate {
+            reason,
+            global_before,
+            local_after: self.local_kfs.clone(),
+        }
     }
 
     /// Forces a global update (compressed mode; on shutdown or for a log).
     pub fn force_global_update(&mut self) {
         if self.s.mode == Mode::Compressed {
-            self.global_update(&BTreeSet::new());
+            self.global_update(&BTreeSet::new(), GlobalReason::Forced);
         }
     }
 

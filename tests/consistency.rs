@@ -1,0 +1,44 @@
+//! Filter consistency over many seeds: the mean pose NEES of `msckf`,
+//! `full` and `compressed` lies in its 95% χ² interval, and Schmidt is never
+//! over-confident. Also checks compressed = full on every seed.
+
+use cmsckf::config::{Config, Mode};
+use cmsckf::eval;
+use cmsckf_sitl::metrics::nees_bounds_95;
+
+#[test]
+fn nees_is_consistent_over_ten_seeds() {
+    let cfg = Config::default();
+    let sim = eval::sim_config_for(&cfg);
+    let seeds = 10;
+    let ev = eval::evaluate("racetrack", &Mode::ALL, seeds, Some(40.0), &cfg, &sim, |_| {}).unwrap();
+    // Each sample is a 6-DoF pose NEES; averaged over the seeds at one time
+    // it is χ²(6·seeds)/seeds.
+    eprintln!("{}", ev.table());
+    let (lo, hi) = nees_bounds_95(6, seeds as usize);
+    for m in ["msckf", "full", "compressed"] {
+        let r = &ev.modes[m];
+        assert!(
+            (lo..=hi).contains(&r.nees_mean),
+            "{m}: mean NEES {} outside [{lo:.2}, {hi:.2}] (per seed {:?})",
+            r.nees_mean,
+            r.per_seed_nees_mean
+        );
+    }
+    let s = &ev.modes["schmidt"];
+    assert!(
+        s.nees_mean <= hi,
+        "schmidt over-confident: mean NEES {} > {hi:.2}",
+        s.nees_mean
+    );
+    let c = &ev.modes["compressed"];
+    let d = c.max_rel_diff_vs_full.expect("lockstep ran");
+    assert!(d <= 1e-9, "compressed vs full {d:e}");
+    for (a, b) in c
+        .per_seed_ate_unaligned_m
+        .iter()
+        .zip(&ev.modes["full"].per_seed_ate_unaligned_m)
+    {
+        assert!((a - b).abs() <= 1e-6, "compressed ATE {a} vs full {b}");
+    }
+}
