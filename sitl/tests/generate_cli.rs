@@ -31,6 +31,7 @@ fn same_seed_gives_identical_files_and_a_summary() {
     let a = generate(&dir.path().join("a"), "5", &[]);
     let b = generate(&dir.path().join("b"), "5", &[]);
     assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
     let stdout = String::from_utf8_lossy(&a.stdout);
     for sensor in ["imu:", "camera:", "gnss:"] {
         assert!(stdout.contains(sensor), "summary lacks {sensor}: {stdout}");
