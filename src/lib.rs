@@ -6,11 +6,16 @@
 //!   `src/estimator/README.md`
 //! - [`config`]: the configuration, matching `config/default.toml`
 //! - [`eval`]: offline evaluation on the simulator (`cmsckf evaluate`)
+//! - [`daemon`]: the tasks of `cmsckf run`; [`io`]: the MAVLink link and the
+//!   feature socket; [`gnss`]: RTCM3 input
 //!
 //! The simulator lives in the `cmsckf-sitl` crate (`sitl/`).
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, P_LG
 #![allow(clippy::needless_range_loop)] // index loops mirror the equations
 
 pub mod config;
+pub mod daemon;
 pub mod estimator;
 pub mod eval;
+pub mod gnss;
+pub mod io;

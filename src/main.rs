@@ -1,5 +1,5 @@
-//! The `cmsckf` command line: `evaluate` and `demo` (the daemon's `run`,
-//! `replay` and `review` follow their issues).
+//! The `cmsckf` command line: `run` (the daemon), `demo` (the daemon and the
+//! SITL autopilot over loopback) and `evaluate` (offline accuracy table).
 
 use std::path::PathBuf;
 
@@ -45,11 +45,19 @@ enum Cmd {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
-    /// Fly the racetrack and print the report. Until the daemon and the SITL
-    /// autopilot land, this runs the same flight offline, in-process.
+    /// Run the daemon beside the autopilot until SIGINT or SIGTERM.
+    Run {
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+    },
+    /// Start the daemon and the SITL autopilot over real loopback UDP and a
+    /// real Unix socket, fly the scenario, and print the SITL report.
     Demo {
         #[arg(long, default_value_t = 70.0)]
         duration_s: f64,
+        /// Replay speed of the SITL autopilot.
+        #[arg(long, default_value_t = 10.0)]
+        speedup: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
         #[arg(long, default_value = "racetrack")]
@@ -58,9 +66,44 @@ enum Cmd {
         mode: String,
         #[arg(long)]
         config: Option<PathBuf>,
+        /// MCAP log path (logging arrives with the logging issue; accepted now).
+        #[arg(long)]
+        log: Option<PathBuf>,
+        /// Print the SITL report as JSON.
         #[arg(long)]
         json: bool,
     },
+}
+
+fn init_tracing(default: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Completes on SIGINT or SIGTERM.
+async fn termination() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term => {}
+    }
+}
+
+/// A free loopback UDP port (bound and released; the daemon binds it next).
+fn free_udp_port() -> anyhow::Result<u16> {
+    let s = std::net::UdpSocket::bind("127.0.0.1:0")?;
+    Ok(s.local_addr()?.port())
 }
 
 fn load_config(path: &Option<PathBuf>) -> anyhow::Result<Config> {
@@ -140,50 +183,73 @@ fn main() -> anyhow::Result<()> {
                 std::fs::write(&p, s).with_context(|| format!("writing {}", p.display()))?;
             }
         }
+        Cmd::Run { config } => {
+            init_tracing("info");
+            let cfg = Config::load(&config)?;
+            let rt = tokio::runtime::Runtime::new()?;
+            let summary = rt.block_on(cmsckf::daemon::run(cfg, termination()))?;
+            tracing::info!(counters = ?summary.counters, "cmsckf stopped");
+        }
         Cmd::Demo {
             duration_s,
+            speedup,
             seed,
             scenario,
             mode,
             config,
+            log,
             json,
         } => {
+            init_tracing(if json { "warn" } else { "info" });
             check_duration(Some(duration_s))?;
-            let cfg = load_config(&config)?;
-            let mode: Mode = mode.parse().map_err(anyhow::Error::msg)?;
+            if !(speedup.is_finite() && speedup > 0.0 && speedup <= 1000.0) {
+                bail!("--speedup {speedup}: give a factor in (0, 1000]");
+            }
+            let mut cfg = load_config(&config)?;
+            cfg.estimator.mode = mode.parse().map_err(anyhow::Error::msg)?;
+            if let Some(l) = &log {
+                cfg.log.path = l.display().to_string();
+            }
+            let dir = tempfile::Builder::new().prefix("cmsckf-demo-").tempdir()?;
+            let port = free_udp_port()?;
+            cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+            cfg.features.socket = dir.path().join("features.sock").display().to_string();
+            cfg.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
             let sim = eval::sim_config_for(&cfg);
             let ds = cmsckf_sitl::dataset::Dataset::generate(&scenario, seed, Some(duration_s), &sim)?;
             if !json {
                 eprintln!(
-                    "cmsckf demo: {scenario}, {duration_s} s, seed {seed}, mode {} (offline, in-process)",
-                    mode.name()
+                    "cmsckf demo: {scenario}, {duration_s} s at {speedup}x, seed {seed}, mode {}; daemon on {} and {}",
+                    cfg.estimator.mode.name(),
+                    cfg.mavlink.address,
+                    cfg.features.socket
                 );
-                for l in ds.summary() {
-                    eprintln!("  {l}");
-                }
             }
-            let r = eval::run(&ds, &cfg, mode, seed);
-            let s = eval::score(&r);
-            let summary = eval::summarise(std::slice::from_ref(&r));
-            let report = serde_json::json!({
-                "scenario": scenario,
-                "mode": mode.name(),
-                "duration_s": ds.duration_s,
-                "estimates": r.t_s.len(),
-                "ate_m": s.ate.unaligned_m,
-                "ate_aligned_m": s.ate.aligned_m,
-                "rot_rmse_deg": s.rot_rmse_deg,
-                "nees_mean": s.nees_mean,
-                "keyframes": r.keyframes,
-                "loop_closure_updates": r.stats.loop_closure_updates,
-                "global_updates": r.stats.global_updates,
-                "frame_us_mean": summary.frame_us_mean,
-                "frame_us_p99": summary.frame_us_p99,
+            let rt = tokio::runtime::Runtime::new()?;
+            let (report, summary) = rt.block_on(async {
+                let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+                let daemon = tokio::spawn(cmsckf::daemon::run(cfg.clone(), async move {
+                    let _ = stop_rx.await;
+                }));
+                // Give the daemon a moment to bind its sockets.
+                tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+                let opts = cmsckf_sitl::serve::ServeOptions {
+                    mavlink: format!("udpout:127.0.0.1:{port}"),
+                    feature_socket: cfg.features.socket.clone().into(),
+                    speedup,
+                };
+                let report = cmsckf_sitl::serve::serve(&opts, &ds).await;
+                let _ = stop_tx.send(());
+                let summary = daemon.await;
+                (report, summary)
             });
+            let report = report?;
+            let summary = summary??;
             if json {
-                println!("{report}");
+                println!("{}", serde_json::to_string(&report)?);
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
+                eprintln!("daemon counters: {:?}", summary.counters);
             }
         }
     }

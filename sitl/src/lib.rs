@@ -9,6 +9,7 @@
 //! - [`imu`], [`camera`], [`features`], [`gnss`]: the sensor models
 //! - [`dataset`]: a whole flight, and its CSV export
 //! - [`metrics`]: ATE, rotation RMSE, NEES and χ² bounds
+//! - [`serve`]: the mock autopilot and camera front end, with its scoring
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
 #![allow(clippy::needless_range_loop)] // index loops mirror the equations
 
@@ -20,6 +21,7 @@ pub mod geodesy;
 pub mod gnss;
 pub mod imu;
 pub mod metrics;
+pub mod serve;
 pub mod spline;
 pub mod trajectory;
 

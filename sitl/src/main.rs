@@ -34,6 +34,49 @@ enum Cmd {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Act as the autopilot and the camera front end for a running daemon,
+    /// then print the score of its estimates.
+    Serve {
+        /// MAVLink address of the daemon, e.g. udpout:127.0.0.1:14550.
+        #[arg(long, default_value = "udpout:127.0.0.1:14550")]
+        mavlink: String,
+        /// The daemon's feature socket.
+        #[arg(long)]
+        features: PathBuf,
+        #[arg(long, default_value = "racetrack")]
+        scenario: String,
+        #[arg(long, default_value_t = 70.0)]
+        duration_s: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Replay speed (1 = real time).
+        #[arg(long, default_value_t = 1.0)]
+        speedup: f64,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Fail (exit 1) if the unaligned ATE is above this (m).
+        #[arg(long)]
+        max_ate_m: Option<f64>,
+        /// Fail if the output rate is below this (Hz).
+        #[arg(long)]
+        min_rate_hz: Option<f64>,
+        /// Fail if the p99 latency is above this (ms).
+        #[arg(long)]
+        max_latency_ms: Option<f64>,
+    },
+}
+
+fn load_sim(config: &Option<PathBuf>) -> anyhow::Result<SimConfig> {
+    Ok(match config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            SimConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+        }
+        None => SimConfig::new(),
+    })
 }
 
 fn main() -> anyhow::Result<()> {
@@ -66,6 +109,46 @@ fn main() -> anyhow::Result<()> {
                 println!("{line}");
             }
             println!("wrote {}", out.display());
+        }
+        Cmd::Serve {
+            mavlink,
+            features,
+            scenario,
+            duration_s,
+            seed,
+            speedup,
+            config,
+            json,
+            max_ate_m,
+            min_rate_hz,
+            max_latency_ms,
+        } => {
+            anyhow::ensure!(
+                duration_s.is_finite() && duration_s > 1.0,
+                "--duration-s {duration_s} must be > 1"
+            );
+            anyhow::ensure!(
+                speedup.is_finite() && speedup > 0.0 && speedup <= 1000.0,
+                "--speedup {speedup} must be in (0, 1000]"
+            );
+            let cfg = load_sim(&config)?;
+            let ds = Dataset::generate(&scenario, seed, Some(duration_s), &cfg)?;
+            let rt = tokio::runtime::Runtime::new()?;
+            let opts = cmsckf_sitl::serve::ServeOptions {
+                mavlink,
+                feature_socket: features,
+                speedup,
+            };
+            let report = rt.block_on(cmsckf_sitl::serve::serve(&opts, &ds))?;
+            if json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            }
+            let m = report.misses(max_ate_m, min_rate_hz, max_latency_ms);
+            if !m.is_empty() {
+                anyhow::bail!("thresholds missed: {}", m.join("; "));
+            }
         }
     }
     Ok(())

@@ -1,0 +1,349 @@
+//! The mock autopilot (`cmsckf-sitl serve`): it stands in for ArduPilot on
+//! the MAVLink link and for the camera front end on the feature socket, and
+//! scores what the daemon sends back against the truth.
+//!
+//! Over MAVLink it sends HEARTBEAT (quadrotor), SYSTEM_TIME, HIGHRES_IMU,
+//! ATTITUDE and LOCAL_POSITION_NED (its own EKF's view: here, the truth),
+//! answers SET_MESSAGE_INTERVAL and TIMESYNC, and receives
+//! VISION_POSITION_ESTIMATE. The flight is replayed at real time or at
+//! `speedup`. Times on the wire are the autopilot's boot clock, which starts
+//! `BOOT0_S` before the flight.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{AsyncMavConnection, MavHeader};
+use nalgebra::Vector3;
+use serde::Serialize;
+use tokio::io::AsyncWriteExt;
+use tokio::net::UnixStream;
+
+use crate::dataset::Dataset;
+use crate::metrics;
+
+/// Boot time of the autopilot at the start of the flight (s).
+pub const BOOT0_S: f64 = 20.0;
+
+/// Settings of one served flight.
+#[derive(Clone, Debug)]
+pub struct ServeOptions {
+    /// Address in the mavlink crate's syntax, e.g. `udpout:127.0.0.1:14550`.
+    pub mavlink: String,
+    /// The daemon's feature socket.
+    pub feature_socket: PathBuf,
+    /// Replay speed (1 = real time).
+    pub speedup: f64,
+}
+
+/// One estimate received from the daemon.
+#[derive(Clone, Debug)]
+struct Received {
+    wall: Instant,
+    t_us: u64,
+    p: Vector3<f64>,
+    cov: [f32; 21],
+    reset_counter: u8,
+}
+
+/// The score of a served flight.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub duration_s: f64,
+    pub estimates_received: usize,
+    /// Estimates per second of flight (autopilot) time.
+    pub output_rate_hz: f64,
+    pub ate_m: f64,
+    pub ate_aligned_m: f64,
+    /// Wall time from sending an IMU sample to receiving the estimate stamped
+    /// with it.
+    pub latency_ms_p50: f64,
+    pub latency_ms_p99: f64,
+    pub time_to_first_estimate_s: f64,
+    pub reset_count: u32,
+    pub covariance_ok: bool,
+    pub imu_sent: usize,
+    pub frames_sent: usize,
+    pub speedup: f64,
+}
+
+impl Report {
+    /// The thresholds this report misses (a NaN figure misses).
+    pub fn misses(&self, max_ate_m: Option<f64>, min_rate_hz: Option<f64>, max_latency_ms: Option<f64>) -> Vec<String> {
+        let mut v = Vec::new();
+        if let Some(m) = max_ate_m {
+            if self.ate_m.is_nan() || self.ate_m > m {
+                v.push(format!("ATE {:.3} m > {m} m", self.ate_m));
+            }
+        }
+        if let Some(m) = min_rate_hz {
+            if self.output_rate_hz.is_nan() || self.output_rate_hz < m {
+                v.push(format!("output rate {:.2} Hz < {m} Hz", self.output_rate_hz));
+            }
+        }
+        if let Some(m) = max_latency_ms {
+            if self.latency_ms_p99.is_nan() || self.latency_ms_p99 > m {
+                v.push(format!("p99 latency {:.2} ms > {m} ms", self.latency_ms_p99));
+            }
+        }
+        v
+    }
+}
+
+/// Errors that stop the mock autopilot.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("MAVLink address '{0}': {1}")]
+    Link(String, std::io::Error),
+}
+
+fn boot_us(t_s: f64) -> u64 {
+    ((t_s + BOOT0_S) * 1e6).round() as u64
+}
+
+/// Serves `ds` to the daemon and scores its estimates.
+pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeError> {
+    let mut conn = mavlink::connect_async::<apm::MavMessage>(&opts.mavlink)
+        .await
+        .map_err(|e| ServeError::Link(opts.mavlink.clone(), e))?;
+    conn.set_protocol_version(mavlink::MavlinkVersion::V2);
+    conn.set_allow_recv_any_version(true);
+    let conn = Arc::new(conn);
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let started = Instant::now();
+    let boot_ns = move || ((BOOT0_S * 1e9) as i64) + started.elapsed().as_nanos() as i64;
+    let received: Arc<Mutex<Vec<Received>>> = Arc::default();
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+
+    // Receive: answer commands and time sync, collect estimates.
+    let rx = {
+        let conn = conn.clone();
+        let received = received.clone();
+        tokio::spawn(async move {
+            loop {
+                let r = tokio::select! { r = conn.recv() => r, _ = stop_rx.changed() => return };
+                let Ok((h, msg)) = r else {
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                    continue;
+                };
+                match msg {
+                    apm::MavMessage::VISION_POSITION_ESTIMATE(d) => {
+                        if let Ok(mut v) = received.lock() {
+                            v.push(Received {
+                                wall: Instant::now(),
+                                t_us: d.usec,
+                                p: Vector3::new(d.x as f64, d.y as f64, d.z as f64),
+                                cov: d.covariance,
+                                reset_counter: d.reset_counter,
+                            });
+                        }
+                    }
+                    apm::MavMessage::COMMAND_LONG(c) => {
+                        let ack = apm::MavMessage::COMMAND_ACK(apm::COMMAND_ACK_DATA {
+                            command: c.command,
+                            result: apm::MavResult::MAV_RESULT_ACCEPTED,
+                            target_system: h.system_id as u8,
+                            target_component: h.component_id,
+                            ..Default::default()
+                        });
+                        let _ = conn.send(&header, &ack).await;
+                    }
+                    apm::MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
+                        let reply = apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+                            tc1: boot_ns(),
+                            ts1: t.ts1,
+                            target_system: h.system_id as u8,
+                            target_component: h.component_id,
+                        });
+                        let _ = conn.send(&header, &reply).await;
+                    }
+                    _ => {}
+                }
+            }
+        })
+    };
+
+    // Stream the flight in time order, paced by the wall clock.
+    let rate_imu = ds.cfg.imu_rate_hz;
+    let mut sent_wall: Vec<Option<Instant>> = vec![None; ds.imu.len()];
+    let mut feat: Option<UnixStream> = None;
+    let (mut k_imu, mut k_cam) = (0usize, 0usize);
+    let mut next_slow = 0.0; // 10 Hz attitude / position
+    let mut next_1hz = 0.0;
+    let mut frames_sent = 0;
+    let t_start = Instant::now();
+    let send = |m: apm::MavMessage| {
+        let conn = conn.clone();
+        async move {
+            let _ = conn.send(&header, &m).await;
+        }
+    };
+    loop {
+        let t_imu = ds.imu.get(k_imu).map_or(f64::INFINITY, |m| m.t_s);
+        let t_cam = ds.frames.get(k_cam).map_or(f64::INFINITY, |f| f.t_s);
+        let t = t_imu.min(t_cam).min(next_slow).min(next_1hz);
+        if !t.is_finite() || t > ds.duration_s + 1e-9 {
+            break;
+        }
+        let target = t_start + Duration::from_secs_f64(t.max(0.0) / opts.speedup);
+        tokio::time::sleep_until(target.into()).await;
+        if t == next_1hz {
+            next_1hz += 1.0;
+            send(apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
+                custom_mode: 0,
+                mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
+                autopilot: apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+                base_mode: apm::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                system_status: apm::MavState::MAV_STATE_ACTIVE,
+                mavlink_version: 3,
+            }))
+            .await;
+            send(apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
+                time_unix_usec: 1_700_000_000_000_000 + (t * 1e6) as u64,
+                time_boot_ms: (boot_us(t) / 1000) as u32,
+            }))
+            .await;
+        } else if t == next_slow {
+            next_slow += 0.1;
+            let s = ds.trajectory.sample(t);
+            let (r, p, y) = s.q_W_B.euler_angles();
+            let ms = (boot_us(t) / 1000) as u32;
+            send(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
+                time_boot_ms: ms,
+                roll: r as f32,
+                pitch: p as f32,
+                yaw: y as f32,
+                rollspeed: s.w_B.x as f32,
+                pitchspeed: s.w_B.y as f32,
+                yawspeed: s.w_B.z as f32,
+            }))
+            .await;
+            send(apm::MavMessage::LOCAL_POSITION_NED(apm::LOCAL_POSITION_NED_DATA {
+                time_boot_ms: ms,
+                x: s.p_B_in_W.x as f32,
+                y: s.p_B_in_W.y as f32,
+                z: s.p_B_in_W.z as f32,
+                vx: s.v_B_in_W.x as f32,
+                vy: s.v_B_in_W.y as f32,
+                vz: s.v_B_in_W.z as f32,
+            }))
+            .await;
+        } else if t == t_imu {
+            let m = &ds.imu[k_imu];
+            send(apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+                time_usec: boot_us(m.t_s),
+                xacc: m.accel_mps2.x as f32,
+                yacc: m.accel_mps2.y as f32,
+                zacc: m.accel_mps2.z as f32,
+                xgyro: m.gyro_radps.x as f32,
+                ygyro: m.gyro_radps.y as f32,
+                zgyro: m.gyro_radps.z as f32,
+                fields_updated: apm::HighresImuUpdatedFlags::from_bits_truncate(0x3f),
+                ..Default::default()
+            }))
+            .await;
+            sent_wall[k_imu] = Some(Instant::now());
+            k_imu += 1;
+        } else {
+            let f = &ds.frames[k_cam];
+            k_cam += 1;
+            let mut line = format!("{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[", boot_us(f.t_s));
+            for (i, o) in f.features.iter().enumerate() {
+                if i > 0 {
+                    line.push(',');
+                }
+                line += &format!("[{},{:.3},{:.3}]", o.landmark_id, o.u_px, o.v_px);
+            }
+            line += "]}\n";
+            if feat.is_none() {
+                feat = UnixStream::connect(&opts.feature_socket).await.ok();
+            }
+            if let Some(s) = feat.as_mut() {
+                if s.write_all(line.as_bytes()).await.is_ok() {
+                    frames_sent += 1;
+                } else {
+                    feat = None;
+                }
+            }
+        }
+    }
+    // Let the last estimates arrive.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = stop_tx.send(true);
+    let _ = rx.await;
+    let rec = received.lock().map(|v| v.clone()).unwrap_or_default();
+    Ok(score(ds, &rec, &sent_wall, rate_imu, k_imu, frames_sent, opts.speedup))
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+fn score(
+    ds: &Dataset,
+    rec: &[Received],
+    sent_wall: &[Option<Instant>],
+    rate_imu: f64,
+    imu_sent: usize,
+    frames_sent: usize,
+    speedup: f64,
+) -> Report {
+    let mut est = Vec::new();
+    let mut truth = Vec::new();
+    let mut lat = Vec::new();
+    let mut resets = 0;
+    let mut cov_ok = true;
+    let mut last_reset = rec.first().map(|r| r.reset_counter);
+    for r in rec {
+        let t = r.t_us as f64 * 1e-6 - BOOT0_S;
+        est.push(r.p);
+        truth.push(ds.trajectory.sample(t).p_B_in_W);
+        let k = (t * rate_imu).round();
+        if k >= 0.0 {
+            if let Some(Some(w)) = sent_wall.get(k as usize) {
+                lat.push(r.wall.saturating_duration_since(*w).as_secs_f64() * 1e3);
+            }
+        }
+        if Some(r.reset_counter) != last_reset {
+            resets += 1;
+            last_reset = Some(r.reset_counter);
+        }
+        // Diagonal entries of the upper-triangular layout: 0, 6, 11, 15, 18, 20.
+        cov_ok &= r.cov.iter().all(|c| c.is_finite()) && [0, 6, 11, 15, 18, 20].iter().all(|&i| r.cov[i] > 0.0);
+    }
+    let ate = if est.is_empty() {
+        None
+    } else {
+        Some(metrics::ate(&est, &truth))
+    };
+    let t_first = rec.first().map_or(f64::NAN, |r| r.t_us as f64 * 1e-6 - BOOT0_S);
+    let t_last = rec.last().map_or(f64::NAN, |r| r.t_us as f64 * 1e-6 - BOOT0_S);
+    Report {
+        duration_s: ds.duration_s,
+        estimates_received: rec.len(),
+        output_rate_hz: if rec.len() > 1 {
+            (rec.len() - 1) as f64 / (t_last - t_first)
+        } else {
+            0.0
+        },
+        ate_m: ate.map_or(f64::NAN, |a| a.unaligned_m),
+        ate_aligned_m: ate.map_or(f64::NAN, |a| a.aligned_m),
+        latency_ms_p50: percentile(&mut lat.clone(), 0.5),
+        latency_ms_p99: percentile(&mut lat, 0.99),
+        time_to_first_estimate_s: t_first,
+        reset_count: resets,
+        covariance_ok: cov_ok && !rec.is_empty(),
+        imu_sent,
+        frames_sent,
+        speedup,
+    }
+}

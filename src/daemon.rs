@@ -1,0 +1,691 @@
+//! The daemon: tasks, bounded channels and the fusion loop.
+//!
+//! - the MAVLink receive task turns autopilot messages into [`FusionMsg`]s;
+//! - the feature-socket task does the same for camera frames;
+//! - the fusion loop runs on its own thread (the estimator is CPU work and
+//!   must never stall the I/O tasks), merges IMU and frames in time order,
+//!   waits for IMU to cover each frame, and emits the outputs;
+//! - the send task writes outputs and the periodic messages to the link.
+//!
+//! Every channel is bounded; when one is full the newest item is dropped and
+//! counted. [`run`] returns when its `shutdown` future completes.
+
+use std::collections::VecDeque;
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
+use tokio::sync::{mpsc, watch};
+
+use crate::config::{Config, FeatureClock, GnssSource};
+use crate::estimator::frontend::{normalise, NormObs};
+use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Settings};
+use crate::eval::initial_covariance;
+use crate::gnss::reassembly::{Reassembled, Reassembler};
+use crate::io::feature_pipe::{self, FeatureFrame};
+use crate::io::mavlink::{self as mav, Inbound, Link, Outbound};
+use crate::io::Counters;
+
+/// Errors that stop the daemon from starting.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("mavlink.address '{address}': {source}")]
+    Link { address: String, source: mav::LinkError },
+    #[error(transparent)]
+    Socket(#[from] feature_pipe::SocketError),
+}
+
+/// What the daemon did, returned at shutdown.
+#[derive(Clone, Debug, Default)]
+pub struct RunSummary {
+    pub counters: std::collections::BTreeMap<String, u64>,
+}
+
+/// Input to the fusion loop.
+#[derive(Debug)]
+pub enum FusionMsg {
+    Imu(ImuMeas),
+    Attitude {
+        roll: f64,
+        pitch: f64,
+        yaw: f64,
+    },
+    LocalPosition {
+        p_ned_m: Vector3<f64>,
+        v_ned_mps: Vector3<f64>,
+    },
+    Frame(FeatureFrame),
+}
+
+/// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).
+const FUSION_QUEUE: usize = 8192;
+/// Frames waiting for IMU to cover them.
+const PENDING_FRAMES: usize = 32;
+
+/// Runs the daemon until `shutdown` completes.
+pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunSummary, DaemonError> {
+    let counters = Counters::default();
+    let link = Arc::new(
+        Link::connect(
+            &cfg.mavlink.address,
+            cfg.mavlink.system_id,
+            cfg.mavlink.component_id,
+            cfg.mavlink.system_id,
+            cfg.mavlink.autopilot_component_id,
+        )
+        .await
+        .map_err(|source| DaemonError::Link {
+            address: cfg.mavlink.address.clone(),
+            source,
+        })?,
+    );
+    let listener = feature_pipe::bind(&PathBuf::from(&cfg.features.socket)).await?;
+    tracing::info!(address = %cfg.mavlink.address, socket = %cfg.features.socket, mode = cfg.estimator.mode.name(), "cmsckf running");
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (fusion_tx, fusion_rx) = mpsc::channel::<FusionMsg>(FUSION_QUEUE);
+    let (out_tx, mut out_rx) = mpsc::channel::<Outbound>(256);
+    let healthy = Arc::new(AtomicBool::new(false));
+    let initialised = Arc::new(AtomicBool::new(false));
+    // Companion monotonic → autopilot boot clock offset (µs), from TIMESYNC.
+    let mono_offset_us = Arc::new(AtomicI64::new(i64::MIN));
+    let start = Instant::now();
+
+    // Feature socket.
+    let (frame_tx, mut frame_rx) = mpsc::channel::<FeatureFrame>(64);
+    let feat_task = tokio::spawn(feature_pipe::serve(
+        listener,
+        cfg.features.max_line_bytes,
+        cfg.features.max_features,
+        frame_tx,
+        counters.clone(),
+        stop_rx.clone(),
+    ));
+    let fwd = {
+        let fusion_tx = fusion_tx.clone();
+        let counters = counters.clone();
+        let mut stop = stop_rx.clone();
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    f = frame_rx.recv() => match f {
+                        Some(f) => if fusion_tx.try_send(FusionMsg::Frame(f)).is_err() { counters.add("fusion_queue_full", 1) },
+                        None => return,
+                    },
+                    _ = stop.changed() => return,
+                }
+            }
+        })
+    };
+
+    // MAVLink receive.
+    let rx_task = {
+        let link = link.clone();
+        let counters = counters.clone();
+        let fusion_tx = fusion_tx.clone();
+        let mono_offset_us = mono_offset_us.clone();
+        let mut stop = stop_rx.clone();
+        let rtcm_from_mavlink = cfg.gnss.source == GnssSource::Mavlink;
+        tokio::spawn(async move {
+            let mut reasm = Reassembler::new();
+            loop {
+                let r = tokio::select! {
+                    r = link.recv() => r,
+                    _ = stop.changed() => return,
+                };
+                let (_src, msg, gap) = match r {
+                    Ok(v) => v,
+                    Err(mav::LinkError::Io(e)) => {
+                        counters.add("mavlink_io_error", 1);
+                        tracing::warn!(error = %e, "MAVLink link error");
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                        continue;
+                    }
+                    Err(mav::LinkError::Parse(e)) => {
+                        counters.add("mavlink_undecodable", 1);
+                        tracing::warn!(reason = "mavlink_undecodable", "{e}");
+                        continue;
+                    }
+                    Err(mav::LinkError::Rejected(why)) => {
+                        counters.add(&format!("mavlink_rejected_{why}"), 1);
+                        tracing::warn!(reason = why, "MAVLink message rejected");
+                        continue;
+                    }
+                };
+                if gap > 0 {
+                    counters.add("mavlink_frames_lost_or_corrupt", gap as u64);
+                    tracing::warn!(
+                        frames = gap,
+                        reason = "mavlink_frames_lost_or_corrupt",
+                        "sequence gap: frames lost or dropped as corrupt (bad CRC, unknown id)"
+                    );
+                }
+                counters.add("mavlink_messages", 1);
+                let fm = match msg {
+                    Inbound::Imu {
+                        t_us,
+                        accel_mps2,
+                        gyro_radps,
+                        kind,
+                    } => {
+                        counters.add(&format!("imu_{kind}"), 1);
+                        Some(FusionMsg::Imu(ImuMeas {
+                            t_s: t_us as f64 * 1e-6,
+                            accel_mps2,
+                            gyro_radps,
+                        }))
+                    }
+                    Inbound::Attitude {
+                        roll_rad,
+                        pitch_rad,
+                        yaw_rad,
+                        ..
+                    } => {
+                        counters.add("attitude", 1);
+                        Some(FusionMsg::Attitude {
+                            roll: roll_rad,
+                            pitch: pitch_rad,
+                            yaw: yaw_rad,
+                        })
+                    }
+                    Inbound::LocalPosition { p_ned_m, v_ned_mps, .. } => {
+                        counters.add("local_position", 1);
+                        Some(FusionMsg::LocalPosition { p_ned_m, v_ned_mps })
+                    }
+                    Inbound::Timesync { tc1_ns, ts1_ns } => {
+                        if tc1_ns != 0 {
+                            // Our request came back: offset = tc1 − midpoint of our clock.
+                            let now_ns = start.elapsed().as_nanos() as i64;
+                            let rtt = now_ns - ts1_ns;
+                            if (0..1_000_000_000).contains(&rtt) {
+                                let offset_us = (tc1_ns - (ts1_ns + now_ns) / 2) / 1000;
+                                mono_offset_us.store(offset_us, Ordering::Relaxed);
+                                counters.add("timesync", 1);
+                            }
+                        }
+                        None
+                    }
+                    Inbound::RtcmFragment { flags, data } => {
+                        if rtcm_from_mavlink {
+                            let mut r = reasm.push(flags, &data);
+                            loop {
+                                match r {
+                                    Reassembled::Message(m) => {
+                                        counters.add("rtcm_messages", 1);
+                                        counters.add("rtcm_bytes", m.len() as u64);
+                                        break;
+                                    }
+                                    Reassembled::Pending => break,
+                                    Reassembled::Rejected(why) => {
+                                        counters.add(why, 1);
+                                        tracing::warn!(reason = why, "RTCM fragment rejected");
+                                        break;
+                                    }
+                                    Reassembled::Dropped { reason, then } => {
+                                        counters.add(reason, 1);
+                                        tracing::warn!(reason, "RTCM sequence dropped: a fragment is missing");
+                                        r = *then;
+                                    }
+                                }
+                            }
+                        }
+                        None
+                    }
+                    Inbound::Heartbeat => {
+                        counters.add("heartbeat_in", 1);
+                        None
+                    }
+                    Inbound::SystemTime { .. } => {
+                        counters.add("system_time", 1);
+                        None
+                    }
+                    Inbound::Other(_) => None,
+                };
+                if let Some(m) = fm {
+                    if fusion_tx.try_send(m).is_err() {
+                        counters.add("fusion_queue_full", 1);
+                    }
+                }
+            }
+        })
+    };
+    drop(fusion_tx);
+
+    // Send task: every outbound message goes through here.
+    let tx_task = {
+        let link = link.clone();
+        let counters = counters.clone();
+        tokio::spawn(async move {
+            while let Some(m) = out_rx.recv().await {
+                match link.send(&m).await {
+                    Ok(()) => {
+                        if matches!(m, Outbound::VisionPositionEstimate { .. }) {
+                            counters.add("vpe_sent", 1);
+                        }
+                    }
+                    Err(e) => {
+                        counters.add("mavlink_send_error", 1);
+                        tracing::debug!(error = %e, "send failed");
+                    }
+                }
+            }
+        })
+    };
+
+    // Periodic: heartbeat, stream requests, timesync, counters.
+    let periodic = {
+        let out_tx = out_tx.clone();
+        let counters = counters.clone();
+        let healthy = healthy.clone();
+        let initialised = initialised.clone();
+        let mut stop = stop_rx.clone();
+        let imu_interval_us = 1e6 / cfg.mavlink.imu_rate_hz as f32;
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            let mut n: u64 = 0;
+            loop {
+                tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
+                n += 1;
+                let _ = out_tx.try_send(Outbound::Heartbeat {
+                    healthy: healthy.load(Ordering::Relaxed),
+                    initialised: initialised.load(Ordering::Relaxed),
+                });
+                // Ask for the streams until they arrive.
+                let wanted = [
+                    ("imu_highres", mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
+                    ("attitude", mav::MSG_ID_ATTITUDE, 100_000.0),
+                    ("system_time", mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
+                    ("local_position", mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
+                ];
+                for (counter, id, interval) in wanted {
+                    if counters.get(counter) == 0 {
+                        let _ = out_tx.try_send(Outbound::SetMessageInterval {
+                            message_id: id,
+                            interval_us: interval,
+                        });
+                    }
+                }
+                let _ = out_tx.try_send(Outbound::TimesyncRequest {
+                    ts1_ns: start.elapsed().as_nanos() as i64,
+                });
+                if n.is_multiple_of(10) {
+                    tracing::info!(counters = ?counters.snapshot(), "cmsckf counters");
+                }
+            }
+        })
+    };
+
+    // Fusion on its own thread.
+    let fusion = {
+        let counters = counters.clone();
+        let healthy = healthy.clone();
+        let initialised = initialised.clone();
+        let cfg = cfg.clone();
+        let out_tx = out_tx.clone();
+        let mono_offset_us = mono_offset_us.clone();
+        std::thread::Builder::new()
+            .name("cmsckf-fusion".into())
+            .spawn(move || fusion_loop(cfg, fusion_rx, out_tx, counters, healthy, initialised, mono_offset_us))
+            .expect("spawning the fusion thread")
+    };
+    drop(out_tx);
+
+    shutdown.await;
+    tracing::info!("cmsckf shutting down");
+    let _ = stop_tx.send(true);
+    for t in [rx_task, fwd, periodic] {
+        let _ = t.await;
+    }
+    let _ = feat_task.await;
+    // The fusion thread ends when its input channel closes (all senders gone).
+    let _ = tokio::task::spawn_blocking(move || fusion.join()).await;
+    let _ = tx_task.await;
+    let _ = std::fs::remove_file(&cfg.features.socket);
+    Ok(RunSummary {
+        counters: counters.snapshot(),
+    })
+}
+
+/// State of the fusion loop.
+struct Fusion {
+    cfg: Config,
+    cam: cmsckf_sitl::camera::Camera,
+    est: Option<Estimator>,
+    static_buf: VecDeque<ImuMeas>,
+    attitude: Option<(f64, f64, f64)>,
+    local: Option<(Vector3<f64>, Vector3<f64>)>,
+    pending: VecDeque<(f64, FeatureFrame)>,
+    last_imu_t: f64,
+    last_frame_t: f64,
+    next_output_t: f64,
+    reset_counter: u8,
+    norm: Vec<NormObs>,
+}
+
+fn fusion_loop(
+    cfg: Config,
+    mut rx: mpsc::Receiver<FusionMsg>,
+    out: mpsc::Sender<Outbound>,
+    counters: Counters,
+    healthy: Arc<AtomicBool>,
+    initialised: Arc<AtomicBool>,
+    mono_offset_us: Arc<AtomicI64>,
+) {
+    let mut f = Fusion {
+        cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
+        est: None,
+        static_buf: VecDeque::with_capacity(4096),
+        attitude: None,
+        local: None,
+        pending: VecDeque::with_capacity(PENDING_FRAMES),
+        last_imu_t: f64::NEG_INFINITY,
+        last_frame_t: f64::NEG_INFINITY,
+        next_output_t: f64::NEG_INFINITY,
+        reset_counter: 0,
+        norm: Vec::with_capacity(cfg.features.max_features),
+        cfg,
+    };
+    while let Some(msg) = rx.blocking_recv() {
+        match msg {
+            FusionMsg::Attitude { roll, pitch, yaw } => f.attitude = Some((roll, pitch, yaw)),
+            FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => f.local = Some((p_ned_m, v_ned_mps)),
+            FusionMsg::Frame(fr) => {
+                let t_ap_us = match f.cfg.features.clock {
+                    FeatureClock::Autopilot => fr.t_us as i64,
+                    FeatureClock::Monotonic => {
+                        let off = mono_offset_us.load(Ordering::Relaxed);
+                        if off == i64::MIN {
+                            counters.add("feature_no_timesync", 1);
+                            continue;
+                        }
+                        fr.t_us as i64 + off
+                    }
+                };
+                let t = t_ap_us as f64 * 1e-6;
+                if t <= f.last_frame_t {
+                    counters.add("feature_time_backwards", 1);
+                    tracing::warn!(
+                        reason = "feature_time_backwards",
+                        t_s = t,
+                        prev_s = f.last_frame_t,
+                        "frame rejected"
+                    );
+                    continue;
+                }
+                f.last_frame_t = t;
+                if f.pending.len() == PENDING_FRAMES {
+                    f.pending.pop_front();
+                    counters.add("feature_pending_overflow", 1);
+                }
+                f.pending.push_back((t, fr));
+            }
+            FusionMsg::Imu(m) => {
+                if m.t_s <= f.last_imu_t {
+                    counters.add("imu_time_backwards", 1);
+                    continue;
+                }
+                if f.last_imu_t.is_finite() && m.t_s - f.last_imu_t > 0.5 {
+                    counters.add("imu_gap", 1);
+                    tracing::warn!(reason = "imu_gap", gap_s = m.t_s - f.last_imu_t, "IMU gap");
+                }
+                f.last_imu_t = m.t_s;
+                counters.add("imu_samples", 1);
+                f.on_imu(m, &counters, &out);
+                initialised.store(f.est.is_some(), Ordering::Relaxed);
+                healthy.store(
+                    f.est.as_ref().is_some_and(|e| e.check_health().is_ok()),
+                    Ordering::Relaxed,
+                );
+            }
+        }
+    }
+}
+
+impl Fusion {
+    fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if self.est.is_none() {
+            self.try_init(m, counters);
+            return;
+        }
+        let Some(est) = self.est.as_mut() else { return };
+        if est.add_imu(m).is_err() {
+            counters.add("imu_rejected", 1);
+        }
+        // Frames now covered by IMU, in time order.
+        while let Some((t, _)) = self.pending.front() {
+            if *t > m.t_s {
+                break;
+            }
+            let Some((t, fr)) = self.pending.pop_front() else { break };
+            if t < est.time_s() {
+                counters.add("feature_late", 1);
+                continue;
+            }
+            let rej = normalise(
+                &self.cam,
+                self.cfg.camera.pixel_noise_px,
+                fr.features.iter().copied(),
+                &mut self.norm,
+            );
+            for (name, n) in [
+                ("feature_non_finite", rej.non_finite),
+                ("feature_outside_image", rej.outside_image),
+                ("feature_undistort_failed", rej.undistort_failed),
+                ("feature_duplicate_id", rej.duplicate_id),
+            ] {
+                if n > 0 {
+                    counters.add(name, n);
+                }
+            }
+            match est.process_frame(t, &self.norm) {
+                Ok(rep) => {
+                    counters.add("frames_processed", 1);
+                    counters.add("tracks_used", rep.tracks_used as u64);
+                    counters.add("global_updates", rep.global_updates as u64);
+                    for (k, v) in &rep.rejected {
+                        counters.add(&format!("track_rejected_{k}"), *v);
+                    }
+                }
+                Err(e) => {
+                    counters.add("frame_rejected", 1);
+                    tracing::warn!(error = %e, "frame rejected");
+                }
+            }
+            if let Err(why) = est.check_health() {
+                counters.add("filter_reset", 1);
+                tracing::error!(reason = %why, "filter unhealthy: resetting");
+                self.est = None;
+                self.reset_counter = self.reset_counter.wrapping_add(1);
+                return;
+            }
+        }
+        // Output at the configured rate of autopilot time, propagated to the
+        // latest IMU sample.
+        if m.t_s >= self.next_output_t {
+            let period = 1.0 / self.cfg.output.rate_hz;
+            self.next_output_t = if self.next_output_t.is_finite() && m.t_s - self.next_output_t < period {
+                self.next_output_t + period
+            } else {
+                m.t_s + period
+            };
+            let x = est.predict(m.t_s);
+            let cov = est.pose_covariance();
+            for o in outputs(&x, &cov, m.t_s, self.reset_counter, self.cfg.output.odometry) {
+                if out.try_send(o).is_err() {
+                    counters.add("output_queue_full", 1);
+                }
+            }
+        }
+    }
+
+    /// Starts the filter: static (roll, pitch and gyro bias from the IMU,
+    /// yaw from the autopilot) when the vehicle is still, otherwise from the
+    /// autopilot's attitude and local velocity (an in-flight start).
+    fn try_init(&mut self, m: ImuMeas, counters: &Counters) {
+        self.static_buf.push_back(m);
+        let window = self.cfg.init.static_window_s;
+        while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
+            self.static_buf.pop_front();
+        }
+        let Some((roll, pitch, yaw)) = self.attitude else {
+            return;
+        };
+        if self.static_buf.len() < 10 || m.t_s - self.static_buf[0].t_s < 0.9 * window {
+            return;
+        }
+        let n = self.static_buf.len() as f64;
+        let acc = self.static_buf.iter().map(|s| s.accel_mps2).sum::<Vector3<f64>>() / n;
+        let gyr = self.static_buf.iter().map(|s| s.gyro_radps).sum::<Vector3<f64>>() / n;
+        let gyr_var = self
+            .static_buf
+            .iter()
+            .map(|s| (s.gyro_radps - gyr).norm_squared())
+            .sum::<f64>()
+            / n;
+        // Constant velocity looks static to an IMU: trust the autopilot's
+        // velocity when it has one.
+        let is_static = gyr.norm() < 0.05
+            && gyr_var < 1e-3
+            && (acc.norm() - self.cfg.imu.gravity_mps2).abs() < 0.3
+            && self.local.is_none_or(|(_, v)| v.norm() < 0.3);
+        let (p, v) = self.local.unwrap_or((Vector3::zeros(), Vector3::zeros()));
+        let mut p0 = initial_covariance(&self.cfg);
+        let (q, b_g, v) = if is_static {
+            match attitude_from_static(&acc, yaw) {
+                Some(q) => (q, gyr, Vector3::zeros()),
+                None => return,
+            }
+        } else {
+            if self.local.is_none() {
+                return;
+            }
+            // In flight: the autopilot's attitude, looser.
+            for k in 0..3 {
+                p0[(k, k)] *= 4.0;
+                p0[(3 + k, 3 + k)] = 0.2f64.powi(2);
+            }
+            (UnitQuaternion::from_euler_angles(roll, pitch, yaw), Vector3::zeros(), v)
+        };
+        let x0 = ImuState {
+            q_W_B: q,
+            v_B_in_W: v,
+            p_B_in_W: p,
+            b_g,
+            b_a: Vector3::zeros(),
+        };
+        let mut est = Estimator::new(Settings::from_config(&self.cfg), m.t_s, x0, &p0);
+        let _ = est.add_imu(m);
+        self.est = Some(est);
+        self.static_buf.clear();
+        self.pending.retain(|(t, _)| *t >= m.t_s);
+        counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
+        tracing::info!(static_start = is_static, t_s = m.t_s, "filter initialised");
+    }
+}
+
+/// Euler (ZYX) angles of `q` and the map `M` from `[droll, dpitch, dyaw]` to
+/// the world-frame rotation error: `δθ = dyaw ẑ + dpitch Rz ŷ + droll Rz Ry x̂`.
+fn euler_and_map(q: &UnitQuaternion<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+    let (r, p, y) = q.euler_angles();
+    let rz = UnitQuaternion::from_euler_angles(0.0, 0.0, y);
+    let rzy = UnitQuaternion::from_euler_angles(0.0, p, y);
+    let m = Matrix3::from_columns(&[rzy * Vector3::x(), rz * Vector3::y(), Vector3::z()]);
+    (Vector3::new(r, p, y), m)
+}
+
+/// Upper triangle, row-major, of a 6×6 matrix (MAVLink's 21-float layout).
+pub fn upper21(c: &Matrix6<f64>) -> [f32; 21] {
+    let mut out = [0.0f32; 21];
+    let mut k = 0;
+    for i in 0..6 {
+        for j in i..6 {
+            out[k] = c[(i, j)] as f32;
+            k += 1;
+        }
+    }
+    out
+}
+
+/// The messages for one output instant: `VISION_POSITION_ESTIMATE` (and
+/// `ODOMETRY` if asked). `cov` is the pose covariance `[δθ, δp]`.
+pub fn outputs(x: &ImuState, cov: &Matrix6<f64>, t_s: f64, reset_counter: u8, odometry: bool) -> Vec<Outbound> {
+    let (rpy, m) = euler_and_map(&x.q_W_B);
+    let minv = m.try_inverse().unwrap_or_else(Matrix3::identity);
+    // Covariance of [x y z roll pitch yaw] from that of [δθ, δp].
+    let mut t = Matrix6::zeros();
+    t.fixed_view_mut::<3, 3>(0, 3).copy_from(&Matrix3::identity());
+    t.fixed_view_mut::<3, 3>(3, 0).copy_from(&minv);
+    let c = t * cov * t.transpose();
+    let t_us = (t_s * 1e6).round() as u64;
+    let mut v = vec![Outbound::VisionPositionEstimate {
+        t_us,
+        p_ned_m: x.p_B_in_W,
+        rpy_rad: rpy,
+        covariance: upper21(&c),
+        reset_counter,
+    }];
+    if odometry {
+        // ODOMETRY wants its pose covariance in the same [x y z r p y] order.
+        let q = x.q_W_B.coords;
+        v.push(Outbound::Odometry {
+            t_us,
+            p_ned_m: x.p_B_in_W,
+            q_wxyz: [q.w as f32, q.x as f32, q.y as f32, q.z as f32],
+            v_body_mps: x.q_W_B.inverse_transform_vector(&x.v_B_in_W),
+            w_body_radps: Vector3::zeros(),
+            pose_covariance: upper21(&c),
+            velocity_covariance: [f32::NAN; 21],
+            reset_counter,
+        });
+    }
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The Euler-angle map against finite differences.
+    #[test]
+    fn euler_map_matches_finite_differences() {
+        let q = UnitQuaternion::from_euler_angles(0.2, -0.3, 1.2);
+        let (rpy, m) = euler_and_map(&q);
+        let h = 1e-6;
+        for k in 0..3 {
+            let mut d = rpy;
+            d[k] += h;
+            let qp = UnitQuaternion::from_euler_angles(d.x, d.y, d.z);
+            let dth = (qp * q.inverse()).scaled_axis() / h;
+            assert!((dth - m.column(k)).norm() < 1e-5, "{k}: {dth} vs {}", m.column(k));
+        }
+        let o = outputs(
+            &ImuState {
+                q_W_B: q,
+                v_B_in_W: Vector3::zeros(),
+                p_B_in_W: Vector3::new(1.0, 2.0, 3.0),
+                b_g: Vector3::zeros(),
+                b_a: Vector3::zeros(),
+            },
+            &(Matrix6::identity() * 0.01),
+            1.5,
+            2,
+            false,
+        );
+        let Outbound::VisionPositionEstimate {
+            t_us,
+            covariance,
+            reset_counter,
+            ..
+        } = &o[0]
+        else {
+            panic!()
+        };
+        assert_eq!(*t_us, 1_500_000);
+        assert_eq!(*reset_counter, 2);
+        // Position variances come first.
+        assert!((covariance[0] - 0.01).abs() < 1e-9 && covariance.iter().all(|v| v.is_finite()));
+    }
+}

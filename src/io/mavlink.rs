@@ -1,0 +1,405 @@
+//! The MAVLink link to the autopilot: the only file of the `cmsckf` crate that
+//! names `mavlink::` types.
+//!
+//! It converts at the boundary, both ways: MAVLink's messages and scaled
+//! integers become [`Inbound`] values in SI units, and [`Outbound`] values
+//! become MAVLink messages. Transport (UDP, TCP, serial) and framing are the
+//! `mavlink` crate's. The crate's reader drops frames with a bad CRC or an
+//! unknown id without telling its caller, so the link counts them from the
+//! gaps they leave in each sender's sequence numbers.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{AsyncMavConnection, MavHeader};
+use nalgebra::Vector3;
+
+/// Standard gravity used by MAVLink's milli-g units (m/s²).
+const G0: f64 = 9.80665;
+
+/// Who sent a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Source {
+    pub system: u32,
+    pub component: u8,
+}
+
+/// A message from the autopilot, in SI units.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Inbound {
+    /// IMU sample: boot time (µs), specific force (m/s², FRD), rate (rad/s).
+    Imu {
+        t_us: u64,
+        accel_mps2: Vector3<f64>,
+        gyro_radps: Vector3<f64>,
+        /// `highres`, `scaled` or `raw`.
+        kind: &'static str,
+    },
+    /// Attitude (rad) at boot time (ms).
+    Attitude {
+        t_boot_ms: u32,
+        roll_rad: f64,
+        pitch_rad: f64,
+        yaw_rad: f64,
+    },
+    /// The autopilot's local position and velocity (NED, m and m/s).
+    LocalPosition {
+        t_boot_ms: u32,
+        p_ned_m: Vector3<f64>,
+        v_ned_mps: Vector3<f64>,
+    },
+    SystemTime {
+        unix_us: u64,
+        boot_ms: u32,
+    },
+    Timesync {
+        tc1_ns: i64,
+        ts1_ns: i64,
+    },
+    /// One `GPS_RTCM_DATA` fragment.
+    RtcmFragment {
+        flags: u8,
+        data: Vec<u8>,
+    },
+    Heartbeat,
+    /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
+    /// for the SITL scorer's own tests).
+    Other(&'static str),
+}
+
+/// A message to the autopilot.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outbound {
+    Heartbeat {
+        healthy: bool,
+        initialised: bool,
+    },
+    SetMessageInterval {
+        message_id: u32,
+        interval_us: f32,
+    },
+    TimesyncRequest {
+        ts1_ns: i64,
+    },
+    VisionPositionEstimate {
+        t_us: u64,
+        p_ned_m: Vector3<f64>,
+        rpy_rad: Vector3<f64>,
+        /// Upper triangle of the 6×6 covariance of `[x y z roll pitch yaw]`.
+        covariance: [f32; 21],
+        reset_counter: u8,
+    },
+    Odometry {
+        t_us: u64,
+        p_ned_m: Vector3<f64>,
+        q_wxyz: [f32; 4],
+        v_body_mps: Vector3<f64>,
+        w_body_radps: Vector3<f64>,
+        pose_covariance: [f32; 21],
+        velocity_covariance: [f32; 21],
+        reset_counter: u8,
+    },
+    SetGpsGlobalOrigin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+}
+
+/// Message ids the daemon asks streams for.
+pub const MSG_ID_HIGHRES_IMU: u32 = 105;
+pub const MSG_ID_ATTITUDE: u32 = 30;
+pub const MSG_ID_SYSTEM_TIME: u32 = 2;
+pub const MSG_ID_LOCAL_POSITION_NED: u32 = 32;
+
+/// Why a receive did not give a message.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("link I/O: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("undecodable MAVLink message: {0}")]
+    Parse(String),
+    #[error("message rejected: {0}")]
+    Rejected(&'static str),
+}
+
+/// A connected link.
+pub struct Link {
+    conn: Arc<mavlink::AsyncConnection<apm::MavMessage>>,
+    header: MavHeader,
+    target_system: u8,
+    target_component: u8,
+    last_seq: std::sync::Mutex<BTreeMap<Source, u8>>,
+}
+
+impl Link {
+    /// Opens the link (`udpin:`, `udpout:`, `tcpout:`, `serial:` …).
+    pub async fn connect(
+        address: &str,
+        system_id: u8,
+        component_id: u8,
+        target_system: u8,
+        target_component: u8,
+    ) -> Result<Self, LinkError> {
+        let mut conn = mavlink::connect_async::<apm::MavMessage>(address).await?;
+        conn.set_protocol_version(mavlink::MavlinkVersion::V2);
+        conn.set_allow_recv_any_version(true);
+        Ok(Self {
+            conn: Arc::new(conn),
+            header: MavHeader {
+                system_id: system_id as u32,
+                component_id,
+                sequence: 0,
+            },
+            target_system,
+            target_component,
+            last_seq: std::sync::Mutex::new(BTreeMap::new()),
+        })
+    }
+
+    /// Receives the next message. Returns, besides the message, how many
+    /// frames of that sender were lost or dropped as corrupt since its
+    /// previous one (from the sequence numbers).
+    pub async fn recv(&self) -> Result<(Source, Inbound, u32), LinkError> {
+        let (h, msg) = match self.conn.try_recv().await {
+            Ok(v) => v,
+            Err(mavlink::error::MessageReadError::Io(e)) => return Err(LinkError::Io(e)),
+            Err(mavlink::error::MessageReadError::Parse(e)) => return Err(LinkError::Parse(e.to_string())),
+        };
+        let src = Source {
+            system: h.system_id,
+            component: h.component_id,
+        };
+        let gap = {
+            let mut seqs = self.last_seq.lock().unwrap_or_else(|p| p.into_inner());
+            let gap = seqs
+                .get(&src)
+                .map_or(0, |last| h.sequence.wrapping_sub(*last).wrapping_sub(1) as u32);
+            seqs.insert(src, h.sequence);
+            // A large jump is a restarted sender, not 200 lost frames.
+            if gap > 128 {
+                0
+            } else {
+                gap
+            }
+        };
+        Ok((src, decode(msg)?, gap))
+    }
+
+    /// Sends one message.
+    pub async fn send(&self, out: &Outbound) -> Result<(), LinkError> {
+        let msg = encode(out, self.target_system, self.target_component);
+        self.conn
+            .send(&self.header, &msg)
+            .await
+            .map_err(|e| LinkError::Io(std::io::Error::other(e.to_string())))?;
+        Ok(())
+    }
+}
+
+fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v)
+    } else {
+        Err(LinkError::Rejected("non_finite"))
+    }
+}
+
+/// MAVLink message → [`Inbound`], with units converted here and only here.
+fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
+    use apm::MavMessage as M;
+    Ok(match msg {
+        M::HIGHRES_IMU(d) => Inbound::Imu {
+            t_us: d.time_usec,
+            accel_mps2: finite3(Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64))?,
+            gyro_radps: finite3(Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64))?,
+            kind: "highres",
+        },
+        // SCALED_IMU: mG and mrad/s.
+        M::SCALED_IMU(d) => Inbound::Imu {
+            t_us: d.time_boot_ms as u64 * 1000,
+            accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
+            gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
+            kind: "scaled",
+        },
+        // RAW_IMU: ArduPilot fills it with the same mG and mrad/s scaling.
+        M::RAW_IMU(d) => Inbound::Imu {
+            t_us: d.time_usec,
+            accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
+            gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
+            kind: "raw",
+        },
+        M::ATTITUDE(d) => {
+            let v = finite3(Vector3::new(d.roll as f64, d.pitch as f64, d.yaw as f64))?;
+            Inbound::Attitude {
+                t_boot_ms: d.time_boot_ms,
+                roll_rad: v.x,
+                pitch_rad: v.y,
+                yaw_rad: v.z,
+            }
+        }
+        M::LOCAL_POSITION_NED(d) => Inbound::LocalPosition {
+            t_boot_ms: d.time_boot_ms,
+            p_ned_m: finite3(Vector3::new(d.x as f64, d.y as f64, d.z as f64))?,
+            v_ned_mps: finite3(Vector3::new(d.vx as f64, d.vy as f64, d.vz as f64))?,
+        },
+        M::SYSTEM_TIME(d) => Inbound::SystemTime {
+            unix_us: d.time_unix_usec,
+            boot_ms: d.time_boot_ms,
+        },
+        M::TIMESYNC(d) => Inbound::Timesync {
+            tc1_ns: d.tc1,
+            ts1_ns: d.ts1,
+        },
+        M::GPS_RTCM_DATA(d) => {
+            let len = (d.len as usize).min(d.data.len());
+            Inbound::RtcmFragment {
+                flags: d.flags,
+                data: d.data[..len].to_vec(),
+            }
+        }
+        M::HEARTBEAT(_) => Inbound::Heartbeat,
+        M::VISION_POSITION_ESTIMATE(_) => Inbound::Other("VISION_POSITION_ESTIMATE"),
+        M::COMMAND_LONG(_) => Inbound::Other("COMMAND_LONG"),
+        M::COMMAND_ACK(_) => Inbound::Other("COMMAND_ACK"),
+        _ => Inbound::Other("other"),
+    })
+}
+
+/// [`Outbound`] → MAVLink message. (`SET_GPS_GLOBAL_ORIGIN` is deprecated
+/// in favour of `MAV_CMD_DO_SET_GLOBAL_ORIGIN`, but it is what ArduPilot 4.x
+/// takes.)
+#[allow(deprecated)]
+fn encode(out: &Outbound, target_system: u8, target_component: u8) -> apm::MavMessage {
+    use apm::MavMessage as M;
+    match out {
+        Outbound::Heartbeat { healthy, initialised } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
+            custom_mode: 0,
+            mavtype: apm::MavType::MAV_TYPE_ONBOARD_CONTROLLER,
+            autopilot: apm::MavAutopilot::MAV_AUTOPILOT_INVALID,
+            base_mode: apm::MavModeFlag::empty(),
+            system_status: match (initialised, healthy) {
+                (false, _) => apm::MavState::MAV_STATE_STANDBY,
+                (true, true) => apm::MavState::MAV_STATE_ACTIVE,
+                (true, false) => apm::MavState::MAV_STATE_CRITICAL,
+            },
+            mavlink_version: 3,
+        }),
+        Outbound::SetMessageInterval {
+            message_id,
+            interval_us,
+        } => M::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            param1: *message_id as f32,
+            param2: *interval_us,
+            param3: 0.0,
+            param4: 0.0,
+            param5: 0.0,
+            param6: 0.0,
+            param7: 0.0,
+            command: apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+            target_system,
+            target_component,
+            confirmation: 0,
+        }),
+        Outbound::TimesyncRequest { ts1_ns } => M::TIMESYNC(apm::TIMESYNC_DATA {
+            tc1: 0,
+            ts1: *ts1_ns,
+            target_system,
+            target_component,
+        }),
+        Outbound::VisionPositionEstimate {
+            t_us,
+            p_ned_m,
+            rpy_rad,
+            covariance,
+            reset_counter,
+        } => M::VISION_POSITION_ESTIMATE(apm::VISION_POSITION_ESTIMATE_DATA {
+            usec: *t_us,
+            x: p_ned_m.x as f32,
+            y: p_ned_m.y as f32,
+            z: p_ned_m.z as f32,
+            roll: rpy_rad.x as f32,
+            pitch: rpy_rad.y as f32,
+            yaw: rpy_rad.z as f32,
+            covariance: *covariance,
+            reset_counter: *reset_counter,
+        }),
+        Outbound::Odometry {
+            t_us,
+            p_ned_m,
+            q_wxyz,
+            v_body_mps,
+            w_body_radps,
+            pose_covariance,
+            velocity_covariance,
+            reset_counter,
+        } => M::ODOMETRY(apm::ODOMETRY_DATA {
+            time_usec: *t_us,
+            x: p_ned_m.x as f32,
+            y: p_ned_m.y as f32,
+            z: p_ned_m.z as f32,
+            q: *q_wxyz,
+            vx: v_body_mps.x as f32,
+            vy: v_body_mps.y as f32,
+            vz: v_body_mps.z as f32,
+            rollspeed: w_body_radps.x as f32,
+            pitchspeed: w_body_radps.y as f32,
+            yawspeed: w_body_radps.z as f32,
+            pose_covariance: *pose_covariance,
+            velocity_covariance: *velocity_covariance,
+            frame_id: apm::MavFrame::MAV_FRAME_LOCAL_FRD,
+            child_frame_id: apm::MavFrame::MAV_FRAME_BODY_FRD,
+            reset_counter: *reset_counter,
+            estimator_type: apm::MavEstimatorType::MAV_ESTIMATOR_TYPE_VIO,
+            quality: 100,
+        }),
+        Outbound::SetGpsGlobalOrigin {
+            lat_deg,
+            lon_deg,
+            alt_m,
+        } => M::SET_GPS_GLOBAL_ORIGIN(apm::SET_GPS_GLOBAL_ORIGIN_DATA {
+            latitude: (lat_deg * 1e7).round() as i32,
+            longitude: (lon_deg * 1e7).round() as i32,
+            altitude: (alt_m * 1000.0).round() as i32,
+            target_system,
+            time_usec: 0,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scaled_imu_units_are_converted_at_the_boundary() {
+        let m = apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+            time_boot_ms: 1500,
+            xacc: 0,
+            yacc: 0,
+            zacc: -1000,
+            xgyro: 100,
+            ygyro: 0,
+            zgyro: 0,
+            ..Default::default()
+        });
+        let Inbound::Imu {
+            t_us,
+            accel_mps2,
+            gyro_radps,
+            ..
+        } = decode(m).unwrap()
+        else {
+            panic!("not an IMU sample")
+        };
+        assert_eq!(t_us, 1_500_000);
+        assert!((accel_mps2.z + G0).abs() < 1e-12);
+        assert!((gyro_radps.x - 0.1).abs() < 1e-12);
+        let nan = apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+            xacc: f32::NAN,
+            ..Default::default()
+        });
+        assert!(matches!(decode(nan), Err(LinkError::Rejected("non_finite"))));
+    }
+}

@@ -1,0 +1,37 @@
+//! I/O adapters: they convert between the outside world and the pure
+//! estimator at the boundary. `mavlink.rs` is the only place that names
+//! `mavlink::` types.
+
+pub mod feature_pipe;
+pub mod mavlink;
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+/// Named event counters shared by the daemon's tasks (received, rejected by
+/// reason, updates, …). Cheap to clone.
+#[derive(Clone, Default, Debug)]
+pub struct Counters(Arc<Mutex<BTreeMap<String, u64>>>);
+
+impl Counters {
+    pub fn add(&self, name: &str, n: u64) {
+        let mut m = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        match m.get_mut(name) {
+            Some(v) => *v += n,
+            None => {
+                m.insert(name.to_string(), n);
+            }
+        }
+    }
+    pub fn get(&self, name: &str) -> u64 {
+        self.0
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(name)
+            .copied()
+            .unwrap_or(0)
+    }
+    pub fn snapshot(&self) -> BTreeMap<String, u64> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+}
