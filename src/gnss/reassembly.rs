@@ -30,6 +30,8 @@ pub enum Reassembled {
 #[derive(Debug, Default)]
 pub struct Reassembler {
     seq: Option<u8>,
+    /// A sequence already dropped: its later fragments are ignored.
+    skip: Option<u8>,
     next_frag: u8,
     buf: Vec<u8>,
 }
@@ -38,6 +40,7 @@ impl Reassembler {
     pub fn new() -> Self {
         Self {
             seq: None,
+            skip: None,
             next_frag: 0,
             buf: Vec::with_capacity(4 * FRAGMENT_LEN),
         }
@@ -62,11 +65,25 @@ impl Reassembler {
         }
         let frag = (flags >> 1) & 0x3;
         let seq = flags >> 3;
+        if self.skip == Some(seq) && frag != 0 {
+            return Reassembled::Pending;
+        }
+        self.skip = None;
         let mut dropped = None;
         if self.seq.is_some() && (self.seq != Some(seq) || frag != self.next_frag) {
+            let same = self.seq == Some(seq);
             dropped = self.abandon();
+            if same {
+                // The rest of this sequence is lost with it.
+                self.skip = Some(seq);
+                return Reassembled::Dropped {
+                    reason: "rtcm_fragment_missing",
+                    then: Box::new(Reassembled::Pending),
+                };
+            }
         }
         let r = if self.seq.is_none() && frag != 0 {
+            self.skip = Some(seq);
             // The start of this sequence was lost.
             Reassembled::Dropped {
                 reason: "rtcm_fragment_missing",

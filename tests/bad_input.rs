@@ -1,0 +1,176 @@
+//! Bad input to a running daemon: each kind is rejected with a counted
+//! reason, and the daemon keeps producing estimates.
+//!
+//! The test plays the autopilot with hand-made MAVLink frames on a UDP socket
+//! (so it can corrupt them), and the front end on the feature socket.
+
+use std::io::Write;
+use std::os::unix::net::UnixStream;
+use std::time::Duration;
+
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{MavHeader, MavlinkVersion};
+use tokio::net::UdpSocket;
+
+use cmsckf::config::Config;
+
+struct Peer {
+    sock: UdpSocket,
+    seq: u8,
+}
+
+impl Peer {
+    fn frame(&mut self, msg: &apm::MavMessage) -> Vec<u8> {
+        let mut buf = Vec::new();
+        let h = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: self.seq,
+        };
+        self.seq = self.seq.wrapping_add(1);
+        mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, msg).unwrap();
+        buf
+    }
+    async fn send(&mut self, msg: &apm::MavMessage) {
+        let f = self.frame(msg);
+        self.sock.send(&f).await.unwrap();
+    }
+    async fn imu(&mut self, t_s: f64) {
+        self.send(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+            time_usec: (t_s * 1e6) as u64,
+            zacc: -9.81,
+            ..Default::default()
+        }))
+        .await;
+    }
+    /// Drains what the daemon sent; returns how many VISION_POSITION_ESTIMATEs.
+    async fn count_vpe(&self) -> usize {
+        let mut n = 0;
+        let mut buf = [0u8; 2048];
+        while let Ok(Ok(len)) = tokio::time::timeout(Duration::from_millis(20), self.sock.recv(&mut buf)).await {
+            let mut r = mavlink::MavlinkReader::new(&buf[..len]);
+            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
+                if matches!(m, apm::MavMessage::VISION_POSITION_ESTIMATE(_)) {
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
+}
+
+fn line(t_s: f64, features: &str) -> String {
+    format!(
+        "{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[{features}]}}\n",
+        (t_s * 1e6) as u64
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_is_rejected_counted_and_survived() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut cfg = Config::default();
+    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.features.max_line_bytes = 1024;
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let daemon = tokio::spawn(cmsckf::daemon::run(cfg.clone(), async move {
+        let _ = stop_rx.await;
+    }));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    sock.connect(("127.0.0.1", port)).await.unwrap();
+    let mut p = Peer { sock, seq: 0 };
+    p.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
+        .await;
+    p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
+    p.send(&apm::MavMessage::LOCAL_POSITION_NED(
+        apm::LOCAL_POSITION_NED_DATA::default(),
+    ))
+    .await;
+    // A static second of IMU initialises the filter.
+    let mut t = 10.0;
+    for _ in 0..150 {
+        p.imu(t).await;
+        t += 0.01;
+        tokio::time::sleep(Duration::from_micros(300)).await;
+    }
+    assert!(p.count_vpe().await > 10, "no estimates after initialisation");
+
+    // 1. A frame with a bad CRC, then a frame of an unknown message id.
+    let mut bad = p.frame(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA::default()));
+    let n = bad.len();
+    bad[n - 3] ^= 0x55;
+    p.sock.send(&bad).await.unwrap();
+    let mut unknown = p.frame(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()));
+    unknown[7] = 0xEE;
+    unknown[8] = 0xEE; // message id 61166: not in the dialect
+    p.sock.send(&unknown).await.unwrap();
+    p.imu(t).await;
+    t += 0.01;
+    // 2. A lost GPS_RTCM_DATA fragment: fragments 0 and 2 of sequence 3.
+    for id in [0u8, 2] {
+        p.send(&apm::MavMessage::GPS_RTCM_DATA(apm::GPS_RTCM_DATA_DATA {
+            flags: 1 | (id << 1) | (3 << 3),
+            len: 180,
+            data: [0xD3; 180],
+        }))
+        .await;
+    }
+    // 3. Non-finite IMU values.
+    p.send(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+        time_usec: (t * 1e6) as u64,
+        xacc: f32::NAN,
+        ..Default::default()
+    }))
+    .await;
+    // 4. The feature socket: garbage, an oversized line, a NaN pixel,
+    //    time going backwards, then a disconnect and a reconnect.
+    {
+        let mut s = UnixStream::connect(&cfg.features.socket).unwrap();
+        s.write_all(b"this is not json\n").unwrap();
+        s.write_all(&vec![b'x'; 5000]).unwrap();
+        s.write_all(b"\n").unwrap();
+        s.write_all(b"{\"v\":1,\"t_us\":10500000,\"cam\":0,\"features\":[[1,NaN,2.0]]}\n")
+            .unwrap();
+        s.write_all(line(t + 0.02, "[1,300.0,200.0]").as_bytes()).unwrap();
+        s.write_all(line(t - 0.5, "[1,300.0,200.0]").as_bytes()).unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    {
+        let mut s = UnixStream::connect(&cfg.features.socket).unwrap();
+        s.write_all(line(t + 0.05, "[2,310.0,210.0]").as_bytes()).unwrap();
+    }
+    // 5. An IMU gap of 1 s, then the stream goes on.
+    t += 1.0;
+    for _ in 0..100 {
+        p.imu(t).await;
+        t += 0.01;
+        tokio::time::sleep(Duration::from_micros(300)).await;
+    }
+    let after = p.count_vpe().await;
+    assert!(
+        after > 10,
+        "the daemon stopped sending estimates after bad input ({after})"
+    );
+
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    eprintln!("{:#?}", summary.counters);
+    assert!(c("mavlink_frames_lost_or_corrupt") >= 2, "bad CRC + unknown id");
+    assert_eq!(c("rtcm_fragment_missing"), 1);
+    assert_eq!(c("mavlink_rejected_non_finite"), 1);
+    assert_eq!(c("feature_line_syntax"), 2, "garbage and NaN");
+    assert_eq!(c("feature_line_too_long"), 1);
+    assert_eq!(c("feature_time_backwards"), 1);
+    assert_eq!(c("feature_connections"), 2);
+    assert!(c("imu_gap") >= 1);
+    assert_eq!(c("init_static"), 1);
+}

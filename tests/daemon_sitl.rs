@@ -1,0 +1,87 @@
+//! The daemon binary and the SITL autopilot over real loopback UDP and a real
+//! Unix socket: output rate, accuracy against offline evaluation, a stable
+//! reset counter, a sane covariance, and a graceful SIGTERM.
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use cmsckf::config::Config;
+use cmsckf::eval;
+use cmsckf_sitl::dataset::Dataset;
+use cmsckf_sitl::serve::{serve, ServeOptions};
+
+fn free_udp_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[test]
+fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_udp_port();
+    let mut cfg = Config::default();
+    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    let cfg_path = dir.path().join("cmsckf.toml");
+    std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();
+
+    let mut daemon = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["run", "--config"])
+        .arg(&cfg_path)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait for the socket to appear.
+    for _ in 0..100 {
+        if std::path::Path::new(&cfg.features.socket).exists() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let seed = 4;
+    let duration = 40.0;
+    let ds = Dataset::generate("racetrack", seed, Some(duration), &eval::sim_config_for(&cfg)).unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let report = rt
+        .block_on(serve(
+            &ServeOptions {
+                mavlink: format!("udpout:127.0.0.1:{port}"),
+                feature_socket: cfg.features.socket.clone().into(),
+                speedup: 10.0,
+            },
+            &ds,
+        ))
+        .unwrap();
+    // SIGTERM: the daemon stops cleanly and removes its socket.
+    unsafe {
+        libc::kill(daemon.id() as i32, libc::SIGTERM);
+    }
+    let status = daemon.wait().unwrap();
+    assert!(status.success(), "daemon exit {status:?}");
+    assert!(!std::path::Path::new(&cfg.features.socket).exists());
+
+    let offline = eval::score(&eval::run(&ds, &cfg, cfg.estimator.mode, seed));
+    eprintln!("{report:?}\noffline ATE {:.3} m", offline.ate.unaligned_m);
+    assert!(
+        (report.output_rate_hz - 30.0).abs() <= 3.0,
+        "rate {}",
+        report.output_rate_hz
+    );
+    assert!(report.estimates_received as f64 > 0.9 * 30.0 * (duration - 1.0));
+    // The daemon starts in flight from the autopilot's attitude (looser than
+    // evaluate's truth start), so allow twice the offline error plus 0.5 m.
+    assert!(
+        report.ate_m <= 2.0 * offline.ate.unaligned_m + 0.5,
+        "daemon ATE {} vs offline {}",
+        report.ate_m,
+        offline.ate.unaligned_m
+    );
+    assert_eq!(report.reset_count, 0);
+    assert!(report.covariance_ok);
+    assert!(report.time_to_first_estimate_s < 2.0);
+}

@@ -1,0 +1,54 @@
+//! Interoperability: pymavlink (an independent MAVLink implementation) sends
+//! HIGHRES_IMU that the daemon consumes, and decodes the daemon's
+//! VISION_POSITION_ESTIMATE with its covariance and reset_counter.
+//! Needs `python3` with `pymavlink` (CI installs it).
+
+use std::process::Command;
+use std::time::Duration;
+
+use cmsckf::config::Config;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pymavlink_talks_to_the_daemon_both_ways() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut cfg = Config::default();
+    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let daemon = tokio::spawn(cmsckf::daemon::run(cfg, async move {
+        let _ = stop_rx.await;
+    }));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop_pymavlink.py");
+    let out = tokio::task::spawn_blocking(move || {
+        Command::new("python3")
+            .arg(script)
+            .arg(port.to_string())
+            .arg("3")
+            .output()
+    })
+    .await
+    .unwrap()
+    .expect("python3 is needed for this test");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !stderr.contains("No module named"),
+        "pymavlink is not installed: {stderr}"
+    );
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    assert!(out.status.success(), "pymavlink check failed: {stdout} {stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!(v["vpe_received"].as_u64().unwrap() > 20, "{v}");
+    assert!(
+        summary.counters.get("imu_highres").copied().unwrap_or(0) > 200,
+        "{:?}",
+        summary.counters
+    );
+}
