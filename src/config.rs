@@ -263,6 +263,21 @@ pub enum IonoMode {
     Auto,
 }
 
+impl std::str::FromStr for IonoMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "off" => Ok(IonoMode::Off),
+            "klobuchar" => Ok(IonoMode::Klobuchar),
+            "iono-free" => Ok(IonoMode::IonoFree),
+            "auto" => Ok(IonoMode::Auto),
+            _ => Err(format!(
+                "unknown ionosphere mode '{s}': use off, klobuchar, iono-free or auto"
+            )),
+        }
+    }
+}
+
 /// Raw GNSS.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]

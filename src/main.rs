@@ -45,6 +45,29 @@ enum Cmd {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Decode a recorded RTCM3 file and print one single-point solution per epoch.
+    Gnss {
+        file: PathBuf,
+        /// off | klobuchar | iono-free | auto (RTCM carries no Klobuchar
+        /// parameters: klobuchar without them is off with inflated variance).
+        #[arg(long, default_value = "auto")]
+        iono: String,
+        #[arg(long, default_value_t = 10.0)]
+        elevation_mask_deg: f64,
+        /// Constellations, e.g. G or G,E.
+        #[arg(long, default_value = "G")]
+        systems: String,
+        /// Full GPS week near the data (resolves MT1019's 10-bit week);
+        /// default: today's week.
+        #[arg(long)]
+        week_hint: Option<u32>,
+        /// Only observations of this RTCM station id.
+        #[arg(long, default_value_t = 0)]
+        station_id: u16,
+        /// CSV rows on stdout (counts go to stderr).
+        #[arg(long)]
+        csv: bool,
+    },
     /// Run the daemon beside the autopilot until SIGINT or SIGTERM.
     Run {
         #[arg(long, default_value = "config/default.toml")]
@@ -122,6 +145,107 @@ fn check_duration(d: Option<f64>) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `cmsckf gnss`: decodes a file in stream order and solves each epoch.
+fn gnss_file(
+    file: &std::path::Path,
+    iono: &str,
+    mask: f64,
+    systems: &str,
+    week_hint: Option<u32>,
+    station_id: u16,
+    csv: bool,
+) -> anyhow::Result<()> {
+    use cmsckf::gnss::{rtcm, spp, EpochResult, Receiver};
+    if !(mask.is_finite() && (0.0..=60.0).contains(&mask)) {
+        bail!("--elevation-mask-deg {mask}: give degrees in [0, 60]");
+    }
+    let iono: cmsckf::config::IonoMode = iono.parse().map_err(anyhow::Error::msg)?;
+    let systems = cmsckf::gnss::parse_systems(systems).map_err(anyhow::Error::msg)?;
+    let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+    let week = week_hint.unwrap_or_else(cmsckf::gnss::gps_week_now);
+    let mut rx = Receiver::new(
+        spp::SppOptions {
+            elevation_mask_deg: mask,
+            iono,
+            systems,
+        },
+        week,
+        station_id,
+    );
+    let mut dec = rtcm::RtcmDecoder::new();
+    let mut msgs = Vec::new();
+    dec.push(&bytes, &mut msgs);
+    let mut results = Vec::new();
+    for m in msgs {
+        rx.push(m, &mut results);
+    }
+    rx.flush(&mut results);
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    if csv {
+        writeln!(
+            out,
+            "gps_week,gps_tow_s,n_sats,ecef_x_m,ecef_y_m,ecef_z_m,lat_deg,lon_deg,height_m,pdop,residual_rms_m"
+        )?;
+    }
+    for r in &results {
+        let EpochResult::Solved(s) = r else { continue };
+        let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&s.r_ecef_m);
+        if csv {
+            writeln!(
+                out,
+                "{},{:.3},{},{:.4},{:.4},{:.4},{:.9},{:.9},{:.4},{:.3},{:.4}",
+                s.week,
+                s.tow_s,
+                s.sats.len(),
+                s.r_ecef_m.x,
+                s.r_ecef_m.y,
+                s.r_ecef_m.z,
+                lat.to_degrees(),
+                lon.to_degrees(),
+                h,
+                s.pdop,
+                s.residual_rms_m
+            )?;
+        } else {
+            let raim = match &s.raim {
+                spp::Raim::Passed => "raim ok".to_string(),
+                spp::Raim::NotPossible => "raim not possible (4 satellites)".to_string(),
+                spp::Raim::Excluded(p) => format!("raim excluded G{p:02}"),
+            };
+            writeln!(
+                out,
+                "week {} tow {:>10.3}  {} sats  lat {:>13.8} lon {:>13.8} h {:>9.3} m  PDOP {:>5.2}  rms {:>6.3} m  {}{}",
+                s.week, s.tow_s, s.sats.len(), lat.to_degrees(), lon.to_degrees(), h, s.pdop, s.residual_rms_m, raim,
+                if s.iono_free { "  iono-free" } else { "" }
+            )?;
+        }
+    }
+    let mut counts = String::new();
+    for (t, n) in &dec.stats.frames_by_type {
+        counts += &format!(" {t}:{n}");
+    }
+    let report = format!(
+        "frames by type:{counts}
+CRC failures: {}  undecodable: {}  bytes skipped: {}  truncated tail bytes: {}
+epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}",
+        dec.stats.crc_failures,
+        dec.stats.undecodable,
+        dec.stats.bytes_skipped,
+        dec.stats.trailing_bytes,
+        rx.stats.epochs,
+        rx.stats.solved,
+        rx.stats.skipped,
+        rx.stats.ephemerides
+    );
+    if csv {
+        eprintln!("{report}");
+    } else {
+        writeln!(out, "{report}")?;
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.cmd {
@@ -183,6 +307,15 @@ fn main() -> anyhow::Result<()> {
                 std::fs::write(&p, s).with_context(|| format!("writing {}", p.display()))?;
             }
         }
+        Cmd::Gnss {
+            file,
+            iono,
+            elevation_mask_deg,
+            systems,
+            week_hint,
+            station_id,
+            csv,
+        } => gnss_file(&file, &iono, elevation_mask_deg, &systems, week_hint, station_id, csv)?,
         Cmd::Run { config } => {
             init_tracing("info");
             let cfg = Config::load(&config)?;

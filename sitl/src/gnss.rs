@@ -144,7 +144,7 @@ impl GpsEphemeris {
 }
 
 /// Saastamoinen zenith delay with the standard atmosphere, mapped by
-/// `1/cos(z)` (RTKLIB's model; 15 °C at sea level, 50% humidity).
+/// `1/cos(z)` (RTKLIB's model: 15 °C at sea level, 70% relative humidity).
 pub fn saastamoinen_m(lat_rad: f64, h_m: f64, el_rad: f64) -> f64 {
     if !(-100.0..=1e4).contains(&h_m) || el_rad <= 0.0 {
         return 0.0;
@@ -152,7 +152,7 @@ pub fn saastamoinen_m(lat_rad: f64, h_m: f64, el_rad: f64) -> f64 {
     let hgt = h_m.max(0.0);
     let pres = 1013.25 * (1.0 - 2.2557e-5 * hgt).powf(5.2568);
     let temp = 15.0 - 6.5e-3 * hgt + 273.16;
-    let humi = 0.5;
+    let humi = 0.7;
     let e = 6.108 * humi * ((17.15 * temp - 4684.0) / (temp - 38.45)).exp();
     let z = std::f64::consts::FRAC_PI_2 - el_rad;
     let trph = 0.0022768 * pres / (1.0 - 0.00266 * (2.0 * lat_rad).cos() - 0.00028 * hgt / 1e3) / z.cos();

@@ -1,5 +1,135 @@
-//! Raw GNSS input. For now: reassembly of RTCM3 from MAVLink
-//! `GPS_RTCM_DATA` fragments. Decoding and the filter update are the GNSS
-//! issue's.
+//! Raw GNSS input: reassembly of RTCM3 from MAVLink `GPS_RTCM_DATA`
+//! fragments, RTCM3 framing and decoding, broadcast ephemerides and the
+//! single-point solution.
+//!
+//! [`Receiver`] ties them together the way a live stream arrives: messages
+//! in order, ephemerides stored as they come, observations grouped into
+//! epochs (by time of week and the MSM multiple-message bit) and solved once
+//! the epoch is complete.
 
 pub mod reassembly;
+pub mod rtcm;
+pub mod spp;
+
+use std::collections::BTreeMap;
+
+use rtcm::{GnssMessage, MsmEpoch, SatObs, System};
+use spp::{EphStore, SppError, SppOptions, SppSolution};
+
+/// What happened to one epoch.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EpochResult {
+    Solved(SppSolution),
+    Failed { week: u32, tow_s: f64, error: SppError },
+}
+
+/// Counts kept by the receiver.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReceiverStats {
+    pub epochs: u64,
+    pub solved: u64,
+    pub skipped: BTreeMap<String, u64>,
+    pub ephemerides: u64,
+    pub other_station: u64,
+}
+
+/// A stream-order GNSS receiver model: ephemerides, epochs and solutions.
+pub struct Receiver {
+    pub opts: SppOptions,
+    /// Full GPS week near the data, for the 10-bit weeks.
+    pub week_hint: u32,
+    /// Accept observations only from this RTCM station (0 = any).
+    pub station_id: u16,
+    pub ephs: EphStore,
+    pending: Option<(u32, Vec<SatObs>)>,
+    pub stats: ReceiverStats,
+}
+
+impl Receiver {
+    pub fn new(opts: SppOptions, week_hint: u32, station_id: u16) -> Self {
+        Self {
+            opts,
+            week_hint,
+            station_id,
+            ephs: EphStore::default(),
+            pending: None,
+            stats: ReceiverStats::default(),
+        }
+    }
+
+    /// Feeds one message; returns the epochs it completed.
+    pub fn push(&mut self, m: GnssMessage, out: &mut Vec<EpochResult>) {
+        match m {
+            GnssMessage::GpsEph(raw) => {
+                let mut eph = raw.eph;
+                eph.week = rtcm::resolve_week(raw.week_mod1024, self.week_hint);
+                self.ephs.insert(eph);
+                self.stats.ephemerides += 1;
+            }
+            GnssMessage::Msm(e) => self.push_msm(e, out),
+            GnssMessage::Other(_) => {}
+        }
+    }
+
+    fn push_msm(&mut self, e: MsmEpoch, out: &mut Vec<EpochResult>) {
+        if self.station_id != 0 && e.station_id != self.station_id {
+            self.stats.other_station += 1;
+            return;
+        }
+        if self.pending.as_ref().is_some_and(|(t, _)| *t != e.tow_ms) {
+            self.flush(out);
+        }
+        let entry = self.pending.get_or_insert_with(|| (e.tow_ms, Vec::new()));
+        if self.opts.systems.contains(&e.system) && e.system == System::Gps {
+            entry.1.extend(e.sats);
+        }
+        if !e.multiple {
+            self.flush(out);
+        }
+    }
+
+    /// Solves the pending epoch, if any (call at the end of a stream).
+    pub fn flush(&mut self, out: &mut Vec<EpochResult>) {
+        let Some((tow_ms, sats)) = self.pending.take() else {
+            return;
+        };
+        self.stats.epochs += 1;
+        let tow_s = tow_ms as f64 * 1e-3;
+        let week = self.week_hint;
+        match spp::solve(&sats, week, tow_s, &self.ephs, &self.opts) {
+            Ok(s) => {
+                self.stats.solved += 1;
+                out.push(EpochResult::Solved(s));
+            }
+            Err(error) => {
+                *self.stats.skipped.entry(error.to_string()).or_default() += 1;
+                out.push(EpochResult::Failed { week, tow_s, error });
+            }
+        }
+    }
+}
+
+/// Parses a `--systems` list such as `G,E`.
+pub fn parse_systems(s: &str) -> Result<Vec<System>, String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|x| !x.is_empty())
+        .map(|x| match x {
+            "G" => Ok(System::Gps),
+            "E" => Ok(System::Galileo),
+            "R" | "C" | "J" => Err(format!("system '{x}' is not supported yet (G and E are)")),
+            _ => Err(format!("unknown system '{x}': use G, E, R, C or J")),
+        })
+        .collect()
+}
+
+/// The current GPS week from the system clock (leap seconds do not matter
+/// at week resolution).
+pub fn gps_week_now() -> u32 {
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0);
+    // GPS epoch: 1980-01-06 = unix 315964800.
+    ((unix - 315_964_800.0) / 604_800.0).max(0.0) as u32
+}

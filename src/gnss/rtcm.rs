@@ -1,0 +1,355 @@
+//! RTCM3 framing and decoding into the GNSS module's own types.
+//!
+//! Framing is done here, over a bounded buffer, so that every bad frame is
+//! seen and counted: a frame whose CRC-24Q fails is skipped one byte at a time
+//! until the stream resynchronises. The checked frame is decoded by the
+//! `rtcm-rs` crate; MSM4–MSM7 (GPS 1074–1077, Galileo 1094–1097) and GPS
+//! ephemerides (1019) are converted to SI units here, and nowhere else.
+
+use std::collections::BTreeMap;
+
+use rtcm_rs::{Message, MessageFrame};
+
+use cmsckf_sitl::geodesy::C_MPS;
+use cmsckf_sitl::gnss::GpsEphemeris;
+
+/// Constellations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum System {
+    Gps,
+    Galileo,
+}
+
+impl System {
+    pub fn letter(self) -> char {
+        match self {
+            System::Gps => 'G',
+            System::Galileo => 'E',
+        }
+    }
+}
+
+/// One signal of one satellite.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SignalObs {
+    /// RINEX-style code: band and attribute, e.g. `('1', 'C')`.
+    pub band: u8,
+    pub attribute: char,
+    pub pseudorange_m: Option<f64>,
+    /// Range rate from the Doppler (MSM5/MSM7), m/s.
+    pub range_rate_mps: Option<f64>,
+    /// Carrier-to-noise density; `None` when the message carries none (0 is
+    /// "not given", not "no signal").
+    pub cnr_dbhz: Option<f64>,
+}
+
+/// One satellite of an MSM epoch.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SatObs {
+    pub prn: u8,
+    pub signals: Vec<SignalObs>,
+}
+
+/// One MSM message: one constellation at one epoch.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MsmEpoch {
+    pub system: System,
+    pub msg_type: u16,
+    pub station_id: u16,
+    /// Epoch time of week in the constellation's time (ms).
+    pub tow_ms: u32,
+    /// More MSMs of the same epoch follow.
+    pub multiple: bool,
+    pub sats: Vec<SatObs>,
+}
+
+/// A GPS ephemeris as broadcast: the 10-bit week still to be resolved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawGpsEph {
+    pub week_mod1024: u16,
+    pub eph: GpsEphemeris,
+}
+
+/// A decoded RTCM message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum GnssMessage {
+    Msm(MsmEpoch),
+    GpsEph(RawGpsEph),
+    /// A valid frame of a type this module does not use.
+    Other(u16),
+}
+
+/// Counts of what the decoder saw.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodeStats {
+    pub frames_by_type: BTreeMap<u16, u64>,
+    pub crc_failures: u64,
+    pub undecodable: u64,
+    pub bytes_skipped: u64,
+    /// Bytes left in the buffer at the end (a truncated last frame).
+    pub trailing_bytes: u64,
+}
+
+/// Largest RTCM3 frame: 3 header + 1023 payload + 3 CRC.
+const MAX_FRAME: usize = 1029;
+
+/// Streaming decoder with a bounded buffer.
+#[derive(Default)]
+pub struct RtcmDecoder {
+    buf: Vec<u8>,
+    pub stats: DecodeStats,
+}
+
+impl RtcmDecoder {
+    pub fn new() -> Self {
+        Self {
+            buf: Vec::with_capacity(4 * MAX_FRAME),
+            stats: DecodeStats::default(),
+        }
+    }
+
+    /// Feeds bytes; returns the messages completed by them.
+    pub fn push(&mut self, bytes: &[u8], out: &mut Vec<GnssMessage>) {
+        for chunk in bytes.chunks(MAX_FRAME) {
+            self.buf.extend_from_slice(chunk);
+            self.drain(out);
+        }
+        self.stats.trailing_bytes = self.buf.len() as u64;
+    }
+
+    fn drain(&mut self, out: &mut Vec<GnssMessage>) {
+        let mut i = 0;
+        loop {
+            // Find the preamble.
+            match self.buf[i..].iter().position(|&b| b == 0xD3) {
+                Some(p) => {
+                    self.stats.bytes_skipped += p as u64;
+                    i += p;
+                }
+                None => {
+                    self.stats.bytes_skipped += (self.buf.len() - i) as u64;
+                    i = self.buf.len();
+                    break;
+                }
+            }
+            let rest = &self.buf[i..];
+            if rest.len() < 3 {
+                break;
+            }
+            if rest[1] & 0xFC != 0 {
+                // Reserved bits set: not a frame start.
+                i += 1;
+                self.stats.bytes_skipped += 1;
+                continue;
+            }
+            let len = (((rest[1] & 0x03) as usize) << 8) | rest[2] as usize;
+            if rest.len() < len + 6 {
+                break;
+            }
+            match MessageFrame::new(&rest[..len + 6]) {
+                Ok(frame) => {
+                    let t = frame.message_number().unwrap_or(0);
+                    *self.stats.frames_by_type.entry(t).or_default() += 1;
+                    match convert(t, frame.get_message()) {
+                        Some(m) => out.push(m),
+                        None => self.stats.undecodable += 1,
+                    }
+                    i += len + 6;
+                }
+                Err(_) => {
+                    self.stats.crc_failures += 1;
+                    i += 1;
+                }
+            }
+        }
+        self.buf.drain(..i);
+        // Never hold more than one frame's worth of unframed bytes.
+        if self.buf.len() > 2 * MAX_FRAME {
+            let cut = self.buf.len() - MAX_FRAME;
+            self.stats.bytes_skipped += cut as u64;
+            self.buf.drain(..cut);
+        }
+    }
+}
+
+const SC: f64 = std::f64::consts::PI;
+
+fn convert(t: u16, m: Message) -> Option<GnssMessage> {
+    macro_rules! msm {
+        ($v:ident, $sys:expr, $epoch:ident, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
+            let d = &$v.data_segment;
+            let mut sats = Vec::with_capacity(d.satellite_data.len());
+            for s in d.satellite_data.iter() {
+                let rough_ms = s.gnss_satellite_rough_range_integer_ms.map(|n| n as f64 + s.gnss_satellite_rough_range_mod1ms_ms);
+                let rough_rate = msm!(@rough_rate $rate, s);
+                let mut signals = Vec::new();
+                for g in d.signal_data.iter().filter(|g| g.satellite_id == s.satellite_id) {
+                    let pr = match (rough_ms, g.$fine) {
+                        (Some(r), Some(f)) => Some((r + f) * C_MPS * 1e-3),
+                        _ => None,
+                    };
+                    signals.push(SignalObs {
+                        band: g.signal_id.band(),
+                        attribute: g.signal_id.attribute(),
+                        pseudorange_m: pr,
+                        range_rate_mps: msm!(@fine_rate $rate, rough_rate, g),
+                        cnr_dbhz: g.$cnr.map(|c| c as f64),
+                    });
+                }
+                sats.push(SatObs { prn: s.satellite_id, signals });
+            }
+            Some(GnssMessage::Msm(MsmEpoch {
+                system: $sys,
+                msg_type: t,
+                station_id: $v.reference_station_id,
+                tow_ms: $v.$epoch,
+                multiple: $v.msm_multiple_message_flag != 0,
+                sats,
+            }))
+        }};
+        (@rough_rate yes, $s:ident) => { $s.gnss_satellite_rough_phaserange_rates_m_s };
+        (@rough_rate no, $s:ident) => { None::<i16> };
+        (@fine_rate yes, $r:ident, $g:ident) => {
+            match ($r, $g.gnss_signal_fine_phaserange_rate_m_s) {
+                (Some(r), Some(f)) => Some(r as f64 + f),
+                _ => None,
+            }
+        };
+        (@fine_rate no, $r:ident, $g:ident) => {{ let _ = $r; None }};
+    }
+    match m {
+        Message::Msg1074(v) => {
+            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1075(v) => {
+            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1076(v) => {
+            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1077(v) => {
+            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1094(v) => {
+            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1095(v) => {
+            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1096(v) => {
+            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1097(v) => {
+            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1019(e) => Some(GnssMessage::GpsEph(RawGpsEph {
+            week_mod1024: e.gps_week_number,
+            eph: GpsEphemeris {
+                prn: e.gps_satellite_id,
+                week: e.gps_week_number as u32,
+                iode: e.iode,
+                iodc: e.iodc,
+                toc_s: e.toc_s as f64,
+                af0_s: e.af0_s,
+                af1: e.af1_s_s as f64,
+                af2_per_s: e.af2_s_s2 as f64,
+                toe_s: e.toe_s as f64,
+                sqrt_a: e.sqrt_a_sqrt_m,
+                e: e.eccentricity,
+                m0_rad: e.m0_sc * SC,
+                delta_n_radps: e.delta_n_sc_s as f64 * SC,
+                omega0_rad: e.omega0_sc * SC,
+                omega_dot_radps: e.omegadot_sc_s * SC,
+                i0_rad: e.i0_sc * SC,
+                idot_radps: e.idot_sc_s * SC,
+                omega_rad: e.omega_sc * SC,
+                cuc_rad: e.cuc_rad as f64,
+                cus_rad: e.cus_rad as f64,
+                crc_m: e.crc_m as f64,
+                crs_m: e.crs_m as f64,
+                cic_rad: e.cic_rad as f64,
+                cis_rad: e.cis_rad as f64,
+                tgd_s: e.tgd_s as f64,
+                health: e.sv_health_ind,
+                ura_index: e.ura_index,
+                fit_interval_4h: e.fit_interval_ind != 0,
+            },
+        })),
+        Message::Empty | Message::Corrupt => None,
+        _ => Some(GnssMessage::Other(t)),
+    }
+}
+
+/// Resolves a 10-bit GPS week against a full-week hint: the full week
+/// nearest to the hint with the same value modulo 1024.
+pub fn resolve_week(week_mod1024: u16, hint_week: u32) -> u32 {
+    let w = week_mod1024 as i64 % 1024;
+    let h = hint_week as i64;
+    let base = h - h.rem_euclid(1024) + w;
+    let best = [base - 1024, base, base + 1024]
+        .into_iter()
+        .min_by_key(|c| (c - h).abs())
+        .unwrap_or(base);
+    best.max(0) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn data(name: &str) -> Vec<u8> {
+        std::fs::read(cmsckf_sitl::shared_data_dir().join(name)).unwrap()
+    }
+
+    #[test]
+    fn week_rollover() {
+        assert_eq!(resolve_week(292, 1316), 1316);
+        assert_eq!(resolve_week(293, 1316), 1317);
+        assert_eq!(resolve_week(292, 2340), 2340);
+        assert_eq!(resolve_week(1023, 2048), 2047);
+        assert_eq!(resolve_week(0, 2047), 2048);
+    }
+
+    #[test]
+    fn decodes_the_3040_stream_and_counts_its_frames() {
+        let mut d = RtcmDecoder::new();
+        let mut out = Vec::new();
+        d.push(&data("3040_msm7.rtcm3"), &mut out);
+        assert_eq!(d.stats.frames_by_type.get(&1077), Some(&120));
+        assert_eq!(d.stats.frames_by_type.get(&1019), Some(&164));
+        assert_eq!(d.stats.crc_failures, 0);
+        let Some(GnssMessage::Msm(e)) = out.iter().find(|m| matches!(m, GnssMessage::Msm(_))) else {
+            panic!()
+        };
+        assert_eq!(e.station_id, 3040);
+        assert!(e.sats.len() >= 6);
+        let pr = e.sats[0].signals[0].pseudorange_m.unwrap();
+        assert!((1.9e7..2.7e7).contains(&pr), "{pr}");
+        assert!(e.sats[0].signals.iter().any(|s| s.band == 1 && s.attribute == 'C'));
+    }
+
+    #[test]
+    fn crc_failures_and_truncation_are_counted_and_resynchronised() {
+        let mut bytes = data("3040_msm7.rtcm3");
+        // Corrupt a byte inside the second frame.
+        let second = bytes
+            .iter()
+            .enumerate()
+            .skip(1)
+            .find(|(_, b)| **b == 0xD3)
+            .map(|(i, _)| i)
+            .unwrap();
+        bytes[second + 10] ^= 0xFF;
+        bytes.truncate(bytes.len() - 7);
+        let mut d = RtcmDecoder::new();
+        let mut out = Vec::new();
+        // In small pieces, as a serial port delivers them.
+        for c in bytes.chunks(37) {
+            d.push(c, &mut out);
+        }
+        assert!(d.stats.crc_failures >= 1);
+        let total: u64 = d.stats.frames_by_type.values().sum();
+        assert_eq!(total, 120 + 164 - 2, "one corrupted, one truncated");
+        assert!(d.stats.trailing_bytes > 0);
+    }
+}

@@ -1,0 +1,144 @@
+//! `cmsckf gnss` on real receiver streams against RTKLIB 2.4.3's
+//! single-point solutions (../shared/data, README there): same model, so the
+//! two must agree to centimetres; the checks ask for a median ≤ 1 m.
+
+use std::process::Command;
+
+fn data(name: &str) -> std::path::PathBuf {
+    cmsckf_sitl::shared_data_dir().join(name)
+}
+
+/// GPS time of week (s) of a `YYYY/MM/DD hh:mm:ss.sss` GPST stamp.
+fn tow_of(date: &str, time: &str) -> f64 {
+    let d: Vec<i64> = date.split('/').map(|x| x.parse().unwrap()).collect();
+    let t: Vec<f64> = time.split(':').map(|x| x.parse().unwrap()).collect();
+    // Days from civil (Howard Hinnant's algorithm), then from 1980-01-06.
+    let (y, m, dd) = (d[0] - (d[1] <= 2) as i64, d[1], d[2]);
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * (m + if m > 2 { -3 } else { 9 }) + 2) / 5 + dd - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146097 + doe - 719468 - 3657; // 3657: 1970-01-01 → 1980-01-06
+    let secs = days as f64 * 86400.0 + t[0] * 3600.0 + t[1] * 60.0 + t[2];
+    secs.rem_euclid(604_800.0)
+}
+
+fn reference(name: &str) -> Vec<(f64, [f64; 3])> {
+    std::fs::read_to_string(data(name))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('%') && !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            (
+                tow_of(f[0], f[1]),
+                [f[2].parse().unwrap(), f[3].parse().unwrap(), f[4].parse().unwrap()],
+            )
+        })
+        .collect()
+}
+
+/// Runs `cmsckf gnss … --csv` and returns `(matched, median 3-D distance)`.
+fn compare(file: &str, iono: &str, week: &str, reference_file: &str) -> (usize, f64, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["gnss"])
+        .arg(data(file))
+        .args([
+            "--iono",
+            iono,
+            "--elevation-mask-deg",
+            "10",
+            "--systems",
+            "G",
+            "--week-hint",
+            week,
+            "--csv",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "gps_week,gps_tow_s,n_sats,ecef_x_m,ecef_y_m,ecef_z_m,lat_deg,lon_deg,height_m,pdop,residual_rms_m"
+    );
+    let ours: Vec<(f64, [f64; 3])> = lines
+        .map(|l| {
+            let f: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            (f[1], [f[3], f[4], f[5]])
+        })
+        .collect();
+    let refs = reference(reference_file);
+    let mut d: Vec<f64> = Vec::new();
+    for (t, r) in &refs {
+        if let Some((_, p)) = ours.iter().find(|(u, _)| (u * 10.0).round() == (t * 10.0).round()) {
+            d.push(((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt());
+        }
+    }
+    d.sort_by(|a, b| a.total_cmp(b));
+    let median = if d.is_empty() { f64::INFINITY } else { d[d.len() / 2] };
+    (d.len(), median, String::from_utf8_lossy(&out.stderr).to_string())
+}
+
+#[test]
+fn station_3040_msm7_gps_iono_off() {
+    let (n, med, counts) = compare("3040_msm7.rtcm3", "off", "1316", "3040_rtklib_spp_gps_ionooff.pos");
+    eprintln!("3040 MSM7: {n} matched, median {med:.4} m\n{counts}");
+    assert!(n >= 96, "{n} epochs matched");
+    assert!(med <= 1.0, "median {med} m");
+    assert!(counts.contains("1077:120") && counts.contains("1019:164") && counts.contains("CRC failures: 0"));
+}
+
+#[test]
+fn station_3040_msm4_gps_iono_off() {
+    let (n, med, _) = compare("3040_msm4.rtcm3", "off", "1316", "3040_rtklib_spp_gps_ionooff.pos");
+    eprintln!("3040 MSM4: {n} matched, median {med:.4} m");
+    assert!(n >= 96, "{n} epochs matched");
+    assert!(med <= 1.0, "median {med} m");
+}
+
+#[test]
+fn station_3040_msm7_iono_free() {
+    let (n, med, _) = compare(
+        "3040_msm7.rtcm3",
+        "iono-free",
+        "1316",
+        "3040_rtklib_spp_gps_ionofree.pos",
+    );
+    eprintln!("3040 iono-free: {n} matched, median {med:.4} m");
+    assert!(n >= 96, "{n} epochs matched");
+    assert!(med <= 1.0, "median {med} m");
+}
+
+#[test]
+fn gmsd7_gps_with_four_satellites() {
+    // Week 1710 starts at 2012-10-14 00:00 GPST, inside the file.
+    let (n, med, counts) = compare(
+        "GMSD7_20121014.rtcm3",
+        "off",
+        "1710",
+        "GMSD7_rtklib_spp_gps_ionooff.pos",
+    );
+    eprintln!("GMSD7 G: {n} matched, median {med:.4} m\n{counts}");
+    assert!(n >= 60, "{n} epochs matched");
+    assert!(med <= 1.0, "median {med} m");
+    // The file ends mid-frame: the tail is reported, not decoded.
+    assert!(counts.contains("truncated tail bytes: 302"), "{counts}");
+}
+
+#[test]
+fn bad_arguments_are_clear_errors() {
+    let run = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_cmsckf")).args(args).output().unwrap();
+        assert!(!o.status.success());
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(!e.contains("panicked"), "{e}");
+        e
+    };
+    assert!(run(&["gnss", "/no/such.rtcm3"]).contains("/no/such.rtcm3"));
+    let f = data("3040_msm7.rtcm3");
+    let f = f.to_str().unwrap();
+    assert!(run(&["gnss", f, "--iono", "magic"]).contains("unknown ionosphere mode"));
+    assert!(run(&["gnss", f, "--systems", "G,X"]).contains("unknown system"));
+}
