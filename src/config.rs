@@ -298,6 +298,17 @@ pub struct GnssConfig {
     /// Full GPS week near the data, to resolve MT1019's 10-bit week; 0 =
     /// resolve against the system clock.
     pub week_hint: u32,
+    /// Pseudorange noise at zenith, one sigma (m); it grows as 1/sin(el).
+    pub pseudorange_sigma_m: f64,
+    /// Range-rate (Doppler) noise at zenith, one sigma (m/s).
+    pub range_rate_sigma_mps: f64,
+    /// Receiver clock bias white-frequency noise (m/√s).
+    pub clock_bias_rw_m_per_sqrt_s: f64,
+    /// Receiver clock drift random walk (m/s/√s).
+    pub clock_drift_rw_mps_per_sqrt_s: f64,
+    /// Geodetic origin of the NED world frame `[lat_deg, lon_deg, h_m]`;
+    /// empty = the first single-point fix.
+    pub origin_llh: Vec<f64>,
 }
 
 impl Default for GnssConfig {
@@ -310,6 +321,11 @@ impl Default for GnssConfig {
             iono: IonoMode::Auto,
             elevation_mask_deg: 10.0,
             week_hint: 0,
+            pseudorange_sigma_m: 0.5,
+            range_rate_sigma_mps: 0.05,
+            clock_bias_rw_m_per_sqrt_s: 0.02,
+            clock_drift_rw_mps_per_sqrt_s: 0.01,
+            origin_llh: Vec::new(),
         }
     }
 }
@@ -490,6 +506,22 @@ impl Config {
             }
         }
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
+        c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
+        c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
+        c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
+        c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
+        if !g.origin_llh.is_empty() {
+            if g.origin_llh.len() != 3 {
+                return Err(c.fail(
+                    "origin_llh",
+                    format!("has {} values", g.origin_llh.len()),
+                    "give [lat_deg, lon_deg, h_m] or []",
+                ));
+            }
+            c.range("origin_llh[0]", g.origin_llh[0], -90.0, 90.0)?;
+            c.range("origin_llh[1]", g.origin_llh[1], -180.0, 180.0)?;
+            c.range("origin_llh[2]", g.origin_llh[2], -500.0, 1e4)?;
+        }
         if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
             return Err(c.fail(
                 "week_hint",

@@ -87,6 +87,15 @@ pub struct FlightResult {
     /// Largest relative difference from `full` at any global update
     /// (compressed runs in lockstep with full only).
     pub max_rel_diff_vs_full: Option<f64>,
+    /// Estimated minus true clock bias at each GNSS epoch (m).
+    pub clock_errors: Vec<(f64, f64)>,
+}
+
+/// GNSS input of a run: the broadcast ephemerides and the world origin.
+struct GnssInput {
+    ephs: crate::gnss::spp::EphStore,
+    frame: cmsckf_sitl::geodesy::NedFrame,
+    next: usize,
 }
 
 /// Drives one estimator through a dataset.
@@ -97,6 +106,9 @@ pub struct Runner<'a> {
     pub est: Estimator,
     imu_next: usize,
     buf: Vec<NormObs>,
+    gnss: Option<GnssInput>,
+    /// `(t, estimated − true clock bias)` at each GNSS epoch (m).
+    pub clock_errors: Vec<(f64, f64)>,
 }
 
 impl<'a> Runner<'a> {
@@ -112,17 +124,30 @@ impl<'a> Runner<'a> {
             est: Estimator::new(Settings::from_config(&c), ds.truth[0].truth.t_s, x0, &p0),
             imu_next: 0,
             buf: Vec::with_capacity(c.features.max_features),
+            gnss: None,
+            clock_errors: Vec::new(),
         }
     }
 
-    /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
-    /// time spent in the estimator (µs) and the frame's report.
-    pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {
-        let f = &self.ds.frames[k];
+    /// Fuses the dataset's pseudoranges and range rates too.
+    pub fn with_gnss(mut self) -> Self {
+        let mut ephs = crate::gnss::spp::EphStore::default();
+        for e in &self.ds.ephemerides {
+            ephs.insert(e.clone());
+        }
+        let o = self.ds.cfg.gnss.origin_llh;
+        self.gnss = Some(GnssInput {
+            ephs,
+            frame: cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]),
+            next: 0,
+        });
+        self
+    }
+
+    /// Feeds IMU up to just past `t_s`.
+    fn feed_imu(&mut self, t_s: f64) {
         while self.imu_next < self.ds.imu.len() {
-            // Everything up to the frame, plus the first sample after it so
-            // the estimator can interpolate at the frame time.
-            if self.imu_next > 0 && self.ds.imu[self.imu_next - 1].t_s > f.t_s {
+            if self.imu_next > 0 && self.ds.imu[self.imu_next - 1].t_s > t_s {
                 break;
             }
             let m = &self.ds.imu[self.imu_next];
@@ -133,6 +158,47 @@ impl<'a> Runner<'a> {
             });
             self.imu_next += 1;
         }
+    }
+
+    /// GNSS epochs up to `t_s`.
+    fn step_gnss(&mut self, t_s: f64) {
+        let Some(mut g) = self.gnss.take() else { return };
+        let ds = self.ds;
+        while let Some(ep) = ds.gnss.get(g.next) {
+            if ep.t_s > t_s {
+                break;
+            }
+            g.next += 1;
+            let sats = crate::gnss::sat_measurements(
+                &g.ephs,
+                ep.week,
+                ep.tow_s,
+                ep.sats
+                    .iter()
+                    .map(|s| (s.prn, Some(s.pseudorange_m), Some(s.pseudorange_rate_mps))),
+            );
+            let frame = g.frame;
+            // Feed the IMU up to the epoch first.
+            let t = ep.t_s;
+            let clock_truth = ep.clock_bias_m;
+            self.feed_imu(t);
+            if self.est.process_gnss(t, &frame, &sats).is_ok() {
+                let (c, _) = self.est.clock();
+                self.clock_errors.push((t, c.x - clock_truth));
+            }
+        }
+        self.gnss = Some(g);
+    }
+
+    /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
+    /// time spent in the estimator (µs) and the frame's report.
+    pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {
+        let t_f = self.ds.frames[k].t_s;
+        self.step_gnss(t_f);
+        // Everything up to the frame, plus the first sample after it so the
+        // estimator can interpolate at the frame time.
+        self.feed_imu(t_f);
+        let f = &self.ds.frames[k];
         let start = Instant::now();
         normalise(
             &self.cam,
@@ -169,12 +235,22 @@ fn empty(mode: Mode) -> FlightResult {
         stats: Stats::default(),
         keyframes: 0,
         max_rel_diff_vs_full: None,
+        clock_errors: Vec::new(),
     }
 }
 
-/// Runs one mode over a dataset.
-pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> FlightResult {
-    let mut runner = Runner::new(ds, cfg, mode, init_seed);
+fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) -> Runner<'a> {
+    let r = Runner::new(ds, cfg, mode, seed);
+    if gnss {
+        r.with_gnss()
+    } else {
+        r
+    }
+}
+
+/// Runs one mode over a dataset (with its GNSS if `gnss`).
+pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -> FlightResult {
+    let mut runner = runner(ds, cfg, mode, init_seed, gnss);
     let mut r = empty(mode);
     for k in 0..ds.frames.len() {
         let (us, _) = runner.step_frame(k);
@@ -183,14 +259,15 @@ pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> FlightResu
     }
     r.stats = runner.est.stats.clone();
     r.keyframes = runner.est.keyframes().count();
+    r.clock_errors = runner.clock_errors;
     r
 }
 
 /// Runs `compressed` and `full` in lockstep and compares them after every
 /// frame with a global update, and at the end after a forced global update.
-pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64) -> (FlightResult, FlightResult) {
-    let mut rc = Runner::new(ds, cfg, Mode::Compressed, init_seed);
-    let mut rf = Runner::new(ds, cfg, Mode::Full, init_seed);
+pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: bool) -> (FlightResult, FlightResult) {
+    let mut rc = runner(ds, cfg, Mode::Compressed, init_seed, gnss);
+    let mut rf = runner(ds, cfg, Mode::Full, init_seed, gnss);
     let (mut c, mut f) = (empty(Mode::Compressed), empty(Mode::Full));
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
@@ -209,6 +286,7 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64) -> (Fl
     for (r, run) in [(&mut c, &rc), (&mut f, &rf)] {
         r.stats = run.est.stats.clone();
         r.keyframes = run.est.keyframes().count();
+        r.clock_errors = run.clock_errors.clone();
     }
     c.max_rel_diff_vs_full = Some(worst);
     (c, f)
@@ -232,6 +310,9 @@ pub struct ModeSummary {
     pub per_seed_nees_mean: Vec<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_rel_diff_vs_full: Option<f64>,
+    /// RMS of the clock-bias error at the GNSS epochs after the first 5 s (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_bias_rmse_m: Option<f64>,
 }
 
 /// Scores of one flight.
@@ -303,6 +384,13 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         per_seed_ate_aligned_m: scores.iter().map(|s| s.ate.aligned_m).collect(),
         per_seed_nees_mean: scores.iter().map(|s| s.nees_mean).collect(),
         max_rel_diff_vs_full: diff,
+        clock_bias_rmse_m: {
+            let e: Vec<f64> = runs
+                .iter()
+                .flat_map(|r| r.clock_errors.iter().filter(|c| c.0 > 5.0).map(|c| c.1))
+                .collect();
+            (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
+        },
     }
 }
 
@@ -310,23 +398,41 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
 #[derive(Clone, Debug, Serialize)]
 pub struct Evaluation {
     pub scenario: String,
+    pub gnss: bool,
     pub seeds: u64,
     pub duration_s: f64,
     pub modes: BTreeMap<String, ModeSummary>,
+}
+
+/// What to evaluate.
+#[derive(Clone, Debug)]
+pub struct EvalSpec {
+    pub scenario: String,
+    pub modes: Vec<Mode>,
+    /// Seeds `1..=seeds`.
+    pub seeds: u64,
+    /// `None`: the scenario's own length.
+    pub duration_s: Option<f64>,
+    /// Fuse the simulated GNSS.
+    pub gnss: bool,
 }
 
 /// Runs `modes` over seeds `1..=seeds`. When both `full` and `compressed`
 /// are asked for they run in lockstep, and compressed reports its largest
 /// difference from full.
 pub fn evaluate(
-    scenario: &str,
-    modes: &[Mode],
-    seeds: u64,
-    duration_s: Option<f64>,
+    spec: &EvalSpec,
     cfg: &Config,
     sim: &SimConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<Evaluation, cmsckf_sitl::trajectory::TrajectoryError> {
+    let (scenario, modes, seeds, duration_s, gnss) = (
+        spec.scenario.as_str(),
+        &spec.modes[..],
+        spec.seeds,
+        spec.duration_s,
+        spec.gnss,
+    );
     let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
     let mut duration = 0.0;
     let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
@@ -334,7 +440,7 @@ pub fn evaluate(
         let ds = Dataset::generate(scenario, seed, duration_s, sim)?;
         duration = ds.duration_s;
         if lockstep {
-            let (c, f) = run_compressed_vs_full(&ds, cfg, seed);
+            let (c, f) = run_compressed_vs_full(&ds, cfg, seed, gnss);
             progress(&format!(
                 "seed {seed}: compressed vs full max rel diff {:.2e}",
                 c.max_rel_diff_vs_full.unwrap_or(0.0)
@@ -347,11 +453,12 @@ pub fn evaluate(
                 continue;
             }
             progress(&format!("seed {seed}: {}", m.name()));
-            per_mode.entry(m).or_default().push(run(&ds, cfg, m, seed));
+            per_mode.entry(m).or_default().push(run(&ds, cfg, m, seed, gnss));
         }
     }
     Ok(Evaluation {
         scenario: scenario.to_string(),
+        gnss,
         seeds,
         duration_s: duration,
         modes: per_mode
@@ -365,8 +472,8 @@ impl Evaluation {
     /// The human-readable table.
     pub fn table(&self) -> String {
         let mut s = format!(
-            "scenario {} · {} seeds · {:.0} s\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
-            self.scenario, self.seeds, self.duration_s, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
+            "scenario {} · {} seeds · {:.0} s · GNSS {}\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
+            self.scenario, self.seeds, self.duration_s, if self.gnss { "on" } else { "off" }, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
         );
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {

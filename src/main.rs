@@ -44,6 +44,9 @@ enum Cmd {
         /// Also write the per-mode rows as CSV.
         #[arg(long)]
         csv: Option<PathBuf>,
+        /// Fuse the simulated GNSS pseudoranges and range rates: on | off.
+        #[arg(long, default_value = "off")]
+        gnss: String,
     },
     /// Decode a recorded RTCM3 file and print one single-point solution per epoch.
     Gnss {
@@ -258,8 +261,14 @@ fn main() -> anyhow::Result<()> {
             sim_config,
             json,
             csv,
+            gnss,
         } => {
             check_duration(duration_s)?;
+            let gnss = match gnss.as_str() {
+                "on" => true,
+                "off" => false,
+                other => bail!("--gnss {other}: use on or off"),
+            };
             if seeds == 0 {
                 bail!("--seeds must be at least 1");
             }
@@ -276,7 +285,14 @@ fn main() -> anyhow::Result<()> {
                 sim = over;
             }
             let quiet = json;
-            let ev = eval::evaluate(&scenario, &modes, seeds, duration_s, &cfg, &sim, |msg| {
+            let spec = eval::EvalSpec {
+                scenario,
+                modes,
+                seeds,
+                duration_s,
+                gnss,
+            };
+            let ev = eval::evaluate(&spec, &cfg, &sim, |msg| {
                 if !quiet {
                     eprintln!("{msg}");
                 }

@@ -11,7 +11,19 @@ fn nees_is_consistent_over_ten_seeds() {
     let cfg = Config::default();
     let sim = eval::sim_config_for(&cfg);
     let seeds = 10;
-    let ev = eval::evaluate("racetrack", &Mode::ALL, seeds, Some(40.0), &cfg, &sim, |_| {}).unwrap();
+    let ev = eval::evaluate(
+        &eval::EvalSpec {
+            scenario: "racetrack".into(),
+            modes: Mode::ALL.to_vec(),
+            seeds,
+            duration_s: Some(40.0),
+            gnss: false,
+        },
+        &cfg,
+        &sim,
+        |_| {},
+    )
+    .unwrap();
     // Each sample is a 6-DoF pose NEES; averaged over the seeds at one time
     // it is χ²(6·seeds)/seeds.
     eprintln!("{}", ev.table());

@@ -239,7 +239,8 @@ pub struct GnssEpoch {
     pub week: u32,
     pub tow_s: f64,
     pub sats: Vec<SatObs>,
-    /// True receiver clock bias `c·δt` (m) and drift `c·δṫ` (m/s).
+    /// True receiver clock bias `c·δt` (m) and drift `c·δṫ` (m/s). The
+    /// epoch's `tow_s` is the receiver's tag, GPS time + δt.
     pub clock_bias_m: f64,
     pub clock_drift_mps: f64,
 }
@@ -374,7 +375,8 @@ impl GnssModel {
         GnssEpoch {
             t_s: truth.t_s,
             week,
-            tow_s: tow,
+            // A receiver tags epochs with its own clock: GPS time + δt.
+            tow_s: tow + self.clock_bias_m / C_MPS,
             sats,
             clock_bias_m: self.clock_bias_m,
             clock_drift_mps: self.clock_drift_mps,
@@ -442,7 +444,7 @@ mod tests {
         let r_rx = m.frame.to_ecef(&truth.p_B_in_W);
         for s in &ep.sats {
             let eph = m.ephemerides.iter().find(|e| e.prn == s.prn).unwrap();
-            let (t, _, _) = m.range_terms(eph, ep.tow_s, &r_rx);
+            let (t, _, _) = m.range_terms(eph, m.gps_time(ep.t_s).1, &r_rx);
             let modelled = ep.clock_bias_m - t.sat_clock_m + t.troposphere_m + t.ionosphere_m;
             assert!((s.pseudorange_m - t.geometric_m - modelled).abs() < 1e-6);
             assert!(t.troposphere_m > 2.3 && t.troposphere_m < 2.3 / (10f64.to_radians().sin()) + 1.0);
@@ -460,8 +462,9 @@ mod tests {
         let r_rx2 = m.frame.to_ecef(&(truth.p_B_in_W + truth.v_B_in_W * dt));
         for s in &ep.sats {
             let eph = m.ephemerides.iter().find(|e| e.prn == s.prn).unwrap();
-            let (a, sa, _) = m.range_terms(eph, ep.tow_s, &r_rx);
-            let (b, sb, _) = m.range_terms(eph, ep.tow_s + dt, &r_rx2);
+            let tow = m.gps_time(ep.t_s).1;
+            let (a, sa, _) = m.range_terms(eph, tow, &r_rx);
+            let (b, sb, _) = m.range_terms(eph, tow + dt, &r_rx2);
             let rate = (b.geometric_m - a.geometric_m) / dt - (sb.dt_s - sa.dt_s) * C_MPS / dt + ep.clock_drift_mps;
             assert!(
                 (rate - s.pseudorange_rate_mps).abs() < 0.01,

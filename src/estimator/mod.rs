@@ -12,6 +12,7 @@
 
 pub mod feature;
 pub mod frontend;
+pub mod gnss_update;
 pub mod math;
 pub mod propagate;
 
@@ -24,6 +25,15 @@ use feature::{Extrinsic, Obs, Reject, TriangulationLimits, View};
 pub use frontend::NormObs;
 use math::{exp_so3, left_jacobian};
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
+
+/// Active (always-local) states: the IMU, then the GNSS receiver clock
+/// `[c·δt (m), c·δṫ (m/s)]`.
+pub const ACTIVE_DIM: usize = IMU_DIM + 2;
+/// Offsets of the clock bias and drift.
+pub const CLK_B: usize = IMU_DIM;
+pub const CLK_D: usize = IMU_DIM + 1;
+/// The active block's transition.
+pub type Mat17 = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
 
 /// Bound on buffered, not yet integrated IMU samples.
@@ -42,6 +52,14 @@ pub struct Settings {
     pub local_radius_m: f64,
     pub imu: ImuConfig,
     pub ext: Extrinsic,
+    /// Receiver clock bias white-frequency noise (m/√s) and drift random
+    /// walk (m/s/√s).
+    pub clock_bias_rw: f64,
+    pub clock_drift_rw: f64,
+    /// Pseudorange and range-rate sigmas at zenith (m, m/s).
+    pub pseudorange_sigma_m: f64,
+    pub range_rate_sigma_mps: f64,
+    pub elevation_mask_deg: f64,
 }
 
 impl Settings {
@@ -61,6 +79,11 @@ impl Settings {
             keyframe_max: c.keyframe.max,
             local_radius_m: c.compressed.local_radius_m,
             imu: c.imu.clone(),
+            clock_bias_rw: c.gnss.clock_bias_rw_m_per_sqrt_s,
+            clock_drift_rw: c.gnss.clock_drift_rw_mps_per_sqrt_s,
+            pseudorange_sigma_m: c.gnss.pseudorange_sigma_m,
+            range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
+            elevation_mask_deg: c.gnss.elevation_mask_deg,
             ext: Extrinsic {
                 R_B_C: cam.T_B_C.rotation.to_rotation_matrix().into_inner(),
                 p_C_in_B: cam.T_B_C.translation.vector,
@@ -210,8 +233,12 @@ pub struct Estimator {
     last_meas: Option<ImuMeas>,
     imu_buf: VecDeque<ImuMeas>,
     /// Transition accumulated since the cross-covariances were last synced.
-    f_acc: Mat15,
+    f_acc: Mat17,
     P: DMatrix<f64>,
+    /// Receiver clock `[c·δt (m), c·δṫ (m/s)]`; set from the first GNSS
+    /// epoch (§8).
+    clock: nalgebra::Vector2<f64>,
+    clock_initialised: bool,
     clones: VecDeque<CloneState>,
     next_seq: u64,
     keyframes: BTreeMap<u64, Keyframe>,
@@ -262,16 +289,21 @@ impl Snapshot {
 impl Estimator {
     /// Starts the filter at `t_s` from a state and its 15×15 covariance.
     pub fn new(s: Settings, t_s: f64, imu: ImuState, P_imu: &Mat15) -> Self {
-        let mut P = DMatrix::zeros(IMU_DIM, IMU_DIM);
-        P.copy_from(P_imu);
+        let mut P = DMatrix::zeros(ACTIVE_DIM, ACTIVE_DIM);
+        P.view_mut((0, 0), (IMU_DIM, IMU_DIM)).copy_from(P_imu);
+        // The clock is unknown until the first GNSS epoch sets it.
+        P[(CLK_B, CLK_B)] = 1.0;
+        P[(CLK_D, CLK_D)] = 1.0;
         Self {
+            clock: nalgebra::Vector2::zeros(),
+            clock_initialised: false,
             g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
             t_s,
             centre_W: imu.p_B_in_W,
             imu,
             last_meas: None,
             imu_buf: VecDeque::with_capacity(IMU_BUFFER_CAP),
-            f_acc: Mat15::identity(),
+            f_acc: Mat17::identity(),
             P,
             clones: VecDeque::with_capacity(s.max_clones + 2),
             next_seq: 0,
@@ -326,7 +358,7 @@ impl Estimator {
     /// global update minus what is accumulated since).
     pub fn keyframe_covariance(&self, id: u64) -> Option<Matrix6<f64>> {
         if let Some(j) = self.local_kfs.iter().position(|&k| k == id) {
-            let o = IMU_DIM + 6 * j;
+            let o = ACTIVE_DIM + 6 * j;
             return Some(self.P.fixed_view::<6, 6>(o, o).into_owned());
         }
         let g = self.global.as_ref()?;
@@ -393,12 +425,25 @@ impl Estimator {
         if m.t_s <= m0.t_s {
             return;
         }
-        let (f, q) = propagate::transition(&self.imu, &m0, &m, &self.s.imu);
+        let (f15, q15) = propagate::transition(&self.imu, &m0, &m, &self.s.imu);
+        // The clock: bias integrates drift, both random walks (§8, eq. K1).
+        let dt = m.t_s - m0.t_s;
+        let mut f = Mat17::identity();
+        f.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
+        f[(CLK_B, CLK_D)] = dt;
+        let mut q = Mat17::zeros();
+        q.fixed_view_mut::<15, 15>(0, 0).copy_from(&q15);
+        let (qb, qd) = (self.s.clock_bias_rw.powi(2), self.s.clock_drift_rw.powi(2));
+        q[(CLK_B, CLK_B)] = qb * dt + qd * dt * dt * dt / 3.0;
+        q[(CLK_B, CLK_D)] = qd * dt * dt / 2.0;
+        q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
+        q[(CLK_D, CLK_D)] = qd * dt;
         self.imu = propagate::integrate(&self.imu, &m0, &m, &self.g_W);
-        let pii = self.P.fixed_view::<15, 15>(0, 0).into_owned();
-        let mut new = f * pii * f.transpose() + q;
+        self.clock.x += self.clock.y * dt;
+        let paa = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
+        let mut new = f * paa * f.transpose() + q;
         new = (new + new.transpose()) * 0.5;
-        self.P.fixed_view_mut::<15, 15>(0, 0).copy_from(&new);
+        self.P.fixed_view_mut::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).copy_from(&new);
         self.f_acc = f * self.f_acc;
         self.t_s = m.t_s;
         self.last_meas = Some(m);
@@ -453,32 +498,34 @@ impl Estimator {
     /// Applies the accumulated IMU transition to the cross-covariances and
     /// to `Φ` (§2, eq. F4): `P_IX ← F P_IX`, `Φ_I ← F Φ_I`.
     fn sync(&mut self) {
-        if self.f_acc == Mat15::identity() {
+        if self.f_acc == Mat17::identity() {
             return;
         }
         let n = self.P.nrows();
-        if n > IMU_DIM {
-            let cross = self.f_acc * self.P.view((0, IMU_DIM), (IMU_DIM, n - IMU_DIM));
-            self.P.view_mut((0, IMU_DIM), (IMU_DIM, n - IMU_DIM)).copy_from(&cross);
+        if n > ACTIVE_DIM {
+            let cross = self.f_acc * self.P.view((0, ACTIVE_DIM), (ACTIVE_DIM, n - ACTIVE_DIM));
             self.P
-                .view_mut((IMU_DIM, 0), (n - IMU_DIM, IMU_DIM))
+                .view_mut((0, ACTIVE_DIM), (ACTIVE_DIM, n - ACTIVE_DIM))
+                .copy_from(&cross);
+            self.P
+                .view_mut((ACTIVE_DIM, 0), (n - ACTIVE_DIM, ACTIVE_DIM))
                 .copy_from(&cross.transpose());
         }
         if let Some(g) = self.global.as_mut() {
             let c = g.Phi.ncols();
-            let top = self.f_acc * g.Phi.view((0, 0), (IMU_DIM, c));
-            g.Phi.view_mut((0, 0), (IMU_DIM, c)).copy_from(&top);
+            let top = self.f_acc * g.Phi.view((0, 0), (ACTIVE_DIM, c));
+            g.Phi.view_mut((0, 0), (ACTIVE_DIM, c)).copy_from(&top);
         }
-        self.f_acc = Mat15::identity();
+        self.f_acc = Mat17::identity();
     }
 
     // ------------------------------------------------------- state layout
 
     fn kf_offset(&self, local_index: usize) -> usize {
-        IMU_DIM + 6 * local_index
+        ACTIVE_DIM + 6 * local_index
     }
     fn clones_offset(&self) -> usize {
-        IMU_DIM + 6 * self.local_kfs.len()
+        ACTIVE_DIM + 6 * self.local_kfs.len()
     }
     fn clone_offset_by_seq(&self, seq: u64) -> Option<usize> {
         let first = self.clones.front()?.seq;
@@ -899,7 +946,7 @@ impl Estimator {
         if self.s.mode == Mode::Schmidt {
             // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
             // P_AS ← P_AS − K_A (H P)_S (§6).
-            let (k0, k1) = (IMU_DIM, self.clones_offset());
+            let (k0, k1) = (ACTIVE_DIM, self.clones_offset());
             dx.rows_mut(k0, k1 - k0).fill(0.0);
             let mut d = kt.transpose() * pht.transpose(); // K H P
             d.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
@@ -931,6 +978,7 @@ impl Estimator {
     /// Applies a correction to the local nominal state.
     fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
+        self.clock += nalgebra::Vector2::new(dx[CLK_B], dx[CLK_D]);
         for (j, id) in self.local_kfs.clone().iter().enumerate() {
             let o = self.kf_offset(j);
             let kf = self.keyframes.get_mut(id).expect("local keyframe exists");
@@ -994,7 +1042,7 @@ impl Estimator {
         let n_clone_dim = 6 * self.clones.len();
         let kf_index = |pos: usize| -> usize {
             if pos < n_local_kfs {
-                IMU_DIM + 6 * pos
+                ACTIVE_DIM + 6 * pos
             } else {
                 nl + 6 * (pos - n_local_kfs)
             }
@@ -1011,11 +1059,11 @@ impl Estimator {
                 new_global.push((id, pos));
             }
         }
-        let mut lidx: Vec<usize> = (0..IMU_DIM).collect();
+        let mut lidx: Vec<usize> = (0..ACTIVE_DIM).collect();
         for (_, pos) in &new_local {
             lidx.extend(kf_index(*pos)..kf_index(*pos) + 6);
         }
-        let co = IMU_DIM + 6 * n_local_kfs;
+        let co = ACTIVE_DIM + 6 * n_local_kfs;
         lidx.extend(co..co + n_clone_dim);
         let gidx: Vec<usize> = new_global
             .iter()
@@ -1082,7 +1130,7 @@ impl Estimator {
                     .local_kfs
                     .iter()
                     .enumerate()
-                    .map(|(j, id)| (*id, IMU_DIM + 6 * j))
+                    .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
                     .collect();
                 for (j, id) in g.ids.iter().enumerate() {
                     pos.insert(*id, nl + 6 * j);
@@ -1094,12 +1142,12 @@ impl Estimator {
                     .local_kfs
                     .iter()
                     .enumerate()
-                    .map(|(j, id)| (*id, IMU_DIM + 6 * j))
+                    .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
                     .collect();
                 (est.P.clone(), pos)
             }
         };
-        let mut idx: Vec<usize> = (0..IMU_DIM).collect();
+        let mut idx: Vec<usize> = (0..ACTIVE_DIM).collect();
         let co = est.clones_offset();
         idx.extend(co..co + 6 * est.clones.len());
         for off in kf_pos.values() {
@@ -1117,6 +1165,7 @@ impl Estimator {
         for v in [i.v_B_in_W, i.p_B_in_W, i.b_g, i.b_a] {
             x.extend(v.iter());
         }
+        x.extend(est.clock.iter());
         for c in &est.clones {
             push_q(&mut x, &c.q_W_B);
             x.extend(c.p_B_in_W.iter());
@@ -1153,6 +1202,161 @@ impl Estimator {
         }
         Ok(())
     }
+}
+
+/// What one GNSS epoch did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GnssReport {
+    pub pseudoranges_used: usize,
+    pub range_rates_used: usize,
+    pub rejected: BTreeMap<&'static str, u64>,
+    /// `(prn, pseudorange residual m, range-rate residual m/s)` before the update.
+    pub residuals: Vec<(u8, Option<f64>, Option<f64>)>,
+    pub clock_initialised: bool,
+}
+
+impl Estimator {
+    /// The receiver clock `[c·δt (m), c·δṫ (m/s)]` and its variances.
+    pub fn clock(&self) -> (nalgebra::Vector2<f64>, nalgebra::Vector2<f64>) {
+        (
+            self.clock,
+            nalgebra::Vector2::new(self.P[(CLK_B, CLK_B)], self.P[(CLK_D, CLK_D)]),
+        )
+    }
+
+    /// One GNSS epoch at `t_s` (§8): pseudoranges and range rates of the
+    /// satellites in `sats`, against the world origin `frame`. The first
+    /// epoch sets the clock from the median residuals.
+    pub fn process_gnss(
+        &mut self,
+        t_s: f64,
+        frame: &cmsckf_sitl::geodesy::NedFrame,
+        sats: &[gnss_update::SatMeas],
+    ) -> Result<GnssReport, InputError> {
+        if !t_s.is_finite() || t_s < self.t_s {
+            *self.stats.rejected.entry("gnss_time_backwards").or_default() += 1;
+            return Err(InputError::FrameTimeBackwards {
+                t_s,
+                filter_s: self.t_s,
+            });
+        }
+        self.propagate_to(t_s);
+        self.sync();
+        let mut rep = GnssReport::default();
+        let mask = self.s.elevation_mask_deg.to_radians();
+        let p = self.imu.p_B_in_W;
+        let v = self.imu.v_B_in_W;
+        if !self.clock_initialised {
+            let mut b: Vec<f64> = sats
+                .iter()
+                .filter_map(|s| {
+                    s.pseudorange_m
+                        .map(|z| z - gnss_update::pseudorange(frame, &p, 0.0, s).0)
+                })
+                .filter(|x| x.is_finite())
+                .collect();
+            if b.is_empty() {
+                return Ok(rep);
+            }
+            let mut d: Vec<f64> = sats
+                .iter()
+                .filter_map(|s| {
+                    s.range_rate_mps
+                        .map(|z| z - gnss_update::range_rate(frame, &p, &v, 0.0, s).0)
+                })
+                .filter(|x| x.is_finite())
+                .collect();
+            let median = |v: &mut Vec<f64>| {
+                v.sort_by(|a, b| a.total_cmp(b));
+                v[v.len() / 2]
+            };
+            self.clock = nalgebra::Vector2::new(median(&mut b), if d.is_empty() { 0.0 } else { median(&mut d) });
+            // A fresh, independent clock state: no correlations (§8, eq. K4).
+            for k in [CLK_B, CLK_D] {
+                self.P.row_mut(k).fill(0.0);
+                self.P.column_mut(k).fill(0.0);
+                if let Some(g) = self.global.as_mut() {
+                    g.Phi.row_mut(k).fill(0.0);
+                }
+            }
+            self.P[(CLK_B, CLK_B)] = 30.0f64.powi(2);
+            self.P[(CLK_D, CLK_D)] = 1.0;
+            self.clock_initialised = true;
+            rep.clock_initialised = true;
+        }
+        // Columns: velocity, position, clock bias, clock drift.
+        let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D];
+        let p_sub = self.P.select_rows(&cols).select_columns(&cols);
+        let mut rows: Vec<([f64; 8], f64)> = Vec::new();
+        let gate = cmsckf_sitl::metrics::chi2_quantile(0.99, 1);
+        let reject = |rep: &mut GnssReport, st: &mut Stats, why: &'static str| {
+            *rep.rejected.entry(why).or_default() += 1;
+            *st.rejected.entry(why).or_default() += 1;
+        };
+        for s in sats {
+            let (pr_pred, hp, el) = gnss_update::pseudorange(frame, &p, self.clock.x, s);
+            if el < mask {
+                reject(&mut rep, &mut self.stats, "gnss_below_mask");
+                continue;
+            }
+            let sin_el = el.sin().max(0.1);
+            let mut res = (s.prn, None, None);
+            if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
+                let sigma = self.s.pseudorange_sigma_m / sin_el;
+                let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0];
+                let r = z - pr_pred;
+                res.1 = Some(r);
+                if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
+                    rows.push(row);
+                    rep.pseudoranges_used += 1;
+                } else {
+                    reject(&mut rep, &mut self.stats, "gnss_pseudorange_chi2");
+                }
+            }
+            if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {
+                let (pred, hv, hpr) = gnss_update::range_rate(frame, &p, &v, self.clock.y, s);
+                let sigma = self.s.range_rate_sigma_mps / sin_el;
+                let h = [hv[0], hv[1], hv[2], hpr[0], hpr[1], hpr[2], 0.0, 1.0];
+                let r = z - pred;
+                res.2 = Some(r);
+                if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
+                    rows.push(row);
+                    rep.range_rates_used += 1;
+                } else {
+                    reject(&mut rep, &mut self.stats, "gnss_range_rate_chi2");
+                }
+            }
+            rep.residuals.push(res);
+        }
+        if rows.is_empty() {
+            return Ok(rep);
+        }
+        let mut h = DMatrix::zeros(rows.len(), cols.len());
+        let mut r = DVector::zeros(rows.len());
+        for (i, (hr, rr)) in rows.iter().enumerate() {
+            for k in 0..cols.len() {
+                h[(i, k)] = hr[k];
+            }
+            r[i] = *rr;
+        }
+        self.ekf_update(&h, &cols, &r);
+        self.stats.updates += 1;
+        Ok(rep)
+    }
+}
+
+/// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`.
+fn gated(h: &[f64; 8], r: f64, sigma: f64, p: &DMatrix<f64>, gate: f64) -> Option<([f64; 8], f64)> {
+    let hv = nalgebra::DVector::from_column_slice(h);
+    let s = (hv.transpose() * p * &hv)[0] + sigma * sigma;
+    if !(r.is_finite() && s > 0.0) || r * r / s > gate {
+        return None;
+    }
+    let mut w = *h;
+    for x in w.iter_mut() {
+        *x /= sigma;
+    }
+    Some((w, r / sigma))
 }
 
 /// A lower-triangular `L` with `L Lᵀ ≈ P` and a positive diagonal: the

@@ -14,7 +14,7 @@ fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
 #[test]
 fn compressed_equals_full_after_every_global_update() {
     let (ds, cfg) = racetrack(1, 75.0);
-    let (c, f) = eval::run_compressed_vs_full(&ds, &cfg, 1);
+    let (c, f) = eval::run_compressed_vs_full(&ds, &cfg, 1, false);
     let d = c.max_rel_diff_vs_full.unwrap();
     assert!(c.stats.global_updates > 10, "global updates {}", c.stats.global_updates);
     assert!(c.stats.loop_closure_updates > 0, "no loop closures");
@@ -160,4 +160,19 @@ fn static_initialisation_recovers_roll_pitch_and_gyro_bias() {
     );
     assert!(attitude_from_static(&Vector3::new(f64::NAN, 0.0, -9.8), 0.0).is_none());
     assert!(attitude_from_static(&Vector3::zeros(), 0.0).is_none());
+}
+
+/// The GNSS update runs in every mode and touches only the active states:
+/// keyframes and clones are changed only through their correlations.
+#[test]
+fn gnss_update_in_every_mode() {
+    let cfg = Config::default();
+    let ds = Dataset::generate("racetrack", 6, Some(12.0), &eval::sim_config_for(&cfg)).unwrap();
+    for mode in Mode::ALL {
+        let r = eval::run(&ds, &cfg, mode, 6, true);
+        assert!(r.stats.updates > 0);
+        assert!(!r.clock_errors.is_empty(), "{mode:?}: no GNSS epoch fused");
+        let last = r.clock_errors.last().unwrap().1;
+        assert!(last.abs() < 3.0, "{mode:?}: clock error {last} m");
+    }
 }

@@ -109,6 +109,33 @@ impl Receiver {
     }
 }
 
+/// Satellite states and L1 measurements for the filter (§8): each satellite
+/// with an ephemeris, its state at transmission time, and its clock for L1
+/// C/A (with TGD).
+pub fn sat_measurements(
+    ephs: &EphStore,
+    week: u32,
+    tow_s: f64,
+    obs: impl IntoIterator<Item = (u8, Option<f64>, Option<f64>)>,
+) -> Vec<crate::estimator::gnss_update::SatMeas> {
+    let c = cmsckf_sitl::geodesy::C_MPS;
+    obs.into_iter()
+        .filter_map(|(prn, pr, prr)| {
+            let eph = ephs.select(prn, week, tow_s)?;
+            let st = spp::state_at_transmission(eph, tow_s, pr.unwrap_or(0.075 * c));
+            Some(crate::estimator::gnss_update::SatMeas {
+                prn,
+                r_sat_ecef_m: st.r_ecef_m,
+                v_sat_ecef_mps: st.v_ecef_mps,
+                dts_m: st.dt_s * c,
+                ddts_mps: st.ddt * c,
+                pseudorange_m: pr,
+                range_rate_mps: prr,
+            })
+        })
+        .collect()
+}
+
 /// Parses a `--systems` list such as `G,E`.
 pub fn parse_systems(s: &str) -> Result<Vec<System>, String> {
     s.split(',')

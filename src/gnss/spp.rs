@@ -119,6 +119,15 @@ pub enum SppError {
     Geometry(u32),
 }
 
+/// The satellite's state at the transmission time of a signal received at
+/// `tow_rx_s` with pseudorange `pr_m`: `t_tx = t_rx − P/c − δt_sv` (RTKLIB's
+/// `satposs`).
+pub fn state_at_transmission(eph: &GpsEphemeris, tow_rx_s: f64, pr_m: f64) -> cmsckf_sitl::gnss::SatState {
+    let t0 = tow_rx_s - pr_m / C_MPS;
+    let clk0 = eph.state(t0).dt_s + eph.tgd_s;
+    eph.state(t0 - clk0)
+}
+
 /// One satellite ready for the solver.
 struct Meas {
     prn: u8,
