@@ -96,7 +96,7 @@ impl Dataset {
         let gnss = if cfg.gnss.enabled {
             let n = (duration * cfg.gnss.rate_hz).floor() as usize + 1;
             (0..n)
-                .map(|k| gnss_model.epoch(&traj.sample(k as f64 / cfg.gnss.rate_hz), &mut rng_gnss))
+                .map(|k| gnss_model.epoch_at(traj, k as f64 / cfg.gnss.rate_hz, &mut rng_gnss))
                 .collect()
         } else {
             Vec::new()

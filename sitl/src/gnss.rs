@@ -270,7 +270,11 @@ impl GnssModel {
         Self {
             cfg: cfg.clone(),
             frame,
-            ephemerides: constellation(cfg.start_week, cfg.start_tow_s, rng),
+            // Quantised through RTCM 1019, so decoders see the true orbits.
+            ephemerides: constellation(cfg.start_week, cfg.start_tow_s, rng)
+                .iter()
+                .map(crate::rtcm_out::quantise)
+                .collect(),
             clock_bias_m: cfg.clock_bias0_m,
             clock_drift_mps: cfg.clock_drift0_mps,
             last_t_s: None,
@@ -334,9 +338,26 @@ impl GnssModel {
         self.last_t_s = Some(t_s);
     }
 
-    /// Observes all satellites above the mask from `truth`.
+    /// The epoch a receiver tags `t_tag_s` (receiver time, a whole number of
+    /// milliseconds): measured at the true time `t_tag − δt`.
+    pub fn epoch_at<R: Rng>(&mut self, traj: &crate::trajectory::Trajectory, t_tag_s: f64, rng: &mut R) -> GnssEpoch {
+        self.advance_clock(t_tag_s, rng);
+        let truth = traj.sample(t_tag_s - self.clock_bias_m / C_MPS);
+        let mut ep = self.measure(&truth, rng);
+        let (week, tow) = self.gps_time(t_tag_s);
+        ep.week = week;
+        ep.tow_s = tow;
+        ep
+    }
+
+    /// Observes all satellites above the mask from `truth`, the receiver
+    /// clock advanced to the truth's time.
     pub fn epoch<R: Rng>(&mut self, truth: &TruthSample, rng: &mut R) -> GnssEpoch {
         self.advance_clock(truth.t_s, rng);
+        self.measure(truth, rng)
+    }
+
+    fn measure<R: Rng>(&mut self, truth: &TruthSample, rng: &mut R) -> GnssEpoch {
         let (week, tow) = self.gps_time(truth.t_s);
         let r_rx = self.frame.to_ecef(&truth.p_B_in_W);
         let v_rx = self.frame.R_ecef_ned * truth.v_B_in_W;

@@ -21,6 +21,7 @@ pub mod geodesy;
 pub mod gnss;
 pub mod imu;
 pub mod metrics;
+pub mod rtcm_out;
 pub mod serve;
 pub mod spline;
 pub mod trajectory;
