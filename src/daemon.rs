@@ -58,6 +58,24 @@ pub enum FusionMsg {
         v_ned_mps: Vector3<f64>,
     },
     Frame(FeatureFrame),
+    /// One reassembled RTCM3 message from the rover.
+    Rtcm(Vec<u8>),
+    SystemTime {
+        unix_us: u64,
+        boot_ms: u32,
+    },
+    Origin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+}
+
+/// A measurement waiting for IMU to cover its time.
+#[derive(Debug)]
+enum Pending {
+    Frame(FeatureFrame),
+    Gnss(Vec<crate::estimator::gnss_update::SatMeas>),
 }
 
 /// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).
@@ -129,6 +147,10 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         let mono_offset_us = mono_offset_us.clone();
         let mut stop = stop_rx.clone();
         let rtcm_from_mavlink = cfg.gnss.source == GnssSource::Mavlink;
+        // Without a rover station id, RTCM counts as the rover's only when it
+        // comes from the configured vehicle.
+        let (rover_id, vehicle) = (cfg.gnss.rover_station_id, cfg.mavlink.system_id as u32);
+        let rover_src_ok = move |src: mav::Source| rover_id != 0 || src.system == vehicle;
         tokio::spawn(async move {
             let mut reasm = Reassembler::new();
             loop {
@@ -136,7 +158,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                     r = link.recv() => r,
                     _ = stop.changed() => return,
                 };
-                let (_src, msg, gap) = match r {
+                let (src, msg, gap) = match r {
                     Ok(v) => v,
                     Err(mav::LinkError::Io(e)) => {
                         counters.add("mavlink_io_error", 1);
@@ -216,6 +238,11 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                                     Reassembled::Message(m) => {
                                         counters.add("rtcm_messages", 1);
                                         counters.add("rtcm_bytes", m.len() as u64);
+                                        if !rover_src_ok(src) {
+                                            counters.add("rtcm_other_source", 1);
+                                        } else if fusion_tx.try_send(FusionMsg::Rtcm(m)).is_err() {
+                                            counters.add("fusion_queue_full", 1);
+                                        }
                                         break;
                                     }
                                     Reassembled::Pending => break,
@@ -238,9 +265,21 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                         counters.add("heartbeat_in", 1);
                         None
                     }
-                    Inbound::SystemTime { .. } => {
+                    Inbound::SystemTime { unix_us, boot_ms } => {
                         counters.add("system_time", 1);
-                        None
+                        Some(FusionMsg::SystemTime { unix_us, boot_ms })
+                    }
+                    Inbound::GpsGlobalOrigin {
+                        lat_deg,
+                        lon_deg,
+                        alt_m,
+                    } => {
+                        counters.add("gps_global_origin", 1);
+                        Some(FusionMsg::Origin {
+                            lat_deg,
+                            lon_deg,
+                            alt_m,
+                        })
                     }
                     Inbound::Other(_) => None,
                 };
@@ -349,6 +388,18 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     })
 }
 
+/// GNSS input of the fusion loop: RTCM decoding, the receiver model, the
+/// world origin and the GPS-time → autopilot-time map.
+struct GnssIn {
+    dec: crate::gnss::rtcm::RtcmDecoder,
+    rx: crate::gnss::Receiver,
+    frame: Option<cmsckf_sitl::geodesy::NedFrame>,
+    /// Unix time minus autopilot boot time (s), from SYSTEM_TIME.
+    unix_minus_boot_s: Option<f64>,
+    msgs: Vec<crate::gnss::rtcm::GnssMessage>,
+    epochs: Vec<crate::gnss::Epoch>,
+}
+
 /// State of the fusion loop.
 struct Fusion {
     cfg: Config,
@@ -357,7 +408,8 @@ struct Fusion {
     static_buf: VecDeque<ImuMeas>,
     attitude: Option<(f64, f64, f64)>,
     local: Option<(Vector3<f64>, Vector3<f64>)>,
-    pending: VecDeque<(f64, FeatureFrame)>,
+    pending: VecDeque<(f64, Pending)>,
+    gnss: GnssIn,
     last_imu_t: f64,
     last_frame_t: f64,
     next_output_t: f64,
@@ -381,6 +433,29 @@ fn fusion_loop(
         attitude: None,
         local: None,
         pending: VecDeque::with_capacity(PENDING_FRAMES),
+        gnss: GnssIn {
+            dec: crate::gnss::rtcm::RtcmDecoder::new(),
+            rx: crate::gnss::Receiver::new(
+                crate::gnss::spp::SppOptions {
+                    elevation_mask_deg: cfg.gnss.elevation_mask_deg,
+                    iono: cfg.gnss.iono,
+                    systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or_default(),
+                },
+                if cfg.gnss.week_hint != 0 {
+                    cfg.gnss.week_hint
+                } else {
+                    crate::gnss::gps_week_now()
+                },
+                cfg.gnss.rover_station_id,
+            ),
+            frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
+                let o = &cfg.gnss.origin_llh;
+                cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2])
+            }),
+            unix_minus_boot_s: None,
+            msgs: Vec::new(),
+            epochs: Vec::new(),
+        },
         last_imu_t: f64::NEG_INFINITY,
         last_frame_t: f64::NEG_INFINITY,
         next_output_t: f64::NEG_INFINITY,
@@ -392,6 +467,24 @@ fn fusion_loop(
         match msg {
             FusionMsg::Attitude { roll, pitch, yaw } => f.attitude = Some((roll, pitch, yaw)),
             FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => f.local = Some((p_ned_m, v_ned_mps)),
+            FusionMsg::SystemTime { unix_us, boot_ms } => {
+                f.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
+            }
+            FusionMsg::Origin {
+                lat_deg,
+                lon_deg,
+                alt_m,
+            } => {
+                if f.gnss.frame.is_none() {
+                    // MAVLink gives the origin's altitude above mean sea level;
+                    // the geoid separation (tens of metres) is a constant
+                    // height offset that the clock bias cannot absorb, so
+                    // `gnss.origin_llh` is the precise way to set it.
+                    f.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
+                    counters.add("gnss_origin_from_autopilot", 1);
+                }
+            }
+            FusionMsg::Rtcm(bytes) => f.on_rtcm(&bytes, &counters),
             FusionMsg::Frame(fr) => {
                 let t_ap_us = match f.cfg.features.clock {
                     FeatureClock::Autopilot => fr.t_us as i64,
@@ -416,11 +509,7 @@ fn fusion_loop(
                     continue;
                 }
                 f.last_frame_t = t;
-                if f.pending.len() == PENDING_FRAMES {
-                    f.pending.pop_front();
-                    counters.add("feature_pending_overflow", 1);
-                }
-                f.pending.push_back((t, fr));
+                f.enqueue(t, Pending::Frame(fr), &counters);
             }
             FusionMsg::Imu(m) => {
                 if m.t_s <= f.last_imu_t {
@@ -445,6 +534,65 @@ fn fusion_loop(
 }
 
 impl Fusion {
+    /// Queues a measurement in time order (bounded; the oldest is dropped).
+    fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
+        if self.pending.len() == PENDING_FRAMES {
+            self.pending.pop_front();
+            counters.add("pending_overflow", 1);
+        }
+        let at = self.pending.partition_point(|(u, _)| *u <= t);
+        self.pending.insert(at, (t, item));
+    }
+
+    /// Decodes RTCM, completes epochs, and queues each as a GNSS update at
+    /// its autopilot time: GPS tag → Unix (leap seconds) → boot clock
+    /// (SYSTEM_TIME), less the receiver clock offset.
+    fn on_rtcm(&mut self, bytes: &[u8], counters: &Counters) {
+        let g = &mut self.gnss;
+        let before = g.dec.stats.crc_failures;
+        g.dec.push(bytes, &mut g.msgs);
+        if g.dec.stats.crc_failures > before {
+            counters.add("rtcm_crc_failure", g.dec.stats.crc_failures - before);
+            tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
+        }
+        for m in g.msgs.drain(..) {
+            g.rx.push(m, &mut g.epochs);
+        }
+        let epochs: Vec<_> = g.epochs.drain(..).collect();
+        for ep in epochs {
+            counters.add("gnss_epochs", 1);
+            let Some(offset) = self.gnss.unix_minus_boot_s else {
+                counters.add("gnss_no_system_time", 1);
+                continue;
+            };
+            let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
+            let t = crate::gnss::gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / cmsckf_sitl::geodesy::C_MPS;
+            if self.gnss.frame.is_none() {
+                // No configured or autopilot origin: anchor the world frame so
+                // that the current estimate sits at the first fix.
+                if let (Ok(fix), Some(est)) = (&ep.fix, self.est.as_ref()) {
+                    let (lat, lon, _) = cmsckf_sitl::geodesy::ecef_to_llh(&fix.r_ecef_m);
+                    let r = cmsckf_sitl::geodesy::R_ecef_ned(lat, lon);
+                    let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
+                    self.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_ecef(&origin));
+                    counters.add("gnss_origin_from_fix", 1);
+                }
+            }
+            let obs = ep.sats.iter().map(|s| {
+                let l1 = s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C');
+                (
+                    s.prn,
+                    l1.and_then(|g| g.pseudorange_m),
+                    l1.and_then(|g| g.range_rate_mps),
+                )
+            });
+            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, obs);
+            if !sats.is_empty() {
+                self.enqueue(t, Pending::Gnss(sats), counters);
+            }
+        }
+    }
+
     fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
         if self.est.is_none() {
             self.try_init(m, counters);
@@ -454,16 +602,46 @@ impl Fusion {
         if est.add_imu(m).is_err() {
             counters.add("imu_rejected", 1);
         }
-        // Frames now covered by IMU, in time order.
+        // Measurements now covered by IMU, in time order.
         while let Some((t, _)) = self.pending.front() {
             if *t > m.t_s {
                 break;
             }
-            let Some((t, fr)) = self.pending.pop_front() else { break };
+            let Some((t, item)) = self.pending.pop_front() else {
+                break;
+            };
             if t < est.time_s() {
-                counters.add("feature_late", 1);
+                counters.add(
+                    if matches!(item, Pending::Frame(_)) {
+                        "feature_late"
+                    } else {
+                        "gnss_late"
+                    },
+                    1,
+                );
                 continue;
             }
+            let fr = match item {
+                Pending::Frame(fr) => fr,
+                Pending::Gnss(sats) => {
+                    let Some(frame) = self.gnss.frame else { continue };
+                    match est.process_gnss(t, &frame, &sats) {
+                        Ok(rep) => {
+                            counters.add("gnss_epochs_fused", 1);
+                            counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
+                            counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
+                            for (k, v) in &rep.rejected {
+                                counters.add(k, *v);
+                            }
+                        }
+                        Err(e) => {
+                            counters.add("gnss_rejected", 1);
+                            tracing::warn!(error = %e, "GNSS epoch rejected");
+                        }
+                    }
+                    continue;
+                }
+            };
             let rej = normalise(
                 &self.cam,
                 self.cfg.camera.pixel_noise_px,
@@ -581,6 +759,7 @@ impl Fusion {
         self.est = Some(est);
         self.static_buf.clear();
         self.pending.retain(|(t, _)| *t >= m.t_s);
+        let _ = counters;
         counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
         tracing::info!(static_start = is_static, t_s = m.t_s, "filter initialised");
     }

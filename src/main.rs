@@ -158,7 +158,7 @@ fn gnss_file(
     station_id: u16,
     csv: bool,
 ) -> anyhow::Result<()> {
-    use cmsckf::gnss::{rtcm, spp, EpochResult, Receiver};
+    use cmsckf::gnss::{rtcm, spp, Receiver};
     if !(mask.is_finite() && (0.0..=60.0).contains(&mask)) {
         bail!("--elevation-mask-deg {mask}: give degrees in [0, 60]");
     }
@@ -192,7 +192,7 @@ fn gnss_file(
         )?;
     }
     for r in &results {
-        let EpochResult::Solved(s) = r else { continue };
+        let Ok(s) = &r.fix else { continue };
         let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&s.r_ecef_m);
         if csv {
             writeln!(

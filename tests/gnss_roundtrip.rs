@@ -5,7 +5,7 @@ use cmsckf::config::{Config, IonoMode};
 use cmsckf::eval;
 use cmsckf::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use cmsckf::gnss::spp::SppOptions;
-use cmsckf::gnss::{EpochResult, Receiver};
+use cmsckf::gnss::Receiver;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::rtcm_out::{encode_ephemeris, encode_epoch};
 
@@ -58,7 +58,7 @@ fn simulated_rtcm_round_trips_and_solves() {
     let frame = cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]);
     let mut errs = Vec::new();
     for (r, ep) in out.iter().zip(&ds.gnss) {
-        let EpochResult::Solved(s) = r else { continue };
+        let Ok(s) = &r.fix else { continue };
         let truth = ds.trajectory.sample(ep.t_s).p_B_in_W;
         errs.push((frame.to_ned(&s.r_ecef_m) - truth).norm());
         assert!(

@@ -25,6 +25,37 @@ use crate::metrics;
 
 /// Boot time of the autopilot at the start of the flight (s).
 pub const BOOT0_S: f64 = 20.0;
+/// GPS − UTC (s), in force since 2017-01-01.
+pub const GPS_UTC_LEAP_S: f64 = 18.0;
+/// Unix time of the GPS epoch, 1980-01-06 (s).
+pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
+/// RTCM reference-station id of the simulated receiver.
+pub const ROVER_STATION_ID: u16 = 7;
+
+/// Splits an RTCM message into `GPS_RTCM_DATA` fragments (MAVLink spec):
+/// flags bit 0 = fragmented, bits 1–2 = fragment id, bits 3–7 = sequence.
+pub fn rtcm_fragments(msg: &[u8], seq: u8) -> Vec<apm::GPS_RTCM_DATA_DATA> {
+    let chunks: Vec<&[u8]> = msg.chunks(180).collect();
+    let fragmented = chunks.len() > 1;
+    chunks
+        .iter()
+        .enumerate()
+        .take(4)
+        .map(|(i, c)| {
+            let mut data = [0u8; 180];
+            data[..c.len()].copy_from_slice(c);
+            apm::GPS_RTCM_DATA_DATA {
+                flags: if fragmented {
+                    1 | ((i as u8) << 1) | ((seq & 0x1f) << 3)
+                } else {
+                    (seq & 0x1f) << 3
+                },
+                len: c.len() as u8,
+                data,
+            }
+        })
+        .collect()
+}
 
 /// Settings of one served flight.
 #[derive(Clone, Debug)]
@@ -175,6 +206,8 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let (mut k_imu, mut k_cam) = (0usize, 0usize);
     let mut next_slow = 0.0; // 10 Hz attitude / position
     let mut next_1hz = 0.0;
+    let mut k_gnss = 0usize;
+    let mut rtcm_seq = 0u8;
     let mut frames_sent = 0;
     let t_start = Instant::now();
     let send = |m: apm::MavMessage| {
@@ -186,13 +219,23 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     loop {
         let t_imu = ds.imu.get(k_imu).map_or(f64::INFINITY, |m| m.t_s);
         let t_cam = ds.frames.get(k_cam).map_or(f64::INFINITY, |f| f.t_s);
-        let t = t_imu.min(t_cam).min(next_slow).min(next_1hz);
+        let t_gnss = ds.gnss.get(k_gnss).map_or(f64::INFINITY, |e| e.t_s.max(0.0));
+        let t = t_imu.min(t_cam).min(next_slow).min(next_1hz).min(t_gnss);
         if !t.is_finite() || t > ds.duration_s + 1e-9 {
             break;
         }
         let target = t_start + Duration::from_secs_f64(t.max(0.0) / opts.speedup);
         tokio::time::sleep_until(target.into()).await;
-        if t == next_1hz {
+        if t == t_gnss {
+            // The receiver's MSM7 epoch, as it would relay it.
+            if let Ok(bytes) = crate::rtcm_out::encode_epoch(&ds.gnss[k_gnss], ROVER_STATION_ID) {
+                for f in rtcm_fragments(&bytes, rtcm_seq) {
+                    send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+                }
+                rtcm_seq = rtcm_seq.wrapping_add(1);
+            }
+            k_gnss += 1;
+        } else if t == next_1hz {
             next_1hz += 1.0;
             send(apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
                 custom_mode: 0,
@@ -203,11 +246,33 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                 mavlink_version: 3,
             }))
             .await;
+            let g = &ds.cfg.gnss;
+            let unix_s = GPS_EPOCH_UNIX_S + g.start_week as f64 * 604_800.0 + g.start_tow_s + t - GPS_UTC_LEAP_S;
             send(apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
-                time_unix_usec: 1_700_000_000_000_000 + (t * 1e6) as u64,
+                time_unix_usec: (unix_s * 1e6).round() as u64,
                 time_boot_ms: (boot_us(t) / 1000) as u32,
             }))
             .await;
+            let o = g.origin_llh;
+            #[allow(deprecated)]
+            send(apm::MavMessage::GPS_GLOBAL_ORIGIN(apm::GPS_GLOBAL_ORIGIN_DATA {
+                latitude: (o[0] * 1e7).round() as i32,
+                longitude: (o[1] * 1e7).round() as i32,
+                altitude: (o[2] * 1e3).round() as i32,
+                time_usec: boot_us(t),
+            }))
+            .await;
+            // Broadcast ephemerides every 30 s, as receivers repeat them.
+            if (t as u64).is_multiple_of(30) {
+                for e in &ds.ephemerides {
+                    if let Ok(bytes) = crate::rtcm_out::encode_ephemeris(e) {
+                        for f in rtcm_fragments(&bytes, rtcm_seq) {
+                            send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+                        }
+                        rtcm_seq = rtcm_seq.wrapping_add(1);
+                    }
+                }
+            }
         } else if t == next_slow {
             next_slow += 0.1;
             let s = ds.trajectory.sample(t);

@@ -16,11 +16,24 @@ use std::collections::BTreeMap;
 use rtcm::{GnssMessage, MsmEpoch, SatObs, System};
 use spp::{EphStore, SppError, SppOptions, SppSolution};
 
-/// What happened to one epoch.
+/// GPS − UTC (s), in force since 2017-01-01 (no leap second announced since).
+pub const GPS_UTC_LEAP_S: f64 = 18.0;
+/// Unix time of the GPS epoch, 1980-01-06 00:00 UTC (s).
+pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
+
+/// Unix time (s) of a GPS week and time of week.
+pub fn gps_to_unix_s(week: u32, tow_s: f64) -> f64 {
+    GPS_EPOCH_UNIX_S + week as f64 * 604_800.0 + tow_s - GPS_UTC_LEAP_S
+}
+
+/// One completed epoch: the rover's observations and its single-point fix.
 #[derive(Clone, Debug, PartialEq)]
-pub enum EpochResult {
-    Solved(SppSolution),
-    Failed { week: u32, tow_s: f64, error: SppError },
+pub struct Epoch {
+    pub week: u32,
+    /// Receiver time tag (GPS time of week, s).
+    pub tow_s: f64,
+    pub sats: Vec<SatObs>,
+    pub fix: Result<SppSolution, SppError>,
 }
 
 /// Counts kept by the receiver.
@@ -58,7 +71,7 @@ impl Receiver {
     }
 
     /// Feeds one message; returns the epochs it completed.
-    pub fn push(&mut self, m: GnssMessage, out: &mut Vec<EpochResult>) {
+    pub fn push(&mut self, m: GnssMessage, out: &mut Vec<Epoch>) {
         match m {
             GnssMessage::GpsEph(raw) => {
                 let mut eph = raw.eph;
@@ -71,7 +84,7 @@ impl Receiver {
         }
     }
 
-    fn push_msm(&mut self, e: MsmEpoch, out: &mut Vec<EpochResult>) {
+    fn push_msm(&mut self, e: MsmEpoch, out: &mut Vec<Epoch>) {
         if self.station_id != 0 && e.station_id != self.station_id {
             self.stats.other_station += 1;
             return;
@@ -89,23 +102,20 @@ impl Receiver {
     }
 
     /// Solves the pending epoch, if any (call at the end of a stream).
-    pub fn flush(&mut self, out: &mut Vec<EpochResult>) {
+    pub fn flush(&mut self, out: &mut Vec<Epoch>) {
         let Some((tow_ms, sats)) = self.pending.take() else {
             return;
         };
         self.stats.epochs += 1;
         let tow_s = tow_ms as f64 * 1e-3;
-        let week = self.week_hint;
-        match spp::solve(&sats, week, tow_s, &self.ephs, &self.opts) {
-            Ok(s) => {
-                self.stats.solved += 1;
-                out.push(EpochResult::Solved(s));
-            }
-            Err(error) => {
-                *self.stats.skipped.entry(error.to_string()).or_default() += 1;
-                out.push(EpochResult::Failed { week, tow_s, error });
-            }
+        // MSMs carry only the time of week: the week is the ephemerides'.
+        let week = self.ephs.week_for_tow(tow_s).unwrap_or(self.week_hint);
+        let fix = spp::solve(&sats, week, tow_s, &self.ephs, &self.opts);
+        match &fix {
+            Ok(_) => self.stats.solved += 1,
+            Err(error) => *self.stats.skipped.entry(error.to_string()).or_default() += 1,
         }
+        out.push(Epoch { week, tow_s, sats, fix });
     }
 }
 

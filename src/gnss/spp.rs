@@ -38,11 +38,14 @@ const MAX_AGE_S: f64 = 7200.0;
 #[derive(Clone, Debug, Default)]
 pub struct EphStore {
     by_prn: BTreeMap<u8, Vec<GpsEphemeris>>,
+    /// Week and toe of the latest ephemeris, to place a time of week.
+    last: Option<(u32, f64)>,
 }
 
 impl EphStore {
     /// Adds an ephemeris, replacing one with the same `toe` and IODE.
     pub fn insert(&mut self, eph: GpsEphemeris) {
+        self.last = Some((eph.week, eph.toe_s));
         let v = self.by_prn.entry(eph.prn).or_default();
         v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week && e.iode == eph.iode));
         v.push(eph);
@@ -62,6 +65,19 @@ impl EphStore {
             .filter(|(_, d)| *d <= MAX_AGE_S)
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(e, _)| e)
+    }
+
+    /// The full week of a time of week near the latest ephemeris.
+    pub fn week_for_tow(&self, tow_s: f64) -> Option<u32> {
+        let (w, toe) = self.last?;
+        let d = tow_s - toe;
+        Some(if d < -302_400.0 {
+            w + 1
+        } else if d > 302_400.0 {
+            w.saturating_sub(1)
+        } else {
+            w
+        })
     }
 
     pub fn len(&self) -> usize {

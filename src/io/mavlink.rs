@@ -63,6 +63,13 @@ pub enum Inbound {
         data: Vec<u8>,
     },
     Heartbeat,
+    /// The autopilot's EKF origin (deg, deg, m above the ellipsoid... as
+    /// MAVLink gives it: AMSL).
+    GpsGlobalOrigin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
     /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
     /// for the SITL scorer's own tests).
     Other(&'static str),
@@ -207,6 +214,8 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
 }
 
 /// MAVLink message → [`Inbound`], with units converted here and only here.
+/// (`GPS_GLOBAL_ORIGIN` is deprecated but still what autopilots send.)
+#[allow(deprecated)]
 fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
     use apm::MavMessage as M;
     Ok(match msg {
@@ -260,6 +269,11 @@ fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             }
         }
         M::HEARTBEAT(_) => Inbound::Heartbeat,
+        M::GPS_GLOBAL_ORIGIN(d) => Inbound::GpsGlobalOrigin {
+            lat_deg: d.latitude as f64 * 1e-7,
+            lon_deg: d.longitude as f64 * 1e-7,
+            alt_m: d.altitude as f64 * 1e-3,
+        },
         M::VISION_POSITION_ESTIMATE(_) => Inbound::Other("VISION_POSITION_ESTIMATE"),
         M::COMMAND_LONG(_) => Inbound::Other("COMMAND_LONG"),
         M::COMMAND_ACK(_) => Inbound::Other("COMMAND_ACK"),
