@@ -410,6 +410,7 @@ struct Fusion {
     local: Option<(Vector3<f64>, Vector3<f64>)>,
     pending: VecDeque<(f64, Pending)>,
     gnss: GnssIn,
+    origin_sent: bool,
     last_imu_t: f64,
     last_frame_t: f64,
     next_output_t: f64,
@@ -433,6 +434,7 @@ fn fusion_loop(
         attitude: None,
         local: None,
         pending: VecDeque::with_capacity(PENDING_FRAMES),
+        origin_sent: false,
         gnss: GnssIn {
             dec: crate::gnss::rtcm::RtcmDecoder::new(),
             rx: crate::gnss::Receiver::new(
@@ -485,6 +487,7 @@ fn fusion_loop(
                 }
             }
             FusionMsg::Rtcm(bytes) => f.on_rtcm(&bytes, &counters),
+
             FusionMsg::Frame(fr) => {
                 let t_ap_us = match f.cfg.features.clock {
                     FeatureClock::Autopilot => fr.t_us as i64,
@@ -594,6 +597,21 @@ impl Fusion {
     }
 
     fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        // Tell the autopilot our origin once it is known (output.set_gps_origin).
+        if self.cfg.output.set_gps_origin && !self.origin_sent {
+            if let Some(frame) = self.gnss.frame {
+                let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&frame.origin_ecef);
+                let msg = Outbound::SetGpsGlobalOrigin {
+                    lat_deg: lat.to_degrees(),
+                    lon_deg: lon.to_degrees(),
+                    alt_m: h,
+                };
+                if out.try_send(msg).is_ok() {
+                    self.origin_sent = true;
+                    counters.add("gps_origin_sent", 1);
+                }
+            }
+        }
         if self.est.is_none() {
             self.try_init(m, counters);
             return;

@@ -25,6 +25,8 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     let mut cfg = Config::default();
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.output.odometry = true;
+    cfg.output.set_gps_origin = true;
     let cfg_path = dir.path().join("cmsckf.toml");
     std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();
 
@@ -85,4 +87,6 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert_eq!(report.reset_count, 0);
     assert!(report.covariance_ok);
     assert!(report.time_to_first_estimate_s < 2.0);
+    assert!(report.odometry_received as f64 > 0.9 * report.estimates_received as f64);
+    assert!(report.gps_origin_set, "SET_GPS_GLOBAL_ORIGIN not sent");
 }

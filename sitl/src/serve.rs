@@ -97,6 +97,8 @@ pub struct Report {
     pub imu_sent: usize,
     pub frames_sent: usize,
     pub speedup: f64,
+    pub odometry_received: usize,
+    pub gps_origin_set: bool,
 }
 
 impl Report {
@@ -149,12 +151,14 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let started = Instant::now();
     let boot_ns = move || ((BOOT0_S * 1e9) as i64) + started.elapsed().as_nanos() as i64;
     let received: Arc<Mutex<Vec<Received>>> = Arc::default();
+    let extras: Arc<Mutex<(usize, usize)>> = Arc::default(); // (ODOMETRY, SET_GPS_GLOBAL_ORIGIN)
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
 
     // Receive: answer commands and time sync, collect estimates.
     let rx = {
         let conn = conn.clone();
         let received = received.clone();
+        let extras = extras.clone();
         tokio::spawn(async move {
             loop {
                 let r = tokio::select! { r = conn.recv() => r, _ = stop_rx.changed() => return };
@@ -172,6 +176,17 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                                 cov: d.covariance,
                                 reset_counter: d.reset_counter,
                             });
+                        }
+                    }
+                    apm::MavMessage::ODOMETRY(_) => {
+                        if let Ok(mut e) = extras.lock() {
+                            e.0 += 1;
+                        }
+                    }
+                    #[allow(deprecated)]
+                    apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(_) => {
+                        if let Ok(mut e) = extras.lock() {
+                            e.1 += 1;
                         }
                     }
                     apm::MavMessage::COMMAND_LONG(c) => {
@@ -342,7 +357,12 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let _ = stop_tx.send(true);
     let _ = rx.await;
     let rec = received.lock().map(|v| v.clone()).unwrap_or_default();
-    Ok(score(ds, &rec, &sent_wall, rate_imu, k_imu, frames_sent, opts.speedup))
+    let mut report = score(ds, &rec, &sent_wall, rate_imu, k_imu, frames_sent, opts.speedup);
+    if let Ok(e) = extras.lock() {
+        report.odometry_received = e.0;
+        report.gps_origin_set = e.1 > 0;
+    }
+    Ok(report)
 }
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {
@@ -410,5 +430,7 @@ fn score(
         imu_sent,
         frames_sent,
         speedup,
+        odometry_received: 0,
+        gps_origin_set: false,
     }
 }
