@@ -36,6 +36,8 @@ pub enum DaemonError {
     Link { address: String, source: mav::LinkError },
     #[error(transparent)]
     Socket(#[from] feature_pipe::SocketError),
+    #[error("gnss.stream {0}")]
+    Config(String),
 }
 
 /// What the daemon did, returned at shutdown.
@@ -291,6 +293,33 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
             }
         })
     };
+
+    // A receiver wired to the companion computer: raw RTCM3.
+    let stream_task = if cfg.gnss.source == GnssSource::Stream {
+        let spec = crate::gnss::stream::parse(&cfg.gnss.stream).map_err(DaemonError::Config)?;
+        let (tx, mut rx) = mpsc::channel::<Vec<u8>>(64);
+        let fwd_tx = fusion_tx.clone();
+        let counters2 = counters.clone();
+        let mut stop = stop_rx.clone();
+        let fwd = tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    b = rx.recv() => match b {
+                        Some(b) => if fwd_tx.try_send(FusionMsg::Rtcm(b)).is_err() { counters2.add("fusion_queue_full", 1) },
+                        None => return,
+                    },
+                    _ = stop.changed() => return,
+                }
+            }
+        });
+        Some((
+            tokio::spawn(crate::gnss::stream::run(spec, tx, counters.clone(), stop_rx.clone())),
+            fwd,
+        ))
+    } else {
+        None
+    };
+
     drop(fusion_tx);
 
     // Send task: every outbound message goes through here.
@@ -379,6 +408,10 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         let _ = t.await;
     }
     let _ = feat_task.await;
+    if let Some((a, b)) = stream_task {
+        let _ = a.await;
+        let _ = b.await;
+    }
     // The fusion thread ends when its input channel closes (all senders gone).
     let _ = tokio::task::spawn_blocking(move || fusion.join()).await;
     let _ = tx_task.await;

@@ -10,6 +10,7 @@
 pub mod reassembly;
 pub mod rtcm;
 pub mod spp;
+pub mod stream;
 
 use std::collections::BTreeMap;
 

@@ -1,0 +1,64 @@
+//! `gnss.source = "stream"`: the daemon reads raw RTCM3 from a TCP receiver,
+//! decodes it, counts a corrupted frame, and reconnects after the receiver
+//! drops the connection.
+
+use std::time::Duration;
+
+use tokio::io::AsyncWriteExt;
+
+use cmsckf::config::{Config, GnssSource};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn daemon_reads_a_tcp_rtcm_stream() {
+    let mut bytes = std::fs::read(cmsckf_sitl::shared_data_dir().join("3040_msm7.rtcm3")).unwrap();
+    let second = bytes
+        .iter()
+        .enumerate()
+        .skip(1)
+        .find(|(_, b)| **b == 0xD3)
+        .map(|(i, _)| i)
+        .unwrap();
+    bytes[second + 12] ^= 0xFF; // one bad CRC
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let server = tokio::spawn(async move {
+        // Two connections: the daemon reconnects after the first closes.
+        for _ in 0..2 {
+            let (mut s, _) = listener.accept().await.unwrap();
+            s.write_all(&bytes).await.unwrap();
+            s.shutdown().await.unwrap();
+        }
+    });
+
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut cfg = Config::default();
+    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.gnss.source = GnssSource::Stream;
+    cfg.gnss.stream = format!("tcp:{addr}");
+    cfg.gnss.week_hint = 1316;
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let daemon = tokio::spawn(cmsckf::daemon::run(cfg, async move {
+        let _ = stop_rx.await;
+    }));
+    tokio::time::timeout(Duration::from_secs(10), server)
+        .await
+        .unwrap()
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    eprintln!("{:#?}", summary.counters);
+    assert_eq!(c("gnss_stream_connected"), 2);
+    assert_eq!(c("rtcm_crc_failure"), 2, "one per pass");
+    assert!(c("gnss_epochs") >= 230, "epochs {}", c("gnss_epochs"));
+    // No SYSTEM_TIME from an autopilot here: epochs cannot be placed in
+    // autopilot time, and say so.
+    assert_eq!(c("gnss_no_system_time"), c("gnss_epochs"));
+}
