@@ -614,15 +614,8 @@ impl Fusion {
                     counters.add("gnss_origin_from_fix", 1);
                 }
             }
-            let obs = ep.sats.iter().map(|s| {
-                let l1 = s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C');
-                (
-                    s.prn,
-                    l1.and_then(|g| g.pseudorange_m),
-                    l1.and_then(|g| g.range_rate_mps),
-                )
-            });
-            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, obs);
+            let obs = ep.sats.iter().map(crate::gnss::RawSat::from_obs);
+            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, self.cfg.gnss.iono, obs);
             if !sats.is_empty() {
                 self.enqueue(t, Pending::Gnss(sats), counters);
             }

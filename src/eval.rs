@@ -169,13 +169,25 @@ impl<'a> Runner<'a> {
                 break;
             }
             g.next += 1;
+            // The simulated receiver is single-frequency; its ionosphere is
+            // off by default, and `sim.gnss.ionosphere` makes it modelled as
+            // unknown (variance inflated).
+            let iono = if ds.cfg.gnss.ionosphere {
+                crate::config::IonoMode::Auto
+            } else {
+                crate::config::IonoMode::Off
+            };
             let sats = crate::gnss::sat_measurements(
                 &g.ephs,
                 ep.week,
                 ep.tow_s,
-                ep.sats
-                    .iter()
-                    .map(|s| (s.prn, Some(s.pseudorange_m), Some(s.pseudorange_rate_mps))),
+                iono,
+                ep.sats.iter().map(|s| crate::gnss::RawSat {
+                    prn: s.prn,
+                    l1_pseudorange_m: Some(s.pseudorange_m),
+                    l2_pseudorange_m: None,
+                    l1_range_rate_mps: Some(s.pseudorange_rate_mps),
+                }),
             );
             let frame = g.frame;
             // Feed the IMU up to the epoch first.

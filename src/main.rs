@@ -365,6 +365,10 @@ fn main() -> anyhow::Result<()> {
             cfg.features.socket = dir.path().join("features.sock").display().to_string();
             cfg.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
             let sim = eval::sim_config_for(&cfg);
+            if !sim.gnss.ionosphere {
+                // The simulated sky has no ionosphere: do not inflate for one.
+                cfg.gnss.iono = cmsckf::config::IonoMode::Off;
+            }
             let ds = cmsckf_sitl::dataset::Dataset::generate(&scenario, seed, Some(duration_s), &sim)?;
             if !json {
                 eprintln!(

@@ -26,6 +26,8 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
     cfg.output.odometry = true;
+    // The simulated sky has no ionosphere.
+    cfg.gnss.iono = cmsckf::config::IonoMode::Off;
     cfg.output.set_gps_origin = true;
     let cfg_path = dir.path().join("cmsckf.toml");
     std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();

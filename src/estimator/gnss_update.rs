@@ -22,6 +22,10 @@ pub struct SatMeas {
     pub ddts_mps: f64,
     pub pseudorange_m: Option<f64>,
     pub range_rate_mps: Option<f64>,
+    /// Pseudorange noise multiplier (3 for the ionosphere-free combination).
+    pub noise_scale: f64,
+    /// Added pseudorange variance (m²): an unmodelled ionosphere.
+    pub extra_var_m2: f64,
 }
 
 /// Predicted pseudorange (K2): `|r_s − r| + ω_e (x_s y − y_s x)/c + b − c·δt_s + T`,
@@ -91,6 +95,8 @@ mod tests {
                 ddts_mps: 0.01,
                 pseudorange_m: None,
                 range_rate_mps: None,
+                noise_scale: 1.0,
+                extra_var_m2: 0.0,
             },
         )
     }

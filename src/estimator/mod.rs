@@ -1302,7 +1302,7 @@ impl Estimator {
             let sin_el = el.sin().max(0.1);
             let mut res = (s.prn, None, None);
             if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
-                let sigma = self.s.pseudorange_sigma_m / sin_el;
+                let sigma = ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2).sqrt();
                 let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0];
                 let r = z - pr_pred;
                 res.1 = Some(r);

@@ -120,28 +120,69 @@ impl Receiver {
     }
 }
 
-/// Satellite states and L1 measurements for the filter (§8): each satellite
-/// with an ephemeris, its state at transmission time, and its clock for L1
-/// C/A (with TGD).
+/// One satellite's code and Doppler as they reach [`sat_measurements`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RawSat {
+    pub prn: u8,
+    pub l1_pseudorange_m: Option<f64>,
+    pub l2_pseudorange_m: Option<f64>,
+    pub l1_range_rate_mps: Option<f64>,
+}
+
+impl RawSat {
+    pub fn from_obs(s: &SatObs) -> Self {
+        let l1 = s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C');
+        Self {
+            prn: s.prn,
+            l1_pseudorange_m: l1.and_then(|g| g.pseudorange_m),
+            l2_pseudorange_m: s.signals.iter().filter(|g| g.band == 2).find_map(|g| g.pseudorange_m),
+            l1_range_rate_mps: l1.and_then(|g| g.range_rate_mps),
+        }
+    }
+}
+
+/// Satellite states and measurements for the filter (§8), with the
+/// ionosphere handled per `iono`: the L1/L2 ionosphere-free combination
+/// where both codes exist (`iono-free`, `auto`), else L1 C/A; without an
+/// ionosphere model (`auto`, `klobuchar` with no parameters: RTCM carries
+/// none) the L1 variance is inflated by (5 m)², as RTKLIB does; `off`
+/// ignores the ionosphere.
 pub fn sat_measurements(
     ephs: &EphStore,
     week: u32,
     tow_s: f64,
-    obs: impl IntoIterator<Item = (u8, Option<f64>, Option<f64>)>,
+    iono: crate::config::IonoMode,
+    sats: impl IntoIterator<Item = RawSat>,
 ) -> Vec<crate::estimator::gnss_update::SatMeas> {
+    use crate::config::IonoMode;
     let c = cmsckf_sitl::geodesy::C_MPS;
-    obs.into_iter()
-        .filter_map(|(prn, pr, prr)| {
-            let eph = ephs.select(prn, week, tow_s)?;
+    sats.into_iter()
+        .filter_map(|s| {
+            let eph = ephs.select(s.prn, week, tow_s)?;
+            let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
+            let (pr, is_if) = match (s.l1_pseudorange_m, s.l2_pseudorange_m) {
+                (Some(p1), Some(p2)) if want_if => (Some(spp::iono_free(p1, p2)), true),
+                (p1, _) if iono != IonoMode::IonoFree => (p1, false),
+                _ => (None, false),
+            };
             let st = spp::state_at_transmission(eph, tow_s, pr.unwrap_or(0.075 * c));
+            // The iono-free combination sees the clock without TGD (§8).
+            let dts = if is_if { st.dt_s + eph.tgd_s } else { st.dt_s };
+            let (noise_scale, extra_var_m2) = match (is_if, iono) {
+                (true, _) => (3.0, 0.0),
+                (false, IonoMode::Off) => (1.0, 0.0),
+                (false, _) => (1.0, 25.0),
+            };
             Some(crate::estimator::gnss_update::SatMeas {
-                prn,
+                prn: s.prn,
                 r_sat_ecef_m: st.r_ecef_m,
                 v_sat_ecef_mps: st.v_ecef_mps,
-                dts_m: st.dt_s * c,
+                dts_m: dts * c,
                 ddts_mps: st.ddt * c,
                 pseudorange_m: pr,
-                range_rate_mps: prr,
+                range_rate_mps: s.l1_range_rate_mps,
+                noise_scale,
+                extra_var_m2,
             })
         })
         .collect()
@@ -170,4 +211,47 @@ pub fn gps_week_now() -> u32 {
         .unwrap_or(0.0);
     // GPS epoch: 1980-01-06 = unix 315964800.
     ((unix - 315_964_800.0) / 604_800.0).max(0.0) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::IonoMode;
+    use rand::SeedableRng;
+
+    #[test]
+    fn ionosphere_handling_of_filter_measurements() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let mut ephs = EphStore::default();
+        let c = cmsckf_sitl::gnss::constellation(2443, 345_600.0, &mut rng);
+        for e in &c {
+            ephs.insert(e.clone());
+        }
+        let raw = RawSat {
+            prn: c[0].prn,
+            l1_pseudorange_m: Some(2.2e7),
+            l2_pseudorange_m: Some(2.2e7 + 3.0),
+            l1_range_rate_mps: Some(100.0),
+        };
+        let tow = 345_600.0;
+        let auto = &sat_measurements(&ephs, 2443, tow, IonoMode::Auto, [raw])[0];
+        // P_IF = (P2 − γP1)/(1 − γ) = P1 − 3 m/(γ − 1) with γ = (f1/f2)².
+        let g = (1575.42f64 / 1227.60).powi(2);
+        assert!((auto.pseudorange_m.unwrap() - (2.2e7 - 3.0 / (g - 1.0))).abs() < 1e-6);
+        assert_eq!((auto.noise_scale, auto.extra_var_m2), (3.0, 0.0));
+        let off = &sat_measurements(&ephs, 2443, tow, IonoMode::Off, [raw])[0];
+        assert_eq!(off.pseudorange_m, Some(2.2e7));
+        assert_eq!((off.noise_scale, off.extra_var_m2), (1.0, 0.0));
+        // The iono-free clock has no TGD: the two differ by exactly c·TGD.
+        assert!((auto.dts_m - off.dts_m - c[0].tgd_s * cmsckf_sitl::geodesy::C_MPS).abs() < 1e-3);
+        let single = RawSat {
+            l2_pseudorange_m: None,
+            ..raw
+        };
+        let inflated = &sat_measurements(&ephs, 2443, tow, IonoMode::Auto, [single])[0];
+        assert_eq!(inflated.extra_var_m2, 25.0);
+        assert!(sat_measurements(&ephs, 2443, tow, IonoMode::IonoFree, [single])[0]
+            .pseudorange_m
+            .is_none());
+    }
 }

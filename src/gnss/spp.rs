@@ -153,6 +153,12 @@ struct Meas {
     ura_m: f64,
 }
 
+/// The L1/L2 ionosphere-free pseudorange `(P2 − γ P1)/(1 − γ)`, `γ = (f1/f2)²`.
+pub fn iono_free(p1: f64, p2: f64) -> f64 {
+    let g = (F1 / F2).powi(2);
+    (p2 - g * p1) / (1.0 - g)
+}
+
 /// Picks the code measurement of a satellite: L1 C/A, or the L1/L2
 /// ionosphere-free combination. Returns `(pseudorange, iono-free?)`.
 fn code_for(s: &SatObs, iono: IonoMode) -> Option<(f64, bool)> {
@@ -164,10 +170,7 @@ fn code_for(s: &SatObs, iono: IonoMode) -> Option<(f64, bool)> {
     let l2 = s.signals.iter().filter(|g| g.band == 2).find_map(|g| g.pseudorange_m);
     let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
     match (l1, l2) {
-        (Some(p1), Some(p2)) if want_if => {
-            let g = (F1 / F2).powi(2);
-            Some(((p2 - g * p1) / (1.0 - g), true))
-        }
+        (Some(p1), Some(p2)) if want_if => Some((iono_free(p1, p2), true)),
         (Some(p1), _) if iono != IonoMode::IonoFree => Some((p1, false)),
         _ => None,
     }
