@@ -309,6 +309,10 @@ pub struct GnssConfig {
     /// Geodetic origin of the NED world frame `[lat_deg, lon_deg, h_m]`;
     /// empty = the first single-point fix.
     pub origin_llh: Vec<f64>,
+    /// Klobuchar ionosphere α0..α3 (s, s/semicircle, …); empty = unknown.
+    pub klobuchar_alpha: Vec<f64>,
+    /// Klobuchar ionosphere β0..β3 (s, s/semicircle, …); empty = unknown.
+    pub klobuchar_beta: Vec<f64>,
 }
 
 impl Default for GnssConfig {
@@ -326,6 +330,8 @@ impl Default for GnssConfig {
             clock_bias_rw_m_per_sqrt_s: 0.02,
             clock_drift_rw_mps_per_sqrt_s: 0.01,
             origin_llh: Vec::new(),
+            klobuchar_alpha: Vec::new(),
+            klobuchar_beta: Vec::new(),
         }
     }
 }
@@ -510,6 +516,22 @@ impl Config {
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
+        for (name, v) in [
+            ("klobuchar_alpha", &g.klobuchar_alpha),
+            ("klobuchar_beta", &g.klobuchar_beta),
+        ] {
+            if !(v.is_empty() || v.len() == 4) {
+                return Err(c.fail(name, format!("has {} values", v.len()), "give four coefficients or []"));
+            }
+            c.all_finite(name, v, -1e7, 1e7)?;
+        }
+        if g.klobuchar_alpha.len() != g.klobuchar_beta.len() {
+            return Err(c.fail(
+                "klobuchar_beta",
+                "is set without klobuchar_alpha (or the reverse)",
+                "give both or neither",
+            ));
+        }
         if !g.origin_llh.is_empty() {
             if g.origin_llh.len() != 3 {
                 return Err(c.fail(

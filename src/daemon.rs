@@ -431,6 +431,7 @@ struct GnssIn {
     unix_minus_boot_s: Option<f64>,
     msgs: Vec<crate::gnss::rtcm::GnssMessage>,
     epochs: Vec<crate::gnss::Epoch>,
+    klobuchar: Option<crate::gnss::Klobuchar>,
 }
 
 /// State of the fusion loop.
@@ -490,6 +491,14 @@ fn fusion_loop(
             unix_minus_boot_s: None,
             msgs: Vec::new(),
             epochs: Vec::new(),
+            klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
+                let a = &cfg.gnss.klobuchar_alpha;
+                let b = &cfg.gnss.klobuchar_beta;
+                crate::gnss::Klobuchar {
+                    alpha: [a[0], a[1], a[2], a[3]],
+                    beta: [b[0], b[1], b[2], b[3]],
+                }
+            }),
         },
         last_imu_t: f64::NEG_INFINITY,
         last_frame_t: f64::NEG_INFINITY,
@@ -615,7 +624,12 @@ impl Fusion {
                 }
             }
             let obs = ep.sats.iter().map(crate::gnss::RawSat::from_obs);
-            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, self.cfg.gnss.iono, obs);
+            let policy = crate::gnss::IonoPolicy {
+                mode: self.cfg.gnss.iono,
+                klobuchar: self.gnss.klobuchar.as_ref(),
+                rx_ecef_m: ep.fix.as_ref().ok().map(|f| f.r_ecef_m),
+            };
+            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, policy, obs);
             if !sats.is_empty() {
                 self.enqueue(t, Pending::Gnss(sats), counters);
             }

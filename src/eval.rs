@@ -181,7 +181,11 @@ impl<'a> Runner<'a> {
                 &g.ephs,
                 ep.week,
                 ep.tow_s,
-                iono,
+                crate::gnss::IonoPolicy {
+                    mode: iono,
+                    klobuchar: None,
+                    rx_ecef_m: None,
+                },
                 ep.sats.iter().map(|s| crate::gnss::RawSat {
                     prn: s.prn,
                     l1_pseudorange_m: Some(s.pseudorange_m),

@@ -120,6 +120,38 @@ impl Receiver {
     }
 }
 
+/// Klobuchar's broadcast ionosphere model (IS-GPS-200, 20.3.3.5.2.5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Klobuchar {
+    pub alpha: [f64; 4],
+    pub beta: [f64; 4],
+}
+
+impl Klobuchar {
+    /// L1 ionospheric delay (m) seen from geodetic `(lat, lon)` (rad) toward
+    /// azimuth/elevation `(az, el)` (rad) at GPS time of week `tow_s`.
+    pub fn delay_m(&self, lat: f64, lon: f64, az: f64, el: f64, tow_s: f64) -> f64 {
+        let pi = std::f64::consts::PI;
+        let e = el / pi; // semicircles
+        let psi = 0.0137 / (e + 0.11) - 0.022;
+        let phi_i = (lat / pi + psi * az.cos()).clamp(-0.416, 0.416);
+        let lam_i = lon / pi + psi * az.sin() / (phi_i * pi).cos();
+        let phi_m = phi_i + 0.064 * ((lam_i - 1.617) * pi).cos();
+        let t = (43_200.0 * lam_i + tow_s).rem_euclid(86_400.0);
+        let f = 1.0 + 16.0 * (0.53 - e).powi(3);
+        let poly = |c: &[f64; 4]| c[0] + phi_m * (c[1] + phi_m * (c[2] + phi_m * c[3]));
+        let amp = poly(&self.alpha).max(0.0);
+        let per = poly(&self.beta).max(72_000.0);
+        let x = 2.0 * pi * (t - 50_400.0) / per;
+        let delay_s = if x.abs() < 1.57 {
+            f * (5e-9 + amp * (1.0 - x * x / 2.0 + x.powi(4) / 24.0))
+        } else {
+            f * 5e-9
+        };
+        delay_s * cmsckf_sitl::geodesy::C_MPS
+    }
+}
+
 /// One satellite's code and Doppler as they reach [`sat_measurements`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RawSat {
@@ -141,19 +173,31 @@ impl RawSat {
     }
 }
 
+/// How [`sat_measurements`] treats the ionosphere.
+#[derive(Clone, Copy, Debug)]
+pub struct IonoPolicy<'a> {
+    pub mode: crate::config::IonoMode,
+    /// Broadcast parameters, if known (RTCM carries none: from the config).
+    pub klobuchar: Option<&'a Klobuchar>,
+    /// An approximate receiver position (ECEF, m) for the Klobuchar geometry.
+    pub rx_ecef_m: Option<nalgebra::Vector3<f64>>,
+}
+
 /// Satellite states and measurements for the filter (§8), with the
-/// ionosphere handled per `iono`: the L1/L2 ionosphere-free combination
-/// where both codes exist (`iono-free`, `auto`), else L1 C/A; without an
-/// ionosphere model (`auto`, `klobuchar` with no parameters: RTCM carries
-/// none) the L1 variance is inflated by (5 m)², as RTKLIB does; `off`
-/// ignores the ionosphere.
+/// ionosphere handled per the policy: the L1/L2 ionosphere-free combination
+/// where both codes exist (`iono-free`, `auto`); else L1 C/A corrected by
+/// Klobuchar when its parameters and a receiver position are known
+/// (`klobuchar`, `auto`; residual variance (0.5·I)²); else, without a model
+/// (`auto`, `klobuchar`), L1 with its variance inflated by (5 m)², as RTKLIB
+/// does; `off` ignores the ionosphere.
 pub fn sat_measurements(
     ephs: &EphStore,
     week: u32,
     tow_s: f64,
-    iono: crate::config::IonoMode,
+    policy: IonoPolicy<'_>,
     sats: impl IntoIterator<Item = RawSat>,
 ) -> Vec<crate::estimator::gnss_update::SatMeas> {
+    let iono = policy.mode;
     use crate::config::IonoMode;
     let c = cmsckf_sitl::geodesy::C_MPS;
     sats.into_iter()
@@ -168,11 +212,21 @@ pub fn sat_measurements(
             let st = spp::state_at_transmission(eph, tow_s, pr.unwrap_or(0.075 * c));
             // The iono-free combination sees the clock without TGD (§8).
             let dts = if is_if { st.dt_s + eph.tgd_s } else { st.dt_s };
-            let (noise_scale, extra_var_m2) = match (is_if, iono) {
-                (true, _) => (3.0, 0.0),
-                (false, IonoMode::Off) => (1.0, 0.0),
-                (false, _) => (1.0, 25.0),
+            let klob = match (policy.klobuchar, policy.rx_ecef_m) {
+                (Some(k), Some(r)) if !is_if && iono != IonoMode::Off => {
+                    let (lat, lon, _) = cmsckf_sitl::geodesy::ecef_to_llh(&r);
+                    let (el, az) = cmsckf_sitl::geodesy::elevation_azimuth(&r, &st.r_ecef_m);
+                    Some(k.delay_m(lat, lon, az, el, tow_s))
+                }
+                _ => None,
             };
+            let (noise_scale, extra_var_m2) = match (is_if, iono, klob) {
+                (true, _, _) => (3.0, 0.0),
+                (false, IonoMode::Off, _) => (1.0, 0.0),
+                (false, _, Some(i)) => (1.0, (0.5 * i).powi(2)),
+                (false, _, None) => (1.0, 25.0),
+            };
+            let pr = pr.map(|p| p - klob.unwrap_or(0.0));
             Some(crate::estimator::gnss_update::SatMeas {
                 prn: s.prn,
                 r_sat_ecef_m: st.r_ecef_m,
@@ -219,6 +273,46 @@ mod tests {
     use crate::config::IonoMode;
     use rand::SeedableRng;
 
+    fn pol(mode: IonoMode) -> IonoPolicy<'static> {
+        IonoPolicy {
+            mode,
+            klobuchar: None,
+            rx_ecef_m: None,
+        }
+    }
+
+    /// Klobuchar against a separate evaluation of IS-GPS-200's algorithm
+    /// (a Python transcription, RTKLIB's default parameters, 45°N 0°E,
+    /// satellite due south at 30°, 14:00 local): 6.635 m; and the 5 ns
+    /// night floor times the obliquity at 02:00.
+    #[test]
+    fn klobuchar_model() {
+        let k = Klobuchar {
+            alpha: [0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06],
+            beta: [0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07],
+        };
+        let d = k.delay_m(
+            45f64.to_radians(),
+            0.0,
+            std::f64::consts::PI,
+            30f64.to_radians(),
+            14.0 * 3600.0,
+        );
+        let floor = 5e-9 * cmsckf_sitl::geodesy::C_MPS;
+        assert!((d - 6.634965).abs() < 1e-4, "{d}");
+        let night = k.delay_m(
+            45f64.to_radians(),
+            0.0,
+            std::f64::consts::PI,
+            30f64.to_radians(),
+            2.0 * 3600.0,
+        );
+        let f = 1.0 + 16.0 * (0.53f64 - 30.0 / 180.0).powi(3);
+        assert!((night - f * floor).abs() < 1e-9, "{night}");
+        // Lower satellites see a longer slant path.
+        assert!(k.delay_m(45f64.to_radians(), 0.0, 0.0, 10f64.to_radians(), 14.0 * 3600.0) > d);
+    }
+
     #[test]
     fn ionosphere_handling_of_filter_measurements() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
@@ -234,12 +328,12 @@ mod tests {
             l1_range_rate_mps: Some(100.0),
         };
         let tow = 345_600.0;
-        let auto = &sat_measurements(&ephs, 2443, tow, IonoMode::Auto, [raw])[0];
+        let auto = &sat_measurements(&ephs, 2443, tow, pol(IonoMode::Auto), [raw])[0];
         // P_IF = (P2 − γP1)/(1 − γ) = P1 − 3 m/(γ − 1) with γ = (f1/f2)².
         let g = (1575.42f64 / 1227.60).powi(2);
         assert!((auto.pseudorange_m.unwrap() - (2.2e7 - 3.0 / (g - 1.0))).abs() < 1e-6);
         assert_eq!((auto.noise_scale, auto.extra_var_m2), (3.0, 0.0));
-        let off = &sat_measurements(&ephs, 2443, tow, IonoMode::Off, [raw])[0];
+        let off = &sat_measurements(&ephs, 2443, tow, pol(IonoMode::Off), [raw])[0];
         assert_eq!(off.pseudorange_m, Some(2.2e7));
         assert_eq!((off.noise_scale, off.extra_var_m2), (1.0, 0.0));
         // The iono-free clock has no TGD: the two differ by exactly c·TGD.
@@ -248,9 +342,9 @@ mod tests {
             l2_pseudorange_m: None,
             ..raw
         };
-        let inflated = &sat_measurements(&ephs, 2443, tow, IonoMode::Auto, [single])[0];
+        let inflated = &sat_measurements(&ephs, 2443, tow, pol(IonoMode::Auto), [single])[0];
         assert_eq!(inflated.extra_var_m2, 25.0);
-        assert!(sat_measurements(&ephs, 2443, tow, IonoMode::IonoFree, [single])[0]
+        assert!(sat_measurements(&ephs, 2443, tow, pol(IonoMode::IonoFree), [single])[0]
             .pseudorange_m
             .is_none());
     }
