@@ -18,7 +18,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
+use serde_json::json;
 use tokio::sync::{mpsc, watch};
+
+use crate::io::mcap_log::Topic;
 
 use crate::config::{Config, FeatureClock, GnssSource};
 use crate::estimator::frontend::{normalise, NormObs};
@@ -38,6 +41,16 @@ pub enum DaemonError {
     Socket(#[from] feature_pipe::SocketError),
     #[error("gnss.stream {0}")]
     Config(String),
+    #[error(transparent)]
+    Log(#[from] crate::io::mcap_log::LogError),
+}
+
+/// Handles the fusion thread shares with the I/O tasks.
+struct Shared {
+    counters: Counters,
+    healthy: Arc<AtomicBool>,
+    initialised: Arc<AtomicBool>,
+    mono_offset_us: Arc<AtomicI64>,
 }
 
 /// What the daemon did, returned at shutdown.
@@ -387,16 +400,31 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     };
 
     // Fusion on its own thread.
+    let logger = if cfg.log.path.is_empty() {
+        None
+    } else {
+        let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
+        let header = crate::io::mcap_log::LogHeader {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            mode: cfg.estimator.mode.name().to_string(),
+            config_toml: toml::to_string(&cfg).unwrap_or_default(),
+        };
+        let l = crate::io::mcap_log::McapLogger::create(&path, &header)?;
+        tracing::info!(path = %path.display(), "logging to MCAP");
+        Some(l)
+    };
     let fusion = {
-        let counters = counters.clone();
-        let healthy = healthy.clone();
-        let initialised = initialised.clone();
+        let shared = Shared {
+            counters: counters.clone(),
+            healthy: healthy.clone(),
+            initialised: initialised.clone(),
+            mono_offset_us: mono_offset_us.clone(),
+        };
         let cfg = cfg.clone();
         let out_tx = out_tx.clone();
-        let mono_offset_us = mono_offset_us.clone();
         std::thread::Builder::new()
             .name("cmsckf-fusion".into())
-            .spawn(move || fusion_loop(cfg, fusion_rx, out_tx, counters, healthy, initialised, mono_offset_us))
+            .spawn(move || fusion_loop(cfg, fusion_rx, out_tx, shared, logger))
             .expect("spawning the fusion thread")
     };
     drop(out_tx);
@@ -436,6 +464,8 @@ struct GnssIn {
 
 /// State of the fusion loop.
 struct Fusion {
+    log: Option<crate::io::mcap_log::McapLogger>,
+    next_state_log: f64,
     cfg: Config,
     cam: cmsckf_sitl::camera::Camera,
     est: Option<Estimator>,
@@ -456,12 +486,18 @@ fn fusion_loop(
     cfg: Config,
     mut rx: mpsc::Receiver<FusionMsg>,
     out: mpsc::Sender<Outbound>,
-    counters: Counters,
-    healthy: Arc<AtomicBool>,
-    initialised: Arc<AtomicBool>,
-    mono_offset_us: Arc<AtomicI64>,
+    shared: Shared,
+    log: Option<crate::io::mcap_log::McapLogger>,
 ) {
+    let Shared {
+        counters,
+        healthy,
+        initialised,
+        mono_offset_us,
+    } = shared;
     let mut f = Fusion {
+        log,
+        next_state_log: f64::NEG_INFINITY,
         cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
         est: None,
         static_buf: VecDeque::with_capacity(4096),
@@ -512,6 +548,11 @@ fn fusion_loop(
             FusionMsg::Attitude { roll, pitch, yaw } => f.attitude = Some((roll, pitch, yaw)),
             FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => f.local = Some((p_ned_m, v_ned_mps)),
             FusionMsg::SystemTime { unix_us, boot_ms } => {
+                f.log(
+                    Topic::InputSystemTime,
+                    boot_ms as f64 * 1e-3,
+                    &json!({"unix_us": unix_us, "boot_ms": boot_ms}),
+                );
                 f.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
             }
             FusionMsg::Origin {
@@ -528,8 +569,10 @@ fn fusion_loop(
                     counters.add("gnss_origin_from_autopilot", 1);
                 }
             }
-            FusionMsg::Rtcm(bytes) => f.on_rtcm(&bytes, &counters),
-
+            FusionMsg::Rtcm(bytes) => {
+                f.log(Topic::InputRtcm, f.last_imu_t, &json!({ "bytes": bytes }));
+                f.on_rtcm(&bytes, &counters)
+            }
             FusionMsg::Frame(fr) => {
                 let t_ap_us = match f.cfg.features.clock {
                     FeatureClock::Autopilot => fr.t_us as i64,
@@ -543,6 +586,11 @@ fn fusion_loop(
                     }
                 };
                 let t = t_ap_us as f64 * 1e-6;
+                f.log(
+                    Topic::InputFeatures,
+                    t,
+                    &json!({"t_us": fr.t_us, "cam": fr.cam, "features": fr.features}),
+                );
                 if t <= f.last_frame_t {
                     counters.add("feature_time_backwards", 1);
                     tracing::warn!(
@@ -567,6 +615,11 @@ fn fusion_loop(
                 }
                 f.last_imu_t = m.t_s;
                 counters.add("imu_samples", 1);
+                f.log(
+                    Topic::InputImu,
+                    m.t_s,
+                    &json!({"t_us": (m.t_s * 1e6).round() as u64, "accel_mps2": m.accel_mps2.as_slice(), "gyro_radps": m.gyro_radps.as_slice()}),
+                );
                 f.on_imu(m, &counters, &out);
                 initialised.store(f.est.is_some(), Ordering::Relaxed);
                 healthy.store(
@@ -576,9 +629,47 @@ fn fusion_loop(
             }
         }
     }
+    // The log is finished here, on shutdown: `Drop` would swallow its errors.
+    if let Some(l) = f.log.take() {
+        let dropped = l.dropped();
+        match l.finish() {
+            Ok(s) => {
+                counters.add("log_messages", s.messages);
+                counters.add("log_chunks", s.chunks);
+            }
+            Err(e) => {
+                counters.add("log_error", 1);
+                tracing::error!(error = %e, "the MCAP log could not be finished");
+            }
+        }
+        if dropped > 0 {
+            counters.add("log_dropped", dropped);
+            tracing::error!(
+                dropped,
+                "ALARM: MCAP log records were dropped (writer could not keep up)"
+            );
+        }
+    }
 }
 
 impl Fusion {
+    fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
+        if let Some(l) = &self.log {
+            l.log(topic, t_s, v);
+        }
+    }
+
+    /// A `foxglove.Log` line (level: 2 info, 3 warning, 4 error).
+    fn log_text(&self, level: u8, t_s: f64, message: &str) {
+        let t = t_s.max(0.0);
+        self.log(
+            Topic::Log,
+            t,
+            &json!({"timestamp": {"sec": t.floor() as u64, "nsec": ((t - t.floor()) * 1e9) as u64},
+                "level": level, "message": message, "name": "cmsckf", "file": file!(), "line": 0}),
+        );
+    }
+
     /// Queues a measurement in time order (bounded; the oldest is dropped).
     fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
         if self.pending.len() == PENDING_FRAMES {
@@ -685,6 +776,18 @@ impl Fusion {
                     let Some(frame) = self.gnss.frame else { continue };
                     match est.process_gnss(t, &frame, &sats) {
                         Ok(rep) => {
+                            if let Some(l) = &self.log {
+                                let (clock, clock_var) = est.clock();
+                                l.log(
+                                    Topic::FilterGnss,
+                                    t,
+                                    &json!({
+                                        "t_s": t, "pseudoranges_used": rep.pseudoranges_used, "range_rates_used": rep.range_rates_used,
+                                        "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
+                                        "clock_var": clock_var.as_slice(),
+                                    }),
+                                );
+                            }
                             counters.add("gnss_epochs_fused", 1);
                             counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
                             counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
@@ -716,8 +819,45 @@ impl Fusion {
                     counters.add(name, n);
                 }
             }
-            match est.process_frame(t, &self.norm) {
+            let started = std::time::Instant::now();
+            let result = est.process_frame(t, &self.norm);
+            let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
+            match result {
                 Ok(rep) => {
+                    if let Some(l) = &self.log {
+                        l.log(
+                            Topic::FilterVision,
+                            t,
+                            &json!({
+                                "t_s": t, "features": self.norm.len(), "tracks_used": rep.tracks_used,
+                                "rejected": rep.rejected, "nis": rep.nis, "residual_rms": rep.residual_rms,
+                                "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
+                                "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
+                                "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
+                            }),
+                        );
+                        for ev in &rep.events {
+                            match ev {
+                                crate::estimator::FilterEvent::GlobalUpdate { reason, global_before, local_after } => l.log(
+                                    Topic::FilterGlobal,
+                                    t,
+                                    &json!({"t_s": t, "reason": format!("{reason:?}"), "global_before": global_before, "local_after": local_after}),
+                                ),
+                                crate::estimator::FilterEvent::KeyframeCreated { id } => {
+                                    if let Some(kf) = est.keyframes().find(|k| k.id == *id) {
+                                        let cov = est.keyframe_covariance(*id).map(|c| c.diagonal().as_slice().to_vec());
+                                        let q = kf.q_W_B();
+                                        l.log(
+                                            Topic::FilterKeyframes,
+                                            t,
+                                            &json!({"t_s": t, "id": id, "p_B_in_W": kf.p_B_in_W.as_slice(), "q_W_B_wxyz": [q.w, q.i, q.j, q.k], "cov_diag": cov}),
+                                        );
+                                    }
+                                }
+                                crate::estimator::FilterEvent::Update { .. } => {}
+                            }
+                        }
+                    }
                     counters.add("frames_processed", 1);
                     counters.add("tracks_used", rep.tracks_used as u64);
                     counters.add("global_updates", rep.global_updates as u64);
@@ -733,6 +873,15 @@ impl Fusion {
             if let Err(why) = est.check_health() {
                 counters.add("filter_reset", 1);
                 tracing::error!(reason = %why, "filter unhealthy: resetting");
+                if let Some(l) = &self.log {
+                    let t = m.t_s.max(0.0);
+                    l.log(
+                        Topic::Log,
+                        t,
+                        &json!({"timestamp": {"sec": t.floor() as u64, "nsec": ((t - t.floor()) * 1e9) as u64},
+                            "level": 4, "message": format!("filter reset: {why}"), "name": "cmsckf", "file": file!(), "line": 0}),
+                    );
+                }
                 self.est = None;
                 self.reset_counter = self.reset_counter.wrapping_add(1);
                 return;
@@ -749,7 +898,47 @@ impl Fusion {
             };
             let x = est.predict(m.t_s);
             let cov = est.pose_covariance();
+            if let Some(l) = &self.log {
+                let q = x.q_W_B.coords;
+                let (sec, nsec) = (m.t_s.floor() as u64, ((m.t_s - m.t_s.floor()) * 1e9) as u64);
+                l.log(
+                    Topic::Pose,
+                    m.t_s,
+                    &json!({"timestamp": {"sec": sec, "nsec": nsec}, "frame_id": "ned",
+                        "pose": {"position": {"x": x.p_B_in_W.x, "y": x.p_B_in_W.y, "z": x.p_B_in_W.z},
+                                 "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}}),
+                );
+                if m.t_s >= self.next_state_log {
+                    self.next_state_log = m.t_s + 0.1;
+                    let (clock, _) = est.clock();
+                    l.log(
+                        Topic::FilterState,
+                        m.t_s,
+                        &json!({"t_s": m.t_s, "q_W_B_wxyz": [q.w, q.x, q.y, q.z], "v_B_in_W": x.v_B_in_W.as_slice(),
+                            "p_B_in_W": x.p_B_in_W.as_slice(), "b_g": x.b_g.as_slice(), "b_a": x.b_a.as_slice(),
+                            "clock": clock.as_slice(), "cov_diag": est.imu_covariance().diagonal().as_slice()}),
+                    );
+                }
+            }
             for o in outputs(&x, &cov, m.t_s, self.reset_counter, self.cfg.output.odometry) {
+                if let (
+                    Some(l),
+                    Outbound::VisionPositionEstimate {
+                        t_us,
+                        p_ned_m,
+                        rpy_rad,
+                        covariance,
+                        reset_counter,
+                    },
+                ) = (&self.log, &o)
+                {
+                    l.log(
+                        Topic::OutputVpe,
+                        m.t_s,
+                        &json!({"usec": t_us, "p_ned_m": p_ned_m.as_slice(), "rpy_rad": rpy_rad.as_slice(),
+                            "covariance": covariance.as_slice(), "reset_counter": reset_counter}),
+                    );
+                }
                 if out.try_send(o).is_err() {
                     counters.add("output_queue_full", 1);
                 }
@@ -819,6 +1008,15 @@ impl Fusion {
         self.pending.retain(|(t, _)| *t >= m.t_s);
         let _ = counters;
         counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
+        self.log_text(
+            2,
+            m.t_s,
+            if is_static {
+                "filter initialised (static start)"
+            } else {
+                "filter initialised in flight"
+            },
+        );
         tracing::info!(static_start = is_static, t_s = m.t_s, "filter initialised");
     }
 }

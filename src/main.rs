@@ -359,6 +359,7 @@ fn main() -> anyhow::Result<()> {
             if let Some(l) = &log {
                 cfg.log.path = l.display().to_string();
             }
+            cfg.log.path = cmsckf::io::mcap_log::expand_path(&cfg.log.path);
             let dir = tempfile::Builder::new().prefix("cmsckf-demo-").tempdir()?;
             let port = free_udp_port()?;
             cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
@@ -403,6 +404,9 @@ fn main() -> anyhow::Result<()> {
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
                 eprintln!("daemon counters: {:?}", summary.counters);
+                if !cfg.log.path.is_empty() {
+                    eprintln!("flight log: {}", cfg.log.path);
+                }
             }
         }
     }

@@ -77,6 +77,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
     let mut cfg = Config::default();
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.log.path = String::new();
     cfg.features.max_line_bytes = 1024;
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let daemon = tokio::spawn(cmsckf::daemon::run(cfg.clone(), async move {

@@ -26,6 +26,8 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
     cfg.output.odometry = true;
+    let log_path = dir.path().join("flight.mcap");
+    cfg.log.path = log_path.display().to_string();
     // The simulated sky has no ionosphere.
     cfg.gnss.iono = cmsckf::config::IonoMode::Off;
     cfg.output.set_gps_origin = true;
@@ -91,4 +93,45 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert!(report.time_to_first_estimate_s < 2.0);
     assert!(report.odometry_received as f64 > 0.9 * report.estimates_received as f64);
     assert!(report.gps_origin_set, "SET_GPS_GLOBAL_ORIGIN not sent");
+
+    // The log: finished on SIGTERM, every channel with its schema, inputs complete.
+    let bytes = std::fs::read(&log_path).unwrap();
+    let summary = mcap::Summary::read(&bytes)
+        .unwrap()
+        .expect("a finished log has a summary");
+    let stats = summary.stats.expect("statistics");
+    let mut per_topic = std::collections::BTreeMap::<String, u64>::new();
+    for (cid, n) in &stats.channel_message_counts {
+        per_topic.insert(summary.channels[cid].topic.clone(), *n);
+    }
+    eprintln!("{per_topic:?}");
+    for ch in summary.channels.values() {
+        let schema = ch.schema.as_ref().expect("schema");
+        assert_eq!(schema.encoding, "jsonschema");
+        assert_eq!(ch.message_encoding, "json");
+    }
+    assert_eq!(per_topic["/input/imu"], report.imu_sent as u64);
+    assert_eq!(per_topic["/input/features"], report.frames_sent as u64);
+    assert!(per_topic["/input/rtcm"] > 0 && per_topic["/filter/update/gnss"] > 0);
+    assert!(per_topic["/filter/update/vision"] > 0 && per_topic["/filter/update/global"] > 0);
+    assert!(per_topic["/filter/keyframes"] > 0 && per_topic["/filter/state"] > 0 && per_topic["/log"] > 0);
+    assert_eq!(
+        per_topic["/output/vision_position_estimate"],
+        report.estimates_received as u64
+    );
+    assert_eq!(per_topic["/pose"], report.estimates_received as u64);
+    let meta = summary.metadata_indexes.iter().any(|m| m.name == "cmsckf");
+    assert!(meta, "header metadata");
+    // An independent reader (PyPI `mcap`; CI installs it) reads it cleanly.
+    let out = Command::new("python3")
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
+        .arg(&log_path)
+        .output()
+        .expect("python3 is needed for this test");
+    assert!(
+        out.status.success(),
+        "Python mcap reader: {} {}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

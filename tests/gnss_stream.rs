@@ -39,6 +39,7 @@ async fn daemon_reads_a_tcp_rtcm_stream() {
     let mut cfg = Config::default();
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.log.path = String::new();
     cfg.gnss.source = GnssSource::Stream;
     cfg.gnss.stream = format!("tcp:{addr}");
     cfg.gnss.week_hint = 1316;

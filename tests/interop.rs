@@ -19,6 +19,7 @@ async fn pymavlink_talks_to_the_daemon_both_ways() {
     let mut cfg = Config::default();
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    cfg.log.path = String::new();
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let daemon = tokio::spawn(cmsckf::daemon::run(cfg, async move {
         let _ = stop_rx.await;

@@ -4,6 +4,7 @@
 
 pub mod feature_pipe;
 pub mod mavlink;
+pub mod mcap_log;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
