@@ -463,7 +463,7 @@ struct GnssIn {
 }
 
 /// State of the fusion loop.
-struct Fusion {
+pub struct Fusion {
     log: Option<crate::io::mcap_log::McapLogger>,
     next_state_log: f64,
     cfg: Config,
@@ -495,164 +495,218 @@ fn fusion_loop(
         initialised,
         mono_offset_us,
     } = shared;
-    let mut f = Fusion {
-        log,
-        next_state_log: f64::NEG_INFINITY,
-        cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
-        est: None,
-        static_buf: VecDeque::with_capacity(4096),
-        attitude: None,
-        local: None,
-        pending: VecDeque::with_capacity(PENDING_FRAMES),
-        origin_sent: false,
-        gnss: GnssIn {
-            dec: crate::gnss::rtcm::RtcmDecoder::new(),
-            rx: crate::gnss::Receiver::new(
-                crate::gnss::spp::SppOptions {
-                    elevation_mask_deg: cfg.gnss.elevation_mask_deg,
-                    iono: cfg.gnss.iono,
-                    systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or_default(),
-                },
-                if cfg.gnss.week_hint != 0 {
-                    cfg.gnss.week_hint
-                } else {
-                    crate::gnss::gps_week_now()
-                },
-                cfg.gnss.rover_station_id,
-            ),
-            frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
-                let o = &cfg.gnss.origin_llh;
-                cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2])
-            }),
-            unix_minus_boot_s: None,
-            msgs: Vec::new(),
-            epochs: Vec::new(),
-            klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
-                let a = &cfg.gnss.klobuchar_alpha;
-                let b = &cfg.gnss.klobuchar_beta;
-                crate::gnss::Klobuchar {
-                    alpha: [a[0], a[1], a[2], a[3]],
-                    beta: [b[0], b[1], b[2], b[3]],
-                }
-            }),
-        },
-        last_imu_t: f64::NEG_INFINITY,
-        last_frame_t: f64::NEG_INFINITY,
-        next_output_t: f64::NEG_INFINITY,
-        reset_counter: 0,
-        norm: Vec::with_capacity(cfg.features.max_features),
-        cfg,
+    let mut f = Fusion::new(cfg, log);
+    let ctx = Ctx {
+        counters,
+        out,
+        healthy,
+        initialised,
+        mono_offset_us,
     };
     while let Some(msg) = rx.blocking_recv() {
+        f.handle(msg, &ctx);
+    }
+    let counters = ctx.counters;
+    f.finish_log(&counters);
+}
+
+/// What the fusion loop writes to: counters, the outbound channel and the
+/// flags and clock offset shared with the I/O tasks.
+pub struct Ctx {
+    pub counters: Counters,
+    pub out: mpsc::Sender<Outbound>,
+    pub healthy: Arc<AtomicBool>,
+    pub initialised: Arc<AtomicBool>,
+    pub mono_offset_us: Arc<AtomicI64>,
+}
+
+impl Fusion {
+    /// Finishes the log (on shutdown: `Drop` would swallow its errors),
+    /// counting its messages and raising an alarm for dropped records.
+    pub fn finish_log(&mut self, counters: &Counters) {
+        // The log is finished here, on shutdown: `Drop` would swallow its errors.
+        if let Some(l) = self.log.take() {
+            let dropped = l.dropped();
+            match l.finish() {
+                Ok(s) => {
+                    counters.add("log_messages", s.messages);
+                    counters.add("log_chunks", s.chunks);
+                }
+                Err(e) => {
+                    counters.add("log_error", 1);
+                    tracing::error!(error = %e, "the MCAP log could not be finished");
+                }
+            }
+            if dropped > 0 {
+                counters.add("log_dropped", dropped);
+                tracing::error!(
+                    dropped,
+                    "ALARM: MCAP log records were dropped (writer could not keep up)"
+                );
+            }
+        }
+    }
+
+    /// A fusion loop for `cfg`, logging to `log` if given.
+    pub fn new(cfg: Config, log: Option<crate::io::mcap_log::McapLogger>) -> Self {
+        Fusion {
+            log,
+            next_state_log: f64::NEG_INFINITY,
+            cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
+            est: None,
+            static_buf: VecDeque::with_capacity(4096),
+            attitude: None,
+            local: None,
+            pending: VecDeque::with_capacity(PENDING_FRAMES),
+            origin_sent: false,
+            gnss: GnssIn {
+                dec: crate::gnss::rtcm::RtcmDecoder::new(),
+                rx: crate::gnss::Receiver::new(
+                    crate::gnss::spp::SppOptions {
+                        elevation_mask_deg: cfg.gnss.elevation_mask_deg,
+                        iono: cfg.gnss.iono,
+                        systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or_default(),
+                    },
+                    if cfg.gnss.week_hint != 0 {
+                        cfg.gnss.week_hint
+                    } else {
+                        crate::gnss::gps_week_now()
+                    },
+                    cfg.gnss.rover_station_id,
+                ),
+                frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
+                    let o = &cfg.gnss.origin_llh;
+                    cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2])
+                }),
+                unix_minus_boot_s: None,
+                msgs: Vec::new(),
+                epochs: Vec::new(),
+                klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
+                    let a = &cfg.gnss.klobuchar_alpha;
+                    let b = &cfg.gnss.klobuchar_beta;
+                    crate::gnss::Klobuchar {
+                        alpha: [a[0], a[1], a[2], a[3]],
+                        beta: [b[0], b[1], b[2], b[3]],
+                    }
+                }),
+            },
+            last_imu_t: f64::NEG_INFINITY,
+            last_frame_t: f64::NEG_INFINITY,
+            next_output_t: f64::NEG_INFINITY,
+            reset_counter: 0,
+            norm: Vec::with_capacity(cfg.features.max_features),
+            cfg,
+        }
+    }
+
+    /// Handles one input, in the order the fusion loop received it (replay
+    /// feeds the logged inputs through here in the same order).
+    pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
         match msg {
-            FusionMsg::Attitude { roll, pitch, yaw } => f.attitude = Some((roll, pitch, yaw)),
-            FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => f.local = Some((p_ned_m, v_ned_mps)),
+            FusionMsg::Attitude { roll, pitch, yaw } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"attitude_rad": [roll, pitch, yaw]}),
+                );
+                self.attitude = Some((roll, pitch, yaw))
+            }
+            FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"local_position": {"p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
+                );
+                self.local = Some((p_ned_m, v_ned_mps))
+            }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
-                f.log(
+                self.log(
                     Topic::InputSystemTime,
                     boot_ms as f64 * 1e-3,
                     &json!({"unix_us": unix_us, "boot_ms": boot_ms}),
                 );
-                f.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
+                self.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
             }
             FusionMsg::Origin {
                 lat_deg,
                 lon_deg,
                 alt_m,
             } => {
-                if f.gnss.frame.is_none() {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"origin": [lat_deg, lon_deg, alt_m]}),
+                );
+                if self.gnss.frame.is_none() {
                     // MAVLink gives the origin's altitude above mean sea level;
                     // the geoid separation (tens of metres) is a constant
                     // height offset that the clock bias cannot absorb, so
                     // `gnss.origin_llh` is the precise way to set it.
-                    f.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
-                    counters.add("gnss_origin_from_autopilot", 1);
+                    self.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
+                    ctx.counters.add("gnss_origin_from_autopilot", 1);
                 }
             }
             FusionMsg::Rtcm(bytes) => {
-                f.log(Topic::InputRtcm, f.last_imu_t, &json!({ "bytes": bytes }));
-                f.on_rtcm(&bytes, &counters)
+                self.log(Topic::InputRtcm, self.last_imu_t, &json!({ "bytes": bytes }));
+                self.on_rtcm(&bytes, &ctx.counters)
             }
             FusionMsg::Frame(fr) => {
-                let t_ap_us = match f.cfg.features.clock {
+                let t_ap_us = match self.cfg.features.clock {
                     FeatureClock::Autopilot => fr.t_us as i64,
                     FeatureClock::Monotonic => {
-                        let off = mono_offset_us.load(Ordering::Relaxed);
+                        let off = ctx.mono_offset_us.load(Ordering::Relaxed);
                         if off == i64::MIN {
-                            counters.add("feature_no_timesync", 1);
-                            continue;
+                            ctx.counters.add("feature_no_timesync", 1);
+                            return;
                         }
                         fr.t_us as i64 + off
                     }
                 };
                 let t = t_ap_us as f64 * 1e-6;
-                f.log(
+                self.log(
                     Topic::InputFeatures,
                     t,
-                    &json!({"t_us": fr.t_us, "cam": fr.cam, "features": fr.features}),
+                    &json!({"t_us": fr.t_us, "t_ap_us": t_ap_us, "cam": fr.cam, "features": fr.features}),
                 );
-                if t <= f.last_frame_t {
-                    counters.add("feature_time_backwards", 1);
+                if t <= self.last_frame_t {
+                    ctx.counters.add("feature_time_backwards", 1);
                     tracing::warn!(
                         reason = "feature_time_backwards",
                         t_s = t,
-                        prev_s = f.last_frame_t,
+                        prev_s = self.last_frame_t,
                         "frame rejected"
                     );
-                    continue;
+                    return;
                 }
-                f.last_frame_t = t;
-                f.enqueue(t, Pending::Frame(fr), &counters);
+                self.last_frame_t = t;
+                self.enqueue(t, Pending::Frame(fr), &ctx.counters);
             }
             FusionMsg::Imu(m) => {
-                if m.t_s <= f.last_imu_t {
-                    counters.add("imu_time_backwards", 1);
-                    continue;
+                if m.t_s <= self.last_imu_t {
+                    ctx.counters.add("imu_time_backwards", 1);
+                    return;
                 }
-                if f.last_imu_t.is_finite() && m.t_s - f.last_imu_t > 0.5 {
-                    counters.add("imu_gap", 1);
-                    tracing::warn!(reason = "imu_gap", gap_s = m.t_s - f.last_imu_t, "IMU gap");
+                if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.5 {
+                    ctx.counters.add("imu_gap", 1);
+                    tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
                 }
-                f.last_imu_t = m.t_s;
-                counters.add("imu_samples", 1);
-                f.log(
-                    Topic::InputImu,
-                    m.t_s,
-                    &json!({"t_us": (m.t_s * 1e6).round() as u64, "accel_mps2": m.accel_mps2.as_slice(), "gyro_radps": m.gyro_radps.as_slice()}),
-                );
-                f.on_imu(m, &counters, &out);
-                initialised.store(f.est.is_some(), Ordering::Relaxed);
-                healthy.store(
-                    f.est.as_ref().is_some_and(|e| e.check_health().is_ok()),
+                self.last_imu_t = m.t_s;
+                ctx.counters.add("imu_samples", 1);
+                self.log(
+                Topic::InputImu,
+                m.t_s,
+                &json!({"t_us": (m.t_s * 1e6).round() as u64, "accel_mps2": m.accel_mps2.as_slice(), "gyro_radps": m.gyro_radps.as_slice()}),
+            );
+                self.on_imu(m, &ctx.counters, &ctx.out);
+                ctx.initialised.store(self.est.is_some(), Ordering::Relaxed);
+                ctx.healthy.store(
+                    self.est.as_ref().is_some_and(|e| e.check_health().is_ok()),
                     Ordering::Relaxed,
                 );
             }
         }
     }
-    // The log is finished here, on shutdown: `Drop` would swallow its errors.
-    if let Some(l) = f.log.take() {
-        let dropped = l.dropped();
-        match l.finish() {
-            Ok(s) => {
-                counters.add("log_messages", s.messages);
-                counters.add("log_chunks", s.chunks);
-            }
-            Err(e) => {
-                counters.add("log_error", 1);
-                tracing::error!(error = %e, "the MCAP log could not be finished");
-            }
-        }
-        if dropped > 0 {
-            counters.add("log_dropped", dropped);
-            tracing::error!(
-                dropped,
-                "ALARM: MCAP log records were dropped (writer could not keep up)"
-            );
-        }
-    }
-}
 
-impl Fusion {
     fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
         if let Some(l) = &self.log {
             l.log(topic, t_s, v);

@@ -19,3 +19,4 @@ pub mod estimator;
 pub mod eval;
 pub mod gnss;
 pub mod io;
+pub mod replay;

@@ -71,6 +71,21 @@ enum Cmd {
         #[arg(long)]
         csv: bool,
     },
+    /// Re-run the filter on a flight log's inputs and write a new log.
+    Replay {
+        input: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Another mode (msckf, full, schmidt, compressed).
+        #[arg(long)]
+        mode: Option<String>,
+        /// Another config (the log's own otherwise).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Print {"messages_in","estimates_out","flight_s","wall_s","realtime_factor"}.
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the daemon beside the autopilot until SIGINT or SIGTERM.
     Run {
         #[arg(long, default_value = "config/default.toml")]
@@ -332,6 +347,38 @@ fn main() -> anyhow::Result<()> {
             station_id,
             csv,
         } => gnss_file(&file, &iono, elevation_mask_deg, &systems, week_hint, station_id, csv)?,
+        Cmd::Replay {
+            input,
+            out,
+            mode,
+            config,
+            json,
+        } => {
+            let mode = mode
+                .map(|m| m.parse::<Mode>())
+                .transpose()
+                .map_err(anyhow::Error::msg)?;
+            let cfg = config.map(|p| Config::load(&p)).transpose()?;
+            let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n| {
+                if !json {
+                    eprint!("\rreplayed {n} inputs");
+                }
+            })?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                eprintln!();
+                println!(
+                    "{} inputs, {} estimates, {:.1} s of flight in {:.2} s: {:.0}x real time -> {}",
+                    r.messages_in,
+                    r.estimates_out,
+                    r.flight_s,
+                    r.wall_s,
+                    r.realtime_factor,
+                    out.display()
+                );
+            }
+        }
         Cmd::Run { config } => {
             init_tracing("info");
             let cfg = Config::load(&config)?;

@@ -26,6 +26,7 @@ pub enum Topic {
     InputFeatures,
     InputRtcm,
     InputSystemTime,
+    InputAutopilot,
     FilterVision,
     FilterGnss,
     FilterGlobal,
@@ -37,11 +38,12 @@ pub enum Topic {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 12] = [
+    pub const ALL: [Topic; 13] = [
         Topic::InputImu,
         Topic::InputFeatures,
         Topic::InputRtcm,
         Topic::InputSystemTime,
+        Topic::InputAutopilot,
         Topic::FilterVision,
         Topic::FilterGnss,
         Topic::FilterGlobal,
@@ -59,6 +61,7 @@ impl Topic {
             Topic::InputFeatures => ("/input/features", "cmsckf.FeatureFrame", SCHEMA_FEATURES),
             Topic::InputRtcm => ("/input/rtcm", "cmsckf.Rtcm", SCHEMA_RTCM),
             Topic::InputSystemTime => ("/input/mavlink/system_time", "cmsckf.SystemTime", SCHEMA_SYSTEM_TIME),
+            Topic::InputAutopilot => ("/input/mavlink/autopilot", "cmsckf.AutopilotState", SCHEMA_OBJECT),
             Topic::FilterVision => ("/filter/update/vision", "cmsckf.VisionUpdate", SCHEMA_OBJECT),
             Topic::FilterGnss => ("/filter/update/gnss", "cmsckf.GnssUpdate", SCHEMA_OBJECT),
             Topic::FilterGlobal => ("/filter/update/global", "cmsckf.GlobalUpdate", SCHEMA_OBJECT),

@@ -1,0 +1,206 @@
+//! `cmsckf replay`: re-runs the fusion loop on the inputs of an MCAP flight
+//! log and writes a new log.
+//!
+//! The daemon logs each input as its fusion loop consumes it, from that one
+//! thread, so the file holds the inputs in the order they were used. Replay
+//! feeds them through the same [`Fusion::handle`] in that order: with the
+//! same mode and config, the estimates and filter events come out bit for bit
+//! the same (only the wall time spent per update differs); with another mode
+//! or config, the two logs can be compared.
+
+use std::path::Path;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::Serialize;
+use serde_json::Value;
+
+use crate::config::{Config, FeatureClock, Mode};
+use crate::daemon::{Ctx, Fusion, FusionMsg};
+use crate::estimator::ImuMeas;
+use crate::io::feature_pipe::FeatureFrame;
+use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::Counters;
+
+/// Errors of a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("cannot read '{0}': {1}")]
+    Io(String, std::io::Error),
+    #[error("'{0}' is not a readable MCAP log: {1}")]
+    Mcap(String, String),
+    #[error("'{0}' has no cmsckf config in its header; give --config")]
+    NoConfig(String),
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    #[error(transparent)]
+    Log(#[from] crate::io::mcap_log::LogError),
+}
+
+/// Throughput of a replay.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReplayReport {
+    pub messages_in: u64,
+    pub estimates_out: u64,
+    pub flight_s: f64,
+    pub wall_s: f64,
+    pub realtime_factor: f64,
+}
+
+/// The config stored in a log's `cmsckf` metadata record.
+pub fn logged_config(bytes: &[u8], name: &str) -> Result<Config, ReplayError> {
+    for rec in mcap::read::LinearReader::new(bytes).map_err(|e| ReplayError::Mcap(name.into(), e.to_string()))? {
+        let Ok(rec) = rec else { break };
+        if let mcap::records::Record::Metadata(m) = rec {
+            if m.name == "cmsckf" {
+                if let Some(t) = m.metadata.get("config_toml") {
+                    return Ok(Config::from_toml(t, name)?);
+                }
+            }
+        }
+    }
+    Err(ReplayError::NoConfig(name.into()))
+}
+
+fn v3(v: &Value) -> Option<Vector3<f64>> {
+    let a = v.as_array()?;
+    Some(Vector3::new(
+        a.first()?.as_f64()?,
+        a.get(1)?.as_f64()?,
+        a.get(2)?.as_f64()?,
+    ))
+}
+
+/// Turns one logged input back into what the fusion loop received.
+fn to_msg(topic: &str, v: &Value) -> Option<FusionMsg> {
+    Some(match topic {
+        "/input/imu" => FusionMsg::Imu(ImuMeas {
+            t_s: v["t_us"].as_u64()? as f64 * 1e-6,
+            accel_mps2: v3(&v["accel_mps2"])?,
+            gyro_radps: v3(&v["gyro_radps"])?,
+        }),
+        "/input/features" => FusionMsg::Frame(FeatureFrame {
+            // The clock is already mapped: replay runs in autopilot time.
+            t_us: v["t_ap_us"].as_i64()?.max(0) as u64,
+            cam: v["cam"].as_u64()? as u32,
+            features: v["features"]
+                .as_array()?
+                .iter()
+                .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
+                .collect(),
+        }),
+        "/input/rtcm" => FusionMsg::Rtcm(
+            v["bytes"]
+                .as_array()?
+                .iter()
+                .filter_map(|b| b.as_u64().map(|x| x as u8))
+                .collect(),
+        ),
+        "/input/mavlink/system_time" => FusionMsg::SystemTime {
+            unix_us: v["unix_us"].as_u64()?,
+            boot_ms: v["boot_ms"].as_u64()? as u32,
+        },
+        "/input/mavlink/autopilot" => {
+            if let Some(a) = v.get("attitude_rad") {
+                let a = v3(a)?;
+                FusionMsg::Attitude {
+                    roll: a.x,
+                    pitch: a.y,
+                    yaw: a.z,
+                }
+            } else if let Some(l) = v.get("local_position") {
+                FusionMsg::LocalPosition {
+                    p_ned_m: v3(&l["p_ned_m"])?,
+                    v_ned_mps: v3(&l["v_ned_mps"])?,
+                }
+            } else {
+                let o = v3(&v["origin"])?;
+                FusionMsg::Origin {
+                    lat_deg: o.x,
+                    lon_deg: o.y,
+                    alt_m: o.z,
+                }
+            }
+        }
+        _ => return None,
+    })
+}
+
+/// Replays `input` into `output`, under `mode` and `config` if given (else
+/// the logged ones). `progress` gets the number of inputs replayed so far.
+pub fn replay(
+    input: &Path,
+    output: &Path,
+    mode: Option<Mode>,
+    config: Option<Config>,
+    mut progress: impl FnMut(u64),
+) -> Result<ReplayReport, ReplayError> {
+    let name = input.display().to_string();
+    let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
+    let mut cfg = match config {
+        Some(c) => c,
+        None => logged_config(&bytes, &name)?,
+    };
+    if let Some(m) = mode {
+        cfg.estimator.mode = m;
+    }
+    cfg.features.clock = FeatureClock::Autopilot;
+    let header = LogHeader {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        mode: cfg.estimator.mode.name().to_string(),
+        config_toml: toml::to_string(&cfg).unwrap_or_default(),
+    };
+    let log = McapLogger::create(output, &header)?;
+    let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
+    let ctx = Ctx {
+        counters: Counters::default(),
+        out: out_tx,
+        healthy: Default::default(),
+        initialised: Default::default(),
+        mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
+    };
+    let mut fusion = Fusion::new(cfg, Some(log));
+    let start = Instant::now();
+    let (mut n_in, mut n_out) = (0u64, 0u64);
+    let (mut t_first, mut t_last) = (f64::NAN, f64::NAN);
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReplayError::Mcap(name.clone(), e.to_string()))?;
+    for (i, m) in stream.enumerate() {
+        // A log cut short ends the replay at its last whole chunk.
+        let Ok(m) = m else { break };
+        if !m.channel.topic.starts_with("/input/") {
+            continue;
+        }
+        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+            continue;
+        };
+        let Some(msg) = to_msg(&m.channel.topic, &v) else {
+            continue;
+        };
+        if let FusionMsg::Imu(s) = &msg {
+            if t_first.is_nan() {
+                t_first = s.t_s;
+            }
+            t_last = s.t_s;
+        }
+        n_in += 1;
+        fusion.handle(msg, &ctx);
+        while let Ok(o) = out_rx.try_recv() {
+            if matches!(o, crate::io::mavlink::Outbound::VisionPositionEstimate { .. }) {
+                n_out += 1;
+            }
+        }
+        if i % 4096 == 0 {
+            progress(n_in);
+        }
+    }
+    fusion.finish_log(&ctx.counters);
+    let wall = start.elapsed().as_secs_f64();
+    let flight = if t_first.is_finite() { t_last - t_first } else { 0.0 };
+    Ok(ReplayReport {
+        messages_in: n_in,
+        estimates_out: n_out,
+        flight_s: flight,
+        wall_s: wall,
+        realtime_factor: if wall > 0.0 { flight / wall } else { 0.0 },
+    })
+}
