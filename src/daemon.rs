@@ -839,6 +839,7 @@ impl Fusion {
                                         "t_s": t, "pseudoranges_used": rep.pseudoranges_used, "range_rates_used": rep.range_rates_used,
                                         "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
                                         "clock_var": clock_var.as_slice(),
+                                        "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
                                     }),
                                 );
                             }
@@ -888,6 +889,7 @@ impl Fusion {
                                 "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
                                 "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
                                 "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
+                                "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
                             }),
                         );
                         for ev in &rep.events {

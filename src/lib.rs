@@ -20,3 +20,4 @@ pub mod eval;
 pub mod gnss;
 pub mod io;
 pub mod replay;
+pub mod review;

@@ -86,6 +86,21 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Summarise a flight log, draw its plots, export its trajectory.
+    Review {
+        input: PathBuf,
+        /// Write trajectory.png, figure1.png, nis.png and timing.png here.
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Export the estimated trajectory in TUM format.
+        #[arg(long)]
+        tum: Option<PathBuf>,
+        /// The keyframe zoomed in Figure 1 (default: the fifth).
+        #[arg(long)]
+        keyframe: Option<u64>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the daemon beside the autopilot until SIGINT or SIGTERM.
     Run {
         #[arg(long, default_value = "config/default.toml")]
@@ -377,6 +392,26 @@ fn main() -> anyhow::Result<()> {
                     r.realtime_factor,
                     out.display()
                 );
+            }
+        }
+        Cmd::Review {
+            input,
+            plots,
+            tum,
+            keyframe,
+            json,
+        } => {
+            let s = cmsckf::review::review(&input, plots.as_deref(), tum.as_deref(), keyframe)?;
+            if json {
+                println!("{}", serde_json::to_string(&s)?);
+            } else {
+                if s.truncated {
+                    println!("note: the log ends early (no summary): reviewed up to its last complete chunk");
+                }
+                println!("{}", serde_json::to_string_pretty(&s)?);
+                if let Some(p) = plots {
+                    println!("plots in {}", p.display());
+                }
             }
         }
         Cmd::Run { config } => {

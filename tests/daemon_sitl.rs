@@ -163,6 +163,32 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         messages(&schmidt, "/filter/state")
     );
 
+    // Review: the summary, the four plots, the TUM export.
+    let plots = dir.path().join("plots");
+    let tum = dir.path().join("traj.tum");
+    let rv = cmsckf::review::review(&log_path, Some(&plots), Some(&tum), None).unwrap();
+    assert!(!rv.truncated);
+    assert!((rv.duration_s - 40.0).abs() < 1.0, "{}", rv.duration_s);
+    assert!(rv.vision_updates > 1000 && rv.gnss_updates > 30 && rv.global_updates > 10 && rv.keyframes >= 7);
+    assert!(rv.nis_in_95 > 0.8, "{}", rv.nis_in_95);
+    assert!((rv.input_rates_hz["/input/imu"] - 100.0).abs() < 2.0);
+    for f in ["trajectory.png", "figure1.png", "nis.png", "timing.png"] {
+        let b = std::fs::read(plots.join(f)).unwrap();
+        assert!(b.len() > 10_000 && b.starts_with(b"\x89PNG"), "{f}");
+    }
+    assert!(std::fs::read_to_string(&tum).unwrap().lines().count() > 300);
+    // A log cut mid-chunk is reviewed up to its last complete chunk.
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let rc = cmsckf::review::review(&cut, None, None, None).unwrap();
+    assert!(rc.truncated);
+    assert!(
+        rc.messages > rv.messages / 3 && rc.messages < rv.messages,
+        "{} of {}",
+        rc.messages,
+        rv.messages
+    );
+
     // An independent reader (PyPI `mcap`; CI installs it) reads it cleanly.
     let out = Command::new("python3")
         .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))

@@ -353,6 +353,41 @@ impl Estimator {
         self.P.fixed_view::<15, 15>(0, 0).into_owned()
     }
 
+    /// Position σ (m, `√trace`) of each keyframe as the filter holds it:
+    /// the live value for local keyframes, and for global ones the value
+    /// frozen at the last global update (what the compressed filter stores;
+    /// the paper's Figure 1). `(id, σ, is_global)`.
+    pub fn keyframe_sigmas(&self) -> Vec<(u64, f64, bool)> {
+        let mut v: Vec<(u64, f64, bool)> = self
+            .local_kfs
+            .iter()
+            .enumerate()
+            .map(|(j, id)| {
+                let o = self.kf_offset(j) + 3;
+                (
+                    *id,
+                    (self.P[(o, o)] + self.P[(o + 1, o + 1)] + self.P[(o + 2, o + 2)])
+                        .max(0.0)
+                        .sqrt(),
+                    false,
+                )
+            })
+            .collect();
+        if let Some(g) = &self.global {
+            for (j, id) in g.ids.iter().enumerate() {
+                let o = 6 * j + 3;
+                let p = &g.P_GG0;
+                v.push((
+                    *id,
+                    (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt(),
+                    true,
+                ));
+            }
+        }
+        v.sort_by_key(|x| x.0);
+        v
+    }
+
     /// Covariance of a keyframe's pose `[δθ, δp]` (in its chart), if known
     /// without a global update (local keyframes; global ones at the last
     /// global update minus what is accumulated since).
