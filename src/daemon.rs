@@ -757,6 +757,20 @@ impl Fusion {
             };
             let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
             let t = crate::gnss::gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / cmsckf_sitl::geodesy::C_MPS;
+            if let Ok(fix) = &ep.fix {
+                let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&fix.r_ecef_m);
+                let tt = t.max(0.0);
+                // Variance approximated from the residuals and the PDOP.
+                let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
+                self.log(
+                    Topic::GnssFix,
+                    t,
+                    &json!({"timestamp": {"sec": tt.floor() as u64, "nsec": ((tt - tt.floor()) * 1e9) as u64},
+                        "frame_id": "gnss", "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
+                        "position_covariance": [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var], "position_covariance_type": 1,
+                        "satellites": fix.sats.len(), "raim": format!("{:?}", fix.raim)}),
+                );
+            }
             if self.gnss.frame.is_none() {
                 // No configured or autopilot origin: anchor the world frame so
                 // that the current estimate sits at the first fix.
@@ -963,6 +977,13 @@ impl Fusion {
                     &json!({"timestamp": {"sec": sec, "nsec": nsec}, "frame_id": "ned",
                         "pose": {"position": {"x": x.p_B_in_W.x, "y": x.p_B_in_W.y, "z": x.p_B_in_W.z},
                                  "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}}),
+                );
+                l.log(
+                    Topic::Transform,
+                    m.t_s,
+                    &json!({"timestamp": {"sec": sec, "nsec": nsec}, "parent_frame_id": "ned", "child_frame_id": "body_frd",
+                        "translation": {"x": x.p_B_in_W.x, "y": x.p_B_in_W.y, "z": x.p_B_in_W.z},
+                        "rotation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}),
                 );
                 if m.t_s >= self.next_state_log {
                     self.next_state_log = m.t_s + 0.1;

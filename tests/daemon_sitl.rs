@@ -120,6 +120,17 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         report.estimates_received as u64
     );
     assert_eq!(per_topic["/pose"], report.estimates_received as u64);
+    assert_eq!(per_topic["/tf"], report.estimates_received as u64);
+    assert!(per_topic["/gnss/fix"] > 30);
+    let names: Vec<&str> = summary.schemas.values().map(|s| s.name.as_str()).collect();
+    for n in [
+        "foxglove.PoseInFrame",
+        "foxglove.FrameTransform",
+        "foxglove.LocationFix",
+        "foxglove.Log",
+    ] {
+        assert!(names.contains(&n), "{n}");
+    }
     let meta = summary.metadata_indexes.iter().any(|m| m.name == "cmsckf");
     assert!(meta, "header metadata");
     // Replay with the logged config: estimates and filter events are bit for
