@@ -374,15 +374,21 @@ fn main() -> anyhow::Result<()> {
                 .transpose()
                 .map_err(anyhow::Error::msg)?;
             let cfg = config.map(|p| Config::load(&p)).transpose()?;
-            let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n| {
-                if !json {
-                    eprint!("\rreplayed {n} inputs");
-                }
-            })?;
+            let bar = if json {
+                indicatif::ProgressBar::hidden()
+            } else {
+                let b = indicatif::ProgressBar::new_spinner();
+                b.set_style(
+                    indicatif::ProgressStyle::with_template("{spinner} replaying: {pos} inputs ({per_sec}) {elapsed}")
+                        .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+                );
+                b
+            };
+            let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n| bar.set_position(n))?;
+            bar.finish_and_clear();
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
-                eprintln!();
                 println!(
                     "{} inputs, {} estimates, {:.1} s of flight in {:.2} s: {:.0}x real time -> {}",
                     r.messages_in,

@@ -4,7 +4,8 @@
 //! log whose writer was killed (no summary section) is reviewed up to its
 //! last complete chunk, and says so. Plots are PNG through `plotters` with a
 //! bundled font (DejaVu Sans), so no system font libraries are needed:
-//! 1. `trajectory.png`: the estimate from above, with the keyframes;
+//! 1. `trajectory.png`: the estimate from above, with the keyframes and the
+//!    autopilot's local position (in SITL logs, the ground truth);
 //! 2. `figure1.png`: the paper's Figure 1, the position σ of every keyframe
 //!    over time, and a zoom on one keyframe with the vision updates, the GNSS
 //!    corrections and the global (compressed) updates marked;
@@ -57,6 +58,8 @@ pub struct ReviewSummary {
 struct Data {
     track: Vec<(f64, f64, f64, [f64; 4], f64)>, // t, n, e, q(wxyz), d
     kf_pos: Vec<(f64, f64)>,
+    /// The autopilot's local position (in SITL, the ground truth).
+    autopilot: Vec<(f64, f64)>,
     kf_sigma: BTreeMap<u64, Vec<(f64, f64)>>,
     vision_t: Vec<f64>,
     gnss_t: Vec<f64>,
@@ -165,6 +168,13 @@ pub fn review(
                 d.global_t.push(t);
             }
             "/output/vision_position_estimate" => s.estimates += 1,
+            "/input/mavlink/autopilot" => {
+                if let Some(p) = v["local_position"]["p_ned_m"].as_array() {
+                    if let (Some(n), Some(e)) = (p[0].as_f64(), p[1].as_f64()) {
+                        d.autopilot.push((n, e));
+                    }
+                }
+            }
             _ => {}
         }
     }
@@ -242,6 +252,12 @@ fn plot_all(dir: &Path, d: &Data, keyframe: Option<u64>) -> Result<(), String> {
             .map_err(|x| e(&x))?
             .label("estimate")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        if !d.autopilot.is_empty() {
+            c.draw_series(LineSeries::new(d.autopilot.iter().map(|p| (p.1, p.0)), GREEN.mix(0.8)))
+                .map_err(|x| e(&x))?
+                .label("autopilot local position (SITL: ground truth)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+        }
         c.draw_series(d.kf_pos.iter().map(|k| Circle::new((k.1, k.0), 4, RED.filled())))
             .map_err(|x| e(&x))?
             .label("keyframes")
