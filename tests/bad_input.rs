@@ -3,6 +3,7 @@
 //!
 //! The test plays the autopilot with hand-made MAVLink frames on a UDP socket
 //! (so it can corrupt them), and the front end on the feature socket.
+mod common;
 
 use std::io::Write;
 use std::os::unix::net::UnixStream;
@@ -11,8 +12,6 @@ use std::time::Duration;
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MavHeader, MavlinkVersion};
 use tokio::net::UdpSocket;
-
-use cmsckf::config::Config;
 
 struct Peer {
     sock: UdpSocket,
@@ -69,20 +68,9 @@ fn line(t_s: f64, features: &str) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_input_is_rejected_counted_and_survived() {
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let mut cfg = Config::default();
-    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
-    cfg.features.socket = dir.path().join("f.sock").display().to_string();
-    cfg.log.path = String::new();
+    let (mut cfg, port) = common::loopback_config(dir.path());
     cfg.features.max_line_bytes = 1024;
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let daemon = tokio::spawn(cmsckf::daemon::run(cfg.clone(), async move {
-        let _ = stop_rx.await;
-    }));
+    let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
     tokio::time::sleep(Duration::from_millis(200)).await;
 
     let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();

@@ -1,12 +1,13 @@
 //! `gnss.source = "stream"`: the daemon reads raw RTCM3 from a TCP receiver,
 //! decodes it, counts a corrupted frame, and reconnects after the receiver
 //! drops the connection.
+mod common;
 
 use std::time::Duration;
 
 use tokio::io::AsyncWriteExt;
 
-use cmsckf::config::{Config, GnssSource};
+use cmsckf::config::GnssSource;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn daemon_reads_a_tcp_rtcm_stream() {
@@ -31,22 +32,11 @@ async fn daemon_reads_a_tcp_rtcm_stream() {
     });
 
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let mut cfg = Config::default();
-    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
-    cfg.features.socket = dir.path().join("f.sock").display().to_string();
-    cfg.log.path = String::new();
+    let (mut cfg, _port) = common::loopback_config(dir.path());
     cfg.gnss.source = GnssSource::Stream;
     cfg.gnss.stream = format!("tcp:{addr}");
     cfg.gnss.week_hint = 1316;
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let daemon = tokio::spawn(cmsckf::daemon::run(cfg, async move {
-        let _ = stop_rx.await;
-    }));
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::timeout(Duration::from_secs(10), server)
         .await
         .unwrap()

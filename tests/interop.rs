@@ -2,28 +2,16 @@
 //! HIGHRES_IMU that the daemon consumes, and decodes the daemon's
 //! VISION_POSITION_ESTIMATE with its covariance and reset_counter.
 //! Needs `python3` with `pymavlink` (CI installs it).
+mod common;
 
 use std::process::Command;
 use std::time::Duration;
 
-use cmsckf::config::Config;
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pymavlink_talks_to_the_daemon_both_ways() {
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let mut cfg = Config::default();
-    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
-    cfg.features.socket = dir.path().join("f.sock").display().to_string();
-    cfg.log.path = String::new();
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let daemon = tokio::spawn(cmsckf::daemon::run(cfg, async move {
-        let _ = stop_rx.await;
-    }));
+    let (cfg, port) = common::loopback_config(dir.path());
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop_pymavlink.py");
     let out = tokio::task::spawn_blocking(move || {

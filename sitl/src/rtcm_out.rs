@@ -65,20 +65,12 @@ pub fn encode_ephemeris(eph: &GpsEphemeris) -> Result<Vec<u8>, RtcmOutError> {
         .map_err(RtcmOutError::Encode)
 }
 
-/// Quantises an ephemeris to what 1019 can carry (encode, then decode).
-pub fn quantise(eph: &GpsEphemeris) -> GpsEphemeris {
-    let Ok(bytes) = encode_ephemeris(eph) else {
-        return eph.clone();
-    };
-    let Ok(frame) = MessageFrame::new(&bytes) else {
-        return eph.clone();
-    };
-    let Message::Msg1019(m) = frame.get_message() else {
-        return eph.clone();
-    };
+/// The ephemeris a decoded 1019 carries (semicircles → radians), with the
+/// full week `week` (1019 has it modulo 1024: the caller resolves it).
+pub fn ephemeris_from_1019(m: &Msg1019T, week: u32) -> GpsEphemeris {
     GpsEphemeris {
         prn: m.gps_satellite_id,
-        week: eph.week,
+        week,
         iode: m.iode,
         iodc: m.iodc,
         toc_s: m.toc_s as f64,
@@ -106,6 +98,20 @@ pub fn quantise(eph: &GpsEphemeris) -> GpsEphemeris {
         ura_index: m.ura_index,
         fit_interval_4h: m.fit_interval_ind != 0,
     }
+}
+
+/// Quantises an ephemeris to what 1019 can carry (encode, then decode).
+pub fn quantise(eph: &GpsEphemeris) -> GpsEphemeris {
+    let Ok(bytes) = encode_ephemeris(eph) else {
+        return eph.clone();
+    };
+    let Ok(frame) = MessageFrame::new(&bytes) else {
+        return eph.clone();
+    };
+    let Message::Msg1019(m) = frame.get_message() else {
+        return eph.clone();
+    };
+    ephemeris_from_1019(&m, eph.week)
 }
 
 /// Frames one epoch as MSM7 (GPS L1 C/A): pseudorange split into rough

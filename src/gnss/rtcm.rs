@@ -172,8 +172,6 @@ impl RtcmDecoder {
     }
 }
 
-const SC: f64 = std::f64::consts::PI;
-
 fn convert(t: u16, m: Message) -> Option<GnssMessage> {
     macro_rules! msm {
         ($v:ident, $sys:expr, $epoch:ident, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
@@ -244,36 +242,8 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         }
         Message::Msg1019(e) => Some(GnssMessage::GpsEph(RawGpsEph {
             week_mod1024: e.gps_week_number,
-            eph: GpsEphemeris {
-                prn: e.gps_satellite_id,
-                week: e.gps_week_number as u32,
-                iode: e.iode,
-                iodc: e.iodc,
-                toc_s: e.toc_s as f64,
-                af0_s: e.af0_s,
-                af1: e.af1_s_s as f64,
-                af2_per_s: e.af2_s_s2 as f64,
-                toe_s: e.toe_s as f64,
-                sqrt_a: e.sqrt_a_sqrt_m,
-                e: e.eccentricity,
-                m0_rad: e.m0_sc * SC,
-                delta_n_radps: e.delta_n_sc_s as f64 * SC,
-                omega0_rad: e.omega0_sc * SC,
-                omega_dot_radps: e.omegadot_sc_s * SC,
-                i0_rad: e.i0_sc * SC,
-                idot_radps: e.idot_sc_s * SC,
-                omega_rad: e.omega_sc * SC,
-                cuc_rad: e.cuc_rad as f64,
-                cus_rad: e.cus_rad as f64,
-                crc_m: e.crc_m as f64,
-                crs_m: e.crs_m as f64,
-                cic_rad: e.cic_rad as f64,
-                cis_rad: e.cis_rad as f64,
-                tgd_s: e.tgd_s as f64,
-                health: e.sv_health_ind,
-                ura_index: e.ura_index,
-                fit_interval_4h: e.fit_interval_ind != 0,
-            },
+            // The week stays modulo 1024 until the receiver resolves it.
+            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1019(&e, e.gps_week_number as u32),
         })),
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
