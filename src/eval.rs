@@ -92,6 +92,7 @@ pub struct FlightResult {
 }
 
 /// GNSS input of a run: the broadcast ephemerides and the world origin.
+#[derive(Clone)]
 struct GnssInput {
     ephs: crate::gnss::spp::EphStore,
     frame: cmsckf_sitl::geodesy::NedFrame,
@@ -99,6 +100,7 @@ struct GnssInput {
 }
 
 /// Drives one estimator through a dataset.
+#[derive(Clone)]
 pub struct Runner<'a> {
     ds: &'a Dataset,
     cam: Camera,

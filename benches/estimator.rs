@@ -1,0 +1,106 @@
+//! Criterion benchmarks of the real-time path. Workloads:
+//! - `propagate`: one 100 Hz IMU sample through the filter (15 + 2 active states, 11 clones, 3 keyframes);
+//! - `msckf_update/N`: one camera frame with N = 50, 100, 200 simulated features, 11 clones, compressed mode,
+//!   taken from a racetrack flight after 10 s (2–3 keyframes);
+//! - `feature_line_decode`: parsing one 200-feature JSON line of the feature socket;
+//! - `rtcm_decode`: framing, CRC and decoding of one real MSM7 epoch (station 3040).
+//!
+//! Run: `cargo bench --bench estimator`; results are in docs/performance.md.
+
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+
+use cmsckf::config::{Config, Mode};
+use cmsckf::estimator::ImuMeas;
+use cmsckf::eval::{sim_config_for, Runner};
+use cmsckf_sitl::dataset::Dataset;
+
+fn warmed(cfg: &Config, per_frame: usize, until_s: f64) -> (Dataset, usize) {
+    let mut sim = sim_config_for(cfg);
+    sim.features.per_frame = per_frame;
+    let ds = Dataset::generate("racetrack", 1, Some(until_s + 2.0), &sim).expect("dataset");
+    let k = ds.frames.iter().position(|f| f.t_s >= until_s).unwrap_or(0);
+    (ds, k)
+}
+
+fn bench_propagate(c: &mut Criterion) {
+    let cfg = Config::default();
+    let (ds, k) = warmed(&cfg, 100, 10.0);
+    let mut run = Runner::new(&ds, &cfg, Mode::Compressed, 1);
+    for i in 0..k {
+        run.step_frame(i);
+    }
+    let mut est = run.est;
+    let last = ds
+        .imu
+        .iter()
+        .rev()
+        .find(|m| m.t_s <= est.time_s() + 0.011)
+        .copied()
+        .expect("imu");
+    let mut t = est.time_s();
+    c.bench_function("propagate", |b| {
+        b.iter(|| {
+            t += 0.01;
+            let _ = est.add_imu(ImuMeas {
+                t_s: t,
+                accel_mps2: last.accel_mps2,
+                gyro_radps: last.gyro_radps,
+            });
+            est.propagate_to(t);
+        })
+    });
+}
+
+fn bench_msckf_update(c: &mut Criterion) {
+    let cfg = Config::default();
+    let mut g = c.benchmark_group("msckf_update");
+    g.sample_size(30);
+    for n in [50usize, 100, 200] {
+        let (ds, k) = warmed(&cfg, n, 10.0);
+        let mut run = Runner::new(&ds, &cfg, Mode::Compressed, 1);
+        for i in 0..k {
+            run.step_frame(i);
+        }
+        g.bench_function(format!("{n}"), |b| {
+            b.iter_batched(|| run.clone(), |mut r| r.step_frame(k), BatchSize::LargeInput)
+        });
+    }
+    g.finish();
+}
+
+fn bench_decode(c: &mut Criterion) {
+    let mut line = String::from("{\"v\":1,\"t_us\":123456789,\"cam\":0,\"features\":[");
+    for i in 0..200 {
+        if i > 0 {
+            line.push(',');
+        }
+        line += &format!(
+            "[{},{:.3},{:.3}]",
+            1000 + i,
+            10.0 + i as f64 * 3.1,
+            20.0 + i as f64 * 2.3
+        );
+    }
+    line += "]}";
+    c.bench_function("feature_line_decode", |b| {
+        b.iter(|| cmsckf::io::feature_pipe::parse_line(line.as_bytes(), 1000).expect("valid line"))
+    });
+
+    let bytes = std::fs::read(cmsckf_sitl::shared_data_dir().join("3040_msm7.rtcm3")).expect("3040 data");
+    // The first MSM7 frame.
+    let start = bytes.iter().position(|&b| b == 0xD3).expect("frame");
+    let len = (((bytes[start + 1] & 3) as usize) << 8 | bytes[start + 2] as usize) + 6;
+    let frame = bytes[start..start + len].to_vec();
+    c.bench_function("rtcm_decode", |b| {
+        let mut out = Vec::new();
+        b.iter(|| {
+            let mut d = cmsckf::gnss::rtcm::RtcmDecoder::new();
+            out.clear();
+            d.push(&frame, &mut out);
+            assert_eq!(out.len(), 1);
+        })
+    });
+}
+
+criterion_group!(benches, bench_propagate, bench_msckf_update, bench_decode);
+criterion_main!(benches);
