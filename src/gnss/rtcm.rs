@@ -108,6 +108,11 @@ impl RtcmDecoder {
         }
     }
 
+    /// Bytes held for an incomplete frame (never more than two frames' worth).
+    pub fn buffered(&self) -> usize {
+        self.buf.len()
+    }
+
     /// Feeds bytes; returns the messages completed by them.
     pub fn push(&mut self, bytes: &[u8], out: &mut Vec<GnssMessage>) {
         for chunk in bytes.chunks(MAX_FRAME) {

@@ -213,6 +213,34 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
     }
 }
 
+/// Decodes every MAVLink frame in `bytes` as the link would (the crate's
+/// framing, then [`decode`]): the input to the adapter's fuzz tests.
+pub fn decode_bytes(bytes: &[u8]) -> Vec<Result<Inbound, LinkError>> {
+    let mut r = mavlink::MavlinkReader::new(bytes);
+    let mut out = Vec::new();
+    // Bounded: a frame takes at least 8 bytes.
+    for _ in 0..bytes.len() / 8 + 1 {
+        match r.read_any_message::<apm::MavMessage>() {
+            Ok((_, m)) => out.push(decode(m)),
+            Err(mavlink::error::MessageReadError::Io(_)) => break,
+            Err(mavlink::error::MessageReadError::Parse(e)) => out.push(Err(LinkError::Parse(e.to_string()))),
+        }
+    }
+    out
+}
+
+/// Encodes an [`Outbound`] as a MAVLink 2 frame (for tests and fuzz seeds).
+pub fn encode_bytes(out: &Outbound, seq: u8) -> Vec<u8> {
+    let mut buf = Vec::new();
+    let h = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: seq,
+    };
+    let _ = mavlink::write_versioned_msg(&mut buf, mavlink::MavlinkVersion::V2, h, &encode(out, 1, 1));
+    buf
+}
+
 /// MAVLink message → [`Inbound`], with units converted here and only here.
 /// (`GPS_GLOBAL_ORIGIN` is deprecated but still what autopilots send.)
 #[allow(deprecated)]
