@@ -97,6 +97,8 @@ enum Pending {
 const FUSION_QUEUE: usize = 8192;
 /// Frames waiting for IMU to cover them.
 const PENDING_FRAMES: usize = 32;
+/// An IMU time this far behind the last one is an autopilot reboot (s).
+const REBOOT_JUMP_S: f64 = 2.0;
 
 /// Runs the daemon until `shutdown` completes.
 pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunSummary, DaemonError> {
@@ -682,6 +684,25 @@ impl Fusion {
                 self.enqueue(t, Pending::Frame(fr), &ctx.counters);
             }
             FusionMsg::Imu(m) => {
+                if m.t_s < self.last_imu_t - REBOOT_JUMP_S {
+                    // The autopilot's boot clock restarted (a reboot): start
+                    // over rather than reject its samples forever.
+                    ctx.counters.add("autopilot_clock_reset", 1);
+                    tracing::error!(
+                        from_s = self.last_imu_t,
+                        to_s = m.t_s,
+                        "autopilot clock jumped back: resetting the filter"
+                    );
+                    self.log_text(4, m.t_s, "autopilot clock jumped back (reboot): filter reset");
+                    self.est = None;
+                    self.reset_counter = self.reset_counter.wrapping_add(1);
+                    self.pending.clear();
+                    self.static_buf.clear();
+                    self.last_frame_t = f64::NEG_INFINITY;
+                    self.next_output_t = f64::NEG_INFINITY;
+                    self.next_state_log = f64::NEG_INFINITY;
+                    self.last_imu_t = f64::NEG_INFINITY;
+                }
                 if m.t_s <= self.last_imu_t {
                     ctx.counters.add("imu_time_backwards", 1);
                     return;

@@ -148,6 +148,18 @@ async fn bad_input_is_rejected_counted_and_survived() {
         after > 10,
         "the daemon stopped sending estimates after bad input ({after})"
     );
+    // 6. The autopilot reboots: its clock restarts from 3 s. The filter
+    //    resets (reset_counter moves on) and estimates resume.
+    let mut t2 = 3.0;
+    for _ in 0..150 {
+        p.imu(t2).await;
+        t2 += 0.01;
+        tokio::time::sleep(Duration::from_micros(300)).await;
+    }
+    assert!(
+        p.count_vpe().await > 10,
+        "no estimates after the autopilot's clock reset"
+    );
 
     let _ = stop_tx.send(());
     let summary = daemon.await.unwrap().unwrap();
@@ -161,5 +173,6 @@ async fn bad_input_is_rejected_counted_and_survived() {
     assert_eq!(c("feature_time_backwards"), 1);
     assert_eq!(c("feature_connections"), 2);
     assert!(c("imu_gap") >= 1);
-    assert_eq!(c("init_static"), 1);
+    assert_eq!(c("autopilot_clock_reset"), 1);
+    assert_eq!(c("init_static"), 2, "initialised again after the reboot");
 }
