@@ -210,7 +210,14 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                         gyro_radps,
                         kind,
                     } => {
-                        counters.add(&format!("imu_{kind}"), 1);
+                        counters.add(
+                            match kind {
+                                "highres" => "imu_highres",
+                                "scaled" => "imu_scaled",
+                                _ => "imu_raw",
+                            },
+                            1,
+                        );
                         Some(FusionMsg::Imu(ImuMeas {
                             t_s: t_us as f64 * 1e-6,
                             accel_mps2,
