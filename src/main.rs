@@ -128,6 +128,11 @@ enum Cmd {
         /// Print the SITL report as JSON.
         #[arg(long)]
         json: bool,
+        /// Inject a fault in the SITL: NAME@START+DURATION (s), repeatable.
+        /// Names: link_drop, gnss_outage, camera_outage, imu_gap, nan_imu,
+        /// frontend_restart, rtcm_bad_crc, pr_outlier.
+        #[arg(long = "fault")]
+        faults: Vec<cmsckf_sitl::serve::Fault>,
     },
 }
 
@@ -436,8 +441,9 @@ fn main() -> anyhow::Result<()> {
             config,
             log,
             json,
+            faults,
         } => {
-            init_tracing(if json { "warn" } else { "info" });
+            init_tracing(if json { "error" } else { "info" });
             check_duration(Some(duration_s))?;
             if !(speedup.is_finite() && speedup > 0.0 && speedup <= 1000.0) {
                 bail!("--speedup {speedup}: give a factor in (0, 1000]");
@@ -479,6 +485,7 @@ fn main() -> anyhow::Result<()> {
                     mavlink: format!("udpout:127.0.0.1:{port}"),
                     feature_socket: cfg.features.socket.clone().into(),
                     speedup,
+                    faults,
                 };
                 let report = cmsckf_sitl::serve::serve(&opts, &ds).await;
                 let _ = stop_tx.send(());
@@ -486,11 +493,14 @@ fn main() -> anyhow::Result<()> {
                 (report, summary)
             });
             let report = report?;
-            let summary = summary??;
+            let summary = summary?;
+            let mut out = serde_json::to_value(&report)?;
+            out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
+            let summary = summary?;
             if json {
-                println!("{}", serde_json::to_string(&report)?);
+                println!("{out}");
             } else {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                println!("{}", serde_json::to_string_pretty(&out)?);
                 eprintln!("daemon counters: {:?}", summary.counters);
                 if !cfg.log.path.is_empty() {
                     eprintln!("flight log: {}", cfg.log.path);

@@ -59,6 +59,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
                 mavlink: format!("udpout:127.0.0.1:{port}"),
                 feature_socket: cfg.features.socket.clone().into(),
                 speedup: 10.0,
+                faults: Vec::new(),
             },
             &ds,
         ))

@@ -44,6 +44,7 @@ fn sigkill_leaves_a_readable_log() {
         mavlink: format!("udpout:127.0.0.1:{port}"),
         feature_socket: cfg.features.socket.clone().into(),
         speedup,
+        faults: Vec::new(),
     };
     let start = Instant::now();
     let sitl = std::thread::spawn(move || {

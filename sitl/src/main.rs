@@ -66,6 +66,9 @@ enum Cmd {
         /// Fail if the p99 latency is above this (ms).
         #[arg(long)]
         max_latency_ms: Option<f64>,
+        /// Inject a fault: NAME@START+DURATION (s of flight), repeatable.
+        #[arg(long = "fault")]
+        faults: Vec<cmsckf_sitl::serve::Fault>,
     },
 }
 
@@ -122,6 +125,7 @@ fn main() -> anyhow::Result<()> {
             max_ate_m,
             min_rate_hz,
             max_latency_ms,
+            faults,
         } => {
             anyhow::ensure!(
                 duration_s.is_finite() && duration_s > 1.0,
@@ -138,6 +142,7 @@ fn main() -> anyhow::Result<()> {
                 mavlink,
                 feature_socket: features,
                 speedup,
+                faults,
             };
             let report = rt.block_on(cmsckf_sitl::serve::serve(&opts, &ds))?;
             if json {

@@ -57,6 +57,109 @@ pub fn rtcm_fragments(msg: &[u8], seq: u8) -> Vec<apm::GPS_RTCM_DATA_DATA> {
         .collect()
 }
 
+/// A fault the mock autopilot injects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultKind {
+    /// Nothing goes over MAVLink.
+    LinkDrop,
+    /// No RTCM.
+    GnssOutage,
+    /// No camera frames.
+    CameraOutage,
+    /// No IMU samples.
+    ImuGap,
+    /// IMU samples with NaN.
+    NanImu,
+    /// The front end disconnects and reconnects at the end.
+    FrontendRestart,
+    /// RTCM frames corrupted (bad CRC).
+    RtcmBadCrc,
+    /// 100 m added to two satellites' pseudoranges.
+    PrOutlier,
+}
+
+impl FaultKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            FaultKind::LinkDrop => "link_drop",
+            FaultKind::GnssOutage => "gnss_outage",
+            FaultKind::CameraOutage => "camera_outage",
+            FaultKind::ImuGap => "imu_gap",
+            FaultKind::NanImu => "nan_imu",
+            FaultKind::FrontendRestart => "frontend_restart",
+            FaultKind::RtcmBadCrc => "rtcm_bad_crc",
+            FaultKind::PrOutlier => "pr_outlier",
+        }
+    }
+}
+
+/// `NAME@START+DURATION` (seconds of flight).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fault {
+    pub kind: FaultKind,
+    pub start_s: f64,
+    pub duration_s: f64,
+}
+
+impl Fault {
+    fn active(&self, t: f64) -> bool {
+        t >= self.start_s && t < self.start_s + self.duration_s
+    }
+}
+
+impl std::str::FromStr for Fault {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let kinds = [
+            FaultKind::LinkDrop,
+            FaultKind::GnssOutage,
+            FaultKind::CameraOutage,
+            FaultKind::ImuGap,
+            FaultKind::NanImu,
+            FaultKind::FrontendRestart,
+            FaultKind::RtcmBadCrc,
+            FaultKind::PrOutlier,
+        ];
+        let (name, rest) = s
+            .split_once('@')
+            .ok_or_else(|| format!("fault '{s}': expected NAME@START+DURATION"))?;
+        let kind = kinds
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| format!("unknown fault '{name}': use {}", kinds.map(|k| k.name()).join(", ")))?;
+        let (a, b) = rest
+            .split_once('+')
+            .ok_or_else(|| format!("fault '{s}': expected NAME@START+DURATION"))?;
+        let start_s: f64 = a
+            .parse()
+            .map_err(|_| format!("fault '{s}': start '{a}' is not a number"))?;
+        let duration_s: f64 = b
+            .parse()
+            .map_err(|_| format!("fault '{s}': duration '{b}' is not a number"))?;
+        if !(start_s.is_finite() && start_s >= 0.0 && duration_s.is_finite() && duration_s > 0.0) {
+            return Err(format!("fault '{s}': start ≥ 0 and duration > 0 are needed"));
+        }
+        Ok(Fault {
+            kind,
+            start_s,
+            duration_s,
+        })
+    }
+}
+
+/// How the daemon came through one fault.
+#[derive(Clone, Debug, Serialize)]
+pub struct FaultReport {
+    pub name: String,
+    pub start_s: f64,
+    pub end_s: f64,
+    /// Seconds after the fault's end until the error is back within twice
+    /// its pre-fault median + 0.5 m (0 if it never left; NaN if it never came back).
+    pub recovery_s: f64,
+    pub peak_error_m: f64,
+    pub resets: u32,
+}
+
 /// Settings of one served flight.
 #[derive(Clone, Debug)]
 pub struct ServeOptions {
@@ -66,6 +169,8 @@ pub struct ServeOptions {
     pub feature_socket: PathBuf,
     /// Replay speed (1 = real time).
     pub speedup: f64,
+    /// Faults to inject.
+    pub faults: Vec<Fault>,
 }
 
 /// One estimate received from the daemon.
@@ -99,6 +204,7 @@ pub struct Report {
     pub speedup: f64,
     pub odometry_received: usize,
     pub gps_origin_set: bool,
+    pub faults: Vec<FaultReport>,
 }
 
 impl Report {
@@ -241,15 +347,37 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
         }
         let target = t_start + Duration::from_secs_f64(t.max(0.0) / opts.speedup);
         tokio::time::sleep_until(target.into()).await;
+        let active = |k: FaultKind| opts.faults.iter().any(|f| f.kind == k && f.active(t));
+        let link_down = active(FaultKind::LinkDrop);
         if t == t_gnss {
             // The receiver's MSM7 epoch, as it would relay it.
-            if let Ok(bytes) = crate::rtcm_out::encode_epoch(&ds.gnss[k_gnss], ROVER_STATION_ID) {
-                for f in rtcm_fragments(&bytes, rtcm_seq) {
-                    send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+            let mut ep = ds.gnss[k_gnss].clone();
+            if active(FaultKind::PrOutlier) {
+                for s in ep.sats.iter_mut().take(2) {
+                    s.pseudorange_m += 100.0;
                 }
-                rtcm_seq = rtcm_seq.wrapping_add(1);
+            }
+            if !link_down && !active(FaultKind::GnssOutage) {
+                if let Ok(mut bytes) = crate::rtcm_out::encode_epoch(&ep, ROVER_STATION_ID) {
+                    if active(FaultKind::RtcmBadCrc) && bytes.len() > 10 {
+                        bytes[8] ^= 0xFF;
+                    }
+                    for f in rtcm_fragments(&bytes, rtcm_seq) {
+                        send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+                    }
+                    rtcm_seq = rtcm_seq.wrapping_add(1);
+                }
             }
             k_gnss += 1;
+        } else if link_down && t != t_cam {
+            // Nothing from the autopilot gets through.
+            if t == t_imu {
+                k_imu += 1;
+            } else if t == next_1hz {
+                next_1hz += 1.0;
+            } else {
+                next_slow += 0.1;
+            }
         } else if t == next_1hz {
             next_1hz += 1.0;
             send(apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
@@ -315,9 +443,14 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             .await;
         } else if t == t_imu {
             let m = &ds.imu[k_imu];
+            if active(FaultKind::ImuGap) {
+                k_imu += 1;
+                continue;
+            }
+            let nan = active(FaultKind::NanImu);
             send(apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
                 time_usec: boot_us(m.t_s),
-                xacc: m.accel_mps2.x as f32,
+                xacc: if nan { f32::NAN } else { m.accel_mps2.x as f32 },
                 yacc: m.accel_mps2.y as f32,
                 zacc: m.accel_mps2.z as f32,
                 xgyro: m.gyro_radps.x as f32,
@@ -327,11 +460,21 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                 ..Default::default()
             }))
             .await;
-            sent_wall[k_imu] = Some(Instant::now());
+            if !nan {
+                sent_wall[k_imu] = Some(Instant::now());
+            }
             k_imu += 1;
         } else {
             let f = &ds.frames[k_cam];
             k_cam += 1;
+            if active(FaultKind::FrontendRestart) {
+                // The front end has crashed: no connection, no frames.
+                feat = None;
+                continue;
+            }
+            if active(FaultKind::CameraOutage) {
+                continue;
+            }
             let mut line = format!("{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[", boot_us(f.t_s));
             for (i, o) in f.features.iter().enumerate() {
                 if i > 0 {
@@ -358,6 +501,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let _ = rx.await;
     let rec = received.lock().map(|v| v.clone()).unwrap_or_default();
     let mut report = score(ds, &rec, &sent_wall, rate_imu, k_imu, frames_sent, opts.speedup);
+    report.faults = opts.faults.iter().map(|f| fault_report(ds, &rec, f)).collect();
     if let Ok(e) = extras.lock() {
         report.odometry_received = e.0;
         report.gps_origin_set = e.1 > 0;
@@ -432,5 +576,59 @@ fn score(
         speedup,
         odometry_received: 0,
         gps_origin_set: false,
+        faults: Vec::new(),
+    }
+}
+
+/// Error, peak and recovery around one fault (see [`FaultReport`]).
+fn fault_report(ds: &Dataset, rec: &[Received], f: &Fault) -> FaultReport {
+    let end = f.start_s + f.duration_s;
+    let err: Vec<(f64, f64, u8)> = rec
+        .iter()
+        .map(|r| {
+            let t = r.t_us as f64 * 1e-6 - BOOT0_S;
+            (t, (r.p - ds.trajectory.sample(t).p_B_in_W).norm(), r.reset_counter)
+        })
+        .collect();
+    let mut before: Vec<f64> = err
+        .iter()
+        .filter(|e| e.0 >= f.start_s - 5.0 && e.0 < f.start_s)
+        .map(|e| e.1)
+        .collect();
+    let baseline = percentile(&mut before, 0.5);
+    let threshold = 2.0 * if baseline.is_finite() { baseline } else { 0.0 } + 0.5;
+    let window: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= f.start_s && e.0 <= end + 5.0).collect();
+    let peak = window.iter().map(|e| e.1).fold(0.0, f64::max);
+    let mut resets = 0;
+    for w in window.windows(2) {
+        if w[0].2 != w[1].2 {
+            resets += 1;
+        }
+    }
+    // Recovered at the first time after the end from which every estimate
+    // for a second stays under the threshold.
+    let after: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= end).collect();
+    let exceeded = window.iter().any(|e| e.1 > threshold);
+    let recovery_s = if !exceeded {
+        0.0
+    } else {
+        after
+            .iter()
+            .enumerate()
+            .find(|(i, e)| {
+                after[*i..]
+                    .iter()
+                    .take_while(|x| x.0 <= e.0 + 1.0)
+                    .all(|x| x.1 <= threshold)
+            })
+            .map_or(f64::NAN, |(_, e)| (e.0 - end).max(0.0))
+    };
+    FaultReport {
+        name: f.kind.name().to_string(),
+        start_s: f.start_s,
+        end_s: end,
+        recovery_s,
+        peak_error_m: peak,
+        resets,
     }
 }
