@@ -618,11 +618,11 @@ impl Estimator {
 
     // ------------------------------------------------------------ frames
 
-    /// Processes one camera frame at `t_s` (§3–§5). The IMU samples up to
-    /// (and preferably just past) `t_s` must have been added.
-    pub fn process_frame(&mut self, t_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+    /// Brings the filter to a measurement at `t_s`, which must not be in
+    /// its past (else it is counted under `counter` and refused).
+    fn advance_to(&mut self, t_s: f64, counter: &'static str) -> Result<(), InputError> {
         if !t_s.is_finite() || t_s < self.t_s {
-            *self.stats.rejected.entry("frame_time_backwards").or_default() += 1;
+            *self.stats.rejected.entry(counter).or_default() += 1;
             return Err(InputError::FrameTimeBackwards {
                 t_s,
                 filter_s: self.t_s,
@@ -630,6 +630,13 @@ impl Estimator {
         }
         self.propagate_to(t_s);
         self.sync();
+        Ok(())
+    }
+
+    /// Processes one camera frame at `t_s` (§3–§5). The IMU samples up to
+    /// (and preferably just past) `t_s` must have been added.
+    pub fn process_frame(&mut self, t_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+        self.advance_to(t_s, "frame_time_backwards")?;
         self.stats.frames += 1;
         let mut report = FrameReport::default();
 
@@ -1044,6 +1051,27 @@ impl Estimator {
         Some((p_lg, p_gg, dx_g))
     }
 
+    /// Applies the accumulated correction to the global keyframes (G3) and
+    /// returns the full covariance `[L | G]` (G1, G2) with the global ids in
+    /// its order; the compressed part itself is left as it was.
+    fn merge_global(&mut self) -> Option<(DMatrix<f64>, Vec<u64>)> {
+        let (p_lg, p_gg, dx_g) = self.reconstruct()?;
+        let ids = self.global.as_ref()?.ids.clone();
+        for (j, id) in ids.iter().enumerate() {
+            if let Some(kf) = self.keyframes.get_mut(id) {
+                kf.delta += dx_g.fixed_rows::<3>(6 * j);
+                kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
+            }
+        }
+        let (nl, ng) = (self.P.nrows(), p_gg.nrows());
+        let mut full = DMatrix::zeros(nl + ng, nl + ng);
+        full.view_mut((0, 0), (nl, nl)).copy_from(&self.P);
+        full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
+        full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
+        full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
+        Some((full, ids))
+    }
+
     /// Global update, then re-partition around the current centre (§5):
     /// keyframes within `local_radius_m` of the centre, and those in
     /// `force_local`, become local.
@@ -1052,22 +1080,11 @@ impl Estimator {
         self.sync();
         self.stats.global_updates += 1;
         let nl = self.P.nrows();
-        let (full_p, order) = match self.reconstruct() {
-            Some((p_lg, p_gg, dx_g)) => {
-                let g = self.global.take().expect("reconstruct implies global");
-                for (j, id) in g.ids.iter().enumerate() {
-                    let kf = self.keyframes.get_mut(id).expect("global keyframe exists");
-                    kf.delta += dx_g.fixed_rows::<3>(6 * j);
-                    kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
-                }
-                let ng = p_gg.nrows();
-                let mut full = DMatrix::zeros(nl + ng, nl + ng);
-                full.view_mut((0, 0), (nl, nl)).copy_from(&self.P);
-                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
-                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
-                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
+        let (full_p, order) = match self.merge_global() {
+            Some((full, ids)) => {
+                self.global = None;
                 let mut order = self.local_kfs.clone();
-                order.extend(g.ids.iter().copied());
+                order.extend(ids);
                 (full, order)
             }
             None => (self.P.clone(), self.local_kfs.clone()),
@@ -1146,42 +1163,18 @@ impl Estimator {
     pub fn snapshot(&self) -> Snapshot {
         let mut est = self.clone();
         est.sync();
-        let (full_p, kf_pos): (DMatrix<f64>, BTreeMap<u64, usize>) = match est.reconstruct() {
-            Some((p_lg, p_gg, dx_g)) => {
-                let g = est.global.as_ref().expect("global");
-                for (j, id) in g.ids.clone().iter().enumerate() {
-                    let kf = est.keyframes.get_mut(id).expect("kf");
-                    kf.delta += dx_g.fixed_rows::<3>(6 * j);
-                    kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
-                }
-                let nl = est.P.nrows();
-                let ng = p_gg.nrows();
-                let mut full = DMatrix::zeros(nl + ng, nl + ng);
-                full.view_mut((0, 0), (nl, nl)).copy_from(&est.P);
-                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
-                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
-                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
-                let mut pos: BTreeMap<u64, usize> = est
-                    .local_kfs
-                    .iter()
-                    .enumerate()
-                    .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
-                    .collect();
-                for (j, id) in g.ids.iter().enumerate() {
-                    pos.insert(*id, nl + 6 * j);
-                }
-                (full, pos)
-            }
-            None => {
-                let pos = est
-                    .local_kfs
-                    .iter()
-                    .enumerate()
-                    .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
-                    .collect();
-                (est.P.clone(), pos)
-            }
-        };
+        let merged = est.merge_global();
+        let (full_p, global_ids) = merged.unwrap_or_else(|| (est.P.clone(), Vec::new()));
+        let nl = est.P.nrows();
+        let mut kf_pos: BTreeMap<u64, usize> = est
+            .local_kfs
+            .iter()
+            .enumerate()
+            .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
+            .collect();
+        for (j, id) in global_ids.iter().enumerate() {
+            kf_pos.insert(*id, nl + 6 * j);
+        }
         let mut idx: Vec<usize> = (0..ACTIVE_DIM).collect();
         let co = est.clones_offset();
         idx.extend(co..co + 6 * est.clones.len());
@@ -1268,15 +1261,7 @@ impl Estimator {
         frame: &cmsckf_sitl::geodesy::NedFrame,
         sats: &[gnss_update::SatMeas],
     ) -> Result<GnssReport, InputError> {
-        if !t_s.is_finite() || t_s < self.t_s {
-            *self.stats.rejected.entry("gnss_time_backwards").or_default() += 1;
-            return Err(InputError::FrameTimeBackwards {
-                t_s,
-                filter_s: self.t_s,
-            });
-        }
-        self.propagate_to(t_s);
-        self.sync();
+        self.advance_to(t_s, "gnss_time_backwards")?;
         let mut rep = GnssReport::default();
         let mask = self.s.elevation_mask_deg.to_radians();
         let p = self.imu.p_B_in_W;
