@@ -2,53 +2,25 @@
 //! Unix socket: output rate, accuracy against offline evaluation, a stable
 //! reset counter, a sane covariance, and a graceful SIGTERM.
 
-use std::process::{Command, Stdio};
-use std::time::Duration;
+mod common;
 
-use cmsckf::config::Config;
+use std::process::Command;
+
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::serve::{serve, ServeOptions};
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 #[test]
 fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     let dir = tempfile::tempdir().unwrap();
-    let port = free_udp_port();
-    let mut cfg = Config::default();
-    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
-    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    let (mut cfg, port) = common::loopback_config(dir.path());
     cfg.output.odometry = true;
     let log_path = dir.path().join("flight.mcap");
     cfg.log.path = log_path.display().to_string();
     // The simulated sky has no ionosphere.
     cfg.gnss.iono = cmsckf::config::IonoMode::Off;
     cfg.output.set_gps_origin = true;
-    let cfg_path = dir.path().join("cmsckf.toml");
-    std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();
-
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Wait for the socket to appear.
-    for _ in 0..100 {
-        if std::path::Path::new(&cfg.features.socket).exists() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let mut daemon = common::spawn_daemon_binary(&cfg, dir.path());
     let seed = 4;
     let duration = 40.0;
     let ds = Dataset::generate("racetrack", seed, Some(duration), &eval::sim_config_for(&cfg)).unwrap();

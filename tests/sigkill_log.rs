@@ -1,10 +1,10 @@
 //! A SIGKILL mid-flight leaves an MCAP log that `review` reads up to about a
 //! second before the kill: chunks are closed every second of sensor time.
 
-use std::process::{Command, Stdio};
+mod common;
+
 use std::time::{Duration, Instant};
 
-use cmsckf::config::Config;
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::serve::{serve, ServeOptions, BOOT0_S};
@@ -12,32 +12,10 @@ use cmsckf_sitl::serve::{serve, ServeOptions, BOOT0_S};
 #[test]
 fn sigkill_leaves_a_readable_log() {
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let mut cfg = Config::default();
-    cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
-    cfg.features.socket = dir.path().join("f.sock").display().to_string();
+    let (mut cfg, port) = common::loopback_config(dir.path());
     let log = dir.path().join("killed.mcap");
     cfg.log.path = log.display().to_string();
-    let cfg_path = dir.path().join("c.toml");
-    std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
-        .env("RUST_LOG", "error")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    for _ in 0..100 {
-        if std::path::Path::new(&cfg.features.socket).exists() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let mut daemon = common::spawn_daemon_binary(&cfg, dir.path());
     let ds = Dataset::generate("racetrack", 2, Some(30.0), &eval::sim_config_for(&cfg)).unwrap();
     let speedup = 10.0;
     let opts = ServeOptions {

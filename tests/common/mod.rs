@@ -31,3 +31,25 @@ pub fn spawn_daemon(
     }));
     (stop_tx, h)
 }
+
+/// Writes `cfg` to `dir` and starts the `cmsckf run` binary on it, waiting
+/// until its feature socket exists.
+pub fn spawn_daemon_binary(cfg: &Config, dir: &std::path::Path) -> std::process::Child {
+    let cfg_path = dir.join("cmsckf.toml");
+    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["run", "--config"])
+        .arg(&cfg_path)
+        .env("RUST_LOG", "error")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    for _ in 0..100 {
+        if std::path::Path::new(&cfg.features.socket).exists() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child
+}
