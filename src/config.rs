@@ -306,6 +306,8 @@ pub struct GnssConfig {
     pub clock_bias_rw_m_per_sqrt_s: f64,
     /// Receiver clock drift random walk (m/s/√s).
     pub clock_drift_rw_mps_per_sqrt_s: f64,
+    /// Random walk of the Galileo − GPS inter-system bias (m/√s).
+    pub isb_rw_m_per_sqrt_s: f64,
     /// Geodetic origin of the NED world frame `[lat_deg, lon_deg, h_m]`;
     /// empty = the first single-point fix.
     pub origin_llh: Vec<f64>,
@@ -329,6 +331,7 @@ impl Default for GnssConfig {
             range_rate_sigma_mps: 0.05,
             clock_bias_rw_m_per_sqrt_s: 0.02,
             clock_drift_rw_mps_per_sqrt_s: 0.01,
+            isb_rw_m_per_sqrt_s: 0.001,
             origin_llh: Vec::new(),
             klobuchar_alpha: Vec::new(),
             klobuchar_beta: Vec::new(),
@@ -516,6 +519,7 @@ impl Config {
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
+        c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;
         for (name, v) in [
             ("klobuchar_alpha", &g.klobuchar_alpha),
             ("klobuchar_beta", &g.klobuchar_beta),

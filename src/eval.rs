@@ -87,8 +87,9 @@ pub struct FlightResult {
     /// Largest relative difference from `full` at any global update
     /// (compressed runs in lockstep with full only).
     pub max_rel_diff_vs_full: Option<f64>,
-    /// Estimated minus true clock bias at each GNSS epoch (m).
-    pub clock_errors: Vec<(f64, f64)>,
+    /// `(t, estimated − true clock bias, estimated − true Galileo ISB)` at
+    /// each GNSS epoch (m).
+    pub clock_errors: Vec<(f64, f64, f64)>,
 }
 
 /// GNSS input of a run: the broadcast ephemerides and the world origin.
@@ -109,8 +110,9 @@ pub struct Runner<'a> {
     imu_next: usize,
     buf: Vec<NormObs>,
     gnss: Option<GnssInput>,
-    /// `(t, estimated − true clock bias)` at each GNSS epoch (m).
-    pub clock_errors: Vec<(f64, f64)>,
+    /// `(t, estimated − true clock bias, estimated − true Galileo ISB)` at
+    /// each GNSS epoch (m).
+    pub clock_errors: Vec<(f64, f64, f64)>,
 }
 
 impl<'a> Runner<'a> {
@@ -189,20 +191,26 @@ impl<'a> Runner<'a> {
                     rx_ecef_m: None,
                 },
                 ep.sats.iter().map(|s| crate::gnss::RawSat {
+                    system: s.system,
                     prn: s.prn,
                     l1_pseudorange_m: Some(s.pseudorange_m),
-                    l2_pseudorange_m: None,
+                    l2_pseudorange: None,
                     l1_range_rate_mps: Some(s.pseudorange_rate_mps),
                 }),
             );
             let frame = g.frame;
             // Feed the IMU up to the epoch first.
             let t = ep.t_s;
-            let clock_truth = ep.clock_bias_m;
+            let (clock_truth, isb_truth) = (ep.clock_bias_m, ep.isb_galileo_m);
             self.feed_imu(t);
             if self.est.process_gnss(t, &frame, &sats).is_ok() {
                 let (c, _) = self.est.clock();
-                self.clock_errors.push((t, c.x - clock_truth));
+                let isb_err = if self.est.isb_initialised() {
+                    c.z - isb_truth
+                } else {
+                    f64::NAN
+                };
+                self.clock_errors.push((t, c.x - clock_truth, isb_err));
             }
         }
         self.gnss = Some(g);
@@ -331,6 +339,9 @@ pub struct ModeSummary {
     /// RMS of the clock-bias error at the GNSS epochs after the first 5 s (m).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub clock_bias_rmse_m: Option<f64>,
+    /// RMS of the Galileo inter-system-bias error, likewise (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub isb_galileo_rmse_m: Option<f64>,
 }
 
 /// Scores of one flight.
@@ -406,6 +417,18 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
             let e: Vec<f64> = runs
                 .iter()
                 .flat_map(|r| r.clock_errors.iter().filter(|c| c.0 > 5.0).map(|c| c.1))
+                .collect();
+            (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
+        },
+        isb_galileo_rmse_m: {
+            let e: Vec<f64> = runs
+                .iter()
+                .flat_map(|r| {
+                    r.clock_errors
+                        .iter()
+                        .filter(|c| c.0 > 5.0 && c.2.is_finite())
+                        .map(|c| c.2)
+                })
                 .collect();
             (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
         },
@@ -510,6 +533,16 @@ impl Evaluation {
                     r.frame_us_p99,
                     r.max_rel_diff_vs_full.map_or("-".to_string(), |d| format!("{d:.1e}"))
                 );
+            }
+        }
+        for m in Mode::ALL {
+            if let Some(r) = self.modes.get(m.name()) {
+                if let (Some(b), Some(e)) = (r.clock_bias_rmse_m, r.isb_galileo_rmse_m) {
+                    s += &format!(
+                        "{:<11} clock-bias RMSE {b:.3} m · Galileo ISB RMSE {e:.3} m\n",
+                        m.name()
+                    );
+                }
             }
         }
         s

@@ -57,8 +57,8 @@ enum Cmd {
         iono: String,
         #[arg(long, default_value_t = 10.0)]
         elevation_mask_deg: f64,
-        /// Constellations, e.g. G or G,E.
-        #[arg(long, default_value = "G")]
+        /// Constellations: G (GPS), E (Galileo), or G,E.
+        #[arg(long, default_value = "G,E")]
         systems: String,
         /// Full GPS week near the data (resolves MT1019's 10-bit week);
         /// default: today's week.
@@ -248,8 +248,8 @@ fn gnss_file(
         } else {
             let raim = match &s.raim {
                 spp::Raim::Passed => "raim ok".to_string(),
-                spp::Raim::NotPossible => "raim not possible (4 satellites)".to_string(),
-                spp::Raim::Excluded(p) => format!("raim excluded G{p:02}"),
+                spp::Raim::NotPossible => "raim not possible (no redundant satellite)".to_string(),
+                spp::Raim::Excluded(sys, p) => format!("raim excluded {}{p:02}", sys.letter()),
             };
             writeln!(
                 out,
@@ -266,7 +266,7 @@ fn gnss_file(
     let report = format!(
         "frames by type:{counts}
 CRC failures: {}  undecodable: {}  bytes skipped: {}  truncated tail bytes: {}
-epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}",
+epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}  MSMs of unselected systems: {:?}",
         dec.stats.crc_failures,
         dec.stats.undecodable,
         dec.stats.bytes_skipped,
@@ -274,7 +274,8 @@ epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}",
         rx.stats.epochs,
         rx.stats.solved,
         rx.stats.skipped,
-        rx.stats.ephemerides
+        rx.stats.ephemerides,
+        rx.stats.skipped_system
     );
     if csv {
         eprintln!("{report}");

@@ -1,5 +1,6 @@
 //! The tight GNSS update on the simulated racetrack: the position becomes
-//! absolute (unaligned ATE ≤ 1 m), the clock bias tracks the truth, the
+//! absolute (unaligned ATE ≤ 1 m), the clock bias and the Galileo
+//! inter-system bias track the truth, the
 //! filter stays consistent, and compressed still equals full.
 
 use cmsckf::config::{Config, Mode};
@@ -32,6 +33,9 @@ fn gnss_makes_the_position_absolute_and_stays_consistent() {
         assert!(r.ate_unaligned_m <= 1.0, "{m}: unaligned ATE {} m", r.ate_unaligned_m);
         let clock = r.clock_bias_rmse_m.expect("clock errors recorded");
         assert!(clock <= 1.5, "{m}: clock bias RMSE {clock} m");
+        // The simulated receiver tracks Galileo too, 6 m apart from GPS.
+        let isb = r.isb_galileo_rmse_m.expect("ISB errors recorded");
+        assert!(isb <= 1.0, "{m}: Galileo ISB RMSE {isb} m");
         assert!(r.nees_mean <= hi && r.nees_mean >= 2.0, "{m}: NEES {}", r.nees_mean);
     }
     let d = ev.modes["compressed"].max_rel_diff_vs_full.unwrap();

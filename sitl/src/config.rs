@@ -309,6 +309,10 @@ pub struct GnssSimConfig {
     /// Whether an ionospheric delay is added (Klobuchar-like, 5 m at zenith
     /// by day).
     pub ionosphere: bool,
+    /// Whether Galileo (E1) is tracked beside GPS.
+    pub galileo: bool,
+    /// The receiver's Galileo − GPS inter-system bias (m).
+    pub isb_galileo_m: f64,
 }
 
 impl Default for GnssSimConfig {
@@ -330,6 +334,8 @@ impl Default for GnssSimConfig {
             multipath_prob: 0.005,
             multipath_m: 30.0,
             ionosphere: false,
+            galileo: true,
+            isb_galileo_m: 6.0,
         }
     }
 }
@@ -367,7 +373,8 @@ impl Validate for GnssSimConfig {
         c.range("clock_bias0_m", self.clock_bias0_m, -3e5, 3e5)?;
         c.range("clock_drift0_mps", self.clock_drift0_mps, -1e3, 1e3)?;
         c.range("multipath_prob", self.multipath_prob, 0.0, 1.0)?;
-        c.range("multipath_m", self.multipath_m, 0.0, 1e4)
+        c.range("multipath_m", self.multipath_m, 0.0, 1e4)?;
+        c.range("isb_galileo_m", self.isb_galileo_m, -1e3, 1e3)
     }
 }
 

@@ -15,7 +15,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::camera::Camera;
 use crate::config::SimConfig;
 use crate::features::{CameraFrame, FeatureSim, TrackStats};
-use crate::gnss::{GnssEpoch, GnssModel, GpsEphemeris};
+use crate::gnss::{BroadcastEphemeris, GnssEpoch, GnssModel};
 use crate::imu::{gauss3, ImuBias, ImuModel, ImuSample};
 use crate::trajectory::{Trajectory, TrajectoryError, TruthSample};
 
@@ -37,7 +37,7 @@ pub struct Dataset {
     pub imu: Vec<ImuSample>,
     pub frames: Vec<CameraFrame>,
     pub gnss: Vec<GnssEpoch>,
-    pub ephemerides: Vec<GpsEphemeris>,
+    pub ephemerides: Vec<BroadcastEphemeris>,
     pub track_stats: TrackStats,
     /// The ground truth itself, for sampling at any time.
     pub trajectory: Trajectory,

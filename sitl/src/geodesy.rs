@@ -10,6 +10,8 @@ pub const WGS84_F: f64 = 1.0 / 298.257_223_563;
 pub const OMEGA_E_RADPS: f64 = 7.292_115_146_7e-5;
 /// Earth's gravitational constant used by GPS (m³/s², IS-GPS-200).
 pub const MU_GPS_M3PS2: f64 = 3.986_005e14;
+/// Earth's gravitational constant used by Galileo (m³/s², OS SIS ICD 5.1.1).
+pub const MU_GAL_M3PS2: f64 = 3.986_004_418e14;
 /// Speed of light (m/s).
 pub const C_MPS: f64 = 299_792_458.0;
 

@@ -1,17 +1,20 @@
-//! GPS constellation and receiver model.
+//! GPS and Galileo constellations and the receiver model.
 //!
-//! The constellation is 31 satellites in six planes (55° inclination,
-//! semi-major axis 26 559.7 km) described by broadcast-ephemeris parameters,
-//! the fields an RTCM 1019 message carries. The satellites' true orbits are
-//! exactly those ephemerides (no ephemeris error is simulated), computed per
-//! IS-GPS-200 Table 20-IV.
+//! GPS is 31 satellites in six planes (55° inclination, semi-major axis
+//! 26 559.7 km); Galileo is a Walker 24/3/1 (56°, 29 600 km). Both are
+//! described by broadcast-ephemeris parameters, the fields RTCM 1019 and 1046
+//! carry. The satellites' true orbits are exactly those ephemerides (no
+//! ephemeris error is simulated), computed per IS-GPS-200 Table 20-IV, which
+//! the Galileo OS SIS ICD §5.1.1 repeats with Galileo's own GM.
 //!
 //! Pseudorange at reception time `t_rx` (GPS time):
 //! `P = |Rz(ωe τ) r_sat(t_rx − τ) − r_rx| + c·δt_rx − c·δt_sv(t_tx) + T + I + ε (+ multipath)`
 //! where τ is the signal flight time, `Rz(ωe τ)` is the Sagnac (earth
 //! rotation) correction, `δt_sv` includes the relativistic term and `−TGD`
 //! (L1 C/A), `T` is the Saastamoinen troposphere and `I` an optional
-//! ionospheric delay. Pseudorange rate:
+//! ionospheric delay. Galileo pseudoranges also carry the receiver's
+//! inter-system bias (GPS–Galileo time offset plus receiver hardware
+//! delays), a constant of the flight. Pseudorange rate:
 //! `Ṗ = (v_sat − v_rx)·u + c·δṫ_rx − c·δṫ_sv + ε̇` with `u` the unit vector
 //! from receiver to satellite.
 
@@ -20,7 +23,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 
 use crate::config::GnssSimConfig;
-use crate::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, MU_GPS_M3PS2, OMEGA_E_RADPS};
+use crate::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, MU_GAL_M3PS2, MU_GPS_M3PS2, OMEGA_E_RADPS};
 use crate::trajectory::TruthSample;
 
 /// Seconds in a GPS week.
@@ -28,14 +31,45 @@ pub const WEEK_S: f64 = 604_800.0;
 /// Relativistic clock constant F (s/√m), IS-GPS-200 20.3.3.3.3.1.
 pub const REL_F: f64 = -4.442_807_633e-10;
 
-/// GPS broadcast ephemeris and clock (the RTCM 1019 content), in SI units
-/// and radians (RTCM's semicircles are converted at the wire boundary).
+/// Constellations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub enum System {
+    #[default]
+    Gps,
+    Galileo,
+}
+
+impl System {
+    /// The RINEX letter.
+    pub fn letter(self) -> char {
+        match self {
+            System::Gps => 'G',
+            System::Galileo => 'E',
+        }
+    }
+
+    /// The gravitational constant the constellation's ephemerides use (m³/s²).
+    pub fn gm_m3ps2(self) -> f64 {
+        match self {
+            System::Gps => MU_GPS_M3PS2,
+            System::Galileo => MU_GAL_M3PS2,
+        }
+    }
+}
+
+/// A Keplerian broadcast ephemeris and clock: GPS LNAV (RTCM 1019) or
+/// Galileo I/NAV and F/NAV (RTCM 1046, 1045), in SI units and radians
+/// (RTCM's semicircles are converted at the wire boundary). Galileo's weeks
+/// and times of week are stored on the GPS scale (GST week + 1024; GST and
+/// GPS time share the second of week).
 #[derive(Clone, Debug, PartialEq)]
-pub struct GpsEphemeris {
+pub struct BroadcastEphemeris {
+    pub system: System,
     pub prn: u8,
     /// Full GPS week of `toe`.
     pub week: u32,
-    pub iode: u8,
+    /// IODE (GPS) or IODnav (Galileo, 10 bits).
+    pub iode: u16,
     pub iodc: u16,
     pub toc_s: f64,
     pub af0_s: f64,
@@ -57,8 +91,12 @@ pub struct GpsEphemeris {
     pub crs_m: f64,
     pub cic_rad: f64,
     pub cis_rad: f64,
+    /// Group delay for the single-frequency user: GPS TGD (L1 C/A), Galileo
+    /// BGD(E1, E5b) for I/NAV or BGD(E1, E5a) for F/NAV (s).
     pub tgd_s: f64,
+    /// 0 = healthy (GPS SV health; Galileo signal health and data validity).
     pub health: u8,
+    /// GPS URA index, or Galileo SISA index.
     pub ura_index: u8,
     pub fit_interval_4h: bool,
 }
@@ -88,12 +126,33 @@ pub fn tk(t_tow_s: f64, t_ref_s: f64) -> f64 {
     d
 }
 
-impl GpsEphemeris {
+/// GPS URA index → metres (IS-GPS-200 20.3.3.3.1.3).
+const URA_M: [f64; 15] = [
+    2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0,
+];
+
+impl BroadcastEphemeris {
+    /// The broadcast signal-in-space accuracy (m): GPS URA, or Galileo SISA
+    /// (OS SIS ICD 5.1.11: 0–49 in 1 cm steps, 50–74 from 0.5 m in 2 cm,
+    /// 75–99 from 1 m in 4 cm, 100–125 from 2 m in 16 cm; else "no accuracy
+    /// prediction", taken as 6144 m like GPS's worst URA).
+    pub fn accuracy_m(&self) -> f64 {
+        let i = self.ura_index as f64;
+        match (self.system, self.ura_index) {
+            (System::Gps, k) => URA_M.get(k as usize).copied().unwrap_or(6144.0),
+            (System::Galileo, 0..=49) => i * 0.01,
+            (System::Galileo, 50..=74) => 0.5 + (i - 50.0) * 0.02,
+            (System::Galileo, 75..=99) => 1.0 + (i - 75.0) * 0.04,
+            (System::Galileo, 100..=125) => 2.0 + (i - 100.0) * 0.16,
+            (System::Galileo, _) => 6144.0,
+        }
+    }
+
     /// Position and eccentric anomaly at GPS time of week `t` (IS-GPS-200
-    /// Table 20-IV).
+    /// Table 20-IV; Galileo OS SIS ICD Table 58, the same with its own GM).
     fn position(&self, t_tow_s: f64) -> (Vector3<f64>, f64) {
         let a = self.sqrt_a * self.sqrt_a;
-        let n = (MU_GPS_M3PS2 / (a * a * a)).sqrt() + self.delta_n_radps;
+        let n = (self.system.gm_m3ps2() / (a * a * a)).sqrt() + self.delta_n_radps;
         let dt = tk(t_tow_s, self.toe_s);
         let m = self.m0_rad + n * dt;
         let mut e_anom = m;
@@ -121,7 +180,9 @@ impl GpsEphemeris {
         )
     }
 
-    /// Clock offset (L1 C/A) at `t`: `af0 + af1·Δt + af2·Δt² + F e √A sin E − TGD`.
+    /// Clock offset for the single-frequency code (GPS L1 C/A, Galileo E1)
+    /// at `t`: `af0 + af1·Δt + af2·Δt² + F e √A sin E − TGD` (IS-GPS-200
+    /// 20.3.3.3.3.1-2; Galileo OS SIS ICD 5.1.4-5 with BGD for TGD).
     fn clock(&self, t_tow_s: f64, e_anom: f64) -> f64 {
         let d = tk(t_tow_s, self.toc_s);
         self.af0_s + self.af1 * d + self.af2_per_s * d * d + REL_F * self.e * self.sqrt_a * e_anom.sin() - self.tgd_s
@@ -161,7 +222,7 @@ pub fn saastamoinen_m(lat_rad: f64, h_m: f64, el_rad: f64) -> f64 {
 }
 
 /// Generates the 31-satellite constellation valid around `tow_s` of `week`.
-pub fn constellation<R: Rng>(week: u32, tow_s: f64, rng: &mut R) -> Vec<GpsEphemeris> {
+pub fn constellation<R: Rng>(week: u32, tow_s: f64, rng: &mut R) -> Vec<BroadcastEphemeris> {
     // toe on the 2-hour grid, as the control segment uploads.
     let toe = (tow_s / 7200.0).round() * 7200.0;
     let toe = toe.min(WEEK_S - 7200.0);
@@ -175,10 +236,11 @@ pub fn constellation<R: Rng>(week: u32, tow_s: f64, rng: &mut R) -> Vec<GpsEphem
             let normal = |rng: &mut R| -> f64 { rng.sample(StandardNormal) };
             let e = rng.random_range(0.002..0.02);
             let omega = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
-            out.push(GpsEphemeris {
+            out.push(BroadcastEphemeris {
+                system: System::Gps,
                 prn,
                 week,
-                iode: (prn as u16 * 7 % 256) as u8,
+                iode: prn as u16 * 7 % 256,
                 iodc: prn as u16 * 7 % 256,
                 toc_s: toe,
                 af0_s: normal(rng) * 2e-4,
@@ -211,6 +273,58 @@ pub fn constellation<R: Rng>(week: u32, tow_s: f64, rng: &mut R) -> Vec<GpsEphem
     out
 }
 
+/// The 24-satellite Galileo constellation (Walker 24/3/1: three planes at
+/// 56°, eight slots each, a = 29 600 km) valid around `tow_s` of GPS week
+/// `week`. It is deterministic: no random draws, so adding Galileo leaves
+/// every GPS draw of a seed unchanged.
+pub fn galileo_constellation(week: u32, tow_s: f64) -> Vec<BroadcastEphemeris> {
+    // Galileo uploads on a 10-minute grid; RTCM carries toe in 60 s units.
+    let toe = ((tow_s / 600.0).round() * 600.0).min(WEEK_S - 600.0);
+    let mut out = Vec::with_capacity(24);
+    for plane in 0..3u8 {
+        for slot in 0..8u8 {
+            let k = plane * 8 + slot;
+            // A fixed pseudo-random spread per satellite, in [−1, 1].
+            let wob = |j: u8| ((k as f64 * 12.9898 + j as f64 * 78.233).sin() * 43_758.545).fract();
+            let u_deg = slot as f64 * 45.0 + plane as f64 * 15.0;
+            let omega = wob(1) * std::f64::consts::PI;
+            out.push(BroadcastEphemeris {
+                system: System::Galileo,
+                prn: k + 1,
+                week,
+                iode: (k as u16 * 11 + 3) % 1024,
+                iodc: 0,
+                toc_s: toe,
+                af0_s: wob(2) * 3e-4,
+                af1: wob(3) * 5e-12,
+                af2_per_s: 0.0,
+                toe_s: toe,
+                sqrt_a: 5440.6 + wob(4) * 0.2,
+                e: 2e-4 + 3e-4 * wob(5).abs(),
+                m0_rad: wrap_pi(u_deg.to_radians() - omega),
+                delta_n_radps: 3.0e-9 + wob(6) * 3e-10,
+                omega0_rad: wrap_pi((plane as f64 * 120.0 + 40.0).to_radians()),
+                omega_dot_radps: -5.5e-9 + wob(7) * 1e-10,
+                i0_rad: (56.0 + wob(8) * 0.3f64).to_radians(),
+                idot_radps: wob(9) * 2e-10,
+                omega_rad: omega,
+                cuc_rad: wob(10) * 2e-6,
+                cus_rad: wob(11) * 2e-6,
+                crc_m: 150.0 + wob(12) * 40.0,
+                crs_m: wob(13) * 40.0,
+                cic_rad: wob(14) * 1e-7,
+                cis_rad: wob(15) * 1e-7,
+                tgd_s: wob(16) * 3e-9,
+                health: 0,
+                // SISA index 107: 3.12 m.
+                ura_index: 107,
+                fit_interval_4h: false,
+            });
+        }
+    }
+    out
+}
+
 fn wrap_pi(a: f64) -> f64 {
     let t = std::f64::consts::TAU;
     (a + std::f64::consts::PI).rem_euclid(t) - std::f64::consts::PI
@@ -219,8 +333,9 @@ fn wrap_pi(a: f64) -> f64 {
 /// One satellite's observation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SatObs {
+    pub system: System,
     pub prn: u8,
-    /// L1 C/A pseudorange (m).
+    /// L1 C/A (GPS) or E1 (Galileo) pseudorange (m).
     pub pseudorange_m: f64,
     /// Pseudorange rate (m/s); positive when the range grows.
     pub pseudorange_rate_mps: f64,
@@ -243,6 +358,8 @@ pub struct GnssEpoch {
     /// epoch's `tow_s` is the receiver's tag, GPS time + δt.
     pub clock_bias_m: f64,
     pub clock_drift_mps: f64,
+    /// True Galileo − GPS inter-system bias (m).
+    pub isb_galileo_m: f64,
 }
 
 /// Per-satellite breakdown of a simulated pseudorange (for tests).
@@ -258,10 +375,13 @@ pub struct RangeTerms {
 pub struct GnssModel {
     pub cfg: GnssSimConfig,
     pub frame: NedFrame,
-    pub ephemerides: Vec<GpsEphemeris>,
+    pub ephemerides: Vec<BroadcastEphemeris>,
     clock_bias_m: f64,
     clock_drift_mps: f64,
     last_t_s: Option<f64>,
+    /// Noise for Galileo's measurements, its own stream so that GPS's draws
+    /// do not depend on whether Galileo is simulated.
+    gal_rng: rand_chacha::ChaCha8Rng,
 }
 
 impl GnssModel {
@@ -270,14 +390,21 @@ impl GnssModel {
         Self {
             cfg: cfg.clone(),
             frame,
-            // Quantised through RTCM 1019, so decoders see the true orbits.
+            // Quantised through RTCM 1019 and 1046, so decoders see the true
+            // orbits.
             ephemerides: constellation(cfg.start_week, cfg.start_tow_s, rng)
-                .iter()
-                .map(crate::rtcm_out::quantise)
+                .into_iter()
+                .chain(if cfg.galileo {
+                    galileo_constellation(cfg.start_week, cfg.start_tow_s)
+                } else {
+                    Vec::new()
+                })
+                .map(|e| crate::rtcm_out::quantise(&e))
                 .collect(),
             clock_bias_m: cfg.clock_bias0_m,
             clock_drift_mps: cfg.clock_drift0_mps,
             last_t_s: None,
+            gal_rng: rand::SeedableRng::seed_from_u64(cfg.start_week as u64 ^ 0x6a1),
         }
     }
 
@@ -293,7 +420,7 @@ impl GnssModel {
     /// rotation applied to the satellite position.
     pub fn range_terms(
         &self,
-        eph: &GpsEphemeris,
+        eph: &BroadcastEphemeris,
         tow_rx_s: f64,
         r_rx: &Vector3<f64>,
     ) -> (RangeTerms, SatState, Vector3<f64>) {
@@ -357,7 +484,7 @@ impl GnssModel {
         self.measure(truth, rng)
     }
 
-    fn measure<R: Rng>(&mut self, truth: &TruthSample, rng: &mut R) -> GnssEpoch {
+    fn measure<R: Rng>(&mut self, truth: &TruthSample, gps_rng: &mut R) -> GnssEpoch {
         let (week, tow) = self.gps_time(truth.t_s);
         let r_rx = self.frame.to_ecef(&truth.p_B_in_W);
         let v_rx = self.frame.R_ecef_ned * truth.v_B_in_W;
@@ -368,6 +495,10 @@ impl GnssModel {
             if el.to_degrees() < self.cfg.elevation_mask_deg {
                 continue;
             }
+            let (rng, isb): (&mut dyn rand::RngCore, f64) = match eph.system {
+                System::Gps => (&mut *gps_rng, 0.0),
+                System::Galileo => (&mut self.gal_rng, self.cfg.isb_galileo_m),
+            };
             let sin_el = el.sin().max(0.1);
             let n_pr: f64 = rng.sample(StandardNormal);
             let n_prr: f64 = rng.sample(StandardNormal);
@@ -380,8 +511,9 @@ impl GnssModel {
             let u = (r_sat - r_rx) / terms.geometric_m;
             let v_sat_rot = rot_z(OMEGA_E_RADPS * terms.geometric_m / C_MPS) * st.v_ecef_mps;
             sats.push(SatObs {
+                system: eph.system,
                 prn: eph.prn,
-                pseudorange_m: terms.geometric_m + self.clock_bias_m - terms.sat_clock_m
+                pseudorange_m: terms.geometric_m + self.clock_bias_m + isb - terms.sat_clock_m
                     + terms.troposphere_m
                     + terms.ionosphere_m
                     + mp
@@ -401,6 +533,7 @@ impl GnssModel {
             sats,
             clock_bias_m: self.clock_bias_m,
             clock_drift_mps: self.clock_drift_mps,
+            isb_galileo_m: self.cfg.isb_galileo_m,
         }
     }
 }
@@ -463,16 +596,26 @@ mod tests {
         let ep = m.epoch(&truth, &mut rng);
         assert!(ep.sats.len() >= 6, "{} satellites in view", ep.sats.len());
         let r_rx = m.frame.to_ecef(&truth.p_B_in_W);
+        assert!(ep.sats.iter().any(|s| s.system == System::Galileo));
         for s in &ep.sats {
-            let eph = m.ephemerides.iter().find(|e| e.prn == s.prn).unwrap();
+            let eph = m
+                .ephemerides
+                .iter()
+                .find(|e| e.system == s.system && e.prn == s.prn)
+                .unwrap();
             let (t, _, _) = m.range_terms(eph, m.gps_time(ep.t_s).1, &r_rx);
-            let modelled = ep.clock_bias_m - t.sat_clock_m + t.troposphere_m + t.ionosphere_m;
+            let isb = if s.system == System::Galileo {
+                ep.isb_galileo_m
+            } else {
+                0.0
+            };
+            let modelled = ep.clock_bias_m + isb - t.sat_clock_m + t.troposphere_m + t.ionosphere_m;
             assert!((s.pseudorange_m - t.geometric_m - modelled).abs() < 1e-6);
             assert!(t.troposphere_m > 2.3 && t.troposphere_m < 2.3 / (10f64.to_radians().sin()) + 1.0);
             assert!(t.ionosphere_m >= 5.0 && t.ionosphere_m < 16.0);
-            // Flight time is 67–90 ms.
+            // Flight time is 67–90 ms (GPS), 77–97 ms (Galileo).
             assert!(
-                t.geometric_m > 1.95e7 && t.geometric_m < 2.6e7,
+                t.geometric_m > 1.95e7 && t.geometric_m < 2.9e7,
                 "range {} el {}",
                 t.geometric_m,
                 s.elevation_deg
@@ -482,7 +625,11 @@ mod tests {
         let dt = 0.01;
         let r_rx2 = m.frame.to_ecef(&(truth.p_B_in_W + truth.v_B_in_W * dt));
         for s in &ep.sats {
-            let eph = m.ephemerides.iter().find(|e| e.prn == s.prn).unwrap();
+            let eph = m
+                .ephemerides
+                .iter()
+                .find(|e| e.system == s.system && e.prn == s.prn)
+                .unwrap();
             let tow = m.gps_time(ep.t_s).1;
             let (a, sa, _) = m.range_terms(eph, tow, &r_rx);
             let (b, sb, _) = m.range_terms(eph, tow + dt, &r_rx2);
@@ -492,6 +639,165 @@ mod tests {
                 "{rate} vs {}",
                 s.pseudorange_rate_mps
             );
+        }
+    }
+
+    /// An ephemeris from RINEX-style values (radians, s), toe = toc.
+    #[allow(clippy::too_many_arguments)]
+    fn eph(system: System, week: u32, toe_s: f64, k: [f64; 16], clk: [f64; 3], tgd_s: f64) -> BroadcastEphemeris {
+        let [sqrt_a, e, m0, dn, om0, omd, i0, idot, w, cuc, cus, crc, crs, cic, cis, _] = k;
+        BroadcastEphemeris {
+            system,
+            prn: 1,
+            week,
+            iode: 0,
+            iodc: 0,
+            toc_s: toe_s,
+            af0_s: clk[0],
+            af1: clk[1],
+            af2_per_s: clk[2],
+            toe_s,
+            sqrt_a,
+            e,
+            m0_rad: m0,
+            delta_n_radps: dn,
+            omega0_rad: om0,
+            omega_dot_radps: omd,
+            i0_rad: i0,
+            idot_radps: idot,
+            omega_rad: w,
+            cuc_rad: cuc,
+            cus_rad: cus,
+            crc_m: crc,
+            crs_m: crs,
+            cic_rad: cic,
+            cis_rad: cis,
+            tgd_s,
+            health: 0,
+            ura_index: 0,
+            fit_interval_4h: false,
+        }
+    }
+
+    /// Satellite positions and clocks against published third-party values:
+    /// - GPS: GNSSTk's `OrbitDataKepler_T.cpp` (week 1854, toe 14 384 s,
+    ///   evaluated at 7 235 s, tk = −7 149 s); its clock excludes relativity,
+    ///   reported separately;
+    /// - GPS G01 and Galileo E01: Safran Skydel simulator truth shipped with
+    ///   INSTINCT (`test/data/GNSS/Skydel_static_duration-4h_rate-5min_sys-GERCQIS`,
+    ///   week 2244, toe 36 000 s), at the transmission time of the 36 300 s
+    ///   epoch; GPS's clock includes −TGD, Galileo's E1 clock no BGD
+    ///   (BGD(E1,E5b) = 0 there). Galileo's GM matters here: GPS's would
+    ///   move E01 by about 8 cm.
+    #[test]
+    #[allow(clippy::inconsistent_digit_grouping, clippy::excessive_precision)] // values as published
+    fn satellite_positions_match_published_values() {
+        let gnsstk = eph(
+            System::Gps,
+            1854,
+            14_384.0,
+            [
+                0.515360180473e4,
+                0.422249664553e-2,
+                0.218771233916e1,
+                0.511592738462e-8,
+                -0.189462874179e1,
+                -0.823034282681e-8,
+                0.946122987969,
+                0.492877673191e-9,
+                0.374892043461,
+                0.200793147087e-5,
+                0.823289155960e-5,
+                0.214593750000e3,
+                0.369375000000e2,
+                -0.175088644028e-6,
+                0.335276126862e-7,
+                0.0,
+            ],
+            [-0.216379296035e-3, 0.432009983342e-11, 0.0],
+            0.0,
+        );
+        let st = gnsstk.state(7_235.0);
+        let want = Vector3::new(9_345_531.527_473_377, -12_408_177.088_141_857, 21_486_320.848_036_297);
+        assert!((st.r_ecef_m - want).norm() < 1e-4, "{:?}", st.r_ecef_m - want);
+        let clk = -0.000_216_410_180_428_709_13 + -8.819_775_810_155_175_8e-9;
+        assert!((st.dt_s - clk).abs() < 1e-15, "{} vs {clk}", st.dt_s);
+
+        let g01 = eph(
+            System::Gps,
+            2244,
+            36_000.0,
+            [
+                5.153651281357e3,
+                1.217794988770e-2,
+                -9.548443013955e-1,
+                4.114099940205e-9,
+                -1.509330417236,
+                -8.193912737927e-9,
+                9.889942806558e-1,
+                2.285809498855e-11,
+                9.377089341753e-1,
+                2.561137080193e-6,
+                1.572072505951e-6,
+                3.624375e2,
+                4.684375e1,
+                9.685754776001e-8,
+                2.831220626831e-7,
+                0.0,
+            ],
+            [2.268739044666e-4, -4.774847184308e-12, 0.0],
+            4.656612873077e-9,
+        );
+        let st = g01.state(36_300.0 - 21_798_545.43521 / C_MPS);
+        let want = Vector3::new(-14_003_758.55706, 22_337_614.79252, 158_355.233286);
+        assert!((st.r_ecef_m - want).norm() < 1e-3, "{:?}", st.r_ecef_m - want);
+        assert!((st.dt_s - 2.268900132388e-4).abs() < 1e-14, "{}", st.dt_s);
+
+        let e01 = eph(
+            System::Galileo,
+            2244,
+            36_000.0,
+            [
+                5.440603010178e3,
+                2.660002792254e-4,
+                1.933279858556,
+                3.161917420838e-9,
+                2.601494513871,
+                -5.389510209019e-9,
+                9.711716272708e-1,
+                -5.753811097899e-10,
+                2.837511411568e-1,
+                -7.543712854385e-7,
+                7.875263690948e-6,
+                1.76125e2,
+                -1.65625e1,
+                -7.450580596924e-9,
+                -1.862645149231e-9,
+                0.0,
+            ],
+            [-5.921604611103e-4, -5.542233338929e-12, 0.0],
+            0.0,
+        );
+        let st = e01.state(36_300.0 - 25_051_040.06839 / C_MPS);
+        let want = Vector3::new(-18_095_039.56013, 13_787_149.45726, 18_942_912.59133);
+        assert!((st.r_ecef_m - want).norm() < 1e-3, "{:?}", st.r_ecef_m - want);
+        assert!((st.dt_s - -5.921627155452e-4).abs() < 1e-14, "{}", st.dt_s);
+        // The same orbit with GPS's constant lands centimetres away.
+        let wrong = BroadcastEphemeris {
+            system: System::Gps,
+            ..e01.clone()
+        };
+        assert!((wrong.state(36_300.0 - 25_051_040.06839 / C_MPS).r_ecef_m - want).norm() > 0.02);
+    }
+
+    #[test]
+    fn galileo_constellation_geometry() {
+        let c = galileo_constellation(2443, 345_600.0);
+        assert_eq!(c.len(), 24);
+        for e in &c {
+            let r = e.state(e.toe_s + 1234.0).r_ecef_m.norm();
+            assert!((r - 29_600_000.0).abs() < 0.01 * 29_600_000.0, "{r}");
+            assert!((e.accuracy_m() - 3.12).abs() < 1e-12);
         }
     }
 

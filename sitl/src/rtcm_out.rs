@@ -1,17 +1,23 @@
-//! RTCM3 output of the simulated receiver: MSM7 (1077) observations and
-//! 1019 ephemerides, as a u-blox-class receiver would stream them, ready to
-//! travel inside MAVLink `GPS_RTCM_DATA`.
+//! RTCM3 output of the simulated receiver: MSM7 observations (1077 GPS,
+//! 1097 Galileo) and ephemerides (1019 GPS, 1046 Galileo I/NAV), as a
+//! u-blox-class receiver would stream them, ready to travel inside MAVLink
+//! `GPS_RTCM_DATA`.
 //!
 //! Encoding and framing (CRC-24Q) are the `rtcm-rs` crate's. The simulated
-//! constellation is quantised through 1019 once at start, so the broadcast
-//! ephemerides a decoder gets are exactly the orbits the truth uses.
+//! constellations are quantised through 1019/1046 once at start, so the
+//! broadcast ephemerides a decoder gets are exactly the orbits the truth
+//! uses. The wire → SI conversions of the ephemeris messages live here too,
+//! and the daemon's decoder uses them, so both sides share one mapping.
 
-use rtcm_rs::msg::{GpsSigId, Msg1019T, Msg1077Data, Msg1077Sig, Msg1077T, Msm57Sat};
+use rtcm_rs::msg::{
+    GalSigId, GpsSigId, Msg1019T, Msg1045T, Msg1046T, Msg1077Data, Msg1077Sig, Msg1077T, Msg1097Data, Msg1097Sig,
+    Msg1097T, Msm57Sat,
+};
 use rtcm_rs::util::DataVec;
 use rtcm_rs::{Message, MessageBuilder, MessageFrame};
 
 use crate::geodesy::C_MPS;
-use crate::gnss::{GnssEpoch, GpsEphemeris};
+use crate::gnss::{BroadcastEphemeris, GnssEpoch, System};
 
 const SC: f64 = std::f64::consts::PI;
 
@@ -22,14 +28,14 @@ pub enum RtcmOutError {
     Encode(rtcm_rs::rtcm_error::RtcmError),
 }
 
-fn msg1019(e: &GpsEphemeris) -> Msg1019T {
+fn msg1019(e: &BroadcastEphemeris) -> Msg1019T {
     Msg1019T {
         gps_satellite_id: e.prn,
         gps_week_number: (e.week % 1024) as u16,
         ura_index: e.ura_index,
         code_on_l2_ind: 1,
         idot_sc_s: e.idot_radps / SC,
-        iode: e.iode,
+        iode: (e.iode % 256) as u8,
         toc_s: e.toc_s as f32,
         af2_s_s2: e.af2_per_s as f32,
         af1_s_s: e.af1 as f32,
@@ -57,21 +63,63 @@ fn msg1019(e: &GpsEphemeris) -> Msg1019T {
     }
 }
 
-/// Frames a 1019 message for `eph` (full week kept modulo 1024).
-pub fn encode_ephemeris(eph: &GpsEphemeris) -> Result<Vec<u8>, RtcmOutError> {
+/// A Galileo I/NAV ephemeris as 1046: the GST week (GPS week − 1024)
+/// modulo 4096; `tgd_s` is BGD(E1, E5b).
+fn msg1046(e: &BroadcastEphemeris) -> Msg1046T {
+    Msg1046T {
+        gal_satellite_id: e.prn,
+        gal_week_number: (e.week.saturating_sub(1024) % 4096) as u16,
+        iodnav: e.iode % 1024,
+        sisa_e1_e5b_index: e.ura_index,
+        idot_sc_s: (e.idot_radps / SC) as f32,
+        toc_s: e.toc_s as f32,
+        af2_s_s2: e.af2_per_s as f32,
+        af1_s_s: e.af1,
+        af0_s: e.af0_s,
+        crs_m: e.crs_m as f32,
+        delta_n_sc_s: (e.delta_n_radps / SC) as f32,
+        m0_sc: e.m0_rad / SC,
+        cuc_rad: e.cuc_rad as f32,
+        eccentricity: e.e,
+        cus_rad: e.cus_rad as f32,
+        sqrt_a_sqrt_m: e.sqrt_a,
+        toe_s: e.toe_s as f32,
+        cic_rad: e.cic_rad as f32,
+        omega0_sc: e.omega0_rad / SC,
+        cis_rad: e.cis_rad as f32,
+        i0_sc: e.i0_rad / SC,
+        crc_m: e.crc_m as f32,
+        omega_sc: e.omega_rad / SC,
+        omegadot_sc_s: e.omega_dot_radps / SC,
+        bgd_e1_e5a_s: e.tgd_s as f32,
+        bgd_e1_e5b_s: e.tgd_s as f32,
+        e5b_sig_health_ind: e.health,
+        e5b_data_validity_flag: 0,
+        e1_b_sig_health_ind: e.health,
+        e1_b_data_validity_flag: 0,
+        reserved_502_2: 0,
+    }
+}
+
+/// Frames the ephemeris message for `eph`: 1019 for GPS (week modulo 1024),
+/// 1046 for Galileo (GST week modulo 4096).
+pub fn encode_ephemeris(eph: &BroadcastEphemeris) -> Result<Vec<u8>, RtcmOutError> {
+    let msg = match eph.system {
+        System::Gps => Message::Msg1019(msg1019(eph)),
+        System::Galileo => Message::Msg1046(msg1046(eph)),
+    };
     let mut b = MessageBuilder::new();
-    b.build_message(&Message::Msg1019(msg1019(eph)))
-        .map(<[u8]>::to_vec)
-        .map_err(RtcmOutError::Encode)
+    b.build_message(&msg).map(<[u8]>::to_vec).map_err(RtcmOutError::Encode)
 }
 
 /// The ephemeris a decoded 1019 carries (semicircles → radians), with the
 /// full week `week` (1019 has it modulo 1024: the caller resolves it).
-pub fn ephemeris_from_1019(m: &Msg1019T, week: u32) -> GpsEphemeris {
-    GpsEphemeris {
+pub fn ephemeris_from_1019(m: &Msg1019T, week: u32) -> BroadcastEphemeris {
+    BroadcastEphemeris {
+        system: System::Gps,
         prn: m.gps_satellite_id,
         week,
-        iode: m.iode,
+        iode: m.iode as u16,
         iodc: m.iodc,
         toc_s: m.toc_s as f64,
         af0_s: m.af0_s,
@@ -100,54 +148,136 @@ pub fn ephemeris_from_1019(m: &Msg1019T, week: u32) -> GpsEphemeris {
     }
 }
 
-/// Quantises an ephemeris to what 1019 can carry (encode, then decode).
-pub fn quantise(eph: &GpsEphemeris) -> GpsEphemeris {
+/// The Galileo fields 1045 (F/NAV) and 1046 (I/NAV) share.
+macro_rules! galileo_eph {
+    ($m:expr, $week:expr, $bgd:expr, $sisa:expr, $health:expr) => {{
+        let m = $m;
+        BroadcastEphemeris {
+            system: System::Galileo,
+            prn: m.gal_satellite_id,
+            week: $week,
+            iode: m.iodnav,
+            iodc: 0,
+            toc_s: m.toc_s as f64,
+            af0_s: m.af0_s,
+            af1: m.af1_s_s,
+            af2_per_s: m.af2_s_s2 as f64,
+            toe_s: m.toe_s as f64,
+            sqrt_a: m.sqrt_a_sqrt_m,
+            e: m.eccentricity,
+            m0_rad: m.m0_sc * SC,
+            delta_n_radps: m.delta_n_sc_s as f64 * SC,
+            omega0_rad: m.omega0_sc * SC,
+            omega_dot_radps: m.omegadot_sc_s * SC,
+            i0_rad: m.i0_sc * SC,
+            idot_radps: m.idot_sc_s as f64 * SC,
+            omega_rad: m.omega_sc * SC,
+            cuc_rad: m.cuc_rad as f64,
+            cus_rad: m.cus_rad as f64,
+            crc_m: m.crc_m as f64,
+            crs_m: m.crs_m as f64,
+            cic_rad: m.cic_rad as f64,
+            cis_rad: m.cis_rad as f64,
+            tgd_s: $bgd as f64,
+            health: $health,
+            ura_index: $sisa,
+            fit_interval_4h: false,
+        }
+    }};
+}
+
+/// The ephemeris a decoded 1046 (Galileo I/NAV) carries, with the full GPS
+/// week `week` (the caller resolves the 12-bit GST week). The E1 user's
+/// group delay is BGD(E1, E5b); the satellite is healthy when both E1-B
+/// and E5b report signal OK and data valid (OS SIS ICD 5.1.9.3).
+pub fn ephemeris_from_1046(m: &Msg1046T, week: u32) -> BroadcastEphemeris {
+    let health = m.e1_b_sig_health_ind | m.e1_b_data_validity_flag | m.e5b_sig_health_ind | m.e5b_data_validity_flag;
+    galileo_eph!(m, week, m.bgd_e1_e5b_s, m.sisa_e1_e5b_index, health)
+}
+
+/// The ephemeris a decoded 1045 (Galileo F/NAV) carries; its group delay is
+/// BGD(E1, E5a).
+pub fn ephemeris_from_1045(m: &Msg1045T, week: u32) -> BroadcastEphemeris {
+    let health = m.e5a_sig_health_ind | m.e5a_data_validity_flag;
+    galileo_eph!(m, week, m.bgd_e1_e5a_s, m.sisa_e1_e5a_index, health)
+}
+
+/// Quantises an ephemeris to what its RTCM message can carry (encode, then
+/// decode).
+pub fn quantise(eph: &BroadcastEphemeris) -> BroadcastEphemeris {
     let Ok(bytes) = encode_ephemeris(eph) else {
         return eph.clone();
     };
     let Ok(frame) = MessageFrame::new(&bytes) else {
         return eph.clone();
     };
-    let Message::Msg1019(m) = frame.get_message() else {
-        return eph.clone();
-    };
-    ephemeris_from_1019(&m, eph.week)
+    match frame.get_message() {
+        Message::Msg1019(m) => ephemeris_from_1019(&m, eph.week),
+        Message::Msg1046(m) => ephemeris_from_1046(&m, eph.week),
+        _ => eph.clone(),
+    }
 }
 
-/// Frames one epoch as MSM7 (GPS L1 C/A): pseudorange split into rough
-/// (1/1024 ms) and fine parts, range rate into whole and fine m/s.
-pub fn encode_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmOutError> {
-    let mut sats: DataVec<Msm57Sat, 64> = DataVec::new();
-    let mut sigs: DataVec<Msg1077Sig, 64> = DataVec::new();
-    let mut obs: Vec<_> = ep.sats.iter().filter(|s| (1..=64).contains(&s.prn)).collect();
-    obs.sort_by_key(|s| s.prn);
-    for s in obs {
-        let p_ms = s.pseudorange_m / C_MPS * 1e3;
-        let rough = (p_ms * 1024.0).round() / 1024.0;
-        let int = rough.floor();
-        let rate_rough = s.pseudorange_rate_mps.round();
-        sats.push(Msm57Sat {
+/// MSM7's satellite and signal cells of one satellite: pseudorange split
+/// into rough (1/1024 ms) and fine parts, range rate into whole and fine m/s.
+fn msm7_cells(s: &crate::gnss::SatObs) -> (Msm57Sat, f64, f64) {
+    let p_ms = s.pseudorange_m / C_MPS * 1e3;
+    let rough = (p_ms * 1024.0).round() / 1024.0;
+    let int = rough.floor();
+    let rate_rough = s.pseudorange_rate_mps.round();
+    (
+        Msm57Sat {
             satellite_id: s.prn,
             gnss_satellite_rough_range_integer_ms: Some(int as u8),
             reserved_8_4: 0,
             gnss_satellite_rough_range_mod1ms_ms: rough - int,
             gnss_satellite_rough_phaserange_rates_m_s: Some(rate_rough as i16),
-        });
+        },
+        p_ms - rough,
+        s.pseudorange_rate_mps - rate_rough,
+    )
+}
+
+/// Frames one epoch as MSM7: 1077 (GPS L1 C/A) and, when Galileo satellites
+/// are in view, 1097 (Galileo E1C), the first flagged "more MSMs of this
+/// epoch follow" so that a decoder groups them.
+pub fn encode_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmOutError> {
+    let mut gps: Vec<_> = ep
+        .sats
+        .iter()
+        .filter(|s| s.system == System::Gps && (1..=64).contains(&s.prn))
+        .collect();
+    let mut gal: Vec<_> = ep
+        .sats
+        .iter()
+        .filter(|s| s.system == System::Galileo && (1..=64).contains(&s.prn))
+        .collect();
+    gps.sort_by_key(|s| s.prn);
+    gal.sort_by_key(|s| s.prn);
+    let epoch_ms = (ep.tow_s * 1e3).round() as u32;
+    let mut b = MessageBuilder::new();
+    let mut out = Vec::new();
+
+    let mut sats: DataVec<Msm57Sat, 64> = DataVec::new();
+    let mut sigs: DataVec<Msg1077Sig, 64> = DataVec::new();
+    for s in gps {
+        let (sat, fine_ms, fine_rate) = msm7_cells(s);
+        sats.push(sat);
         sigs.push(Msg1077Sig {
             satellite_id: s.prn,
             signal_id: GpsSigId::new(1, 'C'),
-            gnss_signal_fine_pseudorange_ext_ms: Some(p_ms - rough),
+            gnss_signal_fine_pseudorange_ext_ms: Some(fine_ms),
             gnss_signal_fine_phaserange_ext_ms: None,
             gnss_phaserange_lock_time_ext_ind: 0,
             half_cycle_ambiguity_ind: 0,
             gnss_signal_cnr_ext_dbhz: Some(s.cn0_dbhz),
-            gnss_signal_fine_phaserange_rate_m_s: Some(s.pseudorange_rate_mps - rate_rough),
+            gnss_signal_fine_phaserange_rate_m_s: Some(fine_rate),
         });
     }
     let msg = Msg1077T {
         reference_station_id: station_id,
-        gps_epoch_time_ms: (ep.tow_s * 1e3).round() as u32,
-        msm_multiple_message_flag: 0,
+        gps_epoch_time_ms: epoch_ms,
+        msm_multiple_message_flag: u8::from(!gal.is_empty()),
         issue_of_data_station: None,
         reserved_58_7: 0,
         clock_steering_ind: 0,
@@ -159,8 +289,42 @@ pub fn encode_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmOutE
             signal_data: sigs,
         },
     };
-    let mut b = MessageBuilder::new();
-    b.build_message(&Message::Msg1077(msg))
-        .map(<[u8]>::to_vec)
-        .map_err(RtcmOutError::Encode)
+    out.extend_from_slice(b.build_message(&Message::Msg1077(msg)).map_err(RtcmOutError::Encode)?);
+    if gal.is_empty() {
+        return Ok(out);
+    }
+
+    let mut sats: DataVec<Msm57Sat, 64> = DataVec::new();
+    let mut sigs: DataVec<Msg1097Sig, 64> = DataVec::new();
+    for s in gal {
+        let (sat, fine_ms, fine_rate) = msm7_cells(s);
+        sats.push(sat);
+        sigs.push(Msg1097Sig {
+            satellite_id: s.prn,
+            signal_id: GalSigId::new(1, 'C'),
+            gnss_signal_fine_pseudorange_ext_ms: Some(fine_ms),
+            gnss_signal_fine_phaserange_ext_ms: None,
+            gnss_phaserange_lock_time_ext_ind: 0,
+            half_cycle_ambiguity_ind: 0,
+            gnss_signal_cnr_ext_dbhz: Some(s.cn0_dbhz),
+            gnss_signal_fine_phaserange_rate_m_s: Some(fine_rate),
+        });
+    }
+    let msg = Msg1097T {
+        reference_station_id: station_id,
+        gal_epoch_time_ms: epoch_ms,
+        msm_multiple_message_flag: 0,
+        issue_of_data_station: None,
+        reserved_58_7: 0,
+        clock_steering_ind: 0,
+        external_clock_ind: 0,
+        gnss_smoothing_type_ind: 0,
+        gnss_smoothing_interval_index: 0,
+        data_segment: Msg1097Data {
+            satellite_data: sats,
+            signal_data: sigs,
+        },
+    };
+    out.extend_from_slice(b.build_message(&Message::Msg1097(msg)).map_err(RtcmOutError::Encode)?);
+    Ok(out)
 }

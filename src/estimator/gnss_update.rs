@@ -14,6 +14,7 @@ use cmsckf_sitl::gnss::saastamoinen_m;
 /// One satellite's measurements with its state at transmission time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SatMeas {
+    pub system: cmsckf_sitl::gnss::System,
     pub prn: u8,
     pub r_sat_ecef_m: Vector3<f64>,
     pub v_sat_ecef_mps: Vector3<f64>,
@@ -88,6 +89,7 @@ mod tests {
         (
             frame,
             SatMeas {
+                system: cmsckf_sitl::gnss::System::Gps,
                 prn: 5,
                 r_sat_ecef_m: r_sat,
                 v_sat_ecef_mps: Vector3::new(1200.0, -2500.0, 1800.0),

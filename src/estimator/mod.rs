@@ -27,13 +27,16 @@ use math::{exp_so3, left_jacobian};
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
 
 /// Active (always-local) states: the IMU, then the GNSS receiver clock
-/// `[c·δt (m), c·δṫ (m/s)]`.
-pub const ACTIVE_DIM: usize = IMU_DIM + 2;
-/// Offsets of the clock bias and drift.
+/// `[c·δt_G (m), c·δṫ (m/s), c·(δt_E − δt_G) (m)]`: GPS's bias, the common
+/// drift, and Galileo's inter-system bias (so Galileo's own bias is
+/// `c·δt_E = c·δt_G + isb`: a bias per constellation and one drift).
+pub const ACTIVE_DIM: usize = IMU_DIM + 3;
+/// Offsets of the clock bias, drift and Galileo inter-system bias.
 pub const CLK_B: usize = IMU_DIM;
 pub const CLK_D: usize = IMU_DIM + 1;
+pub const CLK_E: usize = IMU_DIM + 2;
 /// The active block's transition.
-pub type Mat17 = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
+pub type MatActive = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
 
 /// Bound on buffered, not yet integrated IMU samples.
@@ -56,6 +59,8 @@ pub struct Settings {
     /// walk (m/s/√s).
     pub clock_bias_rw: f64,
     pub clock_drift_rw: f64,
+    /// Galileo − GPS inter-system bias random walk (m/√s).
+    pub isb_rw: f64,
     /// Pseudorange and range-rate sigmas at zenith (m, m/s).
     pub pseudorange_sigma_m: f64,
     pub range_rate_sigma_mps: f64,
@@ -81,6 +86,7 @@ impl Settings {
             imu: c.imu.clone(),
             clock_bias_rw: c.gnss.clock_bias_rw_m_per_sqrt_s,
             clock_drift_rw: c.gnss.clock_drift_rw_mps_per_sqrt_s,
+            isb_rw: c.gnss.isb_rw_m_per_sqrt_s,
             pseudorange_sigma_m: c.gnss.pseudorange_sigma_m,
             range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
@@ -233,12 +239,13 @@ pub struct Estimator {
     last_meas: Option<ImuMeas>,
     imu_buf: VecDeque<ImuMeas>,
     /// Transition accumulated since the cross-covariances were last synced.
-    f_acc: Mat17,
+    f_acc: MatActive,
     P: DMatrix<f64>,
-    /// Receiver clock `[c·δt (m), c·δṫ (m/s)]`; set from the first GNSS
-    /// epoch (§8).
-    clock: nalgebra::Vector2<f64>,
+    /// Receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]`; set from the
+    /// first GNSS epoch, the inter-system bias from the first Galileo one (§8).
+    clock: nalgebra::Vector3<f64>,
     clock_initialised: bool,
+    isb_initialised: bool,
     clones: VecDeque<CloneState>,
     next_seq: u64,
     keyframes: BTreeMap<u64, Keyframe>,
@@ -294,16 +301,18 @@ impl Estimator {
         // The clock is unknown until the first GNSS epoch sets it.
         P[(CLK_B, CLK_B)] = 1.0;
         P[(CLK_D, CLK_D)] = 1.0;
+        P[(CLK_E, CLK_E)] = 1.0;
         Self {
-            clock: nalgebra::Vector2::zeros(),
+            clock: nalgebra::Vector3::zeros(),
             clock_initialised: false,
+            isb_initialised: false,
             g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
             t_s,
             centre_W: imu.p_B_in_W,
             imu,
             last_meas: None,
             imu_buf: VecDeque::with_capacity(IMU_BUFFER_CAP),
-            f_acc: Mat17::identity(),
+            f_acc: MatActive::identity(),
             P,
             clones: VecDeque::with_capacity(s.max_clones + 2),
             next_seq: 0,
@@ -463,16 +472,17 @@ impl Estimator {
         let (f15, q15) = propagate::transition(&self.imu, &m0, &m, &self.s.imu);
         // The clock: bias integrates drift, both random walks (§8, eq. K1).
         let dt = m.t_s - m0.t_s;
-        let mut f = Mat17::identity();
+        let mut f = MatActive::identity();
         f.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
         f[(CLK_B, CLK_D)] = dt;
-        let mut q = Mat17::zeros();
+        let mut q = MatActive::zeros();
         q.fixed_view_mut::<15, 15>(0, 0).copy_from(&q15);
         let (qb, qd) = (self.s.clock_bias_rw.powi(2), self.s.clock_drift_rw.powi(2));
         q[(CLK_B, CLK_B)] = qb * dt + qd * dt * dt * dt / 3.0;
         q[(CLK_B, CLK_D)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_D)] = qd * dt;
+        q[(CLK_E, CLK_E)] = self.s.isb_rw.powi(2) * dt;
         self.imu = propagate::integrate(&self.imu, &m0, &m, &self.g_W);
         self.clock.x += self.clock.y * dt;
         let paa = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
@@ -533,7 +543,7 @@ impl Estimator {
     /// Applies the accumulated IMU transition to the cross-covariances and
     /// to `Φ` (§2, eq. F4): `P_IX ← F P_IX`, `Φ_I ← F Φ_I`.
     fn sync(&mut self) {
-        if self.f_acc == Mat17::identity() {
+        if self.f_acc == MatActive::identity() {
             return;
         }
         let n = self.P.nrows();
@@ -551,7 +561,7 @@ impl Estimator {
             let top = self.f_acc * g.Phi.view((0, 0), (ACTIVE_DIM, c));
             g.Phi.view_mut((0, 0), (ACTIVE_DIM, c)).copy_from(&top);
         }
-        self.f_acc = Mat17::identity();
+        self.f_acc = MatActive::identity();
     }
 
     // ------------------------------------------------------- state layout
@@ -1020,7 +1030,7 @@ impl Estimator {
     /// Applies a correction to the local nominal state.
     fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
-        self.clock += nalgebra::Vector2::new(dx[CLK_B], dx[CLK_D]);
+        self.clock += dx.fixed_rows::<3>(CLK_B);
         for (j, id) in self.local_kfs.clone().iter().enumerate() {
             let o = self.kf_offset(j);
             let kf = self.keyframes.get_mut(id).expect("local keyframe exists");
@@ -1244,77 +1254,101 @@ pub struct GnssReport {
 }
 
 impl Estimator {
-    /// The receiver clock `[c·δt (m), c·δṫ (m/s)]` and its variances.
-    pub fn clock(&self) -> (nalgebra::Vector2<f64>, nalgebra::Vector2<f64>) {
+    /// The receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]` and its
+    /// variances.
+    pub fn clock(&self) -> (nalgebra::Vector3<f64>, nalgebra::Vector3<f64>) {
         (
             self.clock,
-            nalgebra::Vector2::new(self.P[(CLK_B, CLK_B)], self.P[(CLK_D, CLK_D)]),
+            nalgebra::Vector3::new(self.P[(CLK_B, CLK_B)], self.P[(CLK_D, CLK_D)], self.P[(CLK_E, CLK_E)]),
         )
     }
 
+    /// Whether a Galileo epoch has set the inter-system bias yet.
+    pub fn isb_initialised(&self) -> bool {
+        self.isb_initialised
+    }
+
+    /// Resets the clock states `ks` to `values`, uncorrelated with the rest,
+    /// with the variances `var` (§8, eq. K4).
+    fn reset_clock_states(&mut self, ks: &[usize], values: &[f64], var: &[f64]) {
+        for ((&k, &x), &v) in ks.iter().zip(values).zip(var) {
+            self.clock[k - CLK_B] = x;
+            self.P.row_mut(k).fill(0.0);
+            self.P.column_mut(k).fill(0.0);
+            if let Some(g) = self.global.as_mut() {
+                g.Phi.row_mut(k).fill(0.0);
+            }
+            self.P[(k, k)] = v;
+        }
+    }
+
     /// One GNSS epoch at `t_s` (§8): pseudoranges and range rates of the
-    /// satellites in `sats`, against the world origin `frame`. The first
-    /// epoch sets the clock from the median residuals.
+    /// satellites in `sats`, against the world origin `frame`. GPS is the
+    /// reference clock: the first epoch with GPS pseudoranges sets the bias
+    /// and drift from the median residuals, and the first with Galileo ones
+    /// sets the inter-system bias the same way; until then those
+    /// measurements wait.
     pub fn process_gnss(
         &mut self,
         t_s: f64,
         frame: &cmsckf_sitl::geodesy::NedFrame,
         sats: &[gnss_update::SatMeas],
     ) -> Result<GnssReport, InputError> {
+        use cmsckf_sitl::gnss::System;
         self.advance_to(t_s, "gnss_time_backwards")?;
         let mut rep = GnssReport::default();
         let mask = self.s.elevation_mask_deg.to_radians();
         let p = self.imu.p_B_in_W;
         let v = self.imu.v_B_in_W;
-        if !self.clock_initialised {
-            let mut b: Vec<f64> = sats
-                .iter()
+        let median = |mut v: Vec<f64>| -> Option<f64> {
+            v.retain(|x| x.is_finite());
+            v.sort_by(|a, b| a.total_cmp(b));
+            v.get(v.len() / 2).copied()
+        };
+        let code_residuals = |sys: System, bias: f64| -> Vec<f64> {
+            sats.iter()
+                .filter(|s| s.system == sys)
                 .filter_map(|s| {
                     s.pseudorange_m
-                        .map(|z| z - gnss_update::pseudorange(frame, &p, 0.0, s).0)
+                        .map(|z| z - gnss_update::pseudorange(frame, &p, bias, s).0)
                 })
-                .filter(|x| x.is_finite())
-                .collect();
-            if b.is_empty() {
+                .collect()
+        };
+        if !self.clock_initialised {
+            let Some(b) = median(code_residuals(System::Gps, 0.0)) else {
                 return Ok(rep);
-            }
-            let mut d: Vec<f64> = sats
-                .iter()
-                .filter_map(|s| {
-                    s.range_rate_mps
-                        .map(|z| z - gnss_update::range_rate(frame, &p, &v, 0.0, s).0)
-                })
-                .filter(|x| x.is_finite())
-                .collect();
-            let median = |v: &mut Vec<f64>| {
-                v.sort_by(|a, b| a.total_cmp(b));
-                v[v.len() / 2]
             };
-            self.clock = nalgebra::Vector2::new(median(&mut b), if d.is_empty() { 0.0 } else { median(&mut d) });
-            // A fresh, independent clock state: no correlations (§8, eq. K4).
-            for k in [CLK_B, CLK_D] {
-                self.P.row_mut(k).fill(0.0);
-                self.P.column_mut(k).fill(0.0);
-                if let Some(g) = self.global.as_mut() {
-                    g.Phi.row_mut(k).fill(0.0);
-                }
-            }
-            self.P[(CLK_B, CLK_B)] = 30.0f64.powi(2);
-            self.P[(CLK_D, CLK_D)] = 1.0;
+            let d = median(
+                sats.iter()
+                    .filter_map(|s| {
+                        s.range_rate_mps
+                            .map(|z| z - gnss_update::range_rate(frame, &p, &v, 0.0, s).0)
+                    })
+                    .collect(),
+            )
+            .unwrap_or(0.0);
+            self.reset_clock_states(&[CLK_B, CLK_D], &[b, d], &[30.0f64.powi(2), 1.0]);
             self.clock_initialised = true;
             rep.clock_initialised = true;
         }
-        // Columns: velocity, position, clock bias, clock drift.
-        let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D];
+        if !self.isb_initialised {
+            if let Some(isb) = median(code_residuals(System::Galileo, self.clock.x)) {
+                self.reset_clock_states(&[CLK_E], &[isb], &[30.0f64.powi(2)]);
+                self.isb_initialised = true;
+            }
+        }
+        // Columns: velocity, position, clock bias, drift, Galileo ISB.
+        let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
         let p_sub = self.P.select_rows(&cols).select_columns(&cols);
-        let mut rows: Vec<([f64; 8], f64)> = Vec::new();
+        let mut rows: Vec<([f64; 9], f64)> = Vec::new();
         let gate = cmsckf_sitl::metrics::chi2_quantile(0.99, 1);
         let reject = |rep: &mut GnssReport, st: &mut Stats, why: &'static str| {
             *rep.rejected.entry(why).or_default() += 1;
             *st.rejected.entry(why).or_default() += 1;
         };
         for s in sats {
-            let (pr_pred, hp, el) = gnss_update::pseudorange(frame, &p, self.clock.x, s);
+            let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
+            let (pr_pred, hp, el) = gnss_update::pseudorange(frame, &p, self.clock.x + isb * self.clock.z, s);
             if el < mask {
                 reject(&mut rep, &mut self.stats, "gnss_below_mask");
                 continue;
@@ -1323,7 +1357,8 @@ impl Estimator {
             let mut res = (s.prn, None, None);
             if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
                 let sigma = ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2).sqrt();
-                let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0];
+                // ∂P/∂[v, p, b, ḃ, isb] (K2): Galileo's code sees b + isb.
+                let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0, isb];
                 let r = z - pr_pred;
                 res.1 = Some(r);
                 if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
@@ -1336,7 +1371,7 @@ impl Estimator {
             if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {
                 let (pred, hv, hpr) = gnss_update::range_rate(frame, &p, &v, self.clock.y, s);
                 let sigma = self.s.range_rate_sigma_mps / sin_el;
-                let h = [hv[0], hv[1], hv[2], hpr[0], hpr[1], hpr[2], 0.0, 1.0];
+                let h = [hv[0], hv[1], hv[2], hpr[0], hpr[1], hpr[2], 0.0, 1.0, 0.0];
                 let r = z - pred;
                 res.2 = Some(r);
                 if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
@@ -1366,7 +1401,7 @@ impl Estimator {
 }
 
 /// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`.
-fn gated(h: &[f64; 8], r: f64, sigma: f64, p: &DMatrix<f64>, gate: f64) -> Option<([f64; 8], f64)> {
+fn gated<const N: usize>(h: &[f64; N], r: f64, sigma: f64, p: &DMatrix<f64>, gate: f64) -> Option<([f64; N], f64)> {
     let hv = nalgebra::DVector::from_column_slice(h);
     let s = (hv.transpose() * p * &hv)[0] + sigma * sigma;
     if !(r.is_finite() && s > 0.0) || r * r / s > gate {

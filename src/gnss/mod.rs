@@ -45,6 +45,8 @@ pub struct ReceiverStats {
     pub skipped: BTreeMap<String, u64>,
     pub ephemerides: u64,
     pub other_station: u64,
+    /// MSMs of constellations not selected, by system letter.
+    pub skipped_system: BTreeMap<char, u64>,
 }
 
 /// A stream-order GNSS receiver model: ephemerides, epochs and solutions.
@@ -74,9 +76,10 @@ impl Receiver {
     /// Feeds one message; returns the epochs it completed.
     pub fn push(&mut self, m: GnssMessage, out: &mut Vec<Epoch>) {
         match m {
-            GnssMessage::GpsEph(raw) => {
+            GnssMessage::Eph(raw) => {
+                let week = raw.full_week(self.week_hint);
                 let mut eph = raw.eph;
-                eph.week = rtcm::resolve_week(raw.week_mod1024, self.week_hint);
+                eph.week = week;
                 self.ephs.insert(eph);
                 self.stats.ephemerides += 1;
             }
@@ -94,8 +97,10 @@ impl Receiver {
             self.flush(out);
         }
         let entry = self.pending.get_or_insert_with(|| (e.tow_ms, Vec::new()));
-        if self.opts.systems.contains(&e.system) && e.system == System::Gps {
+        if self.opts.systems.contains(&e.system) {
             entry.1.extend(e.sats);
+        } else {
+            *self.stats.skipped_system.entry(e.system.letter()).or_default() += 1;
         }
         if !e.multiple {
             self.flush(out);
@@ -152,23 +157,64 @@ impl Klobuchar {
     }
 }
 
-/// One satellite's code and Doppler as they reach [`sat_measurements`].
+/// One satellite's code and Doppler as they reach [`sat_measurements`] and
+/// the single-point solver.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RawSat {
+    pub system: System,
     pub prn: u8,
+    /// The first-frequency code: GPS L1 C/A, Galileo E1 (m).
     pub l1_pseudorange_m: Option<f64>,
-    pub l2_pseudorange_m: Option<f64>,
+    /// A second-frequency code and its carrier frequency `(m, Hz)`: GPS L2
+    /// or L5, Galileo E5a or E5b.
+    pub l2_pseudorange: Option<(f64, f64)>,
     pub l1_range_rate_mps: Option<f64>,
 }
 
+/// Carrier frequencies (Hz) by RINEX band.
+const F_L2_HZ: f64 = 1_227.60e6;
+const F_L5_HZ: f64 = 1_176.45e6;
+const F_E5B_HZ: f64 = 1_207.14e6;
+
 impl RawSat {
+    /// Picks the signals the solver uses: on L1/E1 the C/A or pilot code
+    /// (attributes C, then X, then B), and the first second-frequency code in
+    /// the message's signal order.
     pub fn from_obs(s: &SatObs) -> Self {
-        let l1 = s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C');
+        let l1 = ['C', 'X', 'B']
+            .iter()
+            .find_map(|a| {
+                s.signals
+                    .iter()
+                    .find(|g| g.band == 1 && g.attribute == *a && g.pseudorange_m.is_some())
+            })
+            .or_else(|| s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C'));
+        let second = |band: u8| match (s.system, band) {
+            (System::Gps, 2) => Some(F_L2_HZ),
+            (System::Gps | System::Galileo, 5) => Some(F_L5_HZ),
+            (System::Galileo, 7) => Some(F_E5B_HZ),
+            _ => None,
+        };
         Self {
+            system: s.system,
             prn: s.prn,
             l1_pseudorange_m: l1.and_then(|g| g.pseudorange_m),
-            l2_pseudorange_m: s.signals.iter().filter(|g| g.band == 2).find_map(|g| g.pseudorange_m),
+            l2_pseudorange: s.signals.iter().find_map(|g| Some((g.pseudorange_m?, second(g.band)?))),
             l1_range_rate_mps: l1.and_then(|g| g.range_rate_mps),
+        }
+    }
+
+    /// The code measurement under `iono`: `(pseudorange m, iono-free?)`.
+    /// The ionosphere-free combination where a second code exists and the
+    /// mode wants it (`iono-free`, `auto`); otherwise L1/E1 unless the mode
+    /// is `iono-free`.
+    pub fn code(&self, iono: crate::config::IonoMode) -> Option<(f64, bool)> {
+        use crate::config::IonoMode;
+        let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
+        match (self.l1_pseudorange_m, self.l2_pseudorange) {
+            (Some(p1), Some((p2, f2))) if want_if => Some((spp::iono_free(p1, p2, f2), true)),
+            (Some(p1), _) if iono != IonoMode::IonoFree => Some((p1, false)),
+            _ => None,
         }
     }
 }
@@ -202,12 +248,10 @@ pub fn sat_measurements(
     let c = cmsckf_sitl::geodesy::C_MPS;
     sats.into_iter()
         .filter_map(|s| {
-            let eph = ephs.select(s.prn, week, tow_s)?;
-            let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
-            let (pr, is_if) = match (s.l1_pseudorange_m, s.l2_pseudorange_m) {
-                (Some(p1), Some(p2)) if want_if => (Some(spp::iono_free(p1, p2)), true),
-                (p1, _) if iono != IonoMode::IonoFree => (p1, false),
-                _ => (None, false),
+            let eph = ephs.select(s.system, s.prn, week, tow_s)?;
+            let (pr, is_if) = match s.code(iono) {
+                Some((p, is_if)) => (Some(p), is_if),
+                None => (None, false),
             };
             let st = spp::state_at_transmission(eph, tow_s, pr.unwrap_or(0.075 * c));
             // The iono-free combination sees the clock without TGD (§8).
@@ -228,6 +272,7 @@ pub fn sat_measurements(
             };
             let pr = pr.map(|p| p - klob.unwrap_or(0.0));
             Some(crate::estimator::gnss_update::SatMeas {
+                system: s.system,
                 prn: s.prn,
                 r_sat_ecef_m: st.r_ecef_m,
                 v_sat_ecef_mps: st.v_ecef_mps,
@@ -242,18 +287,27 @@ pub fn sat_measurements(
         .collect()
 }
 
-/// Parses a `--systems` list such as `G,E`.
+/// Parses a `--systems` list such as `G,E`. GLONASS, BeiDou and QZSS are
+/// refused by name rather than silently dropped: their ephemerides (1020,
+/// 1042, 1044) are not decoded, so they could not be used.
 pub fn parse_systems(s: &str) -> Result<Vec<System>, String> {
-    s.split(',')
+    let v = s
+        .split(',')
         .map(str::trim)
         .filter(|x| !x.is_empty())
         .map(|x| match x {
             "G" => Ok(System::Gps),
             "E" => Ok(System::Galileo),
-            "R" | "C" | "J" => Err(format!("system '{x}' is not supported yet (G and E are)")),
-            _ => Err(format!("unknown system '{x}': use G, E, R, C or J")),
+            "R" | "C" | "J" => Err(format!(
+                "system '{x}' is not supported: its ephemerides are not decoded; use G, E or G,E"
+            )),
+            _ => Err(format!("unknown system '{x}': use G (GPS), E (Galileo) or G,E")),
         })
-        .collect()
+        .collect::<Result<Vec<_>, _>>()?;
+    if v.is_empty() {
+        return Err("no system given: use G, E or G,E".into());
+    }
+    Ok(v)
 }
 
 /// The current GPS week from the system clock (leap seconds do not matter
@@ -322,9 +376,10 @@ mod tests {
             ephs.insert(e.clone());
         }
         let raw = RawSat {
+            system: System::Gps,
             prn: c[0].prn,
             l1_pseudorange_m: Some(2.2e7),
-            l2_pseudorange_m: Some(2.2e7 + 3.0),
+            l2_pseudorange: Some((2.2e7 + 3.0, F_L2_HZ)),
             l1_range_rate_mps: Some(100.0),
         };
         let tow = 345_600.0;
@@ -339,7 +394,7 @@ mod tests {
         // The iono-free clock has no TGD: the two differ by exactly c·TGD.
         assert!((auto.dts_m - off.dts_m - c[0].tgd_s * cmsckf_sitl::geodesy::C_MPS).abs() < 1e-3);
         let single = RawSat {
-            l2_pseudorange_m: None,
+            l2_pseudorange: None,
             ..raw
         };
         let inflated = &sat_measurements(&ephs, 2443, tow, pol(IonoMode::Auto), [single])[0];

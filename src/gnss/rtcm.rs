@@ -3,31 +3,17 @@
 //! Framing is done here, over a bounded buffer, so that every bad frame is
 //! seen and counted: a frame whose CRC-24Q fails is skipped one byte at a time
 //! until the stream resynchronises. The checked frame is decoded by the
-//! `rtcm-rs` crate; MSM4–MSM7 (GPS 1074–1077, Galileo 1094–1097) and GPS
-//! ephemerides (1019) are converted to SI units here, and nowhere else.
+//! `rtcm-rs` crate; MSM4–MSM7 (GPS 1074–1077, Galileo 1094–1097) and the
+//! ephemerides (1019 GPS, 1045/1046 Galileo) are converted to SI units here
+//! (the ephemeris mappings are shared with the simulator's encoder).
 
 use std::collections::BTreeMap;
 
 use rtcm_rs::{Message, MessageFrame};
 
 use cmsckf_sitl::geodesy::C_MPS;
-use cmsckf_sitl::gnss::GpsEphemeris;
-
-/// Constellations.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum System {
-    Gps,
-    Galileo,
-}
-
-impl System {
-    pub fn letter(self) -> char {
-        match self {
-            System::Gps => 'G',
-            System::Galileo => 'E',
-        }
-    }
-}
+use cmsckf_sitl::gnss::BroadcastEphemeris;
+pub use cmsckf_sitl::gnss::System;
 
 /// One signal of one satellite.
 #[derive(Clone, Debug, PartialEq)]
@@ -46,6 +32,7 @@ pub struct SignalObs {
 /// One satellite of an MSM epoch.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SatObs {
+    pub system: System,
     pub prn: u8,
     pub signals: Vec<SignalObs>,
 }
@@ -63,18 +50,30 @@ pub struct MsmEpoch {
     pub sats: Vec<SatObs>,
 }
 
-/// A GPS ephemeris as broadcast: the 10-bit week still to be resolved.
+/// An ephemeris as broadcast, its truncated week still to be resolved: GPS
+/// weeks modulo 1024 (1019), Galileo GST weeks modulo 4096 (1045/1046).
 #[derive(Clone, Debug, PartialEq)]
-pub struct RawGpsEph {
-    pub week_mod1024: u16,
-    pub eph: GpsEphemeris,
+pub struct RawEph {
+    pub week_field: u16,
+    pub eph: BroadcastEphemeris,
+}
+
+impl RawEph {
+    /// The full GPS week of the ephemeris, the one nearest `hint_week`.
+    pub fn full_week(&self, hint_week: u32) -> u32 {
+        match self.eph.system {
+            System::Gps => resolve_week(self.week_field, hint_week),
+            // GST week 0 is GPS week 1024 (1999-08-22).
+            System::Galileo => 1024 + resolve_mod(self.week_field as u32 % 4096, 4096, hint_week.saturating_sub(1024)),
+        }
+    }
 }
 
 /// A decoded RTCM message.
 #[derive(Clone, Debug, PartialEq)]
 pub enum GnssMessage {
     Msm(MsmEpoch),
-    GpsEph(RawGpsEph),
+    Eph(RawEph),
     /// A valid frame of a type this module does not use.
     Other(u16),
 }
@@ -199,7 +198,11 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
                         cnr_dbhz: g.$cnr.map(|c| c as f64),
                     });
                 }
-                sats.push(SatObs { prn: s.satellite_id, signals });
+                sats.push(SatObs {
+                    system: $sys,
+                    prn: s.satellite_id,
+                    signals,
+                });
             }
             Some(GnssMessage::Msm(MsmEpoch {
                 system: $sys,
@@ -245,10 +248,18 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         Message::Msg1097(v) => {
             msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
-        Message::Msg1019(e) => Some(GnssMessage::GpsEph(RawGpsEph {
-            week_mod1024: e.gps_week_number,
-            // The week stays modulo 1024 until the receiver resolves it.
+        // The weeks stay truncated until the receiver resolves them.
+        Message::Msg1019(e) => Some(GnssMessage::Eph(RawEph {
+            week_field: e.gps_week_number,
             eph: cmsckf_sitl::rtcm_out::ephemeris_from_1019(&e, e.gps_week_number as u32),
+        })),
+        Message::Msg1045(e) => Some(GnssMessage::Eph(RawEph {
+            week_field: e.gal_week_number,
+            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1045(&e, e.gal_week_number as u32),
+        })),
+        Message::Msg1046(e) => Some(GnssMessage::Eph(RawEph {
+            week_field: e.gal_week_number,
+            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1046(&e, e.gal_week_number as u32),
         })),
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
@@ -258,10 +269,14 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
 /// Resolves a 10-bit GPS week against a full-week hint: the full week
 /// nearest to the hint with the same value modulo 1024.
 pub fn resolve_week(week_mod1024: u16, hint_week: u32) -> u32 {
-    let w = week_mod1024 as i64 % 1024;
-    let h = hint_week as i64;
-    let base = h - h.rem_euclid(1024) + w;
-    let best = [base - 1024, base, base + 1024]
+    resolve_mod(week_mod1024 as u32 % 1024, 1024, hint_week)
+}
+
+/// The non-negative integer nearest `hint` that is `field` modulo `modulus`.
+fn resolve_mod(field: u32, modulus: u32, hint: u32) -> u32 {
+    let (w, m, h) = (field as i64, modulus as i64, hint as i64);
+    let base = h - h.rem_euclid(m) + w;
+    let best = [base - m, base, base + m]
         .into_iter()
         .min_by_key(|c| (c - h).abs())
         .unwrap_or(base);
@@ -283,6 +298,17 @@ mod tests {
         assert_eq!(resolve_week(292, 2340), 2340);
         assert_eq!(resolve_week(1023, 2048), 2047);
         assert_eq!(resolve_week(0, 2047), 2048);
+        // Galileo's 12-bit GST week starts at GPS week 1024 (1999-08-22) and
+        // rolls over at GPS week 5120 (2078).
+        let gal = |field: u16, hint: u32| {
+            let mut eph = cmsckf_sitl::gnss::galileo_constellation(hint, 0.0).remove(0);
+            eph.week = field as u32;
+            RawEph { week_field: field, eph }.full_week(hint)
+        };
+        assert_eq!(gal(1419, 2443), 2443);
+        assert_eq!(gal(4095, 5119), 5119);
+        assert_eq!(gal(0, 5119), 5120);
+        assert_eq!(gal(4095, 5121), 5119);
     }
 
     #[test]
