@@ -505,14 +505,8 @@ impl Config {
                 "give serial:DEV:BAUD, tcp:HOST:PORT or file:PATH",
             ));
         }
-        for s in g.systems.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-            if !["G", "E", "R", "C", "J"].contains(&s) {
-                return Err(c.fail(
-                    "systems",
-                    format!("unknown system '{s}'"),
-                    "use a comma-separated list of G, E, R, C, J",
-                ));
-            }
+        if let Err(why) = crate::gnss::parse_systems(&g.systems) {
+            return Err(c.fail("systems", why, "use \"G\", \"E\" or \"G,E\""));
         }
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
@@ -608,6 +602,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("mavlink.address") && e.contains("udpin:"), "{e}");
+        let e = Config::from_toml("[gnss]\nsystems = \"G,R\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("gnss.systems") && e.contains("not supported"), "{e}");
         let e = Config::from_toml("[gnss]\nsystems = \"G,X\"\n", "x")
             .unwrap_err()
             .to_string();

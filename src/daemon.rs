@@ -574,7 +574,8 @@ impl Fusion {
                     crate::gnss::spp::SppOptions {
                         elevation_mask_deg: cfg.gnss.elevation_mask_deg,
                         iono: cfg.gnss.iono,
-                        systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or_default(),
+                        // Validated with the config: the fallback is never taken.
+                        systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or(vec![crate::gnss::rtcm::System::Gps]),
                     },
                     if cfg.gnss.week_hint != 0 {
                         cfg.gnss.week_hint
