@@ -13,6 +13,7 @@
 pub mod feature;
 pub mod frontend;
 pub mod gnss_update;
+pub mod health;
 pub mod math;
 pub mod propagate;
 
@@ -38,6 +39,17 @@ pub const CLK_E: usize = IMU_DIM + 2;
 /// The active block's transition.
 pub type MatActive = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
+
+/// State sanity bounds of [`Estimator::check_health`]: speed (m/s) and IMU
+/// biases (m/s², rad/s), far outside any multirotor's envelope or any
+/// working MEMS IMU.
+const MAX_SPEED_MPS: f64 = 100.0;
+const MAX_ACCEL_BIAS_MPS2: f64 = 2.0;
+const MAX_GYRO_BIAS_RADPS: f64 = 0.5;
+
+/// A code residual this many sigmas from its constellation's median is an
+/// outlier (§8 K5).
+const OUTLIER_SIGMAS: f64 = 5.0;
 
 /// Bound on buffered, not yet integrated IMU samples.
 const IMU_BUFFER_CAP: usize = 4096;
@@ -261,6 +273,8 @@ pub struct Estimator {
     next_kf_id: u64,
     last_kf_t_s: f64,
     pub stats: Stats,
+    /// Divergence detection from the innovations (§9).
+    pub monitor: health::NisMonitor,
 }
 
 /// The full state in a fixed order (IMU, clones, keyframes by id), for
@@ -325,6 +339,7 @@ impl Estimator {
             next_kf_id: 0,
             last_kf_t_s: f64::NEG_INFINITY,
             stats: Stats::default(),
+            monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }
     }
@@ -735,6 +750,8 @@ impl Estimator {
             }
             self.tracks.retain(|_, t| !t.obs.is_empty());
         }
+        let chi2_rejected = report.rejected.get(Reject::Chi2.name()).copied().unwrap_or(0);
+        self.monitor.push_frame(t_s, &report.nis, chi2_rejected);
         Ok(report)
     }
 
@@ -1219,8 +1236,10 @@ impl Estimator {
         }
     }
 
-    /// Health checks on the covariance and state: finite, symmetric, with a
-    /// positive diagonal. Returns the first problem found.
+    /// Health checks (§9): the covariance finite, symmetric, with a positive
+    /// diagonal and a positive-definite active block; the state finite and
+    /// within physical bounds; and the NIS monitor's verdict. Returns the
+    /// first problem found. Allocation-free, so it can run every IMU sample.
     pub fn check_health(&self) -> Result<(), String> {
         let p = &self.P;
         if !p.iter().all(|v| v.is_finite()) {
@@ -1231,6 +1250,20 @@ impl Estimator {
                 return Err(format!("covariance diagonal {i} is {}", p[(i, i)]));
             }
         }
+        // Symmetric (updates re-symmetrise, so any asymmetry is a fault), and
+        // the active block positive definite (a Cholesky of 18×18: cheap).
+        let n = p.nrows();
+        for i in 0..n.min(ACTIVE_DIM) {
+            for j in 0..n {
+                let tol = 1e-9 * (p[(i, i)] * p[(j, j)]).sqrt();
+                if (p[(i, j)] - p[(j, i)]).abs() > tol {
+                    return Err(format!("covariance is not symmetric at ({i}, {j})"));
+                }
+            }
+        }
+        if p.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned().cholesky().is_none() {
+            return Err("the active covariance block is not positive definite".into());
+        }
         let i = &self.imu;
         if ![i.v_B_in_W, i.p_B_in_W, i.b_a, i.b_g]
             .iter()
@@ -1238,7 +1271,18 @@ impl Estimator {
         {
             return Err("state has non-finite entries".into());
         }
-        Ok(())
+        // State sanity: a multirotor's envelope, with margin.
+        if i.v_B_in_W.norm() > MAX_SPEED_MPS {
+            return Err(format!("speed {:.0} m/s is beyond {MAX_SPEED_MPS} m/s", i.v_B_in_W.norm()));
+        }
+        if i.b_a.norm() > MAX_ACCEL_BIAS_MPS2 || i.b_g.norm() > MAX_GYRO_BIAS_RADPS {
+            return Err(format!(
+                "IMU bias out of range (accel {:.2} m/s², gyro {:.3} rad/s)",
+                i.b_a.norm(),
+                i.b_g.norm()
+            ));
+        }
+        self.monitor.verdict()
     }
 }
 
@@ -1337,6 +1381,13 @@ impl Estimator {
                 self.isb_initialised = true;
             }
         }
+        // Robust pre-screen (K5): each constellation's median code residual
+        // stands for its clock error, so a code far from it is an outlier
+        // whatever the clock's variance (the χ² gate alone lets a 30 m
+        // multipath code through while the clock is still uncertain).
+        let isb_of = |s: &gnss_update::SatMeas| if s.system == System::Galileo { 1.0 } else { 0.0 };
+        let median_res = |sys: System| median(code_residuals(sys, self.clock.x + self.clock.z * f64::from(sys == System::Galileo)));
+        let medians = [(System::Gps, median_res(System::Gps)), (System::Galileo, median_res(System::Galileo))];
         // Columns: velocity, position, clock bias, drift, Galileo ISB.
         let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
         let p_sub = self.P.select_rows(&cols).select_columns(&cols);
@@ -1347,7 +1398,7 @@ impl Estimator {
             *st.rejected.entry(why).or_default() += 1;
         };
         for s in sats {
-            let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
+            let isb = isb_of(s);
             let (pr_pred, hp, el) = gnss_update::pseudorange(frame, &p, self.clock.x + isb * self.clock.z, s);
             if el < mask {
                 reject(&mut rep, &mut self.stats, "gnss_below_mask");
@@ -1361,7 +1412,10 @@ impl Estimator {
                 let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0, isb];
                 let r = z - pr_pred;
                 res.1 = Some(r);
-                if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
+                let median = medians.iter().find(|m| m.0 == s.system).and_then(|m| m.1);
+                if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * sigma) {
+                    reject(&mut rep, &mut self.stats, "gnss_pseudorange_outlier");
+                } else if let Some(row) = gated(&h, r, sigma, &p_sub, gate) {
                     rows.push(row);
                     rep.pseudoranges_used += 1;
                 } else {
@@ -1383,6 +1437,9 @@ impl Estimator {
             }
             rep.residuals.push(res);
         }
+        let pr_rejected = rep.rejected.get("gnss_pseudorange_chi2").copied().unwrap_or(0)
+            + rep.rejected.get("gnss_pseudorange_outlier").copied().unwrap_or(0);
+        self.monitor.push_gnss(rep.pseudoranges_used, pr_rejected as usize);
         if rows.is_empty() {
             return Ok(rep);
         }
