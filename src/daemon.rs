@@ -13,7 +13,7 @@
 use std::collections::VecDeque;
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -31,6 +31,7 @@ use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink::{self as mav, Inbound, Link, Outbound};
 use crate::io::Counters;
+use crate::status::{self, Degraded, Status};
 
 /// Errors that stop the daemon from starting.
 #[derive(Debug, thiserror::Error)]
@@ -48,9 +49,9 @@ pub enum DaemonError {
 /// Handles the fusion thread shares with the I/O tasks.
 struct Shared {
     counters: Counters,
-    healthy: Arc<AtomicBool>,
-    initialised: Arc<AtomicBool>,
+    status: Arc<Status>,
     mono_offset_us: Arc<AtomicI64>,
+    start: Instant,
 }
 
 /// What the daemon did, returned at shutdown.
@@ -123,8 +124,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     let (stop_tx, stop_rx) = watch::channel(false);
     let (fusion_tx, fusion_rx) = mpsc::channel::<FusionMsg>(FUSION_QUEUE);
     let (out_tx, mut out_rx) = mpsc::channel::<Outbound>(256);
-    let healthy = Arc::new(AtomicBool::new(false));
-    let initialised = Arc::new(AtomicBool::new(false));
+    let status = Arc::new(Status::default());
     // Companion monotonic → autopilot boot clock offset (µs), from TIMESYNC.
     let mono_offset_us = Arc::new(AtomicI64::new(i64::MIN));
     let start = Instant::now();
@@ -365,12 +365,54 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         })
     };
 
-    // Periodic: heartbeat, stream requests, timesync, counters.
+    // Status: HEARTBEAT at 1 Hz and at once on a change, with the reasons
+    // for a degraded state as STATUSTEXT.
+    let status_task = {
+        let out_tx = out_tx.clone();
+        let status = status.clone();
+        let mut stop = stop_rx.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(50));
+            let mut last: Option<(bool, bool, u32)> = None;
+            let mut last_sent = Instant::now();
+            loop {
+                tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
+                let initialised = status.initialised.load(Ordering::Relaxed);
+                let mut degraded = status.degraded();
+                let since_imu_ms = (start.elapsed().as_millis() as u64)
+                    .saturating_sub(status.last_imu_wall_ms.load(Ordering::Relaxed));
+                if initialised && since_imu_ms > 500 {
+                    degraded |= Degraded::ImuGap.bit();
+                }
+                let now = (initialised, status.healthy.load(Ordering::Relaxed), degraded);
+                if last == Some(now) && last_sent.elapsed() < Duration::from_secs(1) {
+                    continue;
+                }
+                if last.map(|l| l.2) != Some(degraded) && (degraded != 0 || last.is_some()) {
+                    let text = if degraded == 0 {
+                        "cmsckf: nominal".to_string()
+                    } else {
+                        format!("cmsckf degraded: {}", status::describe(degraded))
+                    };
+                    tracing::warn!(degraded = %status::describe(degraded), "status changed");
+                    let severity = if degraded == 0 { 6 } else { 4 };
+                    let _ = out_tx.try_send(Outbound::StatusText { severity, text });
+                }
+                let _ = out_tx.try_send(Outbound::Heartbeat {
+                    healthy: now.1,
+                    initialised,
+                    degraded: degraded != 0,
+                });
+                last = Some(now);
+                last_sent = Instant::now();
+            }
+        })
+    };
+
+    // Periodic: stream requests, timesync, counters.
     let periodic = {
         let out_tx = out_tx.clone();
         let counters = counters.clone();
-        let healthy = healthy.clone();
-        let initialised = initialised.clone();
         let mut stop = stop_rx.clone();
         let imu_interval_us = 1e6 / cfg.mavlink.imu_rate_hz as f32;
         tokio::spawn(async move {
@@ -379,10 +421,6 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
             loop {
                 tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
                 n += 1;
-                let _ = out_tx.try_send(Outbound::Heartbeat {
-                    healthy: healthy.load(Ordering::Relaxed),
-                    initialised: initialised.load(Ordering::Relaxed),
-                });
                 // Ask for the streams until they arrive.
                 let wanted = [
                     ("imu_highres", mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
@@ -425,9 +463,9 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     let fusion = {
         let shared = Shared {
             counters: counters.clone(),
-            healthy: healthy.clone(),
-            initialised: initialised.clone(),
+            status: status.clone(),
             mono_offset_us: mono_offset_us.clone(),
+            start,
         };
         let cfg = cfg.clone();
         let out_tx = out_tx.clone();
@@ -441,7 +479,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     shutdown.await;
     tracing::info!("cmsckf shutting down");
     let _ = stop_tx.send(true);
-    for t in [rx_task, fwd, periodic] {
+    for t in [rx_task, fwd, periodic, status_task] {
         let _ = t.await;
     }
     let _ = feat_task.await;
@@ -489,6 +527,8 @@ pub struct Fusion {
     next_output_t: f64,
     reset_counter: u8,
     norm: Vec<NormObs>,
+    /// Degraded-state reasons, in autopilot time.
+    tracker: status::Tracker,
 }
 
 fn fusion_loop(
@@ -500,17 +540,17 @@ fn fusion_loop(
 ) {
     let Shared {
         counters,
-        healthy,
-        initialised,
+        status,
         mono_offset_us,
+        start,
     } = shared;
     let mut f = Fusion::new(cfg, log);
     let ctx = Ctx {
         counters,
         out,
-        healthy,
-        initialised,
+        status,
         mono_offset_us,
+        start,
     };
     while let Some(msg) = rx.blocking_recv() {
         f.handle(msg, &ctx);
@@ -524,9 +564,10 @@ fn fusion_loop(
 pub struct Ctx {
     pub counters: Counters,
     pub out: mpsc::Sender<Outbound>,
-    pub healthy: Arc<AtomicBool>,
-    pub initialised: Arc<AtomicBool>,
+    pub status: Arc<Status>,
     pub mono_offset_us: Arc<AtomicI64>,
+    /// The daemon's start (wall clock), for the IMU's wall-time age.
+    pub start: Instant,
 }
 
 impl Fusion {
@@ -575,7 +616,8 @@ impl Fusion {
                         elevation_mask_deg: cfg.gnss.elevation_mask_deg,
                         iono: cfg.gnss.iono,
                         // Validated with the config: the fallback is never taken.
-                        systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or(vec![crate::gnss::rtcm::System::Gps]),
+                        systems: crate::gnss::parse_systems(&cfg.gnss.systems)
+                            .unwrap_or(vec![crate::gnss::rtcm::System::Gps]),
                     },
                     if cfg.gnss.week_hint != 0 {
                         cfg.gnss.week_hint
@@ -604,6 +646,7 @@ impl Fusion {
             last_frame_t: f64::NEG_INFINITY,
             next_output_t: f64::NEG_INFINITY,
             reset_counter: 0,
+            tracker: status::Tracker::default(),
             norm: Vec::with_capacity(cfg.features.max_features),
             cfg,
         }
@@ -702,6 +745,19 @@ impl Fusion {
                         "autopilot clock jumped back: resetting the filter"
                     );
                     self.log_text(4, m.t_s, "autopilot clock jumped back (reboot): filter reset");
+                    let _ = ctx.out.try_send(Outbound::StatusText {
+                        severity: 4,
+                        text: "cmsckf: autopilot reboot seen, filter reset".into(),
+                    });
+                    self.tracker.restart_clock();
+                    self.tracker.hold(Degraded::FilterReset, m.t_s);
+                    // GPS time maps onto the new boot clock only after the
+                    // next SYSTEM_TIME.
+                    self.gnss.unix_minus_boot_s = None;
+                    // Restart from the rebooted autopilot's own attitude and
+                    // position, not from the last ones before it went quiet.
+                    self.attitude = None;
+                    self.local = None;
                     self.est = None;
                     self.reset_counter = self.reset_counter.wrapping_add(1);
                     self.pending.clear();
@@ -715,9 +771,12 @@ impl Fusion {
                     ctx.counters.add("imu_time_backwards", 1);
                     return;
                 }
-                if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.5 {
-                    ctx.counters.add("imu_gap", 1);
-                    tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
+                if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.2 {
+                    self.tracker.hold(Degraded::ImuGap, m.t_s);
+                    if m.t_s - self.last_imu_t > 0.5 {
+                        ctx.counters.add("imu_gap", 1);
+                        tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
+                    }
                 }
                 self.last_imu_t = m.t_s;
                 ctx.counters.add("imu_samples", 1);
@@ -727,11 +786,15 @@ impl Fusion {
                 &json!({"t_us": (m.t_s * 1e6).round() as u64, "accel_mps2": m.accel_mps2.as_slice(), "gyro_radps": m.gyro_radps.as_slice()}),
             );
                 self.on_imu(m, &ctx.counters, &ctx.out);
-                ctx.initialised.store(self.est.is_some(), Ordering::Relaxed);
-                ctx.healthy.store(
+                let st = &ctx.status;
+                st.initialised.store(self.est.is_some(), Ordering::Relaxed);
+                st.healthy.store(
                     self.est.as_ref().is_some_and(|e| e.check_health().is_ok()),
                     Ordering::Relaxed,
                 );
+                st.last_imu_wall_ms
+                    .store(ctx.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+                self.tracker.update(m.t_s, self.est.is_some(), &ctx.counters, st);
             }
         }
     }
@@ -887,6 +950,14 @@ impl Fusion {
                                 );
                             }
                             counters.add("gnss_epochs_fused", 1);
+                            self.tracker.gnss_fused(t);
+                            let codes_rejected = ["gnss_pseudorange_chi2", "gnss_pseudorange_outlier"]
+                                .iter()
+                                .filter_map(|k| rep.rejected.get(k))
+                                .sum::<u64>();
+                            if codes_rejected >= 2 {
+                                self.tracker.hold(Degraded::GnssOutliers, t);
+                            }
                             counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
                             counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
                             for (k, v) in &rep.rejected {
@@ -958,6 +1029,7 @@ impl Fusion {
                         }
                     }
                     counters.add("frames_processed", 1);
+                    self.tracker.frame_processed(t);
                     counters.add("tracks_used", rep.tracks_used as u64);
                     counters.add("global_updates", rep.global_updates as u64);
                     for (k, v) in &rep.rejected {
@@ -981,6 +1053,11 @@ impl Fusion {
                             "level": 4, "message": format!("filter reset: {why}"), "name": "cmsckf", "file": file!(), "line": 0}),
                     );
                 }
+                let _ = out.try_send(Outbound::StatusText {
+                    severity: 2,
+                    text: format!("cmsckf reset: {why}"),
+                });
+                self.tracker.hold(Degraded::FilterReset, m.t_s);
                 self.est = None;
                 self.reset_counter = self.reset_counter.wrapping_add(1);
                 return;

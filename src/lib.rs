@@ -7,7 +7,8 @@
 //! - [`config`]: the configuration, matching `config/default.toml`
 //! - [`eval`]: offline evaluation on the simulator (`cmsckf evaluate`)
 //! - [`daemon`]: the tasks of `cmsckf run`; [`io`]: the MAVLink link and the
-//!   feature socket; [`gnss`]: RTCM3 input
+//!   feature socket; [`gnss`]: RTCM3 input; [`status`]: the state the
+//!   autopilot sees in `HEARTBEAT`
 //!
 //! The simulator lives in the `cmsckf-sitl` crate (`sitl/`).
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, P_LG
@@ -21,3 +22,4 @@ pub mod gnss;
 pub mod io;
 pub mod replay;
 pub mod review;
+pub mod status;

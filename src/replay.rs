@@ -155,9 +155,9 @@ pub fn replay(
     let ctx = Ctx {
         counters: Counters::default(),
         out: out_tx,
-        healthy: Default::default(),
-        initialised: Default::default(),
+        status: Default::default(),
         mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
+        start: Instant::now(),
     };
     let mut fusion = Fusion::new(cfg, Some(log));
     let start = Instant::now();

@@ -1,6 +1,7 @@
 //! Fault injection: one SITL flight with every injectable fault. The daemon
-//! survives each one, its estimate stays bounded, it recovers within 5 s of
-//! the fault's end, and the matching rejections are counted.
+//! survives each one, its HEARTBEAT shows it degraded, its estimate stays
+//! bounded (or is reset, for the autopilot's reboot), it recovers within 5 s
+//! of the fault's end, and the matching rejections are counted.
 
 mod common;
 
@@ -24,11 +25,14 @@ async fn the_daemon_rides_through_injected_faults() {
         "rtcm_bad_crc@42+3",
         "pr_outlier@46+5",
         "frontend_restart@52+2",
+        "dup_reorder@56+2",
+        "clock_jump@64+2",
+        "imu_spike@72+1",
     ]
     .iter()
     .map(|f| f.parse().unwrap())
     .collect();
-    let ds = Dataset::generate("racetrack", 3, Some(60.0), &eval::sim_config_for(&cfg)).unwrap();
+    let ds = Dataset::generate("racetrack", 3, Some(82.0), &eval::sim_config_for(&cfg)).unwrap();
     let report = serve(
         &ServeOptions {
             mavlink: format!("udpout:127.0.0.1:{port}"),
@@ -43,9 +47,23 @@ async fn the_daemon_rides_through_injected_faults() {
     let _ = stop_tx.send(());
     let summary = daemon.await.unwrap().expect("the daemon survived to the end");
     let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    for t in &report.status_texts {
+        eprintln!("STATUSTEXT {:.1} s: {}", t.0, t.1);
+    }
     for f in &report.faults {
         eprintln!("{f:?}");
-        assert!(f.peak_error_m < 5.0, "{}: peak error {} m", f.name, f.peak_error_m);
+        assert!(
+            f.degraded_reported,
+            "{}: HEARTBEAT never showed a degraded state",
+            f.name
+        );
+        // Bounded, or reset (a fooled filter may run far before it is caught).
+        assert!(
+            f.peak_error_m < 5.0 || f.resets > 0,
+            "{}: peak error {} m",
+            f.name,
+            f.peak_error_m
+        );
         assert!(
             f.recovery_s.is_finite() && f.recovery_s <= 5.0,
             "{}: recovery {} s",
@@ -53,12 +71,28 @@ async fn the_daemon_rides_through_injected_faults() {
             f.recovery_s
         );
     }
-    assert_eq!(report.reset_count, 0);
+    // The reboot and the divergence after the IMU spike are the only
+    // resets, and each told the autopilot why.
+    let resets: Vec<(&str, u32)> = report.faults.iter().map(|f| (f.name.as_str(), f.resets)).collect();
+    let expected = |n: &str| u32::from(n == "clock_jump" || n == "imu_spike");
+    assert!(resets.iter().all(|(n, r)| *r == expected(n)), "{resets:?}");
+    assert_eq!(report.reset_count, 2);
+    assert_eq!(c("autopilot_clock_reset"), 1);
+    assert_eq!(c("filter_reset"), 1);
+    assert!(report.status_texts.iter().any(|t| t.1.contains("reboot")));
+    assert!(report.status_texts.iter().any(|t| t.1.contains("reset: divergence")));
+    assert!(report.status_texts.iter().any(|t| t.1.contains("degraded")));
     assert!(report.ate_m < 2.0, "ATE {}", report.ate_m);
     // Each fault left its trace in the counters.
     assert!(c("imu_gap") >= 2, "link drop and IMU gap");
     assert!(c("mavlink_rejected_non_finite") > 0, "NaN IMU");
+    assert!(c("mavlink_rejected_imu_out_of_range") > 0, "absurd IMU");
     assert!(c("rtcm_crc_failure") > 0, "bad RTCM CRC");
-    assert!(c("gnss_pseudorange_chi2") > 0, "pseudorange outliers");
+    assert!(
+        c("gnss_pseudorange_chi2") + c("gnss_pseudorange_outlier") > 0,
+        "pseudorange outliers"
+    );
+    assert!(c("imu_time_backwards") > 0, "duplicate and out-of-order IMU");
+    assert!(c("feature_time_backwards") > 0, "duplicate camera lines");
     assert!(c("feature_connections") >= 2, "front end restart");
 }

@@ -184,6 +184,7 @@ fn mavlink_frames() {
             &Outbound::Heartbeat {
                 healthy: true,
                 initialised: true,
+                degraded: false,
             },
             1,
         ),

@@ -68,14 +68,23 @@ pub enum FaultKind {
     CameraOutage,
     /// No IMU samples.
     ImuGap,
-    /// IMU samples with NaN.
+    /// IMU samples with NaN or absurd (1e5 m/s²) accelerations, alternately.
     NanImu,
+    /// A plausible but wrong 50 m/s² added to the x accelerometer (a
+    /// saturating vibration): the filter is fooled, diverges and must reset.
+    ImuSpike,
     /// The front end disconnects and reconnects at the end.
     FrontendRestart,
     /// RTCM frames corrupted (bad CRC).
     RtcmBadCrc,
     /// 100 m added to two satellites' pseudoranges.
     PrOutlier,
+    /// The autopilot reboots at the start: silent for the duration, then
+    /// its boot clock restarts from 1 s.
+    ClockJump,
+    /// IMU samples sent in swapped pairs and twice each; camera lines and
+    /// RTCM messages sent twice.
+    DupReorder,
 }
 
 impl FaultKind {
@@ -89,8 +98,25 @@ impl FaultKind {
             FaultKind::FrontendRestart => "frontend_restart",
             FaultKind::RtcmBadCrc => "rtcm_bad_crc",
             FaultKind::PrOutlier => "pr_outlier",
+            FaultKind::ClockJump => "clock_jump",
+            FaultKind::DupReorder => "dup_reorder",
+            FaultKind::ImuSpike => "imu_spike",
         }
     }
+
+    pub const ALL: [FaultKind; 11] = [
+        FaultKind::LinkDrop,
+        FaultKind::GnssOutage,
+        FaultKind::CameraOutage,
+        FaultKind::ImuGap,
+        FaultKind::NanImu,
+        FaultKind::FrontendRestart,
+        FaultKind::RtcmBadCrc,
+        FaultKind::PrOutlier,
+        FaultKind::ClockJump,
+        FaultKind::DupReorder,
+        FaultKind::ImuSpike,
+    ];
 }
 
 /// `NAME@START+DURATION` (seconds of flight).
@@ -110,16 +136,7 @@ impl Fault {
 impl std::str::FromStr for Fault {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let kinds = [
-            FaultKind::LinkDrop,
-            FaultKind::GnssOutage,
-            FaultKind::CameraOutage,
-            FaultKind::ImuGap,
-            FaultKind::NanImu,
-            FaultKind::FrontendRestart,
-            FaultKind::RtcmBadCrc,
-            FaultKind::PrOutlier,
-        ];
+        let kinds = FaultKind::ALL;
         let (name, rest) = s
             .split_once('@')
             .ok_or_else(|| format!("fault '{s}': expected NAME@START+DURATION"))?;
@@ -158,6 +175,9 @@ pub struct FaultReport {
     pub recovery_s: f64,
     pub peak_error_m: f64,
     pub resets: u32,
+    /// A daemon `HEARTBEAT` showed a state other than active between the
+    /// fault's start and 3 s after its end.
+    pub degraded_reported: bool,
 }
 
 /// Settings of one served flight.
@@ -178,6 +198,8 @@ pub struct ServeOptions {
 struct Received {
     wall: Instant,
     t_us: u64,
+    /// Flight time of `t_us` (see [`flight_times`]).
+    t_s: f64,
     p: Vector3<f64>,
     cov: [f32; 21],
     reset_counter: u8,
@@ -205,6 +227,8 @@ pub struct Report {
     pub odometry_received: usize,
     pub gps_origin_set: bool,
     pub faults: Vec<FaultReport>,
+    /// The daemon's `STATUSTEXT`s: `(flight time s, text)`.
+    pub status_texts: Vec<(f64, String)>,
 }
 
 impl Report {
@@ -237,8 +261,32 @@ pub enum ServeError {
     Link(String, std::io::Error),
 }
 
-fn boot_us(t_s: f64) -> u64 {
-    ((t_s + BOOT0_S) * 1e6).round() as u64
+/// The autopilot's boot clock (µs) at flight time `t_s`: `BOOT0_S` at the
+/// start, or 1 s at a reboot at `reboot_s` and counting from there.
+fn boot_us(t_s: f64, reboot_s: Option<f64>) -> u64 {
+    match reboot_s {
+        Some(r) if t_s >= r => ((t_s - r + 1.0) * 1e6).round() as u64,
+        _ => ((t_s + BOOT0_S) * 1e6).round() as u64,
+    }
+}
+
+/// Flight times of the estimates, in arrival order: their boot-clock stamps
+/// mapped back through [`boot_us`], switching to the post-reboot clock at
+/// the first stamp that falls back by more than 2 s.
+fn flight_times(rec: &mut [Received], reboot_s: Option<f64>) {
+    let mut after = false;
+    let mut max_boot_s = f64::NEG_INFINITY;
+    for r in rec {
+        let boot_s = r.t_us as f64 * 1e-6;
+        if reboot_s.is_some() && boot_s < max_boot_s - 2.0 {
+            after = true;
+        }
+        max_boot_s = max_boot_s.max(boot_s);
+        r.t_s = match reboot_s {
+            Some(rb) if after => boot_s + rb - 1.0,
+            _ => boot_s - BOOT0_S,
+        };
+    }
 }
 
 /// Serves `ds` to the daemon and scores its estimates.
@@ -256,6 +304,17 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     };
     let started = Instant::now();
     let boot_ns = move || ((BOOT0_S * 1e9) as i64) + started.elapsed().as_nanos() as i64;
+    let reboot_s = opts
+        .faults
+        .iter()
+        .find(|f| f.kind == FaultKind::ClockJump)
+        .map(|f| f.start_s);
+    let boot = move |t: f64| boot_us(t, reboot_s);
+    let t_start = Instant::now();
+    let speedup = opts.speedup;
+    // The daemon's HEARTBEAT states and STATUSTEXTs, with flight times.
+    let heartbeats: Arc<Mutex<Vec<(f64, apm::MavState)>>> = Arc::default();
+    let status_texts: Arc<Mutex<Vec<(f64, String)>>> = Arc::default();
     let received: Arc<Mutex<Vec<Received>>> = Arc::default();
     let extras: Arc<Mutex<(usize, usize)>> = Arc::default(); // (ODOMETRY, SET_GPS_GLOBAL_ORIGIN)
     let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
@@ -265,6 +324,9 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
         let conn = conn.clone();
         let received = received.clone();
         let extras = extras.clone();
+        let heartbeats = heartbeats.clone();
+        let status_texts = status_texts.clone();
+        let flight_t = move || t_start.elapsed().as_secs_f64() * speedup;
         tokio::spawn(async move {
             loop {
                 let r = tokio::select! { r = conn.recv() => r, _ = stop_rx.changed() => return };
@@ -278,10 +340,27 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                             v.push(Received {
                                 wall: Instant::now(),
                                 t_us: d.usec,
+                                t_s: f64::NAN,
                                 p: Vector3::new(d.x as f64, d.y as f64, d.z as f64),
                                 cov: d.covariance,
                                 reset_counter: d.reset_counter,
                             });
+                        }
+                    }
+                    apm::MavMessage::HEARTBEAT(hb) => {
+                        if let Ok(mut v) = heartbeats.lock() {
+                            v.push((flight_t(), hb.system_status));
+                        }
+                    }
+                    apm::MavMessage::STATUSTEXT(st) => {
+                        if let Ok(mut v) = status_texts.lock() {
+                            let text = st
+                                .text
+                                .to_str()
+                                .unwrap_or("(not UTF-8)")
+                                .trim_end_matches('\0')
+                                .to_string();
+                            v.push((flight_t(), text));
                         }
                     }
                     apm::MavMessage::ODOMETRY(_) => {
@@ -330,7 +409,6 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let mut k_gnss = 0usize;
     let mut rtcm_seq = 0u8;
     let mut frames_sent = 0;
-    let t_start = Instant::now();
     let send = |m: apm::MavMessage| {
         let conn = conn.clone();
         async move {
@@ -348,7 +426,9 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
         let target = t_start + Duration::from_secs_f64(t.max(0.0) / opts.speedup);
         tokio::time::sleep_until(target.into()).await;
         let active = |k: FaultKind| opts.faults.iter().any(|f| f.kind == k && f.active(t));
-        let link_down = active(FaultKind::LinkDrop);
+        // A rebooting autopilot is as silent as a dropped link.
+        let link_down = active(FaultKind::LinkDrop) || active(FaultKind::ClockJump);
+        let copies = if active(FaultKind::DupReorder) { 2 } else { 1 };
         if t == t_gnss {
             // The receiver's MSM7 epoch, as it would relay it.
             let mut ep = ds.gnss[k_gnss].clone();
@@ -362,8 +442,10 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                     if active(FaultKind::RtcmBadCrc) && bytes.len() > 10 {
                         bytes[8] ^= 0xFF;
                     }
-                    for f in rtcm_fragments(&bytes, rtcm_seq) {
-                        send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+                    for _ in 0..copies {
+                        for f in rtcm_fragments(&bytes, rtcm_seq) {
+                            send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+                        }
                     }
                     rtcm_seq = rtcm_seq.wrapping_add(1);
                 }
@@ -393,7 +475,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             let unix_s = GPS_EPOCH_UNIX_S + g.start_week as f64 * 604_800.0 + g.start_tow_s + t - GPS_UTC_LEAP_S;
             send(apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
                 time_unix_usec: (unix_s * 1e6).round() as u64,
-                time_boot_ms: (boot_us(t) / 1000) as u32,
+                time_boot_ms: (boot(t) / 1000) as u32,
             }))
             .await;
             let o = g.origin_llh;
@@ -402,7 +484,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                 latitude: (o[0] * 1e7).round() as i32,
                 longitude: (o[1] * 1e7).round() as i32,
                 altitude: (o[2] * 1e3).round() as i32,
-                time_usec: boot_us(t),
+                time_usec: boot(t),
             }))
             .await;
             // Broadcast ephemerides every 30 s, as receivers repeat them.
@@ -420,7 +502,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             next_slow += 0.1;
             let s = ds.trajectory.sample(t);
             let (r, p, y) = s.q_W_B.euler_angles();
-            let ms = (boot_us(t) / 1000) as u32;
+            let ms = (boot(t) / 1000) as u32;
             send(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
                 time_boot_ms: ms,
                 roll: r as f32,
@@ -442,28 +524,41 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             }))
             .await;
         } else if t == t_imu {
-            let m = &ds.imu[k_imu];
             if active(FaultKind::ImuGap) {
                 k_imu += 1;
                 continue;
             }
             let nan = active(FaultKind::NanImu);
-            send(apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
-                time_usec: boot_us(m.t_s),
-                xacc: if nan { f32::NAN } else { m.accel_mps2.x as f32 },
-                yacc: m.accel_mps2.y as f32,
-                zacc: m.accel_mps2.z as f32,
-                xgyro: m.gyro_radps.x as f32,
-                ygyro: m.gyro_radps.y as f32,
-                zgyro: m.gyro_radps.z as f32,
-                fields_updated: apm::HighresImuUpdatedFlags::from_bits_truncate(0x3f),
-                ..Default::default()
-            }))
-            .await;
-            if !nan {
-                sent_wall[k_imu] = Some(Instant::now());
+            let spike = if active(FaultKind::ImuSpike) { 50.0 } else { 0.0 };
+            let imu = |k: usize| {
+                let m = &ds.imu[k];
+                let bad = if k.is_multiple_of(2) { f32::NAN } else { 1e5 };
+                apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+                    time_usec: boot(m.t_s),
+                    xacc: if nan { bad } else { (m.accel_mps2.x + spike) as f32 },
+                    yacc: m.accel_mps2.y as f32,
+                    zacc: m.accel_mps2.z as f32,
+                    xgyro: m.gyro_radps.x as f32,
+                    ygyro: m.gyro_radps.y as f32,
+                    zgyro: m.gyro_radps.z as f32,
+                    fields_updated: apm::HighresImuUpdatedFlags::from_bits_truncate(0x3f),
+                    ..Default::default()
+                })
+            };
+            // Duplicated and out of order: the next sample first, then this
+            // one twice.
+            let order: &[usize] = if copies > 1 && k_imu + 1 < ds.imu.len() {
+                &[1, 0, 0]
+            } else {
+                &[0]
+            };
+            for &j in order {
+                send(imu(k_imu + j)).await;
+                if !nan && sent_wall[k_imu + j].is_none() {
+                    sent_wall[k_imu + j] = Some(Instant::now());
+                }
             }
-            k_imu += 1;
+            k_imu += order.iter().max().map_or(1, |m| m + 1);
         } else {
             let f = &ds.frames[k_cam];
             k_cam += 1;
@@ -475,7 +570,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             if active(FaultKind::CameraOutage) {
                 continue;
             }
-            let mut line = format!("{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[", boot_us(f.t_s));
+            let mut line = format!("{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[", boot(f.t_s));
             for (i, o) in f.features.iter().enumerate() {
                 if i > 0 {
                     line.push(',');
@@ -487,7 +582,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                 feat = UnixStream::connect(&opts.feature_socket).await.ok();
             }
             if let Some(s) = feat.as_mut() {
-                if s.write_all(line.as_bytes()).await.is_ok() {
+                if s.write_all(line.repeat(copies).as_bytes()).await.is_ok() {
                     frames_sent += 1;
                 } else {
                     feat = None;
@@ -499,9 +594,12 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     tokio::time::sleep(Duration::from_millis(300)).await;
     let _ = stop_tx.send(true);
     let _ = rx.await;
-    let rec = received.lock().map(|v| v.clone()).unwrap_or_default();
+    let mut rec = received.lock().map(|v| v.clone()).unwrap_or_default();
+    flight_times(&mut rec, reboot_s);
+    let hbs = heartbeats.lock().map(|v| v.clone()).unwrap_or_default();
     let mut report = score(ds, &rec, &sent_wall, rate_imu, k_imu, frames_sent, opts.speedup);
-    report.faults = opts.faults.iter().map(|f| fault_report(ds, &rec, f)).collect();
+    report.faults = opts.faults.iter().map(|f| fault_report(ds, &rec, &hbs, f)).collect();
+    report.status_texts = status_texts.lock().map(|v| v.clone()).unwrap_or_default();
     if let Ok(e) = extras.lock() {
         report.odometry_received = e.0;
         report.gps_origin_set = e.1 > 0;
@@ -533,7 +631,7 @@ fn score(
     let mut cov_ok = true;
     let mut last_reset = rec.first().map(|r| r.reset_counter);
     for r in rec {
-        let t = r.t_us as f64 * 1e-6 - BOOT0_S;
+        let t = r.t_s;
         est.push(r.p);
         truth.push(ds.trajectory.sample(t).p_B_in_W);
         let k = (t * rate_imu).round();
@@ -554,8 +652,8 @@ fn score(
     } else {
         Some(metrics::ate(&est, &truth))
     };
-    let t_first = rec.first().map_or(f64::NAN, |r| r.t_us as f64 * 1e-6 - BOOT0_S);
-    let t_last = rec.last().map_or(f64::NAN, |r| r.t_us as f64 * 1e-6 - BOOT0_S);
+    let t_first = rec.first().map_or(f64::NAN, |r| r.t_s);
+    let t_last = rec.last().map_or(f64::NAN, |r| r.t_s);
     Report {
         duration_s: ds.duration_s,
         estimates_received: rec.len(),
@@ -577,16 +675,20 @@ fn score(
         odometry_received: 0,
         gps_origin_set: false,
         faults: Vec::new(),
+        status_texts: Vec::new(),
     }
 }
 
 /// Error, peak and recovery around one fault (see [`FaultReport`]).
-fn fault_report(ds: &Dataset, rec: &[Received], f: &Fault) -> FaultReport {
+fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[(f64, apm::MavState)], f: &Fault) -> FaultReport {
     let end = f.start_s + f.duration_s;
+    let degraded_reported = heartbeats
+        .iter()
+        .any(|(t, s)| *t >= f.start_s && *t <= end + 3.0 && *s != apm::MavState::MAV_STATE_ACTIVE);
     let err: Vec<(f64, f64, u8)> = rec
         .iter()
         .map(|r| {
-            let t = r.t_us as f64 * 1e-6 - BOOT0_S;
+            let t = r.t_s;
             (t, (r.p - ds.trajectory.sample(t).p_B_in_W).norm(), r.reset_counter)
         })
         .collect();
@@ -599,12 +701,11 @@ fn fault_report(ds: &Dataset, rec: &[Received], f: &Fault) -> FaultReport {
     let threshold = 2.0 * if baseline.is_finite() { baseline } else { 0.0 } + 0.5;
     let window: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= f.start_s && e.0 <= end + 5.0).collect();
     let peak = window.iter().map(|e| e.1).fold(0.0, f64::max);
-    let mut resets = 0;
-    for w in window.windows(2) {
-        if w[0].2 != w[1].2 {
-            resets += 1;
-        }
-    }
+    // Resets: changes of reset_counter from the last estimate before the
+    // fault through the window.
+    let before_start = err.iter().rev().find(|e| e.0 < f.start_s).map(|e| e.2);
+    let counters: Vec<u8> = before_start.into_iter().chain(window.iter().map(|e| e.2)).collect();
+    let resets = counters.windows(2).filter(|w| w[0] != w[1]).count() as u32;
     // Recovered at the first time after the end from which every estimate
     // for a second stays under the threshold.
     let after: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= end).collect();
@@ -630,5 +731,6 @@ fn fault_report(ds: &Dataset, rec: &[Received], f: &Fault) -> FaultReport {
         recovery_s,
         peak_error_m: peak,
         resets,
+        degraded_reported,
     }
 }

@@ -6,8 +6,9 @@
 //! truth with a covariance that does not know it) sees every measurement as
 //! an outlier. So, over a sliding window of measurement time (README.md §9):
 //!
-//! - **D1 (vision):** with at least `min_tracks` gated tracks in the window,
-//!   the fraction rejected by the χ² gate above `max_reject_fraction`, or the
+//! - **D1 (vision):** with at least `min_tracks` tracks in the window, the
+//!   fraction the poses cannot explain (rejected by the χ² gate, or failing
+//!   to triangulate to a valid depth or fit) above `max_reject_fraction`, or the
 //!   accepted tracks' mean NIS per degree of freedom above `max_nis_per_dof`;
 //! - **D2 (GNSS):** over the last `gnss_epochs` epochs, with at least
 //!   `min_gnss_codes` pseudoranges gated, the fraction rejected above
@@ -36,7 +37,7 @@ pub struct MonitorSettings {
 impl Default for MonitorSettings {
     fn default() -> Self {
         Self {
-            window_s: 3.0,
+            window_s: 1.0,
             min_tracks: 60,
             max_reject_fraction: 0.5,
             max_nis_per_dof: 5.0,
@@ -75,9 +76,13 @@ impl NisMonitor {
     }
 
     /// Records a frame: the NIS and degrees of freedom of each accepted
-    /// track, and the number the χ² gate rejected.
-    pub fn push_frame(&mut self, t_s: f64, nis: &[(f64, usize)], chi2_rejected: u64) {
-        while self.frames.front().is_some_and(|f| f.t_s < t_s - self.settings.window_s) {
+    /// track, and the number of tracks rejected as inconsistent.
+    pub fn push_frame(&mut self, t_s: f64, nis: &[(f64, usize)], rejected: u64) {
+        while self
+            .frames
+            .front()
+            .is_some_and(|f| f.t_s < t_s - self.settings.window_s)
+        {
             self.frames.pop_front();
         }
         // Bounded even if the time stamps stall: at most 1000 frames.
@@ -87,7 +92,7 @@ impl NisMonitor {
         self.frames.push_back(FrameGate {
             t_s,
             accepted: nis.len() as u64,
-            rejected: chi2_rejected,
+            rejected,
             nis_sum: nis.iter().map(|n| n.0).sum(),
             dof_sum: nis.iter().map(|n| n.1 as u64).sum(),
         });
@@ -112,7 +117,7 @@ impl NisMonitor {
             let frac = rej as f64 / n as f64;
             if frac > s.max_reject_fraction {
                 return Err(format!(
-                    "divergence: the χ² gate rejected {:.0}% of {n} tracks in {} s",
+                    "divergence: {:.0}% of {n} tracks inconsistent in {} s",
                     100.0 * frac,
                     s.window_s
                 ));
@@ -128,7 +133,7 @@ impl NisMonitor {
         let (acc, rej) = self.gnss.iter().fold((0, 0), |a, g| (a.0 + g.0, a.1 + g.1));
         if acc + rej >= s.min_gnss_codes && rej as f64 > s.max_reject_fraction * (acc + rej) as f64 {
             return Err(format!(
-                "divergence: the χ² gate rejected {rej} of {} pseudoranges in {} GNSS epochs",
+                "divergence: {rej} of {} pseudoranges rejected in {} GNSS epochs",
                 acc + rej,
                 self.gnss.len()
             ));
@@ -146,7 +151,7 @@ mod tests {
         let mut m = NisMonitor::new(MonitorSettings::default());
         // 90 frames of 50 tracks with NIS ≈ dof and 2% rejected: healthy.
         for k in 0..90 {
-            m.push_frame(k as f64 / 30.0, &vec![(3.8, 4); 49], 1);
+            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 49], 1);
             assert!(m.verdict().is_ok());
         }
         // Nothing at all (an outage) is not a divergence.
@@ -158,7 +163,7 @@ mod tests {
         // Then most tracks fail the gate: diverged within the window.
         let mut fired = None;
         for k in 90..200 {
-            m.push_frame(k as f64 / 30.0, &vec![(3.8, 4); 10], 40);
+            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 10], 40);
             if m.verdict().is_err() {
                 fired = Some(k);
                 break;
@@ -169,7 +174,7 @@ mod tests {
         // Accepted but far too large innovations also count.
         let mut big = NisMonitor::new(MonitorSettings::default());
         for k in 0..30 {
-            big.push_frame(k as f64 / 30.0, &vec![(40.0, 4); 20], 0);
+            big.push_frame(k as f64 / 30.0, &[(40.0, 4); 20], 0);
         }
         assert!(big.verdict().unwrap_err().contains("mean NIS"));
     }

@@ -750,8 +750,13 @@ impl Estimator {
             }
             self.tracks.retain(|_, t| !t.obs.is_empty());
         }
-        let chi2_rejected = report.rejected.get(Reject::Chi2.name()).copied().unwrap_or(0);
-        self.monitor.push_frame(t_s, &report.nis, chi2_rejected);
+        // Tracks the poses cannot explain: failed the χ² gate, or failed to
+        // triangulate to a depth or a fit (§9 D1).
+        let inconsistent = [Reject::Chi2, Reject::BadDepth, Reject::NotConverged]
+            .iter()
+            .filter_map(|r| report.rejected.get(r.name()))
+            .sum::<u64>();
+        self.monitor.push_frame(t_s, &report.nis, inconsistent);
         Ok(report)
     }
 
@@ -1261,7 +1266,11 @@ impl Estimator {
                 }
             }
         }
-        if p.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned().cholesky().is_none() {
+        if p.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0)
+            .into_owned()
+            .cholesky()
+            .is_none()
+        {
             return Err("the active covariance block is not positive definite".into());
         }
         let i = &self.imu;
@@ -1273,7 +1282,10 @@ impl Estimator {
         }
         // State sanity: a multirotor's envelope, with margin.
         if i.v_B_in_W.norm() > MAX_SPEED_MPS {
-            return Err(format!("speed {:.0} m/s is beyond {MAX_SPEED_MPS} m/s", i.v_B_in_W.norm()));
+            return Err(format!(
+                "speed {:.0} m/s is beyond {MAX_SPEED_MPS} m/s",
+                i.v_B_in_W.norm()
+            ));
         }
         if i.b_a.norm() > MAX_ACCEL_BIAS_MPS2 || i.b_g.norm() > MAX_GYRO_BIAS_RADPS {
             return Err(format!(
@@ -1386,8 +1398,16 @@ impl Estimator {
         // whatever the clock's variance (the χ² gate alone lets a 30 m
         // multipath code through while the clock is still uncertain).
         let isb_of = |s: &gnss_update::SatMeas| if s.system == System::Galileo { 1.0 } else { 0.0 };
-        let median_res = |sys: System| median(code_residuals(sys, self.clock.x + self.clock.z * f64::from(sys == System::Galileo)));
-        let medians = [(System::Gps, median_res(System::Gps)), (System::Galileo, median_res(System::Galileo))];
+        let median_res = |sys: System| {
+            median(code_residuals(
+                sys,
+                self.clock.x + self.clock.z * f64::from(sys == System::Galileo),
+            ))
+        };
+        let medians = [
+            (System::Gps, median_res(System::Gps)),
+            (System::Galileo, median_res(System::Galileo)),
+        ];
         // Columns: velocity, position, clock bias, drift, Galileo ISB.
         let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
         let p_sub = self.P.select_rows(&cols).select_columns(&cols);

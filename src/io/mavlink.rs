@@ -78,9 +78,18 @@ pub enum Inbound {
 /// A message to the autopilot.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Outbound {
+    /// `MAV_STATE_STANDBY` until initialised, then `ACTIVE`, or `CRITICAL`
+    /// while unhealthy or degraded (an input stale or being rejected).
     Heartbeat {
         healthy: bool,
         initialised: bool,
+        degraded: bool,
+    },
+    /// A `STATUSTEXT` (RFC-5424 severity: 2 critical, 4 warning, 6 info);
+    /// the text is cut to MAVLink's 50 bytes.
+    StatusText {
+        severity: u8,
+        text: String,
     },
     SetMessageInterval {
         message_id: u32,
@@ -213,6 +222,21 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
     }
 }
 
+/// Largest believable IMU reading per axis: 1600 m/s² (163 g) and 70 rad/s,
+/// twice the widest MEMS ranges (±32 g is not even reached by ±16 g parts,
+/// ±4000 °/s ≈ 70 rad/s).
+const MAX_ACCEL_MPS2: f64 = 1600.0;
+const MAX_GYRO_RADPS: f64 = 70.0;
+
+/// An IMU sample's accelerometer and gyro, finite and within sensor range.
+fn imu_checked(accel: Vector3<f64>, gyro: Vector3<f64>) -> Result<(Vector3<f64>, Vector3<f64>), LinkError> {
+    let (a, g) = (finite3(accel)?, finite3(gyro)?);
+    if a.amax() > MAX_ACCEL_MPS2 || g.amax() > MAX_GYRO_RADPS {
+        return Err(LinkError::Rejected("imu_out_of_range"));
+    }
+    Ok((a, g))
+}
+
 /// Decodes every MAVLink frame in `bytes` as the link would (the crate's
 /// framing, then [`decode`]): the input to the adapter's fuzz tests.
 pub fn decode_bytes(bytes: &[u8]) -> Vec<Result<Inbound, LinkError>> {
@@ -247,12 +271,18 @@ pub fn encode_bytes(out: &Outbound, seq: u8) -> Vec<u8> {
 fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
     use apm::MavMessage as M;
     Ok(match msg {
-        M::HIGHRES_IMU(d) => Inbound::Imu {
-            t_us: d.time_usec,
-            accel_mps2: finite3(Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64))?,
-            gyro_radps: finite3(Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64))?,
-            kind: "highres",
-        },
+        M::HIGHRES_IMU(d) => {
+            let (accel_mps2, gyro_radps) = imu_checked(
+                Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64),
+                Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64),
+            )?;
+            Inbound::Imu {
+                t_us: d.time_usec,
+                accel_mps2,
+                gyro_radps,
+                kind: "highres",
+            }
+        }
         // SCALED_IMU: mG and mrad/s.
         M::SCALED_IMU(d) => Inbound::Imu {
             t_us: d.time_boot_ms as u64 * 1000,
@@ -316,18 +346,44 @@ fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
 fn encode(out: &Outbound, target_system: u8, target_component: u8) -> apm::MavMessage {
     use apm::MavMessage as M;
     match out {
-        Outbound::Heartbeat { healthy, initialised } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
+        Outbound::Heartbeat {
+            healthy,
+            initialised,
+            degraded,
+        } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
             custom_mode: 0,
             mavtype: apm::MavType::MAV_TYPE_ONBOARD_CONTROLLER,
             autopilot: apm::MavAutopilot::MAV_AUTOPILOT_INVALID,
             base_mode: apm::MavModeFlag::empty(),
-            system_status: match (initialised, healthy) {
+            system_status: match (initialised, *healthy && !*degraded) {
                 (false, _) => apm::MavState::MAV_STATE_STANDBY,
                 (true, true) => apm::MavState::MAV_STATE_ACTIVE,
                 (true, false) => apm::MavState::MAV_STATE_CRITICAL,
             },
             mavlink_version: 3,
         }),
+        Outbound::StatusText { severity, text } => {
+            // Cut at a character boundary within 50 bytes.
+            let mut end = text.len().min(50);
+            while !text.is_char_boundary(end) {
+                end -= 1;
+            }
+            M::STATUSTEXT(apm::STATUSTEXT_DATA {
+                severity: match severity {
+                    0 => apm::MavSeverity::MAV_SEVERITY_EMERGENCY,
+                    1 => apm::MavSeverity::MAV_SEVERITY_ALERT,
+                    2 => apm::MavSeverity::MAV_SEVERITY_CRITICAL,
+                    3 => apm::MavSeverity::MAV_SEVERITY_ERROR,
+                    4 => apm::MavSeverity::MAV_SEVERITY_WARNING,
+                    5 => apm::MavSeverity::MAV_SEVERITY_NOTICE,
+                    6 => apm::MavSeverity::MAV_SEVERITY_INFO,
+                    _ => apm::MavSeverity::MAV_SEVERITY_DEBUG,
+                },
+                text: text[..end].into(),
+                id: 0,
+                chunk_seq: 0,
+            })
+        }
         Outbound::SetMessageInterval {
             message_id,
             interval_us,

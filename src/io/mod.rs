@@ -32,6 +32,16 @@ impl Counters {
             .copied()
             .unwrap_or(0)
     }
+    /// The sum of the counters whose names `pred` accepts (no allocation).
+    pub fn sum_matching(&self, pred: impl Fn(&str) -> bool) -> u64 {
+        self.0
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .filter(|(k, _)| pred(k))
+            .map(|(_, v)| *v)
+            .sum()
+    }
     pub fn snapshot(&self) -> BTreeMap<String, u64> {
         self.0.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }

@@ -1,0 +1,209 @@
+//! The daemon's state as the autopilot sees it in `HEARTBEAT`: standby
+//! until the filter starts, then active, or critical while unhealthy or
+//! degraded, with the reasons sent as `STATUSTEXT` when they change.
+//!
+//! The fusion thread judges degradation in autopilot time (so a SITL
+//! speed-up changes nothing) and publishes it through [`Status`]; the status
+//! task reads it and the wall-clock age of the last IMU sample (a link that
+//! went silent has no autopilot time) and sends a `HEARTBEAT` at once on any
+//! change, besides the 1 Hz one.
+
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+
+use crate::io::Counters;
+
+/// Why the daemon is degraded: bit `1 << reason as u32` of [`Status::degraded`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Degraded {
+    /// IMU samples stopped for more than 0.2 s (held 2 s after they resume),
+    /// or for 0.5 s of wall time right now.
+    ImuGap = 0,
+    /// No camera frame processed for 1 s.
+    CameraStale = 1,
+    /// GNSS was being fused, and no epoch for 3 s.
+    GnssStale = 2,
+    /// Input rejected in the last 2 s: non-finite or out-of-order samples,
+    /// malformed lines, RTCM CRC failures or lost fragments.
+    InputRejected = 3,
+    /// Two or more pseudoranges of one epoch rejected (held 2 s).
+    GnssOutliers = 4,
+    /// The filter was reset (divergence or an autopilot reboot; held 2 s).
+    FilterReset = 5,
+}
+
+impl Degraded {
+    pub const ALL: [Degraded; 6] = [
+        Degraded::ImuGap,
+        Degraded::CameraStale,
+        Degraded::GnssStale,
+        Degraded::InputRejected,
+        Degraded::GnssOutliers,
+        Degraded::FilterReset,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Degraded::ImuGap => "imu_gap",
+            Degraded::CameraStale => "camera_stale",
+            Degraded::GnssStale => "gnss_stale",
+            Degraded::InputRejected => "input_rejected",
+            Degraded::GnssOutliers => "gnss_outliers",
+            Degraded::FilterReset => "filter_reset",
+        }
+    }
+
+    pub fn bit(self) -> u32 {
+        1 << self as u32
+    }
+}
+
+/// The reasons set in `bits`, comma-separated ("" when none).
+pub fn describe(bits: u32) -> String {
+    Degraded::ALL
+        .iter()
+        .filter(|d| bits & d.bit() != 0)
+        .map(|d| d.name())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// Shared between the fusion thread and the status task.
+#[derive(Debug, Default)]
+pub struct Status {
+    pub healthy: AtomicBool,
+    pub initialised: AtomicBool,
+    /// Bits of [`Degraded`].
+    pub degraded: AtomicU32,
+    /// Wall time of the last IMU sample, ms since the daemon started.
+    pub last_imu_wall_ms: AtomicU64,
+}
+
+impl Status {
+    pub fn degraded(&self) -> u32 {
+        self.degraded.load(Ordering::Relaxed)
+    }
+}
+
+/// How long a transient reason stays set (s of autopilot time).
+const HOLD_S: f64 = 2.0;
+/// Counters of rejected outside input.
+fn is_input_rejection(name: &str) -> bool {
+    name.starts_with("mavlink_rejected_")
+        || name.starts_with("feature_line_")
+        || name.starts_with("rtcm_fragment_")
+        || matches!(
+            name,
+            "imu_time_backwards"
+                | "imu_rejected"
+                | "feature_time_backwards"
+                | "feature_non_finite"
+                | "frame_rejected"
+                | "rtcm_crc_failure"
+        )
+}
+
+/// The fusion thread's side: held reasons and input freshness, in
+/// autopilot time.
+#[derive(Clone, Debug)]
+pub struct Tracker {
+    held_until: [f64; 6],
+    last_frame_t: f64,
+    last_gnss_t: f64,
+    rejections: u64,
+    next_check_t: f64,
+}
+
+impl Default for Tracker {
+    fn default() -> Self {
+        Self {
+            held_until: [f64::NEG_INFINITY; 6],
+            last_frame_t: f64::NEG_INFINITY,
+            last_gnss_t: f64::NEG_INFINITY,
+            rejections: 0,
+            next_check_t: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Tracker {
+    /// Sets a transient reason for [`HOLD_S`] from `t_s`.
+    pub fn hold(&mut self, why: Degraded, t_s: f64) {
+        self.held_until[why as usize] = t_s + HOLD_S;
+    }
+
+    pub fn frame_processed(&mut self, t_s: f64) {
+        self.last_frame_t = t_s;
+    }
+
+    pub fn gnss_fused(&mut self, t_s: f64) {
+        self.last_gnss_t = t_s;
+    }
+
+    /// Forgets the input times (after a reset of the autopilot's clock).
+    pub fn restart_clock(&mut self) {
+        let held = self.held_until[Degraded::FilterReset as usize];
+        *self = Self::default();
+        self.held_until[Degraded::FilterReset as usize] = held.min(HOLD_S);
+    }
+
+    /// The reasons at autopilot time `t_s` (`initialised`: the filter runs),
+    /// published to `status` at most every 0.1 s.
+    pub fn update(&mut self, t_s: f64, initialised: bool, counters: &Counters, status: &Status) {
+        if t_s < self.next_check_t {
+            return;
+        }
+        self.next_check_t = t_s + 0.1;
+        let rejections = counters.sum_matching(is_input_rejection);
+        if rejections > self.rejections {
+            self.hold(Degraded::InputRejected, t_s);
+        }
+        self.rejections = rejections;
+        let mut bits = 0;
+        for d in Degraded::ALL {
+            if t_s < self.held_until[d as usize] {
+                bits |= d.bit();
+            }
+        }
+        if initialised && self.last_frame_t.is_finite() && t_s - self.last_frame_t > 1.0 {
+            bits |= Degraded::CameraStale.bit();
+        }
+        if self.last_gnss_t.is_finite() && t_s - self.last_gnss_t > 3.0 {
+            bits |= Degraded::GnssStale.bit();
+        }
+        status.degraded.store(bits, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reasons_are_held_and_input_goes_stale() {
+        let (c, s) = (Counters::default(), Status::default());
+        let mut t = Tracker::default();
+        t.frame_processed(0.0);
+        t.gnss_fused(0.0);
+        t.update(0.5, true, &c, &s);
+        assert_eq!(s.degraded(), 0);
+        t.update(1.5, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "camera_stale");
+        t.frame_processed(1.55);
+        c.add("rtcm_crc_failure", 1);
+        t.update(1.6, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "input_rejected");
+        t.frame_processed(3.7);
+        t.gnss_fused(3.7);
+        t.update(3.7, true, &c, &s);
+        assert_eq!(s.degraded(), 0, "the hold ends after 2 s");
+        t.hold(Degraded::GnssOutliers, 4.0);
+        t.update(4.0, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "gnss_outliers");
+        t.update(7.0, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");
+        // Updates within 0.1 s of the last are skipped (cheap per sample).
+        t.frame_processed(7.0);
+        t.update(7.05, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");
+    }
+}
