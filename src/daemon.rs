@@ -70,6 +70,8 @@ pub enum FusionMsg {
         yaw: f64,
     },
     LocalPosition {
+        /// Autopilot boot time of the sample (s).
+        t_s: f64,
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
@@ -100,6 +102,20 @@ const FUSION_QUEUE: usize = 8192;
 const PENDING_FRAMES: usize = 32;
 /// An IMU time this far behind the last one is an autopilot reboot (s).
 const REBOOT_JUMP_S: f64 = 2.0;
+/// A longer IMU gap restarts the filter: the motion in between is unknown
+/// (s; a 1 s gap is bridged, with a degraded status).
+const MAX_IMU_GAP_S: f64 = 2.0;
+
+/// Why the filter is restarted (see `Fusion::restart`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Restart {
+    /// The autopilot's clock went back.
+    Reboot,
+    /// Longer than `MAX_IMU_GAP_S` without IMU.
+    Gap,
+    /// A health check failed (divergence, covariance, state).
+    Unhealthy,
+}
 
 /// Runs the daemon until `shutdown` completes.
 pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunSummary, DaemonError> {
@@ -237,9 +253,17 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                             yaw: yaw_rad,
                         })
                     }
-                    Inbound::LocalPosition { p_ned_m, v_ned_mps, .. } => {
+                    Inbound::LocalPosition {
+                        t_boot_ms,
+                        p_ned_m,
+                        v_ned_mps,
+                    } => {
                         counters.add("local_position", 1);
-                        Some(FusionMsg::LocalPosition { p_ned_m, v_ned_mps })
+                        Some(FusionMsg::LocalPosition {
+                            t_s: t_boot_ms as f64 * 1e-3,
+                            p_ned_m,
+                            v_ned_mps,
+                        })
                     }
                     Inbound::Timesync { tc1_ns, ts1_ns } => {
                         if tc1_ns != 0 {
@@ -518,7 +542,8 @@ pub struct Fusion {
     est: Option<Estimator>,
     static_buf: VecDeque<ImuMeas>,
     attitude: Option<(f64, f64, f64)>,
-    local: Option<(Vector3<f64>, Vector3<f64>)>,
+    /// The autopilot's local position and velocity (NED) and their time (s).
+    local: Option<(Vector3<f64>, Vector3<f64>, f64)>,
     pending: VecDeque<(f64, Pending)>,
     gnss: GnssIn,
     origin_sent: bool,
@@ -664,13 +689,17 @@ impl Fusion {
                 );
                 self.attitude = Some((roll, pitch, yaw))
             }
-            FusionMsg::LocalPosition { p_ned_m, v_ned_mps } => {
+            FusionMsg::LocalPosition {
+                t_s,
+                p_ned_m,
+                v_ned_mps,
+            } => {
                 self.log(
                     Topic::InputAutopilot,
                     self.last_imu_t,
-                    &json!({"local_position": {"p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
+                    &json!({"local_position": {"t_s": t_s, "p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
                 );
-                self.local = Some((p_ned_m, v_ned_mps))
+                self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
                 self.log(
@@ -744,28 +773,15 @@ impl Fusion {
                         to_s = m.t_s,
                         "autopilot clock jumped back: resetting the filter"
                     );
-                    self.log_text(4, m.t_s, "autopilot clock jumped back (reboot): filter reset");
-                    let _ = ctx.out.try_send(Outbound::StatusText {
-                        severity: 4,
-                        text: "cmsckf: autopilot reboot seen, filter reset".into(),
-                    });
-                    self.tracker.restart_clock();
-                    self.tracker.hold(Degraded::FilterReset, m.t_s);
-                    // GPS time maps onto the new boot clock only after the
-                    // next SYSTEM_TIME.
-                    self.gnss.unix_minus_boot_s = None;
-                    // Restart from the rebooted autopilot's own attitude and
-                    // position, not from the last ones before it went quiet.
-                    self.attitude = None;
-                    self.local = None;
-                    self.est = None;
-                    self.reset_counter = self.reset_counter.wrapping_add(1);
-                    self.pending.clear();
-                    self.static_buf.clear();
-                    self.last_frame_t = f64::NEG_INFINITY;
-                    self.next_output_t = f64::NEG_INFINITY;
-                    self.next_state_log = f64::NEG_INFINITY;
-                    self.last_imu_t = f64::NEG_INFINITY;
+                    self.restart(m.t_s, "autopilot reboot seen", Restart::Reboot, &ctx.out);
+                } else if self.est.is_some() && m.t_s - self.last_imu_t > MAX_IMU_GAP_S {
+                    // Seconds without IMU: the motion in between is unknown.
+                    ctx.counters.add("imu_gap_restart", 1);
+                    tracing::error!(
+                        gap_s = m.t_s - self.last_imu_t,
+                        "IMU gap too long: resetting the filter"
+                    );
+                    self.restart(m.t_s, "IMU gap", Restart::Gap, &ctx.out);
                 }
                 if m.t_s <= self.last_imu_t {
                     ctx.counters.add("imu_time_backwards", 1);
@@ -887,6 +903,37 @@ impl Fusion {
         }
     }
 
+    /// Drops the filter so that the next IMU samples start a fresh one (the
+    /// one reset path): `reset_counter` moves on, the autopilot gets a
+    /// `STATUSTEXT`, the log a `/log` line, and the status shows
+    /// `filter_reset` for 2 s. After a reboot or a long IMU gap the
+    /// autopilot's attitude and position are stale, so the restart waits for
+    /// fresh ones (and, after a reboot, for SYSTEM_TIME to map GPS time).
+    fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
+        self.log_text(4, t_s, &format!("filter reset: {why}"));
+        let _ = out.try_send(Outbound::StatusText {
+            severity: if kind == Restart::Unhealthy { 2 } else { 4 },
+            text: format!("cmsckf reset: {why}"),
+        });
+        self.est = None;
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.static_buf.clear();
+        if kind != Restart::Unhealthy {
+            self.attitude = None;
+            self.local = None;
+        }
+        if kind == Restart::Reboot {
+            self.tracker.restart_clock();
+            self.gnss.unix_minus_boot_s = None;
+            self.pending.clear();
+            self.last_frame_t = f64::NEG_INFINITY;
+            self.next_output_t = f64::NEG_INFINITY;
+            self.next_state_log = f64::NEG_INFINITY;
+            self.last_imu_t = f64::NEG_INFINITY;
+        }
+        self.tracker.hold(Degraded::FilterReset, t_s);
+    }
+
     fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
         // Tell the autopilot our origin once it is known (output.set_gps_origin).
         if self.cfg.output.set_gps_origin && !self.origin_sent {
@@ -955,9 +1002,7 @@ impl Fusion {
                                 .iter()
                                 .filter_map(|k| rep.rejected.get(k))
                                 .sum::<u64>();
-                            if codes_rejected >= 2 {
-                                self.tracker.hold(Degraded::GnssOutliers, t);
-                            }
+                            self.tracker.gnss_codes_rejected(t, codes_rejected);
                             counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
                             counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
                             for (k, v) in &rep.rejected {
@@ -1044,22 +1089,7 @@ impl Fusion {
             if let Err(why) = est.check_health() {
                 counters.add("filter_reset", 1);
                 tracing::error!(reason = %why, "filter unhealthy: resetting");
-                if let Some(l) = &self.log {
-                    let t = m.t_s.max(0.0);
-                    l.log(
-                        Topic::Log,
-                        t,
-                        &json!({"timestamp": {"sec": t.floor() as u64, "nsec": ((t - t.floor()) * 1e9) as u64},
-                            "level": 4, "message": format!("filter reset: {why}"), "name": "cmsckf", "file": file!(), "line": 0}),
-                    );
-                }
-                let _ = out.try_send(Outbound::StatusText {
-                    severity: 2,
-                    text: format!("cmsckf reset: {why}"),
-                });
-                self.tracker.hold(Degraded::FilterReset, m.t_s);
-                self.est = None;
-                self.reset_counter = self.reset_counter.wrapping_add(1);
+                self.restart(m.t_s, &why, Restart::Unhealthy, out);
                 return;
             }
         }
@@ -1158,8 +1188,14 @@ impl Fusion {
         let is_static = gyr.norm() < 0.05
             && gyr_var < 1e-3
             && (acc.norm() - self.cfg.imu.gravity_mps2).abs() < 0.3
-            && self.local.is_none_or(|(_, v)| v.norm() < 0.3);
-        let (p, v) = self.local.unwrap_or((Vector3::zeros(), Vector3::zeros()));
+            && self.local.is_none_or(|(_, v, _)| v.norm() < 0.3);
+        // The autopilot's position, carried to this sample's time (its
+        // LOCAL_POSITION_NED comes at 10 Hz: 1.5 m old at 15 m/s otherwise).
+        let (p, v) = match self.local {
+            Some((p, v, t)) if (m.t_s - t).abs() < 1.0 => (p + v * (m.t_s - t), v),
+            Some((p, v, _)) => (p, v),
+            None => (Vector3::zeros(), Vector3::zeros()),
+        };
         let mut p0 = initial_covariance(&self.cfg);
         let (q, b_g, v) = if is_static {
             match attitude_from_static(&acc, yaw) {

@@ -110,6 +110,8 @@ fn to_msg(topic: &str, v: &Value) -> Option<FusionMsg> {
                 }
             } else if let Some(l) = v.get("local_position") {
                 FusionMsg::LocalPosition {
+                    // Logs before the time was recorded: no carrying forward.
+                    t_s: l["t_s"].as_f64().unwrap_or(f64::NAN),
                     p_ned_m: v3(&l["p_ned_m"])?,
                     v_ned_mps: v3(&l["v_ned_mps"])?,
                 }

@@ -25,7 +25,9 @@ pub enum Degraded {
     /// Input rejected in the last 2 s: non-finite or out-of-order samples,
     /// malformed lines, RTCM CRC failures or lost fragments.
     InputRejected = 3,
-    /// Two or more pseudoranges of one epoch rejected (held 2 s).
+    /// Two or more pseudoranges rejected in each of two epochs in a row
+    /// (held 2 s). One epoch is not enough: the 99% gate alone rejects two
+    /// good codes of sixteen in about one epoch of seventy.
     GnssOutliers = 4,
     /// The filter was reset (divergence or an autopilot reboot; held 2 s).
     FilterReset = 5,
@@ -111,6 +113,8 @@ pub struct Tracker {
     last_gnss_t: f64,
     rejections: u64,
     next_check_t: f64,
+    /// Consecutive GNSS epochs with two or more codes rejected.
+    bad_epochs: u32,
 }
 
 impl Default for Tracker {
@@ -121,6 +125,7 @@ impl Default for Tracker {
             last_gnss_t: f64::NEG_INFINITY,
             rejections: 0,
             next_check_t: f64::NEG_INFINITY,
+            bad_epochs: 0,
         }
     }
 }
@@ -137,6 +142,14 @@ impl Tracker {
 
     pub fn gnss_fused(&mut self, t_s: f64) {
         self.last_gnss_t = t_s;
+    }
+
+    /// Pseudoranges rejected (χ² or outlier) in the epoch fused at `t_s`.
+    pub fn gnss_codes_rejected(&mut self, t_s: f64, n: u64) {
+        self.bad_epochs = if n >= 2 { self.bad_epochs + 1 } else { 0 };
+        if self.bad_epochs >= 2 {
+            self.hold(Degraded::GnssOutliers, t_s);
+        }
     }
 
     /// Forgets the input times (after a reset of the autopilot's clock).
@@ -196,8 +209,13 @@ mod tests {
         t.gnss_fused(3.7);
         t.update(3.7, true, &c, &s);
         assert_eq!(s.degraded(), 0, "the hold ends after 2 s");
-        t.hold(Degraded::GnssOutliers, 4.0);
-        t.update(4.0, true, &c, &s);
+        t.gnss_codes_rejected(3.9, 2);
+        t.gnss_codes_rejected(3.95, 1);
+        t.gnss_codes_rejected(3.97, 3);
+        t.update(3.97, true, &c, &s);
+        assert_eq!(s.degraded(), 0, "one bad epoch at a time is noise");
+        t.gnss_codes_rejected(4.0, 2);
+        t.update(4.1, true, &c, &s);
         assert_eq!(describe(s.degraded()), "gnss_outliers");
         t.update(7.0, true, &c, &s);
         assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");

@@ -16,23 +16,25 @@ async fn the_daemon_rides_through_injected_faults() {
     cfg.gnss.iono = cmsckf::config::IonoMode::Off; // the simulated sky has none
     let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    // The durations: a 5 s link drop, a 60 s GNSS outage, a 10 s
+    // camera outage, a 1 s IMU gap; one fault at a time.
     let faults: Vec<Fault> = [
-        "link_drop@10+2",
-        "gnss_outage@15+10",
-        "camera_outage@28+3",
-        "imu_gap@35+1",
-        "nan_imu@40+0.5",
-        "rtcm_bad_crc@42+3",
-        "pr_outlier@46+5",
-        "frontend_restart@52+2",
-        "dup_reorder@56+2",
-        "clock_jump@64+2",
-        "imu_spike@72+1",
+        "link_drop@10+5",
+        "gnss_outage@22+60",
+        "camera_outage@88+10",
+        "imu_gap@105+1",
+        "nan_imu@110+0.5",
+        "rtcm_bad_crc@113+3",
+        "pr_outlier@118+5",
+        "frontend_restart@125+2",
+        "dup_reorder@129+2",
+        "clock_jump@134+2",
+        "imu_spike@141+1",
     ]
     .iter()
     .map(|f| f.parse().unwrap())
     .collect();
-    let ds = Dataset::generate("racetrack", 3, Some(82.0), &eval::sim_config_for(&cfg)).unwrap();
+    let ds = Dataset::generate("racetrack", 3, Some(148.0), &eval::sim_config_for(&cfg)).unwrap();
     let report = serve(
         &ServeOptions {
             mavlink: format!("udpout:127.0.0.1:{port}"),
@@ -58,8 +60,16 @@ async fn the_daemon_rides_through_injected_faults() {
             f.name
         );
         // Bounded, or reset (a fooled filter may run far before it is caught).
+        // Without GNSS the bound is visual-inertial drift: 2% of the ≈15 m/s
+        // flown, on top of 5 m.
+        let bound = 5.0
+            + if f.name == "gnss_outage" {
+                0.02 * 15.0 * (f.end_s - f.start_s)
+            } else {
+                0.0
+            };
         assert!(
-            f.peak_error_m < 5.0 || f.resets > 0,
+            f.peak_error_m < bound || f.resets > 0,
             "{}: peak error {} m",
             f.name,
             f.peak_error_m
@@ -71,18 +81,23 @@ async fn the_daemon_rides_through_injected_faults() {
             f.recovery_s
         );
     }
-    // The reboot and the divergence after the IMU spike are the only
-    // resets, and each told the autopilot why.
+    // The reboot, the long link drop and the divergence after the IMU spike
+    // are the only resets, and each told the autopilot why.
     let resets: Vec<(&str, u32)> = report.faults.iter().map(|f| (f.name.as_str(), f.resets)).collect();
-    let expected = |n: &str| u32::from(n == "clock_jump" || n == "imu_spike");
+    // The 5 s link drop is a 5 s IMU gap: the motion is unknown, the filter
+    // restarts.
+    let expected = |n: &str| u32::from(n == "clock_jump" || n == "imu_spike" || n == "link_drop");
     assert!(resets.iter().all(|(n, r)| *r == expected(n)), "{resets:?}");
-    assert_eq!(report.reset_count, 2);
+    assert_eq!(report.reset_count, 3);
+    assert_eq!(c("imu_gap_restart"), 1);
     assert_eq!(c("autopilot_clock_reset"), 1);
     assert_eq!(c("filter_reset"), 1);
     assert!(report.status_texts.iter().any(|t| t.1.contains("reboot")));
     assert!(report.status_texts.iter().any(|t| t.1.contains("reset: divergence")));
     assert!(report.status_texts.iter().any(|t| t.1.contains("degraded")));
-    assert!(report.ate_m < 2.0, "ATE {}", report.ate_m);
+    // Over the whole flight, with 60 s of visual-inertial drift and a fooled
+    // filter in it.
+    assert!(report.ate_m < 3.0, "ATE {}", report.ate_m);
     // Each fault left its trace in the counters.
     assert!(c("imu_gap") >= 2, "link drop and IMU gap");
     assert!(c("mavlink_rejected_non_finite") > 0, "NaN IMU");

@@ -451,8 +451,9 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
                 }
             }
             k_gnss += 1;
-        } else if link_down && t != t_cam {
-            // Nothing from the autopilot gets through.
+        } else if link_down && (t == t_imu || t == next_1hz || t == next_slow) {
+            // Nothing from the autopilot gets through (the camera, on its own
+            // socket, still does).
             if t == t_imu {
                 k_imu += 1;
             } else if t == next_1hz {
