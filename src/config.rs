@@ -54,6 +54,13 @@ pub struct MavlinkConfig {
     pub autopilot_component_id: u8,
     /// IMU rate requested with MAV_CMD_SET_MESSAGE_INTERVAL (Hz).
     pub imu_rate_hz: f64,
+    /// MAVLink 2 message signing: a file holding the 32-byte secret key as 64
+    /// hex digits (mode 0600 or stricter); empty = no signing. When set,
+    /// unsigned and badly signed messages are rejected and counted, and ours
+    /// are signed.
+    pub signing_key_file: String,
+    /// The signing link id we stamp on our messages (0..=255).
+    pub signing_link_id: u8,
 }
 
 impl Default for MavlinkConfig {
@@ -64,6 +71,8 @@ impl Default for MavlinkConfig {
             component_id: 197,
             autopilot_component_id: 1,
             imu_rate_hz: 100.0,
+            signing_key_file: String::new(),
+            signing_link_id: 0,
         }
     }
 }
@@ -427,6 +436,10 @@ impl Config {
             ));
         }
         c.positive("imu_rate_hz", m.imu_rate_hz, 2000.0)?;
+        if !m.signing_key_file.is_empty() {
+            load_signing_key(std::path::Path::new(&m.signing_key_file))
+                .map_err(|(problem, fix)| c.fail("signing_key_file", problem, fix))?;
+        }
 
         let c = Check::new("features");
         if self.features.socket.is_empty() {
@@ -553,6 +566,51 @@ impl Config {
     }
 }
 
+/// Reads a MAVLink signing key: 64 hex digits (whitespace around them
+/// ignored) in a file only its owner can read or write. Errors are
+/// `(problem, fix)`.
+pub fn load_signing_key(path: &std::path::Path) -> Result<[u8; 32], (String, String)> {
+    use std::os::unix::fs::PermissionsExt;
+    let shown = path.display();
+    let meta = std::fs::metadata(path).map_err(|e| {
+        (
+            format!("cannot read {shown}: {e}"),
+            "create it with: head -c 32 /dev/urandom | xxd -p -c 64 > FILE; chmod 600 FILE".into(),
+        )
+    })?;
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        return Err((
+            format!("{shown} has mode {mode:03o}: others can read the key"),
+            format!("chmod 600 {shown}"),
+        ));
+    }
+    // A key file is 64 hex digits and a newline: refuse to read a large file.
+    if meta.len() > 256 {
+        return Err((
+            format!("{shown} is {} bytes", meta.len()),
+            "it holds 64 hex digits".into(),
+        ));
+    }
+    let text =
+        std::fs::read_to_string(path).map_err(|e| (format!("cannot read {shown}: {e}"), "check the file".into()))?;
+    let hex = text.trim();
+    let bad = || {
+        (
+            format!("{shown} does not hold 64 hex digits"),
+            "write the 32-byte key as 64 hex digits".to_string(),
+        )
+    };
+    if hex.len() != 64 || !hex.is_ascii() {
+        return Err(bad());
+    }
+    let mut key = [0u8; 32];
+    for (i, b) in key.iter_mut().enumerate() {
+        *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
+    }
+    Ok(key)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -618,5 +676,27 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("/nonexistent/cmsckf.toml"), "{e}");
+    }
+
+    #[test]
+    fn signing_key_file_must_be_private_and_hex() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("key");
+        std::fs::write(&path, format!("{}\n", "0f".repeat(32))).unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644)).unwrap();
+        let toml = format!("[mavlink]\nsigning_key_file = \"{}\"\n", path.display());
+        let e = Config::from_toml(&toml, "x").unwrap_err().to_string();
+        assert!(e.contains("mavlink.signing_key_file") && e.contains("chmod 600"), "{e}");
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+        assert!(Config::from_toml(&toml, "x").is_ok());
+        assert_eq!(load_signing_key(&path).unwrap(), [0x0f; 32]);
+        std::fs::write(&path, "not hex").unwrap();
+        let e = Config::from_toml(&toml, "x").unwrap_err().to_string();
+        assert!(e.contains("64 hex digits"), "{e}");
+        let e = Config::from_toml("[mavlink]\nsigning_key_file = \"/nonexistent/key\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cannot read"), "{e}");
     }
 }

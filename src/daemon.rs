@@ -40,7 +40,7 @@ pub enum DaemonError {
     Link { address: String, source: mav::LinkError },
     #[error(transparent)]
     Socket(#[from] feature_pipe::SocketError),
-    #[error("gnss.stream {0}")]
+    #[error("config: {0}")]
     Config(String),
     #[error(transparent)]
     Log(#[from] crate::io::mcap_log::LogError),
@@ -117,6 +117,17 @@ enum Restart {
     Unhealthy,
 }
 
+/// The MAVLink signing key, if one is configured (validated with the config;
+/// read again here, so a file changed since is still checked).
+fn signing_key(cfg: &Config) -> Result<Option<[u8; 32]>, DaemonError> {
+    if cfg.mavlink.signing_key_file.is_empty() {
+        return Ok(None);
+    }
+    crate::config::load_signing_key(std::path::Path::new(&cfg.mavlink.signing_key_file))
+        .map(Some)
+        .map_err(|(problem, fix)| DaemonError::Config(format!("mavlink.signing_key_file: {problem}; {fix}")))
+}
+
 /// Runs the daemon until `shutdown` completes.
 pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunSummary, DaemonError> {
     let counters = Counters::default();
@@ -127,6 +138,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
             cfg.mavlink.component_id,
             cfg.mavlink.system_id,
             cfg.mavlink.autopilot_component_id,
+            signing_key(&cfg)?.map(|k| (k, cfg.mavlink.signing_link_id)),
         )
         .await
         .map_err(|source| DaemonError::Link {
@@ -342,7 +354,8 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
 
     // A receiver wired to the companion computer: raw RTCM3.
     let stream_task = if cfg.gnss.source == GnssSource::Stream {
-        let spec = crate::gnss::stream::parse(&cfg.gnss.stream).map_err(DaemonError::Config)?;
+        let spec = crate::gnss::stream::parse(&cfg.gnss.stream)
+            .map_err(|e| DaemonError::Config(format!("gnss.stream {e}")))?;
         let (tx, mut rx) = mpsc::channel::<Vec<u8>>(64);
         let fwd_tx = fusion_tx.clone();
         let counters2 = counters.clone();

@@ -7,12 +7,18 @@
 //! `mavlink` crate's. The crate's reader drops frames with a bad CRC or an
 //! unknown id without telling its caller, so the link counts them from the
 //! gaps they leave in each sender's sequence numbers.
+//!
+//! With a signing key (MAVLink 2 message signing), frames are read raw and
+//! checked here, so that an unsigned or badly signed one is rejected with
+//! its reason and counted (the crate's own check drops them silently), and
+//! ours are signed before they are sent.
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{AsyncMavConnection, MavHeader};
+use mavlink::{AsyncMavConnection, MavHeader, Message as _};
 use nalgebra::Vector3;
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
@@ -140,6 +146,9 @@ pub enum LinkError {
     Rejected(&'static str),
 }
 
+/// MAVLink 2's "signed" incompatibility flag.
+const IFLAG_SIGNED: u8 = 0x01;
+
 /// A connected link.
 pub struct Link {
     conn: Arc<mavlink::AsyncConnection<apm::MavMessage>>,
@@ -147,16 +156,22 @@ pub struct Link {
     target_system: u8,
     target_component: u8,
     last_seq: std::sync::Mutex<BTreeMap<Source, u8>>,
+    /// Message signing: key, link id and replay state.
+    signing: Option<mavlink::SigningData>,
+    /// Our sequence number when we frame (and sign) messages ourselves.
+    seq: AtomicU8,
 }
 
 impl Link {
-    /// Opens the link (`udpin:`, `udpout:`, `tcpout:`, `serial:` …).
+    /// Opens the link (`udpin:`, `udpout:`, `tcpout:`, `serial:` …), with
+    /// message signing when `signing` gives a key and our link id.
     pub async fn connect(
         address: &str,
         system_id: u8,
         component_id: u8,
         target_system: u8,
         target_component: u8,
+        signing: Option<([u8; 32], u8)>,
     ) -> Result<Self, LinkError> {
         let mut conn = mavlink::connect_async::<apm::MavMessage>(address).await?;
         conn.set_protocol_version(mavlink::MavlinkVersion::V2);
@@ -171,13 +186,73 @@ impl Link {
             target_system,
             target_component,
             last_seq: std::sync::Mutex::new(BTreeMap::new()),
+            signing: signing.map(|(key, link_id)| {
+                mavlink::SigningData::from_config(mavlink::SigningConfig::new(key, link_id, true, false))
+            }),
+            seq: AtomicU8::new(0),
         })
+    }
+
+    /// The next frame when signing: read raw, its signature checked here.
+    async fn recv_signed(&self, sd: &mavlink::SigningData) -> Result<(MavHeader, apm::MavMessage), LinkError> {
+        let raw = match self.conn.recv_raw().await {
+            Ok(r) => r,
+            Err(mavlink::error::MessageReadError::Io(e)) => return Err(LinkError::Io(e)),
+            Err(mavlink::error::MessageReadError::Parse(e)) => return Err(LinkError::Parse(e.to_string())),
+        };
+        let mavlink::MAVLinkMessageRaw::V2(r) = raw else {
+            return Err(LinkError::Rejected("unsigned"));
+        };
+        let h = MavHeader {
+            system_id: r.system_id(),
+            component_id: r.component_id(),
+            sequence: r.sequence(),
+        };
+        // Its sequence number is seen even if it is rejected, so that a
+        // rejection is not counted again as a lost frame.
+        self.sequence_gap(&h);
+        if r.incompatibility_flags() & IFLAG_SIGNED == 0 {
+            return Err(LinkError::Rejected("unsigned"));
+        }
+        if !sd.verify_signature(&r) {
+            return Err(LinkError::Rejected("bad_signature"));
+        }
+        let msg = apm::MavMessage::parse(mavlink::MavlinkVersion::V2, r.message_id(), r.payload())
+            .map_err(|e| LinkError::Parse(e.to_string()))?;
+        Ok((h, msg))
+    }
+
+    /// Frames lost or dropped since the sender's previous frame, from the
+    /// sequence numbers (a large jump is a restarted sender: 0).
+    fn sequence_gap(&self, h: &MavHeader) -> u32 {
+        let src = Source {
+            system: h.system_id,
+            component: h.component_id,
+        };
+        let mut seqs = self.last_seq.lock().unwrap_or_else(|p| p.into_inner());
+        let gap = seqs
+            .get(&src)
+            .map_or(0, |last| h.sequence.wrapping_sub(*last).wrapping_sub(1) as u32);
+        seqs.insert(src, h.sequence);
+        if gap > 128 {
+            0
+        } else {
+            gap
+        }
     }
 
     /// Receives the next message. Returns, besides the message, how many
     /// frames of that sender were lost or dropped as corrupt since its
     /// previous one (from the sequence numbers).
     pub async fn recv(&self) -> Result<(Source, Inbound, u32), LinkError> {
+        if let Some(sd) = &self.signing {
+            let (h, msg) = self.recv_signed(sd).await?;
+            let src = Source {
+                system: h.system_id,
+                component: h.component_id,
+            };
+            return Ok((src, decode(msg)?, 0));
+        }
         let (h, msg) = match self.conn.try_recv().await {
             Ok(v) => v,
             Err(mavlink::error::MessageReadError::Io(e)) => return Err(LinkError::Io(e)),
@@ -187,29 +262,27 @@ impl Link {
             system: h.system_id,
             component: h.component_id,
         };
-        let gap = {
-            let mut seqs = self.last_seq.lock().unwrap_or_else(|p| p.into_inner());
-            let gap = seqs
-                .get(&src)
-                .map_or(0, |last| h.sequence.wrapping_sub(*last).wrapping_sub(1) as u32);
-            seqs.insert(src, h.sequence);
-            // A large jump is a restarted sender, not 200 lost frames.
-            if gap > 128 {
-                0
-            } else {
-                gap
-            }
-        };
+        let gap = self.sequence_gap(&h);
         Ok((src, decode(msg)?, gap))
     }
 
     /// Sends one message.
     pub async fn send(&self, out: &Outbound) -> Result<(), LinkError> {
         let msg = encode(out, self.target_system, self.target_component);
-        self.conn
-            .send(&self.header, &msg)
-            .await
-            .map_err(|e| LinkError::Io(std::io::Error::other(e.to_string())))?;
+        let sent = match &self.signing {
+            Some(sd) => {
+                let mut raw = mavlink::MAVLinkV2MessageRaw::new();
+                let header = MavHeader {
+                    sequence: self.seq.fetch_add(1, Ordering::Relaxed),
+                    ..self.header
+                };
+                raw.serialize_message_for_signing(header, &msg);
+                sd.sign_message(&mut raw);
+                self.conn.send_raw(&mavlink::MAVLinkMessageRaw::V2(raw)).await
+            }
+            None => self.conn.send(&self.header, &msg).await,
+        };
+        sent.map_err(|e| LinkError::Io(std::io::Error::other(e.to_string())))?;
         Ok(())
     }
 }
