@@ -550,6 +550,8 @@ struct GnssIn {
 pub struct Fusion {
     log: Option<crate::io::mcap_log::McapLogger>,
     next_state_log: f64,
+    /// Next autopilot time to log the counters at (`/diagnostics`).
+    next_diag_t: f64,
     cfg: Config,
     cam: cmsckf_sitl::camera::Camera,
     est: Option<Estimator>,
@@ -612,6 +614,9 @@ impl Fusion {
     /// Finishes the log (on shutdown: `Drop` would swallow its errors),
     /// counting its messages and raising an alarm for dropped records.
     pub fn finish_log(&mut self, counters: &Counters) {
+        if self.last_imu_t.is_finite() {
+            self.log_diagnostics(self.last_imu_t, counters, 0);
+        }
         // The log is finished here, on shutdown: `Drop` would swallow its errors.
         if let Some(l) = self.log.take() {
             let dropped = l.dropped();
@@ -640,6 +645,7 @@ impl Fusion {
         Fusion {
             log,
             next_state_log: f64::NEG_INFINITY,
+            next_diag_t: f64::NEG_INFINITY,
             cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
             est: None,
             static_buf: VecDeque::with_capacity(4096),
@@ -824,6 +830,10 @@ impl Fusion {
                 st.last_imu_wall_ms
                     .store(ctx.start.elapsed().as_millis() as u64, Ordering::Relaxed);
                 self.tracker.update(m.t_s, self.est.is_some(), &ctx.counters, st);
+                if m.t_s >= self.next_diag_t {
+                    self.next_diag_t = m.t_s + 1.0;
+                    self.log_diagnostics(m.t_s, &ctx.counters, st.degraded());
+                }
             }
         }
     }
@@ -831,6 +841,18 @@ impl Fusion {
     fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
         if let Some(l) = &self.log {
             l.log(topic, t_s, v);
+        }
+    }
+
+    /// The counters and degraded-state reasons, to `/diagnostics`.
+    fn log_diagnostics(&self, t_s: f64, counters: &Counters, degraded: u32) {
+        if self.log.is_some() {
+            self.log(
+                Topic::Diagnostics,
+                t_s,
+                &json!({"t_s": t_s, "counters": counters.snapshot(), "degraded": status::describe(degraded),
+                    "reset_counter": self.reset_counter}),
+            );
         }
     }
 

@@ -95,6 +95,21 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert_eq!(per_topic["/pose"], report.estimates_received as u64);
     assert_eq!(per_topic["/tf"], report.estimates_received as u64);
     assert!(per_topic["/gnss/fix"] > 30);
+    // The counters are in the log, once a second and at shutdown.
+    assert!(per_topic["/diagnostics"] > 30);
+    let bytes = std::fs::read(&log_path).unwrap();
+    let last_diag: serde_json::Value = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == "/diagnostics")
+        .last()
+        .map(|m| serde_json::from_slice(&m.data).unwrap())
+        .unwrap();
+    assert_eq!(
+        last_diag["counters"]["imu_samples"].as_u64(),
+        Some(report.imu_sent as u64),
+        "{last_diag}"
+    );
     let names: Vec<&str> = summary.schemas.values().map(|s| s.name.as_str()).collect();
     for n in [
         "foxglove.PoseInFrame",

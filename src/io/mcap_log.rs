@@ -37,10 +37,13 @@ pub enum Topic {
     Transform,
     GnssFix,
     Log,
+    /// Every counter (rejections by reason included) and the degraded-state
+    /// reasons, once a second of autopilot time and at shutdown.
+    Diagnostics,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 15] = [
+    pub const ALL: [Topic; 16] = [
         Topic::InputImu,
         Topic::InputFeatures,
         Topic::InputRtcm,
@@ -56,6 +59,7 @@ impl Topic {
         Topic::Transform,
         Topic::GnssFix,
         Topic::Log,
+        Topic::Diagnostics,
     ];
 
     /// `(topic name, schema name, JSON schema)`.
@@ -80,6 +84,7 @@ impl Topic {
             Topic::Transform => ("/tf", "foxglove.FrameTransform", SCHEMA_FRAME_TRANSFORM),
             Topic::GnssFix => ("/gnss/fix", "foxglove.LocationFix", SCHEMA_LOCATION_FIX),
             Topic::Log => ("/log", "foxglove.Log", SCHEMA_LOG),
+            Topic::Diagnostics => ("/diagnostics", "cmsckf.Diagnostics", SCHEMA_OBJECT),
         }
     }
 }
