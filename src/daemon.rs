@@ -410,7 +410,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         let mut stop = stop_rx.clone();
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_millis(50));
-            let mut last: Option<(bool, bool, u32)> = None;
+            let mut last: Option<(bool, u32)> = None;
             let mut last_sent = Instant::now();
             loop {
                 tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
@@ -421,11 +421,11 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                 if initialised && since_imu_ms > 500 {
                     degraded |= Degraded::ImuGap.bit();
                 }
-                let now = (initialised, status.healthy.load(Ordering::Relaxed), degraded);
+                let now = (initialised, degraded);
                 if last == Some(now) && last_sent.elapsed() < Duration::from_secs(1) {
                     continue;
                 }
-                if last.map(|l| l.2) != Some(degraded) && (degraded != 0 || last.is_some()) {
+                if last.map(|l| l.1) != Some(degraded) && (degraded != 0 || last.is_some()) {
                     let text = if degraded == 0 {
                         "cmsckf: nominal".to_string()
                     } else {
@@ -436,7 +436,6 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                     let _ = out_tx.try_send(Outbound::StatusText { severity, text });
                 }
                 let _ = out_tx.try_send(Outbound::Heartbeat {
-                    healthy: now.1,
                     initialised,
                     degraded: degraded != 0,
                 });
@@ -822,11 +821,9 @@ impl Fusion {
             );
                 self.on_imu(m, &ctx.counters, &ctx.out);
                 let st = &ctx.status;
+                // An unhealthy filter was restarted in `on_imu`: a running
+                // filter is a healthy one.
                 st.initialised.store(self.est.is_some(), Ordering::Relaxed);
-                st.healthy.store(
-                    self.est.as_ref().is_some_and(|e| e.check_health().is_ok()),
-                    Ordering::Relaxed,
-                );
                 st.last_imu_wall_ms
                     .store(ctx.start.elapsed().as_millis() as u64, Ordering::Relaxed);
                 self.tracker.update(m.t_s, self.est.is_some(), &ctx.counters, st);
@@ -1121,12 +1118,14 @@ impl Fusion {
                     tracing::warn!(error = %e, "frame rejected");
                 }
             }
-            if let Err(why) = est.check_health() {
-                counters.add("filter_reset", 1);
-                tracing::error!(reason = %why, "filter unhealthy: resetting");
-                self.restart(m.t_s, &why, Restart::Unhealthy, out);
-                return;
-            }
+        }
+        // Once per IMU sample, after this sample's measurements (a GNSS-only
+        // divergence is caught as soon as a vision one).
+        if let Err(why) = est.check_health() {
+            counters.add("filter_reset", 1);
+            tracing::error!(reason = %why, "filter unhealthy: resetting");
+            self.restart(m.t_s, &why, Restart::Unhealthy, out);
+            return;
         }
         // Output at the configured rate of autopilot time, propagated to the
         // latest IMU sample.

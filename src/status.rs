@@ -1,6 +1,7 @@
 //! The daemon's state as the autopilot sees it in `HEARTBEAT`: standby
-//! until the filter starts, then active, or critical while unhealthy or
-//! degraded, with the reasons sent as `STATUSTEXT` when they change.
+//! until the filter starts (and while it restarts), then active, or
+//! critical while degraded, with the reasons sent as `STATUSTEXT` when they
+//! change.
 //!
 //! The fusion thread judges degradation in autopilot time (so a SITL
 //! speed-up changes nothing) and publishes it through [`Status`]; the status
@@ -72,7 +73,7 @@ pub fn describe(bits: u32) -> String {
 /// Shared between the fusion thread and the status task.
 #[derive(Debug, Default)]
 pub struct Status {
-    pub healthy: AtomicBool,
+    /// A filter is running (an unhealthy one is restarted at once).
     pub initialised: AtomicBool,
     /// Bits of [`Degraded`].
     pub degraded: AtomicU32,
@@ -152,11 +153,14 @@ impl Tracker {
         }
     }
 
-    /// Forgets the input times (after a reset of the autopilot's clock).
+    /// Forgets every time kept (after a reset of the autopilot's clock);
+    /// the count of rejections seen is not a time and stays, so the restart
+    /// itself is not taken for new rejected input.
     pub fn restart_clock(&mut self) {
-        let held = self.held_until[Degraded::FilterReset as usize];
-        *self = Self::default();
-        self.held_until[Degraded::FilterReset as usize] = held.min(HOLD_S);
+        *self = Self {
+            rejections: self.rejections,
+            ..Self::default()
+        };
     }
 
     /// The reasons at autopilot time `t_s` (`initialised`: the filter runs),

@@ -182,7 +182,6 @@ fn mavlink_frames() {
     let seeds = [
         encode_bytes(
             &Outbound::Heartbeat {
-                healthy: true,
                 initialised: true,
                 degraded: false,
             },

@@ -85,9 +85,8 @@ pub enum Inbound {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Outbound {
     /// `MAV_STATE_STANDBY` until initialised, then `ACTIVE`, or `CRITICAL`
-    /// while unhealthy or degraded (an input stale or being rejected).
+    /// while degraded (an input stale or being rejected, or just restarted).
     Heartbeat {
-        healthy: bool,
         initialised: bool,
         degraded: bool,
     },
@@ -419,19 +418,15 @@ fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
 fn encode(out: &Outbound, target_system: u8, target_component: u8) -> apm::MavMessage {
     use apm::MavMessage as M;
     match out {
-        Outbound::Heartbeat {
-            healthy,
-            initialised,
-            degraded,
-        } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
+        Outbound::Heartbeat { initialised, degraded } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
             custom_mode: 0,
             mavtype: apm::MavType::MAV_TYPE_ONBOARD_CONTROLLER,
             autopilot: apm::MavAutopilot::MAV_AUTOPILOT_INVALID,
             base_mode: apm::MavModeFlag::empty(),
-            system_status: match (initialised, *healthy && !*degraded) {
+            system_status: match (initialised, degraded) {
                 (false, _) => apm::MavState::MAV_STATE_STANDBY,
-                (true, true) => apm::MavState::MAV_STATE_ACTIVE,
-                (true, false) => apm::MavState::MAV_STATE_CRITICAL,
+                (true, false) => apm::MavState::MAV_STATE_ACTIVE,
+                (true, true) => apm::MavState::MAV_STATE_CRITICAL,
             },
             mavlink_version: 3,
         }),
