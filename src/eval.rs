@@ -413,26 +413,22 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         per_seed_ate_aligned_m: scores.iter().map(|s| s.ate.aligned_m).collect(),
         per_seed_nees_mean: scores.iter().map(|s| s.nees_mean).collect(),
         max_rel_diff_vs_full: diff,
-        clock_bias_rmse_m: {
-            let e: Vec<f64> = runs
-                .iter()
-                .flat_map(|r| r.clock_errors.iter().filter(|c| c.0 > 5.0).map(|c| c.1))
-                .collect();
-            (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
-        },
-        isb_galileo_rmse_m: {
-            let e: Vec<f64> = runs
-                .iter()
-                .flat_map(|r| {
-                    r.clock_errors
-                        .iter()
-                        .filter(|c| c.0 > 5.0 && c.2.is_finite())
-                        .map(|c| c.2)
-                })
-                .collect();
-            (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
-        },
+        // RMS of one clock error over the epochs after the first 5 s (NaN:
+        // not estimated yet).
+        clock_bias_rmse_m: clock_rmse(runs, |c| c.1),
+        isb_galileo_rmse_m: clock_rmse(runs, |c| c.2),
     }
+}
+
+/// RMS of `pick` of the clock errors at the GNSS epochs after the first 5 s,
+/// skipping NaN (a state not estimated yet); `None` when there are none.
+fn clock_rmse(runs: &[FlightResult], pick: impl Fn(&(f64, f64, f64)) -> f64) -> Option<f64> {
+    let e: Vec<f64> = runs
+        .iter()
+        .flat_map(|r| r.clock_errors.iter().filter(|c| c.0 > 5.0).map(&pick))
+        .filter(|x| x.is_finite())
+        .collect();
+    (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
 }
 
 /// The whole evaluation: every mode over every seed.
