@@ -1101,6 +1101,11 @@ impl Fusion {
                                         );
                                     }
                                 }
+                                crate::estimator::FilterEvent::Promoted { keyframes } => l.log(
+                                    Topic::FilterGlobal,
+                                    t,
+                                    &json!({"t_s": t, "reason": "Promotion", "promoted": keyframes}),
+                                ),
                                 crate::estimator::FilterEvent::Update { .. } => {}
                             }
                         }

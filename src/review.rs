@@ -50,6 +50,8 @@ pub struct ReviewSummary {
     pub update_us_max: f64,
     pub gnss_updates: u64,
     pub global_updates: u64,
+    /// Global keyframes made local for a loop closure (promotion records).
+    pub promotions: u64,
     pub keyframes: u64,
     pub estimates: u64,
 }
@@ -164,8 +166,12 @@ pub fn review(
                 push_sigmas(&mut d, t, &v);
             }
             "/filter/update/global" => {
-                s.global_updates += 1;
-                d.global_t.push(t);
+                if v["reason"] == "Promotion" {
+                    s.promotions += 1;
+                } else {
+                    s.global_updates += 1;
+                    d.global_t.push(t);
+                }
             }
             "/output/vision_position_estimate" => s.estimates += 1,
             "/input/mavlink/autopilot" => {

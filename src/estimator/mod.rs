@@ -10,6 +10,7 @@
 //! [`Global`]: `P_LG(0)`, `P_GG(0)` frozen at the last global update plus the
 //! accumulated `Φ`, `Ψ` and `q` (§5).
 
+pub mod compressed;
 pub mod feature;
 pub mod frontend;
 pub mod gnss_update;
@@ -18,6 +19,9 @@ pub mod math;
 pub mod propagate;
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+use compressed::Global;
+pub use compressed::{InstallError, RebaseJob, RebaseResult};
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, UnitQuaternion, Vector3};
 
@@ -77,6 +81,9 @@ pub struct Settings {
     pub pseudorange_sigma_m: f64,
     pub range_rate_sigma_mps: f64,
     pub elevation_mask_deg: f64,
+    /// Compressed mode: rebases are computed by whoever takes the job
+    /// ([`Estimator::take_rebase_job`]) instead of at once (§5 R4).
+    pub async_rebase: bool,
 }
 
 impl Settings {
@@ -102,6 +109,7 @@ impl Settings {
             pseudorange_sigma_m: c.gnss.pseudorange_sigma_m,
             range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
+            async_rebase: false,
             ext: Extrinsic {
                 R_B_C: cam.T_B_C.rotation.to_rotation_matrix().into_inner(),
                 p_C_in_B: cam.T_B_C.translation.vector,
@@ -158,24 +166,6 @@ impl Keyframe {
     }
 }
 
-/// The compressed-mode global part (§5), held in the coordinates whitened
-/// by `P_LL(0) = L Lᵀ` (§5, eq. W1): the products then stay well scaled.
-#[derive(Clone, Debug)]
-struct Global {
-    /// Global keyframe ids, in the order of `P_GG0`.
-    ids: Vec<u64>,
-    /// `C = L⁻¹ P_LG(0)`.
-    C: DMatrix<f64>,
-    P_GG0: DMatrix<f64>,
-    /// `Φ(k,0) L`: maps whitened local errors at the last global update to
-    /// the current local errors; it starts at `L`.
-    Phi: DMatrix<f64>,
-    /// `Lᵀ Ψ L = Σ (HΦL)ᵀ S⁻¹ (HΦL)`.
-    Psi: DMatrix<f64>,
-    /// `Lᵀ q = Σ (HΦL)ᵀ S⁻¹ r`.
-    q: DVector<f64>,
-}
-
 /// Counters since start.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Stats {
@@ -186,6 +176,14 @@ pub struct Stats {
     pub updates: u64,
     pub loop_closure_updates: u64,
     pub global_updates: u64,
+    /// Rebase results installed (equal to `global_updates` once none is
+    /// pending).
+    pub rebases_installed: u64,
+    /// Global keyframes brought into the local part for a measurement.
+    pub promotions: u64,
+    /// Keyframe observations left for later because their keyframe was in a
+    /// global part still being computed.
+    pub loop_closure_deferred: u64,
     pub keyframes_created: u64,
     pub keyframes_marginalised: u64,
 }
@@ -195,8 +193,6 @@ pub struct Stats {
 pub enum GlobalReason {
     /// The vehicle left the local region.
     LeftLocalRegion,
-    /// A measurement needs a global keyframe.
-    LoopClosure,
     /// Asked for (shutdown, log).
     Forced,
 }
@@ -213,6 +209,10 @@ pub enum FilterEvent {
     },
     KeyframeCreated {
         id: u64,
+    },
+    /// Global keyframes a measurement needs became local (§5 P1–P3).
+    Promoted {
+        keyframes: Vec<u64>,
     },
     Update {
         tracks: usize,
@@ -233,6 +233,9 @@ pub struct FrameReport {
     pub keyframe_created: bool,
     pub global_updates: usize,
     pub loop_closure_tracks: usize,
+    /// `(landmark, keyframe)` observations left for later: their keyframe
+    /// is in a global part that a rebase is still computing.
+    pub deferred: Vec<(u64, u64)>,
 }
 
 /// A landmark's observations in the window.
@@ -264,6 +267,12 @@ pub struct Estimator {
     /// Keyframes in `P`, in order.
     local_kfs: Vec<u64>,
     global: Option<Global>,
+    /// The rebase being computed, and whether its job was taken.
+    pending: Option<(RebaseJob, bool)>,
+    rebase_seq: u64,
+    /// Keyframe observations the next frame must not use (lockstep
+    /// comparisons mirror another filter's deferrals with it).
+    exclude_once: Vec<(u64, u64)>,
     centre_W: Vector3<f64>,
     tracks: BTreeMap<u64, Track>,
     /// Landmark → keyframes holding an observation of it.
@@ -333,6 +342,9 @@ impl Estimator {
             keyframes: BTreeMap::new(),
             local_kfs: Vec::new(),
             global: None,
+            pending: None,
+            rebase_seq: 0,
+            exclude_once: Vec::new(),
             tracks: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
@@ -360,7 +372,7 @@ impl Estimator {
         self.clones.len()
     }
     pub fn n_global_keyframes(&self) -> usize {
-        self.global.as_ref().map_or(0, |g| g.ids.len())
+        self.global.as_ref().map_or(0, |g| g.live.len())
     }
     pub fn local_dim(&self) -> usize {
         self.P.nrows()
@@ -398,15 +410,7 @@ impl Estimator {
             })
             .collect();
         if let Some(g) = &self.global {
-            for (j, id) in g.ids.iter().enumerate() {
-                let o = 6 * j + 3;
-                let p = &g.P_GG0;
-                v.push((
-                    *id,
-                    (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt(),
-                    true,
-                ));
-            }
+            v.extend(g.sigma_m.iter().map(|(id, s)| (*id, *s, true)));
         }
         v.sort_by_key(|x| x.0);
         v
@@ -420,10 +424,7 @@ impl Estimator {
             let o = ACTIVE_DIM + 6 * j;
             return Some(self.P.fixed_view::<6, 6>(o, o).into_owned());
         }
-        let g = self.global.as_ref()?;
-        let j = g.ids.iter().position(|&k| k == id)?;
-        let c = g.C.columns(6 * j, 6);
-        let pgg = g.P_GG0.fixed_view::<6, 6>(6 * j, 6 * j).into_owned() - c.transpose() * &g.Psi * c;
+        let pgg = self.global_keyframe_covariance(id)?;
         Some(Matrix6::from_fn(|r, c| pgg[(r, c)]))
     }
 
@@ -667,12 +668,16 @@ impl Estimator {
 
         // Compressed: leaving the local region triggers a global update and
         // moves the centre to the vehicle (§5).
-        if self.s.mode == Mode::Compressed && (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m {
+        // While a rebase is still being computed the next one waits.
+        if self.s.mode == Mode::Compressed
+            && self.pending.is_none()
+            && (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m
+        {
             self.centre_W = self.imu.p_B_in_W;
-            report
-                .events
-                .push(self.global_update(&BTreeSet::new(), GlobalReason::LeftLocalRegion));
-            report.global_updates += 1;
+            if let Some(ev) = self.begin_rebase(GlobalReason::LeftLocalRegion) {
+                report.events.push(ev);
+                report.global_updates += 1;
+            }
         }
 
         let present: BTreeSet<u64> = obs.iter().map(|o| o.landmark_id).collect();
@@ -806,14 +811,10 @@ impl Estimator {
             self.remove_block(at);
             self.local_kfs.remove(j);
         } else if let Some(g) = self.global.as_mut() {
-            if let Some(j) = g.ids.iter().position(|&k| k == id) {
-                // Deleting a global state commutes with Ψ and q (§5, eq. G5).
-                let c = std::mem::replace(&mut g.C, DMatrix::zeros(0, 0));
-                g.C = c.remove_columns(6 * j, 6);
-                let pgg = std::mem::replace(&mut g.P_GG0, DMatrix::zeros(0, 0));
-                g.P_GG0 = pgg.remove_rows(6 * j, 6).remove_columns(6 * j, 6);
-                g.ids.remove(j);
-            }
+            // Deleting a global state commutes with Ψ and q (§5, eq. G5): its
+            // block goes dead and the next rebase drops it.
+            g.live.remove(&id);
+            g.sigma_m.remove(&id);
         }
         if let Some(kf) = self.keyframes.remove(&id) {
             for l in kf.obs.keys() {
@@ -833,7 +834,6 @@ impl Estimator {
     fn update_tracks(&mut self, ready: Vec<(u64, Track)>, report: &mut FrameReport) {
         // Keyframe observations each ready track may use.
         let mut kf_use: Vec<Vec<u64>> = Vec::with_capacity(ready.len());
-        let mut needed = BTreeSet::new();
         for (l, _) in &ready {
             let mut ks = Vec::new();
             if let Some(set) = self.kf_by_landmark.get(l) {
@@ -848,22 +848,50 @@ impl Estimator {
                     }
                 }
             }
-            needed.extend(ks.iter().copied());
             kf_use.push(ks);
         }
-        // A measurement that touches a global keyframe waits for a global
-        // update that makes it local (§5).
+        // Observations another filter deferred (lockstep comparisons).
+        if !self.exclude_once.is_empty() {
+            let ex = std::mem::take(&mut self.exclude_once);
+            for ((l, _), ks) in ready.iter().zip(kf_use.iter_mut()) {
+                ks.retain(|k| !ex.contains(&(*l, *k)));
+            }
+        }
+        // A measurement that touches a global keyframe first makes it local
+        // (§5 P1–P3). While the global part is being computed by a rebase,
+        // those keyframe observations wait for a later track instead.
         if self.s.mode == Mode::Compressed {
-            let gl: BTreeSet<u64> = self
+            let global_needed: Vec<u64> = self
                 .global
                 .as_ref()
-                .map(|g| g.ids.iter().copied().collect())
+                .map(|g| {
+                    kf_use
+                        .iter()
+                        .flatten()
+                        .filter(|k| g.live.contains_key(k))
+                        .copied()
+                        .collect::<BTreeSet<u64>>()
+                        .into_iter()
+                        .collect()
+                })
                 .unwrap_or_default();
-            if needed.iter().any(|k| gl.contains(k)) {
-                report
-                    .events
-                    .push(self.global_update(&needed, GlobalReason::LoopClosure));
-                report.global_updates += 1;
+            if !global_needed.is_empty() {
+                if self.promote(&global_needed) {
+                    report.events.push(FilterEvent::Promoted {
+                        keyframes: global_needed,
+                    });
+                } else {
+                    for ((l, _), ks) in ready.iter().zip(kf_use.iter_mut()) {
+                        ks.retain(|k| {
+                            let wait = global_needed.contains(k);
+                            if wait {
+                                report.deferred.push((*l, *k));
+                            }
+                            !wait
+                        });
+                    }
+                    self.stats.loop_closure_deferred += report.deferred.len() as u64;
+                }
             }
         }
 
@@ -1069,135 +1097,52 @@ impl Estimator {
 
     // ------------------------------------------------------- compressed
 
-    /// The reconstructed global part: `P_LG = Φ P_LG(0)`,
-    /// `P_GG = P_GG(0) − P_GL(0) Ψ P_LG(0)`, `δx_G = P_GL(0) q` (§5, G1–G3),
-    /// evaluated in whitened coordinates as `(ΦL) C`, `P_GG(0) − Cᵀ(LᵀΨL)C`
-    /// and `Cᵀ(Lᵀq)` (eq. W2).
-    fn reconstruct(&self) -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>)> {
-        let g = self.global.as_ref()?;
-        let p_lg = &g.Phi * &g.C;
-        let psi_c = &g.Psi * &g.C;
-        let mut p_gg = &g.P_GG0 - g.C.transpose() * psi_c;
-        p_gg = (&p_gg + p_gg.transpose()) * 0.5;
-        let dx_g = g.C.transpose() * &g.q;
-        Some((p_lg, p_gg, dx_g))
-    }
-
-    /// Applies the accumulated correction to the global keyframes (G3) and
-    /// returns the full covariance `[L | G]` (G1, G2) with the global ids in
-    /// its order; the compressed part itself is left as it was.
-    fn merge_global(&mut self) -> Option<(DMatrix<f64>, Vec<u64>)> {
-        let (p_lg, p_gg, dx_g) = self.reconstruct()?;
-        let ids = self.global.as_ref()?.ids.clone();
-        for (j, id) in ids.iter().enumerate() {
-            if let Some(kf) = self.keyframes.get_mut(id) {
-                kf.delta += dx_g.fixed_rows::<3>(6 * j);
-                kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
-            }
-        }
-        let (nl, ng) = (self.P.nrows(), p_gg.nrows());
-        let mut full = DMatrix::zeros(nl + ng, nl + ng);
-        full.view_mut((0, 0), (nl, nl)).copy_from(&self.P);
-        full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
-        full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
-        full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
-        Some((full, ids))
-    }
-
-    /// Global update, then re-partition around the current centre (§5):
-    /// keyframes within `local_radius_m` of the centre, and those in
-    /// `force_local`, become local.
-    fn global_update(&mut self, force_local: &BTreeSet<u64>, reason: GlobalReason) -> FilterEvent {
-        let global_before = self.global.as_ref().map(|g| g.ids.clone()).unwrap_or_default();
-        self.sync();
-        self.stats.global_updates += 1;
-        let nl = self.P.nrows();
-        let (full_p, order) = match self.merge_global() {
-            Some((full, ids)) => {
-                self.global = None;
-                let mut order = self.local_kfs.clone();
-                order.extend(ids);
-                (full, order)
-            }
-            None => (self.P.clone(), self.local_kfs.clone()),
-        };
-        // Full-state index of each keyframe block.
-        let n_local_kfs = self.local_kfs.len();
-        let n_clone_dim = 6 * self.clones.len();
-        let kf_index = |pos: usize| -> usize {
-            if pos < n_local_kfs {
-                ACTIVE_DIM + 6 * pos
-            } else {
-                nl + 6 * (pos - n_local_kfs)
-            }
-        };
-        let mut new_local = Vec::new();
-        let mut new_global = Vec::new();
-        let mut sorted: Vec<(u64, usize)> = order.iter().enumerate().map(|(p, id)| (*id, p)).collect();
-        sorted.sort_unstable();
-        for (id, pos) in sorted {
-            let kf = &self.keyframes[&id];
-            if force_local.contains(&id) || (kf.p_B_in_W - self.centre_W).norm() <= self.s.local_radius_m {
-                new_local.push((id, pos));
-            } else {
-                new_global.push((id, pos));
-            }
-        }
-        let mut lidx: Vec<usize> = (0..ACTIVE_DIM).collect();
-        for (_, pos) in &new_local {
-            lidx.extend(kf_index(*pos)..kf_index(*pos) + 6);
-        }
-        let co = ACTIVE_DIM + 6 * n_local_kfs;
-        lidx.extend(co..co + n_clone_dim);
-        let gidx: Vec<usize> = new_global
-            .iter()
-            .flat_map(|(_, pos)| kf_index(*pos)..kf_index(*pos) + 6)
-            .collect();
-        self.P = full_p.select_rows(&lidx).select_columns(&lidx);
-        self.local_kfs = new_local.iter().map(|x| x.0).collect();
-        let l = self.P.nrows();
-        self.global = if self.s.mode == Mode::Compressed {
-            let p_lg0 = full_p.select_rows(&lidx).select_columns(&gidx);
-            // Change of basis by L ≈ P_LL(0)^{1/2} (eq. W1). Any invertible L
-            // keeps the algebra exact; a Cholesky factor (with a tiny
-            // diagonal jitter if P_LL(0) is numerically semi-definite) keeps
-            // the accumulated products well scaled.
-            let l_fac = whitening_factor(&self.P);
-            let c = l_fac.solve_lower_triangular(&p_lg0).unwrap_or_else(|| p_lg0.clone());
-            let phi = l_fac;
-            Some(Global {
-                ids: new_global.iter().map(|x| x.0).collect(),
-                C: c,
-                P_GG0: full_p.select_rows(&gidx).select_columns(&gidx),
-                Phi: phi,
-                Psi: DMatrix::zeros(l, l),
-                q: DVector::zeros(l),
-            })
-        } else {
-            None
-        };
-        FilterEvent::GlobalUpdate {
-            reason,
-            global_before,
-            local_after: self.local_kfs.clone(),
-        }
-    }
-
     /// Forces a global update (compressed mode; on shutdown or for a log).
     pub fn force_global_update(&mut self) {
         if self.s.mode == Mode::Compressed {
-            self.global_update(&BTreeSet::new(), GlobalReason::Forced);
+            self.finish_rebase_inline();
+            self.begin_rebase(GlobalReason::Forced);
+            self.finish_rebase_inline();
         }
+    }
+
+    /// Makes the next frame leave out these `(landmark, keyframe)`
+    /// observations: a filter compared in lockstep with an asynchronous
+    /// compressed one mirrors its [`FrameReport::deferred`] with this.
+    pub fn exclude_keyframe_obs_once(&mut self, pairs: &[(u64, u64)]) {
+        self.exclude_once.extend_from_slice(pairs);
+    }
+
+    /// Asynchronous rebases (§5 R4): see [`Settings::async_rebase`].
+    pub fn set_async_rebase(&mut self, on: bool) {
+        self.s.async_rebase = on;
     }
 
     /// The whole state, reconstructed, in a fixed order: IMU, clones,
     /// keyframes by id. Does not change the filter.
     pub fn snapshot(&self) -> Snapshot {
         let mut est = self.clone();
+        est.finish_rebase_inline();
         est.sync();
-        let merged = est.merge_global();
-        let (full_p, global_ids) = merged.unwrap_or_else(|| (est.P.clone(), Vec::new()));
         let nl = est.P.nrows();
+        let (full_p, global_ids) = match est.reconstruct() {
+            Some((p_lg, p_gg, dx_g, ids)) => {
+                for (j, id) in ids.iter().enumerate() {
+                    if let Some(kf) = est.keyframes.get_mut(id) {
+                        kf.delta += dx_g.fixed_rows::<3>(6 * j);
+                        kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
+                    }
+                }
+                let ng = p_gg.nrows();
+                let mut full = DMatrix::zeros(nl + ng, nl + ng);
+                full.view_mut((0, 0), (nl, nl)).copy_from(&est.P);
+                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
+                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
+                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
+                (full, ids)
+            }
+            None => (est.P.clone(), Vec::new()),
+        };
         let mut kf_pos: BTreeMap<u64, usize> = est
             .local_kfs
             .iter()

@@ -23,20 +23,24 @@ fn compressed_equals_full_after_every_global_update() {
 }
 
 /// A measurement that involves a keyframe of the global part is applied
-/// only after a global update that has made that keyframe local.
+/// only after a promotion has made that keyframe local (§5 P1–P3), and the
+/// promoted filter still equals the full one.
 #[test]
-fn global_update_comes_before_a_measurement_on_a_global_keyframe() {
+fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
     let (ds, cfg) = racetrack(2, 75.0);
     let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, 2);
+    let mut full = eval::Runner::new(&ds, &cfg, Mode::Full, 2);
     let mut checked = 0;
+    let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
         let global_before: BTreeSet<u64> = run
             .est
             .global
             .as_ref()
-            .map(|g| g.ids.iter().copied().collect())
+            .map(|g| g.live.keys().copied().collect())
             .unwrap_or_default();
         let (_, rep) = run.step_frame(k);
+        full.step_frame(k);
         for (i, ev) in rep.events.iter().enumerate() {
             let FilterEvent::Update { keyframes, .. } = ev else {
                 continue;
@@ -49,21 +53,65 @@ fn global_update_comes_before_a_measurement_on_a_global_keyframe() {
             if needs_global.is_empty() {
                 continue;
             }
-            // An earlier event of the same frame is a loop-closure global
-            // update that made every one of them local.
             let made_local = rep.events[..i].iter().any(|e| {
-                matches!(e, FilterEvent::GlobalUpdate { reason: GlobalReason::LoopClosure, local_after, .. }
-                    if needs_global.iter().all(|k| local_after.contains(k)))
+                matches!(e, FilterEvent::Promoted { keyframes }
+                    if needs_global.iter().all(|k| keyframes.contains(k)))
             });
             assert!(
                 made_local,
-                "frame {k}: update on global keyframes {needs_global:?} without a global update first: {:?}",
+                "frame {k}: update on global keyframes {needs_global:?} without a promotion first: {:?}",
                 rep.events
             );
             checked += 1;
+            // Exact right after the update that used promoted keyframes.
+            worst = worst.max(run.est.snapshot().max_rel_diff(&full.est.snapshot()));
         }
     }
     assert!(checked > 0, "the flight had no measurement on a global keyframe");
+    assert!(worst <= 1e-9, "compressed differs from full by {worst:e} after promotions");
+    assert_eq!(run.est.stats.loop_closure_deferred, 0);
+}
+
+/// Asynchronous rebases (§5 R4): the job's result is installed several
+/// frames late while the local filter goes on; observations on keyframes of
+/// the global part being computed wait. A full filter given the same
+/// deferrals equals it after every install.
+#[test]
+fn asynchronous_rebase_equals_full_after_every_install() {
+    let (ds, cfg) = racetrack(1, 75.0);
+    let mut c = eval::Runner::new(&ds, &cfg, Mode::Compressed, 1);
+    let mut f = eval::Runner::new(&ds, &cfg, Mode::Full, 1);
+    c.est.set_async_rebase(true);
+    let mut in_flight: Option<(usize, RebaseResult)> = None;
+    let (mut installs, mut worst, mut deferred) = (0, 0.0f64, 0);
+    for k in 0..ds.frames.len() {
+        let (_, rep) = c.step_frame(k);
+        deferred += rep.deferred.len();
+        f.est.exclude_keyframe_obs_once(&rep.deferred);
+        f.step_frame(k);
+        if let Some(job) = c.est.take_rebase_job() {
+            // "Another thread": the result comes back 7 frames later.
+            in_flight = Some((k + 7, job.run()));
+        }
+        if in_flight.as_ref().is_some_and(|(due, _)| *due == k) {
+            if let Some((_, res)) = in_flight.take() {
+                c.est.install_rebase(res).unwrap();
+                installs += 1;
+                worst = worst.max(c.est.snapshot().max_rel_diff(&f.est.snapshot()));
+            }
+        }
+    }
+    assert!(installs > 10, "installs {installs}");
+    assert!(c.est.stats.promotions > 0, "no promotions");
+    assert!(deferred > 0, "no observation had to wait: the test shows nothing");
+    assert!(worst <= 1e-9, "asynchronous compressed differs from full by {worst:e}");
+    // A result whose rebase was finished some other way is refused.
+    c.est.force_global_update();
+    assert!(c.est.begin_rebase(GlobalReason::Forced).is_some());
+    let res = c.est.take_rebase_job().unwrap().run();
+    assert!(c.est.take_rebase_job().is_none(), "a job is handed out once");
+    c.est.finish_rebase_inline();
+    assert!(matches!(c.est.install_rebase(res), Err(InstallError::Stale { .. })));
 }
 
 /// Degenerate inputs are rejected and counted, never a panic.

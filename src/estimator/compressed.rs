@@ -1,0 +1,503 @@
+//! Compressed mode's global part (§5): the base frozen at the last rebase,
+//! the exact promotion of global keyframes into the local part (§5 P1–P3,
+//! linear in the global size), and the rebase (global update) split into a
+//! pure [`RebaseJob`] that may run on another thread while the local filter
+//! goes on (§5 R1–R4).
+//!
+//! Why it exists: the global update is the only step whose cost grows with
+//! the square of the map. Loop closures no longer need one (a promotion
+//! serves them), and the one that re-centres the local region can be
+//! computed off the real-time path and installed when ready, without
+//! changing a single number of the filter.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
+use crate::config::Mode;
+
+/// The global part at the last rebase (time 0), in the whitened coordinates
+/// of §5 W1. Immutable once built: a running job shares it through an `Arc`.
+#[derive(Debug)]
+pub struct Base {
+    /// Keyframe id of each 6-column block, in order (promoted or removed
+    /// keyframes keep their dead block until the next rebase).
+    pub(super) ids: Vec<u64>,
+    /// `C = W⁻¹ P_LG(0)` (n_L0 × 6 blocks).
+    pub(super) C: DMatrix<f64>,
+    /// `P_GG(0)`.
+    pub(super) P_GG0: DMatrix<f64>,
+}
+
+/// The global part as the filter holds it between rebases.
+#[derive(Clone, Debug)]
+pub(super) struct Global {
+    /// `None` while a rebase job computes it.
+    pub(super) base: Option<Arc<Base>>,
+    /// Live global keyframe id → its block in the base.
+    pub(super) live: BTreeMap<u64, usize>,
+    /// Rows appended to `C` by promotions, `W_Q⁻¹ P_GG(0)[Q, :]` (§5 P2);
+    /// `C̃ = [C; extra]`.
+    pub(super) extra: DMatrix<f64>,
+    /// `Φ̃`: maps the whitened base-local errors to the current local errors.
+    pub(super) Phi: DMatrix<f64>,
+    /// `Ψ̃ = Σ (HΦ̃)ᵀ S⁻¹ (HΦ̃)`.
+    pub(super) Psi: DMatrix<f64>,
+    /// `q̃ = Σ (HΦ̃)ᵀ S⁻¹ r`.
+    pub(super) q: DVector<f64>,
+    /// Position σ (m) of each global keyframe at the last rebase.
+    pub(super) sigma_m: BTreeMap<u64, f64>,
+}
+
+impl Global {
+    /// The columns `cols` of `C̃ = [C; extra]`.
+    fn c_cols(&self, base: &Base, cols: &[usize]) -> DMatrix<f64> {
+        let (n0, ne) = (base.C.nrows(), self.extra.nrows());
+        let mut out = DMatrix::zeros(n0 + ne, cols.len());
+        for (k, &c) in cols.iter().enumerate() {
+            out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
+            if ne > 0 {
+                out.view_mut((n0, k), (ne, 1)).copy_from(&self.extra.column(c));
+            }
+        }
+        out
+    }
+
+    /// Live keyframes with their base columns, in block order.
+    fn live_in_block_order(&self) -> Vec<(u64, usize)> {
+        let mut v: Vec<(u64, usize)> = self.live.iter().map(|(id, b)| (*id, *b)).collect();
+        v.sort_unstable_by_key(|x| x.1);
+        v
+    }
+}
+
+fn block_cols(blocks: impl IntoIterator<Item = usize>) -> Vec<usize> {
+    blocks.into_iter().flat_map(|b| 6 * b..6 * b + 6).collect()
+}
+
+/// A rebase (global update, §5 R1–R3): everything it needs, owned, so that
+/// [`RebaseJob::run`] is a pure function that can run on any thread.
+#[derive(Clone, Debug)]
+pub struct RebaseJob {
+    /// Which rebase of its filter this is; the result must come back to it.
+    pub seq: u64,
+    parent: Option<Arc<Base>>,
+    /// Parent blocks that stay global, in the new base's order.
+    live_blocks: Vec<usize>,
+    extra: DMatrix<f64>,
+    Phi: DMatrix<f64>,
+    Psi: DMatrix<f64>,
+    q: DVector<f64>,
+    /// Local covariance rows of the demoted keyframes at the rebase time.
+    p_demoted_rows: DMatrix<f64>,
+    demoted_idx: Vec<usize>,
+    /// Local indices (at the rebase time) of the new local part.
+    keep_idx: Vec<usize>,
+    /// `W'`: lower factor of the new local block, `P_L'L' = W' W'ᵀ`.
+    w_new: DMatrix<f64>,
+    /// Keyframe ids of the new base: the live ones, then the demoted ones.
+    ids: Vec<u64>,
+}
+
+/// What a [`RebaseJob`] computed: the new base and the correction of the
+/// keyframes that were already global (§5 G3).
+#[derive(Debug)]
+pub struct RebaseResult {
+    pub seq: u64,
+    base: Base,
+    /// `δx_G` for `base.ids[..n_live]`.
+    dx_live: DVector<f64>,
+}
+
+impl RebaseJob {
+    /// Global keyframes after the rebase.
+    pub fn n_global(&self) -> usize {
+        self.ids.len()
+    }
+
+    /// Computes the new base (§5 R2): the old global part brought to the
+    /// rebase time by G1–G3, joined by the demoted keyframes, and whitened
+    /// by the new local block. `O(n_L n_G²)`, the only step that is.
+    pub fn run(&self) -> RebaseResult {
+        let n_live = self.live_blocks.len();
+        let (g, o) = (6 * n_live, self.demoted_idx.len());
+        let nk = self.keep_idx.len() + o;
+        let n_new = g + o;
+        let mut p0 = DMatrix::zeros(n_new, n_new);
+        let (p_lg, dx_live) = match &self.parent {
+            Some(base) if g > 0 => {
+                let cols = block_cols(self.live_blocks.iter().copied());
+                let gl = Global {
+                    base: None,
+                    live: BTreeMap::new(),
+                    extra: self.extra.clone(),
+                    Phi: DMatrix::zeros(0, 0),
+                    Psi: DMatrix::zeros(0, 0),
+                    q: DVector::zeros(0),
+                    sigma_m: BTreeMap::new(),
+                };
+                let ct = gl.c_cols(base, &cols);
+                // G1: P_LG(k) = Φ̃ C̃.
+                let p_lg = &self.Phi * &ct;
+                // G2: P_GG(k) = P_GG(0) − C̃ᵀ Ψ̃ C̃, as one in-place product.
+                for (c, &sc) in cols.iter().enumerate() {
+                    for (r, &sr) in cols.iter().enumerate() {
+                        p0[(r, c)] = base.P_GG0[(sr, sc)];
+                    }
+                }
+                let psi_c = &self.Psi * &ct;
+                p0.view_mut((0, 0), (g, g)).gemm(-1.0, &ct.transpose(), &psi_c, 1.0);
+                // G3: δx_G = C̃ᵀ q̃.
+                (p_lg, ct.tr_mul(&self.q))
+            }
+            _ => (DMatrix::zeros(nk, g), DVector::zeros(g)),
+        };
+        // Demoted keyframes join the global part with their covariance at k.
+        if o > 0 {
+            let p_og = p_lg.select_rows(&self.demoted_idx);
+            p0.view_mut((g, 0), (o, g)).copy_from(&p_og);
+            p0.view_mut((0, g), (g, o)).copy_from(&p_og.transpose());
+            p0.view_mut((g, g), (o, o))
+                .copy_from(&self.p_demoted_rows.select_columns(&self.demoted_idx));
+        }
+        // Exact symmetry: G2 cancels in floating point.
+        for c in 0..n_new {
+            for r in 0..c {
+                let v = 0.5 * (p0[(r, c)] + p0[(c, r)]);
+                p0[(r, c)] = v;
+                p0[(c, r)] = v;
+            }
+        }
+        // R2: C' = W'⁻¹ P_L'G'(k).
+        let nl = self.keep_idx.len();
+        let mut p_lg_new = DMatrix::zeros(nl, n_new);
+        if g > 0 {
+            p_lg_new
+                .view_mut((0, 0), (nl, g))
+                .copy_from(&p_lg.select_rows(&self.keep_idx));
+        }
+        if o > 0 {
+            p_lg_new
+                .view_mut((0, g), (nl, o))
+                .copy_from(&self.p_demoted_rows.select_columns(&self.keep_idx).transpose());
+        }
+        // W' has a positive diagonal (whitening_factor), so the solve exists.
+        self.w_new.solve_lower_triangular_mut(&mut p_lg_new);
+        RebaseResult {
+            seq: self.seq,
+            base: Base {
+                ids: self.ids.clone(),
+                C: p_lg_new,
+                P_GG0: p0,
+            },
+            dx_live,
+        }
+    }
+}
+
+/// Why a rebase result was not installed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum InstallError {
+    #[error("rebase result {got} does not match the pending rebase {want:?}")]
+    Stale { got: u64, want: Option<u64> },
+}
+
+impl Estimator {
+    /// Whether a rebase job is computing the global part.
+    pub fn rebase_pending(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// The pending rebase job, once, for running elsewhere (asynchronous
+    /// rebases only); install its result with [`Estimator::install_rebase`].
+    pub fn take_rebase_job(&mut self) -> Option<RebaseJob> {
+        let p = self.pending.as_mut()?;
+        if p.1 {
+            return None;
+        }
+        p.1 = true;
+        Some(p.0.clone())
+    }
+
+    /// Installs a rebase result (§5 R3): the global corrections, and the new
+    /// base. Cheap: `O(n_G)` plus moving the matrices in.
+    pub fn install_rebase(&mut self, res: RebaseResult) -> Result<(), InstallError> {
+        let want = self.pending.as_ref().map(|p| p.0.seq);
+        if want != Some(res.seq) {
+            return Err(InstallError::Stale { got: res.seq, want });
+        }
+        self.pending = None;
+        let Some(g) = self.global.as_mut() else {
+            return Ok(());
+        };
+        for (j, id) in res.base.ids.iter().enumerate().take(res.dx_live.len() / 6) {
+            if let Some(kf) = self.keyframes.get_mut(id) {
+                kf.delta += res.dx_live.fixed_rows::<3>(6 * j);
+                kf.p_B_in_W += res.dx_live.fixed_rows::<3>(6 * j + 3);
+            }
+        }
+        let p = &res.base.P_GG0;
+        g.sigma_m = g
+            .live
+            .iter()
+            .map(|(id, b)| {
+                let o = 6 * b + 3;
+                (*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt())
+            })
+            .collect();
+        g.extra = DMatrix::zeros(0, res.base.C.ncols());
+        g.base = Some(Arc::new(res.base));
+        self.stats.rebases_installed += 1;
+        Ok(())
+    }
+
+    /// Runs and installs a pending rebase here and now.
+    pub(super) fn finish_rebase_inline(&mut self) {
+        if let Some((job, _)) = &self.pending {
+            let res = job.run();
+            // The result is this job's: installing it cannot be stale.
+            let _ = self.install_rebase(res);
+        }
+    }
+
+    /// Starts a rebase (§5 R1) around the current centre: local keyframes
+    /// farther than `local_radius_m` are demoted to the global part, and the
+    /// accumulation restarts (`Φ̃ = W'`, `Ψ̃ = 0`, `q̃ = 0`). The local part
+    /// goes on at once; the new base is computed by the job, here
+    /// (synchronous filters) or elsewhere. `None` if a rebase is already
+    /// pending or there is nothing to do.
+    pub(super) fn begin_rebase(&mut self, reason: GlobalReason) -> Option<FilterEvent> {
+        if self.pending.is_some() {
+            return None;
+        }
+        self.sync();
+        let demote: Vec<(usize, u64)> = self
+            .local_kfs
+            .iter()
+            .enumerate()
+            .filter(|(_, id)| {
+                self.keyframes
+                    .get(id)
+                    .is_some_and(|kf| (kf.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m)
+            })
+            .map(|(j, id)| (j, *id))
+            .collect();
+        if self.global.is_none() && demote.is_empty() {
+            return None;
+        }
+        let global_before: Vec<u64> = self.global.as_ref().map(|g| g.live.keys().copied().collect()).unwrap_or_default();
+        self.stats.global_updates += 1;
+        let n = self.P.nrows();
+        let demoted_idx: Vec<usize> = demote
+            .iter()
+            .flat_map(|(j, _)| self.kf_offset(*j)..self.kf_offset(*j) + 6)
+            .collect();
+        let keep_idx: Vec<usize> = (0..n).filter(|i| !demoted_idx.contains(i)).collect();
+        let p_demoted_rows = self.P.select_rows(&demoted_idx);
+        let new_p = self.P.select_rows(&keep_idx).select_columns(&keep_idx);
+        let w_new = whitening_factor(&new_p);
+        let old = self.global.take();
+        let (parent, live, extra, phi, psi, q, mut sigma_m) = match old {
+            Some(g) => {
+                let live = g.live_in_block_order();
+                (g.base, live, g.extra, g.Phi, g.Psi, g.q, g.sigma_m)
+            }
+            None => (
+                None,
+                Vec::new(),
+                DMatrix::zeros(0, 0),
+                DMatrix::zeros(n, 0),
+                DMatrix::zeros(0, 0),
+                DVector::zeros(0),
+                BTreeMap::new(),
+            ),
+        };
+        let mut ids: Vec<u64> = live.iter().map(|x| x.0).collect();
+        for (j, id) in &demote {
+            let o = self.kf_offset(*j) + 3;
+            let p = &self.P;
+            sigma_m.insert(*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt());
+            ids.push(*id);
+        }
+        self.rebase_seq += 1;
+        let job = RebaseJob {
+            seq: self.rebase_seq,
+            parent,
+            live_blocks: live.iter().map(|x| x.1).collect(),
+            extra,
+            Phi: phi,
+            Psi: psi,
+            q,
+            p_demoted_rows,
+            demoted_idx,
+            keep_idx,
+            w_new: w_new.clone(),
+            ids: ids.clone(),
+        };
+        let l = new_p.nrows();
+        self.P = new_p;
+        self.local_kfs.retain(|id| !demote.iter().any(|d| d.1 == *id));
+        self.global = Some(Global {
+            base: None,
+            live: ids.iter().enumerate().map(|(b, id)| (*id, b)).collect(),
+            extra: DMatrix::zeros(0, 0),
+            Phi: w_new,
+            Psi: DMatrix::zeros(l, l),
+            q: DVector::zeros(l),
+            sigma_m,
+        });
+        self.pending = Some((job, false));
+        if !self.s.async_rebase {
+            self.finish_rebase_inline();
+        }
+        Some(FilterEvent::GlobalUpdate {
+            reason,
+            global_before,
+            local_after: self.local_kfs.clone(),
+        })
+    }
+
+    /// Brings global keyframes into the local part (§5 P1–P3), exactly and
+    /// without a global update: `O(n_L² |Q| + n_L0 n_G)`. The base must be
+    /// installed. Returns false (and changes nothing) otherwise.
+    pub(super) fn promote(&mut self, ids: &[u64]) -> bool {
+        let at = self.clones_offset();
+        let Some(g) = self.global.as_mut() else {
+            return false;
+        };
+        let Some(base) = g.base.clone() else {
+            return false;
+        };
+        let blocks: Vec<usize> = ids.iter().filter_map(|id| g.live.get(id).copied()).collect();
+        if blocks.len() != ids.len() || ids.is_empty() {
+            return false;
+        }
+        let cols = block_cols(blocks.iter().copied());
+        let k = cols.len();
+        // P1: P_LQ = Φ̃ C̃_Q, P_QQ = P_GG(0)_QQ − C̃_Qᵀ Ψ̃ C̃_Q, δx_Q = C̃_Qᵀ q̃.
+        let c_q = g.c_cols(&base, &cols);
+        let p_lq = &g.Phi * &c_q;
+        let psi_c = &g.Psi * &c_q;
+        let base_qq = base.P_GG0.select_rows(&cols).select_columns(&cols);
+        let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
+        p_qq = (&p_qq + p_qq.transpose()) * 0.5;
+        let dx_q = c_q.tr_mul(&g.q);
+        // P2: the base-local part grows by Q, whitened by W_Q (P_GG(0)_QQ =
+        // W_Q W_Qᵀ): C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows
+        // [−(Ψ̃ C̃_Q)ᵀ, W_Q], Ψ̃ and q̃ zeros.
+        let w_q = whitening_factor(&base_qq);
+        let mut rows = base.P_GG0.select_rows(&cols);
+        w_q.solve_lower_triangular_mut(&mut rows);
+        let ne = g.extra.nrows();
+        let extra = std::mem::replace(&mut g.extra, DMatrix::zeros(0, 0));
+        let mut extra = if ne == 0 {
+            DMatrix::zeros(0, base.C.ncols())
+        } else {
+            extra
+        }
+        .insert_rows(ne, k, 0.0);
+        extra.view_mut((ne, 0), (k, base.C.ncols())).copy_from(&rows);
+        g.extra = extra;
+        let n0 = g.Phi.ncols();
+        let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0))
+            .insert_columns(n0, k, 0.0)
+            .insert_rows(at, k, 0.0);
+        g.Phi = phi;
+        g.Phi.view_mut((at, 0), (k, n0)).copy_from(&(-psi_c.transpose()));
+        g.Phi.view_mut((at, n0), (k, k)).copy_from(&w_q);
+        let psi = std::mem::replace(&mut g.Psi, DMatrix::zeros(0, 0));
+        g.Psi = psi.insert_columns(n0, k, 0.0).insert_rows(n0, k, 0.0);
+        let q = std::mem::replace(&mut g.q, DVector::zeros(0));
+        g.q = q.insert_rows(n0, k, 0.0);
+        for id in ids {
+            g.live.remove(id);
+            g.sigma_m.remove(id);
+        }
+        // P3: the nominal values take δx_Q; the local covariance gains Q.
+        for (j, id) in ids.iter().enumerate() {
+            if let Some(kf) = self.keyframes.get_mut(id) {
+                kf.delta += dx_q.fixed_rows::<3>(6 * j);
+                kf.p_B_in_W += dx_q.fixed_rows::<3>(6 * j + 3);
+            }
+        }
+        self.insert_local(at, &p_lq, &p_qq);
+        self.local_kfs.extend_from_slice(ids);
+        self.stats.promotions += ids.len() as u64;
+        true
+    }
+
+    /// The reconstructed global part over the live keyframes (§5 G1–G3):
+    /// `(P_LG, P_GG, δx_G, ids)`. `None` without an installed base.
+    pub(super) fn reconstruct(&self) -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>, Vec<u64>)> {
+        let g = self.global.as_ref()?;
+        let base = g.base.as_ref()?;
+        let live = g.live_in_block_order();
+        let cols = block_cols(live.iter().map(|x| x.1));
+        let c = g.c_cols(base, &cols);
+        let p_lg = &g.Phi * &c;
+        let mut p_gg = base.P_GG0.select_rows(&cols).select_columns(&cols) - c.tr_mul(&(&g.Psi * &c));
+        p_gg = (&p_gg + p_gg.transpose()) * 0.5;
+        let dx = c.tr_mul(&g.q);
+        Some((p_lg, p_gg, dx, live.into_iter().map(|x| x.0).collect()))
+    }
+
+    /// A global keyframe's covariance now (§5 G2 for one block), if the base
+    /// is installed.
+    pub(super) fn global_keyframe_covariance(&self, id: u64) -> Option<DMatrix<f64>> {
+        let g = self.global.as_ref()?;
+        let base = g.base.as_ref()?;
+        let b = *g.live.get(&id)?;
+        let cols = block_cols([b]);
+        let c = g.c_cols(base, &cols);
+        Some(base.P_GG0.select_rows(&cols).select_columns(&cols) - c.tr_mul(&(&g.Psi * &c)))
+    }
+
+    /// The same filter in another mode (`full` or `schmidt`), with every
+    /// keyframe in the state: compressed's global part merged (§5 G1–G3).
+    /// For comparing modes on one state, as the scaling benchmark does.
+    pub fn into_mode(mut self, mode: Mode) -> Estimator {
+        self.finish_rebase_inline();
+        self.sync();
+        if let Some((p_lg, p_gg, dx, ids)) = self.reconstruct() {
+            for (j, id) in ids.iter().enumerate() {
+                if let Some(kf) = self.keyframes.get_mut(id) {
+                    kf.delta += dx.fixed_rows::<3>(6 * j);
+                    kf.p_B_in_W += dx.fixed_rows::<3>(6 * j + 3);
+                }
+            }
+            self.global = None;
+            // Global keyframes go after the local ones, before the clones.
+            let at = self.clones_offset();
+            let p_lg_rows = p_lg;
+            self.insert_local(at, &p_lg_rows, &p_gg);
+            self.local_kfs.extend(ids);
+        }
+        self.global = None;
+        self.s.mode = mode;
+        self
+    }
+
+    /// Inserts states with covariance `block` and cross-covariance `cross`
+    /// (rows: the current local states) at index `at` of the local part.
+    pub(super) fn insert_local(&mut self, at: usize, cross: &DMatrix<f64>, block: &DMatrix<f64>) {
+        let n = self.P.nrows();
+        let k = block.nrows();
+        let mut p = DMatrix::zeros(n + k, n + k);
+        let map = |i: usize| if i < at { i } else { i + k };
+        for c in 0..n {
+            let mc = map(c);
+            for r in 0..n {
+                p[(map(r), mc)] = self.P[(r, c)];
+            }
+            for j in 0..k {
+                p[(at + j, mc)] = cross[(c, j)];
+                p[(mc, at + j)] = cross[(c, j)];
+            }
+        }
+        p.view_mut((at, at), (k, k)).copy_from(block);
+        self.P = p;
+        debug_assert!(self.P.nrows() >= ACTIVE_DIM);
+    }
+}
