@@ -245,11 +245,21 @@ impl Default for KeyframeConfig {
 pub struct CompressedConfig {
     /// Radius of the local region around its centre (m).
     pub local_radius_m: f64,
+    /// Most keyframes the local part holds; beyond it a rebase demotes the
+    /// least recently used (count).
+    pub max_local_keyframes: usize,
+    /// Compute rebases on a worker thread in the daemon, so they never stall
+    /// the IMU and camera path (§5 R4).
+    pub rebase_thread: bool,
 }
 
 impl Default for CompressedConfig {
     fn default() -> Self {
-        Self { local_radius_m: 25.0 }
+        Self {
+            local_radius_m: 25.0,
+            max_local_keyframes: 20,
+            rebase_thread: true,
+        }
     }
 }
 
@@ -507,7 +517,15 @@ impl Config {
         if self.keyframe.max > 100_000 {
             return Err(c.fail("max", format!("{} is out of range", self.keyframe.max), "set 0..100000"));
         }
-        Check::new("compressed").positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
+        let c = Check::new("compressed");
+        c.positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
+        if !(2..=10_000).contains(&self.compressed.max_local_keyframes) {
+            return Err(c.fail(
+                "max_local_keyframes",
+                format!("{} is out of range", self.compressed.max_local_keyframes),
+                "set 2..10000",
+            ));
+        }
 
         let g = &self.gnss;
         let c = Check::new("gnss");

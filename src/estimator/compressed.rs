@@ -263,7 +263,9 @@ impl Estimator {
     }
 
     /// Starts a rebase (§5 R1) around the current centre: local keyframes
-    /// farther than `local_radius_m` are demoted to the global part, and the
+    /// farther than `local_radius_m` are demoted to the global part, then
+    /// the least recently used until half of `max_local_keyframes` remain
+    /// (so the next count-triggered rebase is that many keyframes away); the
     /// accumulation restarts (`Φ̃ = W'`, `Ψ̃ = 0`, `q̃ = 0`). The local part
     /// goes on at once; the new base is computed by the job, here
     /// (synchronous filters) or elsewhere. `None` if a rebase is already
@@ -273,17 +275,24 @@ impl Estimator {
             return None;
         }
         self.sync();
-        let demote: Vec<(usize, u64)> = self
+        // (local index, id, last used, outside the region)
+        let mut cand: Vec<(usize, u64, f64, bool)> = self
             .local_kfs
             .iter()
             .enumerate()
-            .filter(|(_, id)| {
-                self.keyframes
-                    .get(id)
-                    .is_some_and(|kf| (kf.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m)
+            .filter_map(|(j, id)| {
+                let kf = self.keyframes.get(id)?;
+                let out = (kf.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m;
+                Some((j, *id, kf.last_used_s, out))
             })
-            .map(|(j, id)| (j, *id))
             .collect();
+        // Outside the region first, then the least recently used.
+        cand.sort_by(|a, b| b.3.cmp(&a.3).then(a.2.total_cmp(&b.2)));
+        let keep_at_most = self.s.max_local_keyframes / 2;
+        let n_out = cand.iter().filter(|c| c.3).count();
+        let n_demote = n_out.max(cand.len().saturating_sub(keep_at_most));
+        let mut demote: Vec<(usize, u64)> = cand.iter().take(n_demote).map(|c| (c.0, c.1)).collect();
+        demote.sort_unstable();
         if self.global.is_none() && demote.is_empty() {
             return None;
         }
@@ -384,10 +393,10 @@ impl Estimator {
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
         p_qq = (&p_qq + p_qq.transpose()) * 0.5;
         let dx_q = c_q.tr_mul(&g.q);
-        // P2: the base-local part grows by Q, whitened by W_Q (P_GG(0)_QQ =
-        // W_Q W_Qᵀ): C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows
-        // [−(Ψ̃ C̃_Q)ᵀ, W_Q], Ψ̃ and q̃ zeros.
-        let w_q = whitening_factor(&base_qq);
+        // P2: the base-local part grows by Q, whitened by any invertible W_Q:
+        // C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows [−(Ψ̃ C̃_Q)ᵀ, W_Q],
+        // Ψ̃ and q̃ zeros. W_Q W_Qᵀ = P_QQ now keeps later Ψ̃ ≲ I (as W1).
+        let w_q = whitening_factor(&p_qq);
         let mut rows = base.P_GG0.select_rows(&cols);
         w_q.solve_lower_triangular_mut(&mut rows);
         let ne = g.extra.nrows();

@@ -69,6 +69,7 @@ pub struct Settings {
     pub keyframe_interval_s: f64,
     pub keyframe_max: usize,
     pub local_radius_m: f64,
+    pub max_local_keyframes: usize,
     pub imu: ImuConfig,
     pub ext: Extrinsic,
     /// Receiver clock bias white-frequency noise (m/√s) and drift random
@@ -102,6 +103,7 @@ impl Settings {
             keyframe_interval_s: c.keyframe.interval_s,
             keyframe_max: c.keyframe.max,
             local_radius_m: c.compressed.local_radius_m,
+            max_local_keyframes: c.compressed.max_local_keyframes,
             imu: c.imu.clone(),
             clock_bias_rw: c.gnss.clock_bias_rw_m_per_sqrt_s,
             clock_drift_rw: c.gnss.clock_drift_rw_mps_per_sqrt_s,
@@ -158,6 +160,9 @@ pub struct Keyframe {
     delta: Vector3<f64>,
     pub p_B_in_W: Vector3<f64>,
     obs: BTreeMap<u64, KfObs>,
+    /// When a measurement last involved it (its creation at first): the
+    /// least recently used leave the local part first.
+    last_used_s: f64,
 }
 
 impl Keyframe {
@@ -193,6 +198,8 @@ pub struct Stats {
 pub enum GlobalReason {
     /// The vehicle left the local region.
     LeftLocalRegion,
+    /// The local part holds more than `max_local_keyframes`.
+    LocalPartFull,
     /// Asked for (shutdown, log).
     Forced,
 }
@@ -668,13 +675,20 @@ impl Estimator {
 
         // Compressed: leaving the local region triggers a global update and
         // moves the centre to the vehicle (§5).
-        // While a rebase is still being computed the next one waits.
-        if self.s.mode == Mode::Compressed
-            && self.pending.is_none()
-            && (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m
-        {
-            self.centre_W = self.imu.p_B_in_W;
-            if let Some(ev) = self.begin_rebase(GlobalReason::LeftLocalRegion) {
+        // So does a local part over its keyframe bound. While a rebase is
+        // still being computed the next one waits.
+        let left = (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m;
+        let full = self.local_kfs.len() > self.s.max_local_keyframes;
+        if self.s.mode == Mode::Compressed && self.pending.is_none() && (left || full) {
+            if left {
+                self.centre_W = self.imu.p_B_in_W;
+            }
+            let reason = if left {
+                GlobalReason::LeftLocalRegion
+            } else {
+                GlobalReason::LocalPartFull
+            };
+            if let Some(ev) = self.begin_rebase(reason) {
                 report.events.push(ev);
                 report.global_updates += 1;
             }
@@ -798,6 +812,7 @@ impl Estimator {
                 delta: Vector3::zeros(),
                 p_B_in_W: self.imu.p_B_in_W,
                 obs: kobs,
+                last_used_s: t_s,
             },
         );
         self.last_kf_t_s = t_s;
@@ -832,6 +847,7 @@ impl Estimator {
     /// Triangulates, projects and gates each track, then applies one stacked
     /// update (§3).
     fn update_tracks(&mut self, ready: Vec<(u64, Track)>, report: &mut FrameReport) {
+        let now = self.t_s;
         // Keyframe observations each ready track may use.
         let mut kf_use: Vec<Vec<u64>> = Vec::with_capacity(ready.len());
         for (l, _) in &ready {
@@ -979,6 +995,7 @@ impl Estimator {
                 for k in &ks {
                     if let Some(kf) = self.keyframes.get_mut(k) {
                         kf.obs.remove(&l);
+                        kf.last_used_s = now;
                     }
                     if let Some(set) = self.kf_by_landmark.get_mut(&l) {
                         set.remove(k);
