@@ -87,6 +87,48 @@ pub enum FusionMsg {
         lon_deg: f64,
         alt_m: f64,
     },
+    /// Replay only: the daemon installed rebase `seq` at this point.
+    RebaseInstalled { seq: u64 },
+}
+
+/// Where compressed-mode rebase jobs run (estimator README §5 R4).
+enum RebaseExec {
+    /// In the estimator, at once.
+    Inline,
+    /// On a worker thread, off the IMU and camera path; results come back
+    /// tagged with the estimator generation that asked.
+    Thread {
+        tx: std::sync::mpsc::Sender<(u64, crate::estimator::RebaseJob)>,
+        rx: std::sync::mpsc::Receiver<(u64, crate::estimator::RebaseResult)>,
+    },
+    /// Replay: computed at once, installed where the log says the daemon
+    /// installed it, so a replay reproduces the flight bit for bit.
+    Logged { held: Option<crate::estimator::RebaseResult> },
+}
+
+impl RebaseExec {
+    fn for_config(cfg: &Config) -> Self {
+        if cfg.estimator.mode != crate::config::Mode::Compressed || !cfg.compressed.rebase_thread {
+            return RebaseExec::Inline;
+        }
+        let (tx, job_rx) = std::sync::mpsc::channel::<(u64, crate::estimator::RebaseJob)>();
+        let (res_tx, rx) = std::sync::mpsc::channel();
+        let spawned = std::thread::Builder::new().name("cmsckf-rebase".into()).spawn(move || {
+            // Ends when the fusion loop drops its sender.
+            while let Ok((gen, job)) = job_rx.recv() {
+                if res_tx.send((gen, job.run())).is_err() {
+                    break;
+                }
+            }
+        });
+        match spawned {
+            Ok(_) => RebaseExec::Thread { tx, rx },
+            Err(e) => {
+                tracing::error!(error = %e, "no rebase thread: global updates run on the fusion thread");
+                RebaseExec::Inline
+            }
+        }
+    }
 }
 
 /// A measurement waiting for IMU to cover its time.
@@ -548,6 +590,10 @@ struct GnssIn {
 /// State of the fusion loop.
 pub struct Fusion {
     log: Option<crate::io::mcap_log::McapLogger>,
+    rebase: RebaseExec,
+    /// Counts estimators started, so a rebase result of a filter since
+    /// restarted is recognised and dropped.
+    est_gen: u64,
     next_state_log: f64,
     /// Next autopilot time to log the counters at (`/diagnostics`).
     next_diag_t: f64,
@@ -639,10 +685,46 @@ impl Fusion {
         }
     }
 
+    /// For `cmsckf replay`: rebases are installed where the log says.
+    pub fn for_replay(mut self) -> Self {
+        if !matches!(self.rebase, RebaseExec::Inline) {
+            self.rebase = RebaseExec::Logged { held: None };
+        }
+        self
+    }
+
+    /// Installs the results the rebase thread has finished (logging where,
+    /// for replay); results of a filter since restarted are dropped.
+    fn poll_rebase(&mut self, counters: &Counters) {
+        let RebaseExec::Thread { rx, .. } = &self.rebase else {
+            return;
+        };
+        while let Ok((gen, res)) = rx.try_recv() {
+            let seq = res.seq;
+            match self.est.as_mut() {
+                Some(est) if gen == self.est_gen => match est.install_rebase(res) {
+                    Ok(()) => {
+                        counters.add("rebases_installed", 1);
+                        if let Some(l) = &self.log {
+                            l.log(Topic::InputRebase, self.last_imu_t, &json!({ "seq": seq }));
+                        }
+                    }
+                    Err(e) => {
+                        counters.add("rebase_stale", 1);
+                        tracing::warn!(error = %e, "rebase result not installed");
+                    }
+                },
+                _ => counters.add("rebase_stale", 1),
+            }
+        }
+    }
+
     /// A fusion loop for `cfg`, logging to `log` if given.
     pub fn new(cfg: Config, log: Option<crate::io::mcap_log::McapLogger>) -> Self {
         Fusion {
             log,
+            rebase: RebaseExec::for_config(&cfg),
+            est_gen: 0,
             next_state_log: f64::NEG_INFINITY,
             next_diag_t: f64::NEG_INFINITY,
             cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
@@ -698,7 +780,20 @@ impl Fusion {
     /// Handles one input, in the order the fusion loop received it (replay
     /// feeds the logged inputs through here in the same order).
     pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
+        self.poll_rebase(&ctx.counters);
         match msg {
+            FusionMsg::RebaseInstalled { seq } => {
+                if let RebaseExec::Logged { held } = &mut self.rebase {
+                    if let (Some(res), Some(est)) = (held.take(), self.est.as_mut()) {
+                        if let Some(l) = &self.log {
+                            l.log(Topic::InputRebase, self.last_imu_t, &json!({ "seq": seq }));
+                        }
+                        if est.install_rebase(res).is_ok() {
+                            ctx.counters.add("rebases_installed", 1);
+                        }
+                    }
+                }
+            }
             FusionMsg::Attitude { roll, pitch, yaw } => {
                 self.log(
                     Topic::InputAutopilot,
@@ -990,6 +1085,8 @@ impl Fusion {
         if est.add_imu(m).is_err() {
             counters.add("imu_rejected", 1);
         }
+        self.emit_output(m, counters, out);
+        let Some(est) = self.est.as_mut() else { return };
         // Measurements now covered by IMU, in time order.
         while let Some((t, _)) = self.pending.front() {
             if *t > m.t_s {
@@ -1068,6 +1165,22 @@ impl Fusion {
             let started = std::time::Instant::now();
             let result = est.process_frame(t, &self.norm);
             let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
+            if let Some(job) = est.take_rebase_job() {
+                counters.add("rebases_started", 1);
+                match &mut self.rebase {
+                    RebaseExec::Thread { tx, .. } => {
+                        if let Err(std::sync::mpsc::SendError((_, job))) = tx.send((self.est_gen, job)) {
+                            // The worker is gone: compute it here rather than never.
+                            counters.add("rebase_thread_lost", 1);
+                            let _ = est.install_rebase(job.run());
+                        }
+                    }
+                    RebaseExec::Logged { held } => *held = Some(job.run()),
+                    RebaseExec::Inline => {
+                        let _ = est.install_rebase(job.run());
+                    }
+                }
+            }
             match result {
                 Ok(rep) => {
                     if let Some(l) = &self.log {
@@ -1132,6 +1245,13 @@ impl Fusion {
             self.restart(m.t_s, &why, Restart::Unhealthy, out);
             return;
         }
+    }
+
+    /// Sends the estimate at the configured rate of autopilot time, predicted
+    /// to the latest IMU sample from the filter as it stands (before this
+    /// sample's measurements: no update, and no global update, ever delays it).
+    fn emit_output(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        let Some(est) = self.est.as_ref() else { return };
         // Output at the configured rate of autopilot time, propagated to the
         // latest IMU sample.
         if m.t_s >= self.next_output_t {
@@ -1260,6 +1380,8 @@ impl Fusion {
             b_a: Vector3::zeros(),
         };
         let mut est = Estimator::new(Settings::from_config(&self.cfg), m.t_s, x0, &p0);
+        est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
+        self.est_gen += 1;
         let _ = est.add_imu(m);
         self.est = Some(est);
         self.static_buf.clear();

@@ -89,6 +89,7 @@ fn to_msg(topic: &str, v: &Value) -> Option<FusionMsg> {
                 .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
                 .collect(),
         }),
+        "/input/rebase_installed" => FusionMsg::RebaseInstalled { seq: v["seq"].as_u64()? },
         "/input/rtcm" => FusionMsg::Rtcm(
             v["bytes"]
                 .as_array()?
@@ -161,7 +162,7 @@ pub fn replay(
         mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
         start: Instant::now(),
     };
-    let mut fusion = Fusion::new(cfg, Some(log));
+    let mut fusion = Fusion::new(cfg, Some(log)).for_replay();
     let start = Instant::now();
     let (mut n_in, mut n_out) = (0u64, 0u64);
     let (mut t_first, mut t_last) = (f64::NAN, f64::NAN);

@@ -27,6 +27,9 @@ pub enum Topic {
     InputRtcm,
     InputSystemTime,
     InputAutopilot,
+    /// Where the fusion loop installed a rebase computed on its worker
+    /// thread (an input: replay installs it at the same point).
+    InputRebase,
     FilterVision,
     FilterGnss,
     FilterGlobal,
@@ -43,12 +46,13 @@ pub enum Topic {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 16] = [
+    pub const ALL: [Topic; 17] = [
         Topic::InputImu,
         Topic::InputFeatures,
         Topic::InputRtcm,
         Topic::InputSystemTime,
         Topic::InputAutopilot,
+        Topic::InputRebase,
         Topic::FilterVision,
         Topic::FilterGnss,
         Topic::FilterGlobal,
@@ -70,6 +74,7 @@ impl Topic {
             Topic::InputRtcm => ("/input/rtcm", "cmsckf.Rtcm", SCHEMA_RTCM),
             Topic::InputSystemTime => ("/input/mavlink/system_time", "cmsckf.SystemTime", SCHEMA_SYSTEM_TIME),
             Topic::InputAutopilot => ("/input/mavlink/autopilot", "cmsckf.AutopilotState", SCHEMA_OBJECT),
+            Topic::InputRebase => ("/input/rebase_installed", "cmsckf.RebaseInstalled", SCHEMA_OBJECT),
             Topic::FilterVision => ("/filter/update/vision", "cmsckf.VisionUpdate", SCHEMA_OBJECT),
             Topic::FilterGnss => ("/filter/update/gnss", "cmsckf.GnssUpdate", SCHEMA_OBJECT),
             Topic::FilterGlobal => ("/filter/update/global", "cmsckf.GlobalUpdate", SCHEMA_OBJECT),
