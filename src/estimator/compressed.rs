@@ -256,7 +256,7 @@ impl Estimator {
     /// Runs and installs a pending rebase here and now.
     pub(super) fn finish_rebase_inline(&mut self) {
         if let Some((job, _)) = &self.pending {
-            let res = job.run();
+            let res = (self.rebase_runner)(job);
             // The result is this job's: installing it cannot be stale.
             let _ = self.install_rebase(res);
         }

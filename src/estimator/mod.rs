@@ -277,6 +277,9 @@ pub struct Estimator {
     /// The rebase being computed, and whether its job was taken.
     pending: Option<(RebaseJob, bool)>,
     rebase_seq: u64,
+    /// Runs the rebase jobs of a synchronous filter ([`RebaseJob::run`];
+    /// the evaluation wraps it to time them).
+    rebase_runner: fn(&RebaseJob) -> RebaseResult,
     /// Keyframe observations the next frame must not use (lockstep
     /// comparisons mirror another filter's deferrals with it).
     exclude_once: Vec<(u64, u64)>,
@@ -351,6 +354,7 @@ impl Estimator {
             global: None,
             pending: None,
             rebase_seq: 0,
+            rebase_runner: RebaseJob::run,
             exclude_once: Vec::new(),
             tracks: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
@@ -1123,11 +1127,31 @@ impl Estimator {
         }
     }
 
+    /// Starts a forced rebase and hands out its job instead of running it
+    /// (benchmarks time the job alone). `None` outside compressed mode.
+    pub fn forced_rebase_job(&mut self) -> Option<RebaseJob> {
+        if self.s.mode != Mode::Compressed {
+            return None;
+        }
+        self.finish_rebase_inline();
+        let was = self.s.async_rebase;
+        self.s.async_rebase = true;
+        self.begin_rebase(GlobalReason::Forced);
+        self.s.async_rebase = was;
+        self.take_rebase_job()
+    }
+
     /// Makes the next frame leave out these `(landmark, keyframe)`
     /// observations: a filter compared in lockstep with an asynchronous
     /// compressed one mirrors its [`FrameReport::deferred`] with this.
     pub fn exclude_keyframe_obs_once(&mut self, pairs: &[(u64, u64)]) {
         self.exclude_once.extend_from_slice(pairs);
+    }
+
+    /// What runs a synchronous filter's rebase jobs (the evaluation times
+    /// them with a wrapper; the result must be the job's `run()`).
+    pub fn set_rebase_runner(&mut self, f: fn(&RebaseJob) -> RebaseResult) {
+        self.rebase_runner = f;
     }
 
     /// Asynchronous rebases (§5 R4): see [`Settings::async_rebase`].
