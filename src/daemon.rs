@@ -99,7 +99,8 @@ enum RebaseExec {
     /// tagged with the estimator generation that asked.
     Thread {
         tx: std::sync::mpsc::Sender<(u64, crate::estimator::RebaseJob)>,
-        rx: std::sync::mpsc::Receiver<(u64, crate::estimator::RebaseResult)>,
+        /// `(generation, result, compute time ms)`.
+        rx: std::sync::mpsc::Receiver<(u64, crate::estimator::RebaseResult, f64)>,
     },
     /// Replay: computed at once, installed where the log says the daemon
     /// installed it, so a replay reproduces the flight bit for bit.
@@ -116,7 +117,9 @@ impl RebaseExec {
         let spawned = std::thread::Builder::new().name("cmsckf-rebase".into()).spawn(move || {
             // Ends when the fusion loop drops its sender.
             while let Ok((gen, job)) = job_rx.recv() {
-                if res_tx.send((gen, job.run())).is_err() {
+                let started = Instant::now();
+                let res = job.run();
+                if res_tx.send((gen, res, started.elapsed().as_secs_f64() * 1e3)).is_err() {
                     break;
                 }
             }
@@ -699,7 +702,7 @@ impl Fusion {
         let RebaseExec::Thread { rx, .. } = &self.rebase else {
             return;
         };
-        while let Ok((gen, res)) = rx.try_recv() {
+        while let Ok((gen, res, compute_ms)) = rx.try_recv() {
             let seq = res.seq;
             match self.est.as_mut() {
                 Some(est) if gen == self.est_gen => match est.install_rebase(res) {
@@ -707,6 +710,12 @@ impl Fusion {
                         counters.add("rebases_installed", 1);
                         if let Some(l) = &self.log {
                             l.log(Topic::InputRebase, self.last_imu_t, &json!({ "seq": seq }));
+                            l.log(
+                                Topic::FilterGlobal,
+                                self.last_imu_t,
+                                &json!({"t_s": self.last_imu_t, "reason": "RebaseInstalled", "seq": seq,
+                                    "compute_ms": compute_ms, "global_keyframes": est.n_global_keyframes()}),
+                            );
                         }
                     }
                     Err(e) => {

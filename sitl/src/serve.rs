@@ -218,6 +218,7 @@ pub struct Report {
     /// with it.
     pub latency_ms_p50: f64,
     pub latency_ms_p99: f64,
+    pub latency_ms_max: f64,
     pub time_to_first_estimate_s: f64,
     pub reset_count: u32,
     pub covariance_ok: bool,
@@ -666,7 +667,8 @@ fn score(
         ate_m: ate.map_or(f64::NAN, |a| a.unaligned_m),
         ate_aligned_m: ate.map_or(f64::NAN, |a| a.aligned_m),
         latency_ms_p50: percentile(&mut lat.clone(), 0.5),
-        latency_ms_p99: percentile(&mut lat, 0.99),
+        latency_ms_p99: percentile(&mut lat.clone(), 0.99),
+        latency_ms_max: lat.iter().copied().fold(f64::NAN, f64::max),
         time_to_first_estimate_s: t_first,
         reset_count: resets,
         covariance_ok: cov_ok && !rec.is_empty(),

@@ -38,9 +38,10 @@ pub(super) struct Global {
     pub(super) base: Option<Arc<Base>>,
     /// Live global keyframe id → its block in the base.
     pub(super) live: BTreeMap<u64, usize>,
-    /// Rows appended to `C` by promotions, `W_Q⁻¹ P_GG(0)[Q, :]` (§5 P2);
-    /// `C̃ = [C; extra]`.
-    pub(super) extra: DMatrix<f64>,
+    /// Row blocks appended to `C` by promotions, `W_Q⁻¹ P_GG(0)[Q, :]` (§5
+    /// P2), one per promotion (appending never copies the others);
+    /// `C̃ = [C; extra…]`.
+    pub(super) extra: Vec<DMatrix<f64>>,
     /// `Φ̃`: maps the whitened base-local errors to the current local errors.
     pub(super) Phi: DMatrix<f64>,
     /// `Ψ̃ = Σ (HΦ̃)ᵀ S⁻¹ (HΦ̃)`.
@@ -52,17 +53,8 @@ pub(super) struct Global {
 }
 
 impl Global {
-    /// The columns `cols` of `C̃ = [C; extra]`.
     fn c_cols(&self, base: &Base, cols: &[usize]) -> DMatrix<f64> {
-        let (n0, ne) = (base.C.nrows(), self.extra.nrows());
-        let mut out = DMatrix::zeros(n0 + ne, cols.len());
-        for (k, &c) in cols.iter().enumerate() {
-            out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
-            if ne > 0 {
-                out.view_mut((n0, k), (ne, 1)).copy_from(&self.extra.column(c));
-            }
-        }
-        out
+        c_cols(base, &self.extra, cols)
     }
 
     /// Live keyframes with their base columns, in block order.
@@ -71,6 +63,22 @@ impl Global {
         v.sort_unstable_by_key(|x| x.1);
         v
     }
+}
+
+/// The columns `cols` of `C̃ = [C; extra…]`.
+fn c_cols(base: &Base, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
+    let n0 = base.C.nrows();
+    let ne: usize = extra.iter().map(|e| e.nrows()).sum();
+    let mut out = DMatrix::zeros(n0 + ne, cols.len());
+    for (k, &c) in cols.iter().enumerate() {
+        out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
+        let mut r = n0;
+        for e in extra {
+            out.view_mut((r, k), (e.nrows(), 1)).copy_from(&e.column(c));
+            r += e.nrows();
+        }
+    }
+    out
 }
 
 fn block_cols(blocks: impl IntoIterator<Item = usize>) -> Vec<usize> {
@@ -86,7 +94,7 @@ pub struct RebaseJob {
     parent: Option<Arc<Base>>,
     /// Parent blocks that stay global, in the new base's order.
     live_blocks: Vec<usize>,
-    extra: DMatrix<f64>,
+    extra: Vec<DMatrix<f64>>,
     Phi: DMatrix<f64>,
     Psi: DMatrix<f64>,
     q: DVector<f64>,
@@ -99,6 +107,24 @@ pub struct RebaseJob {
     w_new: DMatrix<f64>,
     /// Keyframe ids of the new base: the live ones, then the demoted ones.
     ids: Vec<u64>,
+}
+
+/// The rebase being computed: its job still here, or handed out.
+#[derive(Clone, Debug)]
+pub(super) enum PendingRebase {
+    Held(RebaseJob),
+    /// Taken by [`Estimator::take_rebase_job`] (the filter keeps nothing of
+    /// it, so the old base is freed where the job runs).
+    Dispatched(u64),
+}
+
+impl PendingRebase {
+    fn seq(&self) -> u64 {
+        match self {
+            PendingRebase::Held(j) => j.seq,
+            PendingRebase::Dispatched(s) => *s,
+        }
+    }
 }
 
 /// What a [`RebaseJob`] computed: the new base and the correction of the
@@ -129,16 +155,7 @@ impl RebaseJob {
         let (p_lg, dx_live) = match &self.parent {
             Some(base) if g > 0 => {
                 let cols = block_cols(self.live_blocks.iter().copied());
-                let gl = Global {
-                    base: None,
-                    live: BTreeMap::new(),
-                    extra: self.extra.clone(),
-                    Phi: DMatrix::zeros(0, 0),
-                    Psi: DMatrix::zeros(0, 0),
-                    q: DVector::zeros(0),
-                    sigma_m: BTreeMap::new(),
-                };
-                let ct = gl.c_cols(base, &cols);
+                let ct = c_cols(base, &self.extra, &cols);
                 // G1: P_LG(k) = Φ̃ C̃.
                 let p_lg = &self.Phi * &ct;
                 // G2: P_GG(k) = P_GG(0) − C̃ᵀ Ψ̃ C̃, as one in-place product.
@@ -183,13 +200,19 @@ impl RebaseJob {
                 .view_mut((0, g), (nl, o))
                 .copy_from(&self.p_demoted_rows.select_columns(&self.keep_idx).transpose());
         }
-        // W' has a positive diagonal (whitening_factor), so the solve exists.
-        self.w_new.solve_lower_triangular_mut(&mut p_lg_new);
+        // W' has a positive diagonal (whitening_factor), so W'⁻¹ exists. It is
+        // formed once (n_L³, by a triangular solve) and applied as one matrix
+        // product: a column-by-column triangular solve over n_G columns is
+        // several times slower.
+        let n_l = self.w_new.nrows();
+        let mut w_inv = DMatrix::identity(n_l, n_l);
+        self.w_new.solve_lower_triangular_mut(&mut w_inv);
+        let c_new = &w_inv * &p_lg_new;
         RebaseResult {
             seq: self.seq,
             base: Base {
                 ids: self.ids.clone(),
-                C: p_lg_new,
+                C: c_new,
                 P_GG0: p0,
             },
             dx_live,
@@ -212,19 +235,23 @@ impl Estimator {
 
     /// The pending rebase job, once, for running elsewhere (asynchronous
     /// rebases only); install its result with [`Estimator::install_rebase`].
+    /// Until then the filter cannot be merged ([`Estimator::snapshot`]
+    /// leaves the global part out).
     pub fn take_rebase_job(&mut self) -> Option<RebaseJob> {
-        let p = self.pending.as_mut()?;
-        if p.1 {
-            return None;
+        let seq = self.pending.as_ref()?.seq();
+        match self.pending.replace(PendingRebase::Dispatched(seq)) {
+            Some(PendingRebase::Held(job)) => Some(job),
+            other => {
+                self.pending = other;
+                None
+            }
         }
-        p.1 = true;
-        Some(p.0.clone())
     }
 
     /// Installs a rebase result (§5 R3): the global corrections, and the new
     /// base. Cheap: `O(n_G)` plus moving the matrices in.
     pub fn install_rebase(&mut self, res: RebaseResult) -> Result<(), InstallError> {
-        let want = self.pending.as_ref().map(|p| p.0.seq);
+        let want = self.pending.as_ref().map(|p| p.seq());
         if want != Some(res.seq) {
             return Err(InstallError::Stale { got: res.seq, want });
         }
@@ -247,7 +274,7 @@ impl Estimator {
                 (*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt())
             })
             .collect();
-        g.extra = DMatrix::zeros(0, res.base.C.ncols());
+        g.extra = Vec::new();
         g.base = Some(Arc::new(res.base));
         self.stats.rebases_installed += 1;
         Ok(())
@@ -255,7 +282,7 @@ impl Estimator {
 
     /// Runs and installs a pending rebase here and now.
     pub(super) fn finish_rebase_inline(&mut self) {
-        if let Some((job, _)) = &self.pending {
+        if let Some(PendingRebase::Held(job)) = &self.pending {
             let res = (self.rebase_runner)(job);
             // The result is this job's: installing it cannot be stale.
             let _ = self.install_rebase(res);
@@ -316,7 +343,7 @@ impl Estimator {
             None => (
                 None,
                 Vec::new(),
-                DMatrix::zeros(0, 0),
+                Vec::new(),
                 DMatrix::zeros(n, 0),
                 DMatrix::zeros(0, 0),
                 DVector::zeros(0),
@@ -351,13 +378,13 @@ impl Estimator {
         self.global = Some(Global {
             base: None,
             live: ids.iter().enumerate().map(|(b, id)| (*id, b)).collect(),
-            extra: DMatrix::zeros(0, 0),
+            extra: Vec::new(),
             Phi: w_new,
             Psi: DMatrix::zeros(l, l),
             q: DVector::zeros(l),
             sigma_m,
         });
-        self.pending = Some((job, false));
+        self.pending = Some(PendingRebase::Held(job));
         if !self.s.async_rebase {
             self.finish_rebase_inline();
         }
@@ -389,26 +416,32 @@ impl Estimator {
         let c_q = g.c_cols(&base, &cols);
         let p_lq = &g.Phi * &c_q;
         let psi_c = &g.Psi * &c_q;
-        let base_qq = base.P_GG0.select_rows(&cols).select_columns(&cols);
+        // Rows Q of the symmetric P_GG(0), read as its (contiguous) columns.
+        let rows = base.P_GG0.select_columns(&cols).transpose();
+        let base_qq = rows.select_columns(&cols);
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
         p_qq = (&p_qq + p_qq.transpose()) * 0.5;
         let dx_q = c_q.tr_mul(&g.q);
         // P2: the base-local part grows by Q, whitened by any invertible W_Q:
         // C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows [−(Ψ̃ C̃_Q)ᵀ, W_Q],
-        // Ψ̃ and q̃ zeros. W_Q W_Qᵀ = P_QQ now keeps later Ψ̃ ≲ I (as W1).
-        let w_q = whitening_factor(&p_qq);
-        let mut rows = base.P_GG0.select_rows(&cols);
-        w_q.solve_lower_triangular_mut(&mut rows);
-        let ne = g.extra.nrows();
-        let extra = std::mem::replace(&mut g.extra, DMatrix::zeros(0, 0));
-        let mut extra = if ne == 0 {
-            DMatrix::zeros(0, base.C.ncols())
-        } else {
-            extra
+        // Ψ̃ and q̃ zeros. A diagonal W_Q = diag(√P_QQ now) keeps later Ψ̃
+        // near unit scale (as W1) and costs O(n_G) to apply.
+        let w_diag: Vec<f64> = (0..k)
+            .map(|i| {
+                let v = p_qq[(i, i)].abs().sqrt();
+                if v.is_finite() && v > 0.0 {
+                    v
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let w_q = DMatrix::from_diagonal(&DVector::from_column_slice(&w_diag));
+        let mut rows = rows;
+        for (i, w) in w_diag.iter().enumerate() {
+            rows.row_mut(i).scale_mut(1.0 / w);
         }
-        .insert_rows(ne, k, 0.0);
-        extra.view_mut((ne, 0), (k, base.C.ncols())).copy_from(&rows);
-        g.extra = extra;
+        g.extra.push(rows);
         let n0 = g.Phi.ncols();
         let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0))
             .insert_columns(n0, k, 0.0)

@@ -274,8 +274,8 @@ pub struct Estimator {
     /// Keyframes in `P`, in order.
     local_kfs: Vec<u64>,
     global: Option<Global>,
-    /// The rebase being computed, and whether its job was taken.
-    pending: Option<(RebaseJob, bool)>,
+    /// The rebase being computed.
+    pending: Option<compressed::PendingRebase>,
     rebase_seq: u64,
     /// Runs the rebase jobs of a synchronous filter ([`RebaseJob::run`];
     /// the evaluation wraps it to time them).
