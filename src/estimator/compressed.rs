@@ -39,8 +39,9 @@ pub(super) struct Global {
     /// Live global keyframe id → its block in the base.
     pub(super) live: BTreeMap<u64, usize>,
     /// Row blocks appended to `C` by promotions, `W_Q⁻¹ P_GG(0)[Q, :]` (§5
-    /// P2), one per promotion (appending never copies the others);
-    /// `C̃ = [C; extra…]`.
+    /// P2), one per promotion (appending never copies the others), each
+    /// stored transposed (as the columns `P_GG(0)[:, Q] W_Q⁻ᵀ`, a contiguous
+    /// copy); `C̃ = [C; extra…ᵀ]`.
     pub(super) extra: Vec<DMatrix<f64>>,
     /// `Φ̃`: maps the whitened base-local errors to the current local errors.
     pub(super) Phi: DMatrix<f64>,
@@ -68,14 +69,16 @@ impl Global {
 /// The columns `cols` of `C̃ = [C; extra…]`.
 fn c_cols(base: &Base, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
     let n0 = base.C.nrows();
-    let ne: usize = extra.iter().map(|e| e.nrows()).sum();
+    let ne: usize = extra.iter().map(|e| e.ncols()).sum();
     let mut out = DMatrix::zeros(n0 + ne, cols.len());
     for (k, &c) in cols.iter().enumerate() {
         out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
         let mut r = n0;
         for e in extra {
-            out.view_mut((r, k), (e.nrows(), 1)).copy_from(&e.column(c));
-            r += e.nrows();
+            for j in 0..e.ncols() {
+                out[(r + j, k)] = e[(c, j)];
+            }
+            r += e.ncols();
         }
     }
     out
@@ -416,9 +419,9 @@ impl Estimator {
         let c_q = g.c_cols(&base, &cols);
         let p_lq = &g.Phi * &c_q;
         let psi_c = &g.Psi * &c_q;
-        // Rows Q of the symmetric P_GG(0), read as its (contiguous) columns.
-        let rows = base.P_GG0.select_columns(&cols).transpose();
-        let base_qq = rows.select_columns(&cols);
+        // Columns Q of P_GG(0) (rows Q, by symmetry): a contiguous copy.
+        let mut cols_q = base.P_GG0.select_columns(&cols);
+        let base_qq = cols_q.select_rows(&cols);
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
         p_qq = (&p_qq + p_qq.transpose()) * 0.5;
         let dx_q = c_q.tr_mul(&g.q);
@@ -437,11 +440,10 @@ impl Estimator {
             })
             .collect();
         let w_q = DMatrix::from_diagonal(&DVector::from_column_slice(&w_diag));
-        let mut rows = rows;
         for (i, w) in w_diag.iter().enumerate() {
-            rows.row_mut(i).scale_mut(1.0 / w);
+            cols_q.column_mut(i).scale_mut(1.0 / w);
         }
-        g.extra.push(rows);
+        g.extra.push(cols_q);
         let n0 = g.Phi.ncols();
         let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0))
             .insert_columns(n0, k, 0.0)

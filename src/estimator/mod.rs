@@ -55,6 +55,9 @@ const MAX_GYRO_BIAS_RADPS: f64 = 0.5;
 /// outlier (§8 K5).
 const OUTLIER_SIGMAS: f64 = 5.0;
 
+/// Most keyframe observations one track uses (§4).
+const MAX_KEYFRAMES_PER_TRACK: usize = 8;
+
 /// Bound on buffered, not yet integrated IMU samples.
 const IMU_BUFFER_CAP: usize = 4096;
 
@@ -867,6 +870,15 @@ impl Estimator {
                         ks.push(*k);
                     }
                 }
+            }
+            // At most MAX_KEYFRAMES_PER_TRACK, spread from the oldest to the
+            // newest: dense keyframes add little beyond that, and each one
+            // costs a column block (and, if global, a promotion).
+            if ks.len() > MAX_KEYFRAMES_PER_TRACK {
+                let n = ks.len() - 1;
+                ks = (0..MAX_KEYFRAMES_PER_TRACK)
+                    .map(|i| ks[i * n / (MAX_KEYFRAMES_PER_TRACK - 1)])
+                    .collect();
             }
             kf_use.push(ks);
         }
