@@ -88,7 +88,9 @@ pub enum FusionMsg {
         alt_m: f64,
     },
     /// Replay only: the daemon installed rebase `seq` at this point.
-    RebaseInstalled { seq: u64 },
+    RebaseInstalled {
+        seq: u64,
+    },
 }
 
 /// Where compressed-mode rebase jobs run (estimator README §5 R4).
@@ -104,7 +106,9 @@ enum RebaseExec {
     },
     /// Replay: computed at once, installed where the log says the daemon
     /// installed it, so a replay reproduces the flight bit for bit.
-    Logged { held: Option<crate::estimator::RebaseResult> },
+    Logged {
+        held: Option<crate::estimator::RebaseResult>,
+    },
 }
 
 impl RebaseExec {
@@ -1252,7 +1256,6 @@ impl Fusion {
             counters.add("filter_reset", 1);
             tracing::error!(reason = %why, "filter unhealthy: resetting");
             self.restart(m.t_s, &why, Restart::Unhealthy, out);
-            return;
         }
     }
 

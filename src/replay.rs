@@ -89,7 +89,9 @@ fn to_msg(topic: &str, v: &Value) -> Option<FusionMsg> {
                 .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
                 .collect(),
         }),
-        "/input/rebase_installed" => FusionMsg::RebaseInstalled { seq: v["seq"].as_u64()? },
+        "/input/rebase_installed" => FusionMsg::RebaseInstalled {
+            seq: v["seq"].as_u64()?,
+        },
         "/input/rtcm" => FusionMsg::Rtcm(
             v["bytes"]
                 .as_array()?

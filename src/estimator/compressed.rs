@@ -84,6 +84,9 @@ fn c_cols(base: &Base, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
     out
 }
 
+/// `(P_LG, P_GG, δx_G, global ids)` of [`Estimator::reconstruct`].
+pub(super) type Reconstructed = (DMatrix<f64>, DMatrix<f64>, DVector<f64>, Vec<u64>);
+
 fn block_cols(blocks: impl IntoIterator<Item = usize>) -> Vec<usize> {
     blocks.into_iter().flat_map(|b| 6 * b..6 * b + 6).collect()
 }
@@ -115,7 +118,7 @@ pub struct RebaseJob {
 /// The rebase being computed: its job still here, or handed out.
 #[derive(Clone, Debug)]
 pub(super) enum PendingRebase {
-    Held(RebaseJob),
+    Held(Box<RebaseJob>),
     /// Taken by [`Estimator::take_rebase_job`] (the filter keeps nothing of
     /// it, so the old base is freed where the job runs).
     Dispatched(u64),
@@ -243,7 +246,7 @@ impl Estimator {
     pub fn take_rebase_job(&mut self) -> Option<RebaseJob> {
         let seq = self.pending.as_ref()?.seq();
         match self.pending.replace(PendingRebase::Dispatched(seq)) {
-            Some(PendingRebase::Held(job)) => Some(job),
+            Some(PendingRebase::Held(job)) => Some(*job),
             other => {
                 self.pending = other;
                 None
@@ -326,7 +329,11 @@ impl Estimator {
         if self.global.is_none() && demote.is_empty() {
             return None;
         }
-        let global_before: Vec<u64> = self.global.as_ref().map(|g| g.live.keys().copied().collect()).unwrap_or_default();
+        let global_before: Vec<u64> = self
+            .global
+            .as_ref()
+            .map(|g| g.live.keys().copied().collect())
+            .unwrap_or_default();
         self.stats.global_updates += 1;
         let n = self.P.nrows();
         let demoted_idx: Vec<usize> = demote
@@ -387,7 +394,7 @@ impl Estimator {
             q: DVector::zeros(l),
             sigma_m,
         });
-        self.pending = Some(PendingRebase::Held(job));
+        self.pending = Some(PendingRebase::Held(Box::new(job)));
         if !self.s.async_rebase {
             self.finish_rebase_inline();
         }
@@ -474,7 +481,7 @@ impl Estimator {
 
     /// The reconstructed global part over the live keyframes (§5 G1–G3):
     /// `(P_LG, P_GG, δx_G, ids)`. `None` without an installed base.
-    pub(super) fn reconstruct(&self) -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>, Vec<u64>)> {
+    pub(super) fn reconstruct(&self) -> Option<Reconstructed> {
         let g = self.global.as_ref()?;
         let base = g.base.as_ref()?;
         let live = g.live_in_block_order();

@@ -68,7 +68,10 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
         }
     }
     assert!(checked > 0, "the flight had no measurement on a global keyframe");
-    assert!(worst <= 1e-9, "compressed differs from full by {worst:e} after promotions");
+    assert!(
+        worst <= 1e-9,
+        "compressed differs from full by {worst:e} after promotions"
+    );
     assert_eq!(run.est.stats.loop_closure_deferred, 0);
 }
 
