@@ -713,12 +713,12 @@ impl Fusion {
                     Ok(()) => {
                         counters.add("rebases_installed", 1);
                         if let Some(l) = &self.log {
-                            l.log(Topic::InputRebase, self.last_imu_t, &json!({ "seq": seq }));
+                            // With the worker's wall time for the job (replay
+                            // reads only the sequence number).
                             l.log(
-                                Topic::FilterGlobal,
+                                Topic::InputRebase,
                                 self.last_imu_t,
-                                &json!({"t_s": self.last_imu_t, "reason": "RebaseInstalled", "seq": seq,
-                                    "compute_ms": compute_ms, "global_keyframes": est.n_global_keyframes()}),
+                                &json!({"seq": seq, "compute_ms": compute_ms, "global_keyframes": est.n_global_keyframes()}),
                             );
                         }
                     }

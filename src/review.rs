@@ -168,8 +168,6 @@ pub fn review(
             "/filter/update/global" => {
                 if v["reason"] == "Promotion" {
                     s.promotions += 1;
-                } else if v["reason"] == "RebaseInstalled" {
-                    // The end of a rebase counted when it started.
                 } else {
                     s.global_updates += 1;
                     d.global_t.push(t);
