@@ -1074,8 +1074,13 @@ impl Estimator {
             *self.stats.rejected.entry("update_not_pd").or_default() += 1;
             return;
         };
-        // Kᵀ = S⁻¹ (H P).
-        let kt = ch.solve(&pht.transpose());
+        // S = L Lᵀ. A = L⁻¹ (H P), then Kᵀ = S⁻¹ (H P) = L⁻ᵀ A (blocked
+        // triangular solves: one matrix product per block).
+        let l = ch.l();
+        let mut a = pht.transpose();
+        math::solve_lower_in_place(&l, &mut a);
+        let mut kt = a.clone();
+        math::solve_lower_transpose_in_place(&l, &mut kt);
         let n = self.P.nrows();
         let mut dx = kt.transpose() * r;
         if self.s.mode == Mode::Schmidt {
@@ -1095,16 +1100,22 @@ impl Estimator {
             }
             self.P -= d;
         } else {
+            let at = a.transpose();
             if let Some(g) = self.global.as_mut() {
-                // Ψ += (HΦ)ᵀ S⁻¹ (HΦ), q += (HΦ)ᵀ S⁻¹ r, then Φ ← Φ − K (HΦ).
-                let hphi = h * g.Phi.select_rows(cols);
-                let s_inv_hphi = ch.solve(&hphi);
-                g.Psi += hphi.transpose() * &s_inv_hphi;
-                g.q += hphi.transpose() * ch.solve(r);
-                g.Phi -= kt.transpose() * &hphi;
+                // With B = L⁻¹ (HΦ) and w = L⁻¹ r (C2, C3):
+                // Ψ += (HΦ)ᵀ S⁻¹ (HΦ) = Bᵀ B, q += (HΦ)ᵀ S⁻¹ r = Bᵀ w,
+                // Φ ← Φ − K (HΦ) = Φ − Aᵀ B.
+                let mut b = h * g.Phi.select_rows(cols);
+                math::solve_lower_in_place(&l, &mut b);
+                let mut w = DMatrix::from_column_slice(r.len(), 1, r.as_slice());
+                math::solve_lower_in_place(&l, &mut w);
+                let bt = b.transpose();
+                g.Psi.gemm(1.0, &bt, &b, 1.0);
+                g.q += &bt * w.column(0);
+                g.Phi.gemm(-1.0, &at, &b, 1.0);
             }
-            // P ← P − K S Kᵀ = P − (PHᵀ) S⁻¹ (HP).
-            self.P -= &pht * &kt;
+            // P ← P − K S Kᵀ = P − (HP)ᵀ S⁻¹ (HP) = P − Aᵀ A (rank-m form).
+            self.P.gemm(-1.0, &at, &a, 1.0);
         }
         self.P = (&self.P + self.P.transpose()) * 0.5;
         self.inject(&dx);
