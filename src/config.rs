@@ -673,7 +673,10 @@ mod tests {
         let e = Config::from_toml("[compressed]\nmax_local_keyframes = 1\n", "x")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("compressed.max_local_keyframes") && e.contains("2..10000"), "{e}");
+        assert!(
+            e.contains("compressed.max_local_keyframes") && e.contains("2..10000"),
+            "{e}"
+        );
         let e = Config::from_toml("[imu]\ngyro_noise_density = -1.0\n", "x")
             .unwrap_err()
             .to_string();
