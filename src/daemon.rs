@@ -1240,6 +1240,22 @@ impl Fusion {
                     self.tracker.frame_processed(t);
                     counters.add("tracks_used", rep.tracks_used as u64);
                     counters.add("global_updates", rep.global_updates as u64);
+                    let promoted: usize = rep
+                        .events
+                        .iter()
+                        .map(|e| match e {
+                            crate::estimator::FilterEvent::Promoted { keyframes } => keyframes.len(),
+                            _ => 0,
+                        })
+                        .sum();
+                    if promoted > 0 {
+                        counters.add("keyframes_promoted", promoted as u64);
+                    }
+                    if !rep.deferred.is_empty() {
+                        // Loop-closure observations left for a later track while
+                        // a rebase was computing the global part.
+                        counters.add("loop_closure_deferred", rep.deferred.len() as u64);
+                    }
                     for (k, v) in &rep.rejected {
                         counters.add(&format!("track_rejected_{k}"), *v);
                     }
