@@ -93,6 +93,15 @@ pub enum FusionMsg {
     },
 }
 
+/// What the rebase thread is asked to do.
+enum RebaseWork {
+    /// Compute this job for the estimator of this generation.
+    Run(u64, Arc<crate::estimator::RebaseJob>),
+    /// Free an installed job's inputs (the old base, hundreds of MB at 1000
+    /// keyframes) here rather than on the fusion thread.
+    Free(Arc<crate::estimator::RebaseJob>),
+}
+
 /// Where compressed-mode rebase jobs run (estimator README §5 R4).
 enum RebaseExec {
     /// In the estimator, at once.
@@ -100,7 +109,7 @@ enum RebaseExec {
     /// On a worker thread, off the IMU and camera path; results come back
     /// tagged with the estimator generation that asked.
     Thread {
-        tx: std::sync::mpsc::Sender<(u64, crate::estimator::RebaseJob)>,
+        tx: std::sync::mpsc::Sender<RebaseWork>,
         /// `(generation, result, compute time ms)`.
         rx: std::sync::mpsc::Receiver<(u64, crate::estimator::RebaseResult, f64)>,
     },
@@ -116,11 +125,18 @@ impl RebaseExec {
         if cfg.estimator.mode != crate::config::Mode::Compressed || !cfg.compressed.rebase_thread {
             return RebaseExec::Inline;
         }
-        let (tx, job_rx) = std::sync::mpsc::channel::<(u64, crate::estimator::RebaseJob)>();
+        let (tx, job_rx) = std::sync::mpsc::channel::<RebaseWork>();
         let (res_tx, rx) = std::sync::mpsc::channel();
         let spawned = std::thread::Builder::new().name("cmsckf-rebase".into()).spawn(move || {
             // Ends when the fusion loop drops its sender.
-            while let Ok((gen, job)) = job_rx.recv() {
+            while let Ok(work) = job_rx.recv() {
+                let (gen, job) = match work {
+                    RebaseWork::Run(gen, job) => (gen, job),
+                    RebaseWork::Free(job) => {
+                        drop(job);
+                        continue;
+                    }
+                };
                 let started = Instant::now();
                 let res = job.run();
                 if res_tx.send((gen, res, started.elapsed().as_secs_f64() * 1e3)).is_err() {
@@ -703,15 +719,19 @@ impl Fusion {
     /// Installs the results the rebase thread has finished (logging where,
     /// for replay); results of a filter since restarted are dropped.
     fn poll_rebase(&mut self, counters: &Counters) {
-        let RebaseExec::Thread { rx, .. } = &self.rebase else {
+        let RebaseExec::Thread { rx, tx } = &self.rebase else {
             return;
         };
         while let Ok((gen, res, compute_ms)) = rx.try_recv() {
             let seq = res.seq;
             match self.est.as_mut() {
                 Some(est) if gen == self.est_gen => match est.install_rebase(res) {
-                    Ok(()) => {
+                    Ok(job) => {
                         counters.add("rebases_installed", 1);
+                        if let Some(job) = job {
+                            // If the worker is gone the job is freed here.
+                            let _ = tx.send(RebaseWork::Free(job));
+                        }
                         if let Some(l) = &self.log {
                             // With the worker's wall time for the job (replay
                             // reads only the sequence number).
@@ -1182,10 +1202,12 @@ impl Fusion {
                 counters.add("rebases_started", 1);
                 match &mut self.rebase {
                     RebaseExec::Thread { tx, .. } => {
-                        if let Err(std::sync::mpsc::SendError((_, job))) = tx.send((self.est_gen, job)) {
+                        if let Err(std::sync::mpsc::SendError(work)) = tx.send(RebaseWork::Run(self.est_gen, job)) {
                             // The worker is gone: compute it here rather than never.
                             counters.add("rebase_thread_lost", 1);
-                            let _ = est.install_rebase(job.run());
+                            if let RebaseWork::Run(_, job) = work {
+                                let _ = est.install_rebase(job.run());
+                            }
                         }
                     }
                     RebaseExec::Logged { held } => *held = Some(job.run()),

@@ -68,11 +68,16 @@ impl Global {
 
 /// The columns `cols` of `C̃ = [C; extra…]`.
 fn c_cols(base: &Base, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
-    let n0 = base.C.nrows();
+    stack_extra(base.C.select_columns(cols), extra, cols)
+}
+
+/// `[C_cols; extra…ᵀ[:, cols]]`: the columns `cols` of `C̃`, given those of `C`.
+fn stack_extra(c_cols: DMatrix<f64>, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
+    let n0 = c_cols.nrows();
     let ne: usize = extra.iter().map(|e| e.ncols()).sum();
     let mut out = DMatrix::zeros(n0 + ne, cols.len());
     for (k, &c) in cols.iter().enumerate() {
-        out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
+        out.view_mut((0, k), (n0, 1)).copy_from(&c_cols.column(k));
         let mut r = n0;
         for e in extra {
             for j in 0..e.ncols() {
@@ -119,17 +124,20 @@ pub struct RebaseJob {
 #[derive(Clone, Debug)]
 pub(super) enum PendingRebase {
     Held(Box<RebaseJob>),
-    /// Taken by [`Estimator::take_rebase_job`] (the filter keeps nothing of
-    /// it, so the old base is freed where the job runs).
-    Dispatched(u64),
+    /// Handed out by [`Estimator::take_rebase_job`]; the filter keeps a
+    /// reference to answer column queries (R5) until the result is installed.
+    Dispatched(Arc<RebaseJob>),
 }
 
 impl PendingRebase {
-    fn seq(&self) -> u64 {
+    fn job(&self) -> &RebaseJob {
         match self {
-            PendingRebase::Held(j) => j.seq,
-            PendingRebase::Dispatched(s) => *s,
+            PendingRebase::Held(j) => j,
+            PendingRebase::Dispatched(j) => j,
         }
+    }
+    fn seq(&self) -> u64 {
+        self.job().seq
     }
 }
 
@@ -147,6 +155,61 @@ impl RebaseJob {
     /// Global keyframes after the rebase.
     pub fn n_global(&self) -> usize {
         self.ids.len()
+    }
+
+    /// Columns of the new base without computing it (§5 R5): for the new
+    /// blocks `blocks`, `(C'[:, Q], P_G'G'(k)[:, Q], δx_Q(k))`, from the
+    /// same inputs as [`RebaseJob::run`] in `O(n_L0 n_G |Q|)`. Lets the
+    /// filter promote keyframes while the job is still out.
+    pub(super) fn columns(&self, blocks: &[usize]) -> (DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
+        let n_live = self.live_blocks.len();
+        let (g, o) = (6 * n_live, self.demoted_idx.len());
+        let nk = self.keep_idx.len() + o;
+        let k = 6 * blocks.len();
+        let mut p_l = DMatrix::zeros(nk, k); // P_{L_k, Q}(k)
+        let mut p_g = DMatrix::zeros(g + o, k); // P_{G', Q}(k)
+        let mut dx = DVector::zeros(k);
+        let live_cols = block_cols(self.live_blocks.iter().copied());
+        let ct_all = self
+            .parent
+            .as_ref()
+            .filter(|_| g > 0)
+            .map(|b| c_cols(b, &self.extra, &live_cols));
+        for (bi, &b) in blocks.iter().enumerate() {
+            let out = 6 * bi;
+            if b < n_live {
+                let (Some(base), Some(ct_all)) = (self.parent.as_ref(), ct_all.as_ref()) else {
+                    continue;
+                };
+                // G1–G3 for these columns of the old global part.
+                let ct_c = ct_all.columns(6 * b, 6).into_owned();
+                let pl = &self.Phi * &ct_c;
+                p_l.view_mut((0, out), (nk, 6)).copy_from(&pl);
+                let pcols = block_cols([self.live_blocks[b]]);
+                let mut pgg = base.P_GG0.select_columns(&pcols).select_rows(&live_cols);
+                pgg.gemm(-1.0, &ct_all.transpose(), &(&self.Psi * &ct_c), 1.0);
+                p_g.view_mut((0, out), (g, 6)).copy_from(&pgg);
+                if o > 0 {
+                    p_g.view_mut((g, out), (o, 6)).copy_from(&pl.select_rows(&self.demoted_idx));
+                }
+                dx.rows_mut(out, 6).copy_from(&ct_c.tr_mul(&self.q));
+            } else {
+                // A demoted keyframe: its local rows at k, and its cross-
+                // covariance with the old global part, P_{G,L}(k) = C̃ᵀ Φ̃ᵀ.
+                let d = 6 * (b - n_live);
+                let rows = self.p_demoted_rows.rows(d, 6).transpose(); // P_{L_k, Q}
+                p_l.view_mut((0, out), (nk, 6)).copy_from(&rows);
+                if let Some(ct_all) = &ct_all {
+                    let phi_q = self.Phi.select_rows(&self.demoted_idx[d..d + 6]);
+                    p_g.view_mut((0, out), (g, 6)).copy_from(&ct_all.tr_mul(&phi_q.transpose()));
+                }
+                p_g.view_mut((g, out), (o, 6)).copy_from(&rows.select_rows(&self.demoted_idx));
+            }
+        }
+        // C'[:, Q] = W'⁻¹ P_{L', Q}(k).
+        let mut c = p_l.select_rows(&self.keep_idx);
+        self.w_new.solve_lower_triangular_mut(&mut c);
+        (c, p_g, dx)
     }
 
     /// Computes the new base (§5 R2): the old global part brought to the
@@ -241,14 +304,15 @@ impl Estimator {
 
     /// The pending rebase job, once, for running elsewhere (asynchronous
     /// rebases only); install its result with [`Estimator::install_rebase`].
-    /// Until then the filter cannot be merged ([`Estimator::snapshot`]
-    /// leaves the global part out).
-    pub fn take_rebase_job(&mut self) -> Option<RebaseJob> {
-        let seq = self.pending.as_ref()?.seq();
-        match self.pending.replace(PendingRebase::Dispatched(seq)) {
-            Some(PendingRebase::Held(job)) => Some(*job),
+    pub fn take_rebase_job(&mut self) -> Option<Arc<RebaseJob>> {
+        match self.pending.take()? {
+            PendingRebase::Held(job) => {
+                let job: Arc<RebaseJob> = Arc::from(job);
+                self.pending = Some(PendingRebase::Dispatched(job.clone()));
+                Some(job)
+            }
             other => {
-                self.pending = other;
+                self.pending = Some(other);
                 None
             }
         }
@@ -256,16 +320,25 @@ impl Estimator {
 
     /// Installs a rebase result (§5 R3): the global corrections, and the new
     /// base. Cheap: `O(n_G)` plus moving the matrices in.
-    pub fn install_rebase(&mut self, res: RebaseResult) -> Result<(), InstallError> {
+    /// Returns the job, whose inputs (the old base) the caller may free off
+    /// the real-time path.
+    pub fn install_rebase(&mut self, res: RebaseResult) -> Result<Option<Arc<RebaseJob>>, InstallError> {
         let want = self.pending.as_ref().map(|p| p.seq());
         if want != Some(res.seq) {
             return Err(InstallError::Stale { got: res.seq, want });
         }
-        self.pending = None;
-        let Some(g) = self.global.as_mut() else {
-            return Ok(());
+        let job = match self.pending.take() {
+            Some(PendingRebase::Dispatched(j)) => Some(j),
+            _ => None,
         };
+        let Some(g) = self.global.as_mut() else {
+            return Ok(job);
+        };
+        // δx_G for the keyframes still global (promoted ones took theirs).
         for (j, id) in res.base.ids.iter().enumerate().take(res.dx_live.len() / 6) {
+            if !g.live.contains_key(id) {
+                continue;
+            }
             if let Some(kf) = self.keyframes.get_mut(id) {
                 kf.delta += res.dx_live.fixed_rows::<3>(6 * j);
                 kf.p_B_in_W += res.dx_live.fixed_rows::<3>(6 * j + 3);
@@ -280,16 +353,16 @@ impl Estimator {
                 (*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt())
             })
             .collect();
-        g.extra = Vec::new();
+        // Promotions made while it was computed keep their rows of C̃.
         g.base = Some(Arc::new(res.base));
         self.stats.rebases_installed += 1;
-        Ok(())
+        Ok(job)
     }
 
     /// Runs and installs a pending rebase here and now.
     pub(super) fn finish_rebase_inline(&mut self) {
-        if let Some(PendingRebase::Held(job)) = &self.pending {
-            let res = (self.rebase_runner)(job);
+        if let Some(p) = &self.pending {
+            let res = (self.rebase_runner)(p.job());
             // The result is this job's: installing it cannot be stale.
             let _ = self.install_rebase(res);
         }
@@ -413,25 +486,33 @@ impl Estimator {
         let Some(g) = self.global.as_mut() else {
             return false;
         };
-        let Some(base) = g.base.clone() else {
-            return false;
-        };
         let blocks: Vec<usize> = ids.iter().filter_map(|id| g.live.get(id).copied()).collect();
         if blocks.len() != ids.len() || ids.is_empty() {
             return false;
         }
         let cols = block_cols(blocks.iter().copied());
         let k = cols.len();
+        // The base's columns Q: read from the base, or computed from the
+        // pending rebase's inputs (R5), with the correction they take then.
+        let while_pending = g.base.is_none();
+        let (c_base, mut cols_q, dx_base) = match (&g.base, &self.pending) {
+            (Some(base), _) => (
+                base.C.select_columns(&cols),
+                // Columns Q of P_GG(0) (rows Q, by symmetry): a contiguous copy.
+                base.P_GG0.select_columns(&cols),
+                DVector::zeros(k),
+            ),
+            (None, Some(p)) => p.job().columns(&blocks),
+            (None, None) => return false,
+        };
         // P1: P_LQ = Φ̃ C̃_Q, P_QQ = P_GG(0)_QQ − C̃_Qᵀ Ψ̃ C̃_Q, δx_Q = C̃_Qᵀ q̃.
-        let c_q = g.c_cols(&base, &cols);
+        let c_q = stack_extra(c_base, &g.extra, &cols);
         let p_lq = &g.Phi * &c_q;
         let psi_c = &g.Psi * &c_q;
-        // Columns Q of P_GG(0) (rows Q, by symmetry): a contiguous copy.
-        let mut cols_q = base.P_GG0.select_columns(&cols);
         let base_qq = cols_q.select_rows(&cols);
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
         p_qq = (&p_qq + p_qq.transpose()) * 0.5;
-        let dx_q = c_q.tr_mul(&g.q);
+        let dx_q = c_q.tr_mul(&g.q) + dx_base;
         // P2: the base-local part grows by Q, whitened by any invertible W_Q:
         // C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows [−(Ψ̃ C̃_Q)ᵀ, W_Q],
         // Ψ̃ and q̃ zeros. A diagonal W_Q = diag(√P_QQ now) keeps later Ψ̃
@@ -476,6 +557,9 @@ impl Estimator {
         self.insert_local(at, &p_lq, &p_qq);
         self.local_kfs.extend_from_slice(ids);
         self.stats.promotions += ids.len() as u64;
+        if while_pending {
+            self.stats.promotions_while_pending += ids.len() as u64;
+        }
         true
     }
 

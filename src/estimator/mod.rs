@@ -189,6 +189,8 @@ pub struct Stats {
     pub rebases_installed: u64,
     /// Global keyframes brought into the local part for a measurement.
     pub promotions: u64,
+    /// Of those, promoted while a rebase job was out (§5 R5).
+    pub promotions_while_pending: u64,
     /// Keyframe observations left for later because their keyframe was in a
     /// global part still being computed.
     pub loop_closure_deferred: u64,
@@ -1152,7 +1154,7 @@ impl Estimator {
 
     /// Starts a forced rebase and hands out its job instead of running it
     /// (benchmarks time the job alone). `None` outside compressed mode.
-    pub fn forced_rebase_job(&mut self) -> Option<RebaseJob> {
+    pub fn forced_rebase_job(&mut self) -> Option<std::sync::Arc<RebaseJob>> {
         if self.s.mode != Mode::Compressed {
             return None;
         }
