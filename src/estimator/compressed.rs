@@ -130,7 +130,7 @@ pub(super) enum PendingRebase {
 }
 
 impl PendingRebase {
-    fn job(&self) -> &RebaseJob {
+    pub(super) fn job(&self) -> &RebaseJob {
         match self {
             PendingRebase::Held(j) => j,
             PendingRebase::Dispatched(j) => j,
@@ -157,6 +157,13 @@ impl RebaseJob {
         self.ids.len()
     }
 
+    /// Flops of [`RebaseJob::columns`] for `n_blocks` keyframes (its product
+    /// `C̃ᵀ (Ψ̃ C̃_Q)` over the old global part).
+    pub(super) fn promotion_flops(&self, n_blocks: usize) -> f64 {
+        let n0 = self.Psi.nrows() as f64;
+        2.0 * (6 * self.live_blocks.len()) as f64 * n0 * (6 * n_blocks) as f64
+    }
+
     /// Columns of the new base without computing it (§5 R5): for the new
     /// blocks `blocks`, `(C'[:, Q], P_G'G'(k)[:, Q], δx_Q(k))`, from the
     /// same inputs as [`RebaseJob::run`] in `O(n_L0 n_G |Q|)`. Lets the
@@ -175,24 +182,37 @@ impl RebaseJob {
             .as_ref()
             .filter(|_| g > 0)
             .map(|b| c_cols(b, &self.extra, &live_cols));
+        // The old global part's blocks, all at once: G1–G3 for those columns.
+        let old: Vec<(usize, usize)> = blocks
+            .iter()
+            .enumerate()
+            .filter(|(_, &b)| b < n_live)
+            .map(|(i, &b)| (i, b))
+            .collect();
+        if let (Some(base), Some(ct_all), false) = (self.parent.as_ref(), ct_all.as_ref(), old.is_empty()) {
+            let ct_c = ct_all.select_columns(&block_cols(old.iter().map(|x| x.1)));
+            let pl = &self.Phi * &ct_c;
+            let mut pgg = base
+                .P_GG0
+                .select_columns(&block_cols(old.iter().map(|x| self.live_blocks[x.1])))
+                .select_rows(&live_cols);
+            pgg.gemm(-1.0, &ct_all.transpose(), &(&self.Psi * &ct_c), 1.0);
+            let dxo = ct_c.tr_mul(&self.q);
+            for (j, (i, _)) in old.iter().enumerate() {
+                let out = 6 * i;
+                p_l.view_mut((0, out), (nk, 6)).copy_from(&pl.columns(6 * j, 6));
+                p_g.view_mut((0, out), (g, 6)).copy_from(&pgg.columns(6 * j, 6));
+                if o > 0 {
+                    p_g.view_mut((g, out), (o, 6))
+                        .copy_from(&pl.columns(6 * j, 6).select_rows(&self.demoted_idx));
+                }
+                dx.rows_mut(out, 6).copy_from(&dxo.rows(6 * j, 6));
+            }
+        }
         for (bi, &b) in blocks.iter().enumerate() {
             let out = 6 * bi;
             if b < n_live {
-                let (Some(base), Some(ct_all)) = (self.parent.as_ref(), ct_all.as_ref()) else {
-                    continue;
-                };
-                // G1–G3 for these columns of the old global part.
-                let ct_c = ct_all.columns(6 * b, 6).into_owned();
-                let pl = &self.Phi * &ct_c;
-                p_l.view_mut((0, out), (nk, 6)).copy_from(&pl);
-                let pcols = block_cols([self.live_blocks[b]]);
-                let mut pgg = base.P_GG0.select_columns(&pcols).select_rows(&live_cols);
-                pgg.gemm(-1.0, &ct_all.transpose(), &(&self.Psi * &ct_c), 1.0);
-                p_g.view_mut((0, out), (g, 6)).copy_from(&pgg);
-                if o > 0 {
-                    p_g.view_mut((g, out), (o, 6)).copy_from(&pl.select_rows(&self.demoted_idx));
-                }
-                dx.rows_mut(out, 6).copy_from(&ct_c.tr_mul(&self.q));
+                continue;
             } else {
                 // A demoted keyframe: its local rows at k, and its cross-
                 // covariance with the old global part, P_{G,L}(k) = C̃ᵀ Φ̃ᵀ.
@@ -201,9 +221,11 @@ impl RebaseJob {
                 p_l.view_mut((0, out), (nk, 6)).copy_from(&rows);
                 if let Some(ct_all) = &ct_all {
                     let phi_q = self.Phi.select_rows(&self.demoted_idx[d..d + 6]);
-                    p_g.view_mut((0, out), (g, 6)).copy_from(&ct_all.tr_mul(&phi_q.transpose()));
+                    p_g.view_mut((0, out), (g, 6))
+                        .copy_from(&ct_all.tr_mul(&phi_q.transpose()));
                 }
-                p_g.view_mut((g, out), (o, 6)).copy_from(&rows.select_rows(&self.demoted_idx));
+                p_g.view_mut((g, out), (o, 6))
+                    .copy_from(&rows.select_rows(&self.demoted_idx));
             }
         }
         // C'[:, Q] = W'⁻¹ P_{L', Q}(k).

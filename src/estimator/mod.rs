@@ -55,6 +55,11 @@ const MAX_GYRO_BIAS_RADPS: f64 = 0.5;
 /// outlier (§8 K5).
 const OUTLIER_SIGMAS: f64 = 5.0;
 
+/// Budget of one promotion while a rebase job is out (§5 R5), in flops:
+/// about 2 ms here. Larger ones wait, so that a frame never stalls the IMU
+/// path on them.
+const PENDING_PROMOTION_FLOPS: f64 = 2e7;
+
 /// Most keyframe observations one track uses (§4).
 const MAX_KEYFRAMES_PER_TRACK: usize = 8;
 
@@ -909,8 +914,19 @@ impl Estimator {
                         .collect()
                 })
                 .unwrap_or_default();
+            // While a rebase is out (§5 R5) a promotion costs O(n_L0 n_G |Q|)
+            // and the local part cannot shed keyframes: promote within the
+            // local bound and a per-frame budget; otherwise the observations
+            // wait for a later track.
+            let room = match &self.pending {
+                None => true,
+                Some(p) => {
+                    self.local_kfs.len() + global_needed.len() <= self.s.max_local_keyframes
+                        && p.job().promotion_flops(global_needed.len()) <= PENDING_PROMOTION_FLOPS
+                }
+            };
             if !global_needed.is_empty() {
-                if self.promote(&global_needed) {
+                if room && self.promote(&global_needed) {
                     report.events.push(FilterEvent::Promoted {
                         keyframes: global_needed,
                     });
