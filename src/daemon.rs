@@ -1200,20 +1200,27 @@ impl Fusion {
             let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
             if let Some(job) = est.take_rebase_job() {
                 counters.add("rebases_started", 1);
-                match &mut self.rebase {
-                    RebaseExec::Thread { tx, .. } => {
-                        if let Err(std::sync::mpsc::SendError(work)) = tx.send(RebaseWork::Run(self.est_gen, job)) {
+                // A job not handed to the worker runs here and now.
+                let here = match &mut self.rebase {
+                    RebaseExec::Thread { tx, .. } => match tx.send(RebaseWork::Run(self.est_gen, job)) {
+                        Ok(()) => None,
+                        Err(std::sync::mpsc::SendError(work)) => {
                             // The worker is gone: compute it here rather than never.
                             counters.add("rebase_thread_lost", 1);
-                            if let RebaseWork::Run(_, job) = work {
-                                let _ = est.install_rebase(job.run());
+                            match work {
+                                RebaseWork::Run(_, job) => Some(job),
+                                RebaseWork::Free(_) => None,
                             }
                         }
+                    },
+                    RebaseExec::Logged { held } => {
+                        *held = Some(job.run());
+                        None
                     }
-                    RebaseExec::Logged { held } => *held = Some(job.run()),
-                    RebaseExec::Inline => {
-                        let _ = est.install_rebase(job.run());
-                    }
+                    RebaseExec::Inline => Some(job),
+                };
+                if let Some(job) = here {
+                    let _ = est.install_rebase(job.run());
                 }
             }
             match result {
@@ -1262,21 +1269,13 @@ impl Fusion {
                     self.tracker.frame_processed(t);
                     counters.add("tracks_used", rep.tracks_used as u64);
                     counters.add("global_updates", rep.global_updates as u64);
-                    let promoted: usize = rep
-                        .events
-                        .iter()
-                        .map(|e| match e {
-                            crate::estimator::FilterEvent::Promoted { keyframes } => keyframes.len(),
-                            _ => 0,
-                        })
-                        .sum();
-                    if promoted > 0 {
-                        counters.add("keyframes_promoted", promoted as u64);
+                    if rep.promoted > 0 {
+                        counters.add("keyframes_promoted", rep.promoted as u64);
                     }
-                    if !rep.deferred.is_empty() {
+                    if rep.deferred > 0 {
                         // Loop-closure observations left for a later track while
                         // a rebase was computing the global part.
-                        counters.add("loop_closure_deferred", rep.deferred.len() as u64);
+                        counters.add("loop_closure_deferred", rep.deferred as u64);
                     }
                     for (k, v) in &rep.rejected {
                         counters.add(&format!("track_rejected_{k}"), *v);

@@ -257,8 +257,6 @@ impl<'a> Runner<'a> {
         );
         let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();
         let frame_us = start.elapsed().as_secs_f64() * 1e6;
-        // The rebase job, timed on its own and installed at once (so the
-        // filter is the synchronous one).
         // The frame time without the rebase jobs it ran (which the daemon
         // runs on its worker thread), and those apart.
         let jobs = REBASE_US.with(|r| std::mem::take(&mut *r.borrow_mut()));

@@ -15,7 +15,7 @@ use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
+use super::{position_sigma_m, whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
 use crate::config::Mode;
 
 /// The global part at the last rebase (time 0), in the whitened coordinates
@@ -209,24 +209,20 @@ impl RebaseJob {
                 dx.rows_mut(out, 6).copy_from(&dxo.rows(6 * j, 6));
             }
         }
-        for (bi, &b) in blocks.iter().enumerate() {
+        // Demoted keyframes: their local rows at k, and their cross-
+        // covariance with the old global part, P_{G,L}(k) = C̃ᵀ Φ̃ᵀ.
+        for (bi, &b) in blocks.iter().enumerate().filter(|(_, &b)| b >= n_live) {
             let out = 6 * bi;
-            if b < n_live {
-                continue;
-            } else {
-                // A demoted keyframe: its local rows at k, and its cross-
-                // covariance with the old global part, P_{G,L}(k) = C̃ᵀ Φ̃ᵀ.
-                let d = 6 * (b - n_live);
-                let rows = self.p_demoted_rows.rows(d, 6).transpose(); // P_{L_k, Q}
-                p_l.view_mut((0, out), (nk, 6)).copy_from(&rows);
-                if let Some(ct_all) = &ct_all {
-                    let phi_q = self.Phi.select_rows(&self.demoted_idx[d..d + 6]);
-                    p_g.view_mut((0, out), (g, 6))
-                        .copy_from(&ct_all.tr_mul(&phi_q.transpose()));
-                }
-                p_g.view_mut((g, out), (o, 6))
-                    .copy_from(&rows.select_rows(&self.demoted_idx));
+            let d = 6 * (b - n_live);
+            let rows = self.p_demoted_rows.rows(d, 6).transpose(); // P_{L_k, Q}
+            p_l.view_mut((0, out), (nk, 6)).copy_from(&rows);
+            if let Some(ct_all) = &ct_all {
+                let phi_q = self.Phi.select_rows(&self.demoted_idx[d..d + 6]);
+                p_g.view_mut((0, out), (g, 6))
+                    .copy_from(&ct_all.tr_mul(&phi_q.transpose()));
             }
+            p_g.view_mut((g, out), (o, 6))
+                .copy_from(&rows.select_rows(&self.demoted_idx));
         }
         // C'[:, Q] = W'⁻¹ P_{L', Q}(k).
         let mut c = p_l.select_rows(&self.keep_idx);
@@ -353,27 +349,23 @@ impl Estimator {
             Some(PendingRebase::Dispatched(j)) => Some(j),
             _ => None,
         };
-        let Some(g) = self.global.as_mut() else {
+        let Some(g) = self.global.as_ref() else {
             return Ok(job);
         };
         // δx_G for the keyframes still global (promoted ones took theirs).
-        for (j, id) in res.base.ids.iter().enumerate().take(res.dx_live.len() / 6) {
-            if !g.live.contains_key(id) {
-                continue;
-            }
-            if let Some(kf) = self.keyframes.get_mut(id) {
-                kf.delta += res.dx_live.fixed_rows::<3>(6 * j);
-                kf.p_B_in_W += res.dx_live.fixed_rows::<3>(6 * j + 3);
-            }
+        let still_global: Vec<(usize, u64)> = (res.base.ids.iter().enumerate())
+            .take(res.dx_live.len() / 6)
+            .filter(|(_, id)| g.live.contains_key(id))
+            .map(|(j, id)| (j, *id))
+            .collect();
+        for (j, id) in still_global {
+            self.correct_keyframe(id, &res.dx_live, 6 * j);
         }
-        let p = &res.base.P_GG0;
-        g.sigma_m = g
-            .live
-            .iter()
-            .map(|(id, b)| {
-                let o = 6 * b + 3;
-                (*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt())
-            })
+        let Some(g) = self.global.as_mut() else {
+            return Ok(job);
+        };
+        g.sigma_m = (g.live.iter())
+            .map(|(id, b)| (*id, position_sigma_m(&res.base.P_GG0, 6 * b)))
             .collect();
         // Promotions made while it was computed keep their rows of C̃.
         g.base = Some(Arc::new(res.base));
@@ -457,9 +449,7 @@ impl Estimator {
         };
         let mut ids: Vec<u64> = live.iter().map(|x| x.0).collect();
         for (j, id) in &demote {
-            let o = self.kf_offset(*j) + 3;
-            let p = &self.P;
-            sigma_m.insert(*id, (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt());
+            sigma_m.insert(*id, position_sigma_m(&self.P, self.kf_offset(*j)));
             ids.push(*id);
         }
         self.rebase_seq += 1;
@@ -501,8 +491,9 @@ impl Estimator {
     }
 
     /// Brings global keyframes into the local part (§5 P1–P3), exactly and
-    /// without a global update: `O(n_L² |Q| + n_L0 n_G)`. The base must be
-    /// installed. Returns false (and changes nothing) otherwise.
+    /// without a global update: `O(n_L² |Q| + n_L0 n_G)` from an installed
+    /// base, `O(n_L0 n_G |Q|)` from a pending rebase's inputs (R5). Returns
+    /// false (and changes nothing) if an id is not global.
     pub(super) fn promote(&mut self, ids: &[u64]) -> bool {
         let at = self.clones_offset();
         let Some(g) = self.global.as_mut() else {
@@ -571,10 +562,7 @@ impl Estimator {
         }
         // P3: the nominal values take δx_Q; the local covariance gains Q.
         for (j, id) in ids.iter().enumerate() {
-            if let Some(kf) = self.keyframes.get_mut(id) {
-                kf.delta += dx_q.fixed_rows::<3>(6 * j);
-                kf.p_B_in_W += dx_q.fixed_rows::<3>(6 * j + 3);
-            }
+            self.correct_keyframe(*id, &dx_q, 6 * j);
         }
         self.insert_local(at, &p_lq, &p_qq);
         self.local_kfs.extend_from_slice(ids);
@@ -615,25 +603,26 @@ impl Estimator {
     /// keyframe in the state: compressed's global part merged (§5 G1–G3).
     /// For comparing modes on one state, as the scaling benchmark does.
     pub fn into_mode(mut self, mode: Mode) -> Estimator {
+        self.merge_global();
+        self.s.mode = mode;
+        self
+    }
+
+    /// Moves the whole global part into the local one (G1–G3, after any
+    /// pending rebase): every keyframe then lives in `P`.
+    pub(super) fn merge_global(&mut self) {
         self.finish_rebase_inline();
         self.sync();
         if let Some((p_lg, p_gg, dx, ids)) = self.reconstruct() {
             for (j, id) in ids.iter().enumerate() {
-                if let Some(kf) = self.keyframes.get_mut(id) {
-                    kf.delta += dx.fixed_rows::<3>(6 * j);
-                    kf.p_B_in_W += dx.fixed_rows::<3>(6 * j + 3);
-                }
+                self.correct_keyframe(*id, &dx, 6 * j);
             }
-            self.global = None;
             // Global keyframes go after the local ones, before the clones.
             let at = self.clones_offset();
-            let p_lg_rows = p_lg;
-            self.insert_local(at, &p_lg_rows, &p_gg);
+            self.insert_local(at, &p_lg, &p_gg);
             self.local_kfs.extend(ids);
         }
         self.global = None;
-        self.s.mode = mode;
-        self
     }
 
     /// Inserts states with covariance `block` and cross-covariance `cross`

@@ -250,9 +250,11 @@ pub struct FrameReport {
     pub keyframe_created: bool,
     pub global_updates: usize,
     pub loop_closure_tracks: usize,
-    /// `(landmark, keyframe)` observations left for later: their keyframe
-    /// is in a global part that a rebase is still computing.
-    pub deferred: Vec<(u64, u64)>,
+    /// Keyframe observations left for a later track: their keyframe is in
+    /// a global part that a rebase is still computing (§5 R5).
+    pub deferred: usize,
+    /// Global keyframes made local for this frame's measurements.
+    pub promoted: usize,
 }
 
 /// A landmark's observations in the window.
@@ -290,9 +292,6 @@ pub struct Estimator {
     /// Runs the rebase jobs of a synchronous filter ([`RebaseJob::run`];
     /// the evaluation wraps it to time them).
     rebase_runner: fn(&RebaseJob) -> RebaseResult,
-    /// Keyframe observations the next frame must not use (lockstep
-    /// comparisons mirror another filter's deferrals with it).
-    exclude_once: Vec<(u64, u64)>,
     centre_W: Vector3<f64>,
     tracks: BTreeMap<u64, Track>,
     /// Landmark → keyframes holding an observation of it.
@@ -365,7 +364,6 @@ impl Estimator {
             pending: None,
             rebase_seq: 0,
             rebase_runner: RebaseJob::run,
-            exclude_once: Vec::new(),
             tracks: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
@@ -419,16 +417,7 @@ impl Estimator {
             .local_kfs
             .iter()
             .enumerate()
-            .map(|(j, id)| {
-                let o = self.kf_offset(j) + 3;
-                (
-                    *id,
-                    (self.P[(o, o)] + self.P[(o + 1, o + 1)] + self.P[(o + 2, o + 2)])
-                        .max(0.0)
-                        .sqrt(),
-                    false,
-                )
-            })
+            .map(|(j, id)| (*id, position_sigma_m(&self.P, self.kf_offset(j)), false))
             .collect();
         if let Some(g) = &self.global {
             v.extend(g.sigma_m.iter().map(|(id, s)| (*id, *s, true)));
@@ -621,20 +610,7 @@ impl Estimator {
     fn augment(&mut self, at: usize, j: &DMatrix<f64>) {
         let jp = j * &self.P;
         let jpj = &jp * j.transpose();
-        let n = self.P.nrows();
-        let mut p = DMatrix::zeros(n + 6, n + 6);
-        let map = |i: usize| if i < at { i } else { i + 6 };
-        for c in 0..n {
-            for r in 0..n {
-                p[(map(r), map(c))] = self.P[(r, c)];
-            }
-            for k in 0..6 {
-                p[(at + k, map(c))] = jp[(k, c)];
-                p[(map(c), at + k)] = jp[(k, c)];
-            }
-        }
-        p.view_mut((at, at), (6, 6)).copy_from(&jpj);
-        self.P = p;
+        self.insert_local(at, &jp.transpose(), &jpj);
         if let Some(g) = self.global.as_mut() {
             let jphi = j * &g.Phi;
             let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, 6, 0.0);
@@ -889,13 +865,6 @@ impl Estimator {
             }
             kf_use.push(ks);
         }
-        // Observations another filter deferred (lockstep comparisons).
-        if !self.exclude_once.is_empty() {
-            let ex = std::mem::take(&mut self.exclude_once);
-            for ((l, _), ks) in ready.iter().zip(kf_use.iter_mut()) {
-                ks.retain(|k| !ex.contains(&(*l, *k)));
-            }
-        }
         // A measurement that touches a global keyframe first makes it local
         // (§5 P1–P3). While the global part is being computed by a rebase,
         // those keyframe observations wait for a later track instead.
@@ -914,33 +883,27 @@ impl Estimator {
                         .collect()
                 })
                 .unwrap_or_default();
-            // While a rebase is out (§5 R5) a promotion costs O(n_L0 n_G |Q|)
-            // and the local part cannot shed keyframes: promote within the
-            // local bound and a per-frame budget; otherwise the observations
-            // wait for a later track.
-            let room = match &self.pending {
-                None => true,
-                Some(p) => {
+            if !global_needed.is_empty() {
+                // While a rebase is out (§5 R5) a promotion costs
+                // O(n_L0 n_G |Q|) and the local part cannot shed keyframes:
+                // promote within the local bound and a per-frame budget;
+                // otherwise the observations wait for a later track.
+                let room = self.pending.as_ref().is_none_or(|p| {
                     self.local_kfs.len() + global_needed.len() <= self.s.max_local_keyframes
                         && p.job().promotion_flops(global_needed.len()) <= PENDING_PROMOTION_FLOPS
-                }
-            };
-            if !global_needed.is_empty() {
+                });
                 if room && self.promote(&global_needed) {
+                    report.promoted = global_needed.len();
                     report.events.push(FilterEvent::Promoted {
                         keyframes: global_needed,
                     });
                 } else {
-                    for ((l, _), ks) in ready.iter().zip(kf_use.iter_mut()) {
-                        ks.retain(|k| {
-                            let wait = global_needed.contains(k);
-                            if wait {
-                                report.deferred.push((*l, *k));
-                            }
-                            !wait
-                        });
+                    for ks in kf_use.iter_mut() {
+                        let before = ks.len();
+                        ks.retain(|k| !global_needed.contains(k));
+                        report.deferred += before - ks.len();
                     }
-                    self.stats.loop_closure_deferred += report.deferred.len() as u64;
+                    self.stats.loop_closure_deferred += report.deferred as u64;
                 }
             }
         }
@@ -1139,6 +1102,15 @@ impl Estimator {
         self.inject(&dx);
     }
 
+    /// Adds `δx[o..o+6] = [δθ, δp]` to a keyframe's nominal pose, if it
+    /// still exists (global corrections G3 and P1).
+    fn correct_keyframe(&mut self, id: u64, dx: &DVector<f64>, o: usize) {
+        if let Some(kf) = self.keyframes.get_mut(&id) {
+            kf.delta += dx.fixed_rows::<3>(o);
+            kf.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+    }
+
     /// Applies a correction to the local nominal state.
     fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
@@ -1182,13 +1154,6 @@ impl Estimator {
         self.take_rebase_job()
     }
 
-    /// Makes the next frame leave out these `(landmark, keyframe)`
-    /// observations: a filter compared in lockstep with an asynchronous
-    /// compressed one mirrors its [`FrameReport::deferred`] with this.
-    pub fn exclude_keyframe_obs_once(&mut self, pairs: &[(u64, u64)]) {
-        self.exclude_once.extend_from_slice(pairs);
-    }
-
     /// What runs a synchronous filter's rebase jobs (the evaluation times
     /// them with a wrapper; the result must be the job's `run()`).
     pub fn set_rebase_runner(&mut self, f: fn(&RebaseJob) -> RebaseResult) {
@@ -1204,43 +1169,20 @@ impl Estimator {
     /// keyframes by id. Does not change the filter.
     pub fn snapshot(&self) -> Snapshot {
         let mut est = self.clone();
-        est.finish_rebase_inline();
-        est.sync();
-        let nl = est.P.nrows();
-        let (full_p, global_ids) = match est.reconstruct() {
-            Some((p_lg, p_gg, dx_g, ids)) => {
-                for (j, id) in ids.iter().enumerate() {
-                    if let Some(kf) = est.keyframes.get_mut(id) {
-                        kf.delta += dx_g.fixed_rows::<3>(6 * j);
-                        kf.p_B_in_W += dx_g.fixed_rows::<3>(6 * j + 3);
-                    }
-                }
-                let ng = p_gg.nrows();
-                let mut full = DMatrix::zeros(nl + ng, nl + ng);
-                full.view_mut((0, 0), (nl, nl)).copy_from(&est.P);
-                full.view_mut((0, nl), (nl, ng)).copy_from(&p_lg);
-                full.view_mut((nl, 0), (ng, nl)).copy_from(&p_lg.transpose());
-                full.view_mut((nl, nl), (ng, ng)).copy_from(&p_gg);
-                (full, ids)
-            }
-            None => (est.P.clone(), Vec::new()),
-        };
-        let mut kf_pos: BTreeMap<u64, usize> = est
+        est.merge_global();
+        let kf_pos: BTreeMap<u64, usize> = est
             .local_kfs
             .iter()
             .enumerate()
             .map(|(j, id)| (*id, ACTIVE_DIM + 6 * j))
             .collect();
-        for (j, id) in global_ids.iter().enumerate() {
-            kf_pos.insert(*id, nl + 6 * j);
-        }
         let mut idx: Vec<usize> = (0..ACTIVE_DIM).collect();
         let co = est.clones_offset();
         idx.extend(co..co + 6 * est.clones.len());
         for off in kf_pos.values() {
             idx.extend(*off..*off + 6);
         }
-        let P = full_p.select_rows(&idx).select_columns(&idx);
+        let P = est.P.select_rows(&idx).select_columns(&idx);
         let mut x = Vec::new();
         let push_q = |x: &mut Vec<f64>, q: &UnitQuaternion<f64>| {
             let c = q.coords;
@@ -1502,6 +1444,12 @@ impl Estimator {
         self.stats.updates += 1;
         Ok(rep)
     }
+}
+
+/// Position σ (m, `√trace`) of the pose block `[δθ, δp]` starting at `o`.
+fn position_sigma_m(p: &DMatrix<f64>, o: usize) -> f64 {
+    let o = o + 3;
+    (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt()
 }
 
 /// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`.

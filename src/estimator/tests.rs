@@ -89,8 +89,7 @@ fn asynchronous_rebase_equals_full_after_every_install() {
     let (mut installs, mut worst, mut deferred) = (0, 0.0f64, 0);
     for k in 0..ds.frames.len() {
         let (_, rep) = c.step_frame(k);
-        deferred += rep.deferred.len();
-        f.est.exclude_keyframe_obs_once(&rep.deferred);
+        deferred += rep.deferred;
         f.step_frame(k);
         if let Some(job) = c.est.take_rebase_job() {
             // "Another thread": the result comes back 7 frames later.
