@@ -576,27 +576,32 @@ impl Estimator {
     /// The reconstructed global part over the live keyframes (§5 G1–G3):
     /// `(P_LG, P_GG, δx_G, ids)`. `None` without an installed base.
     pub(super) fn reconstruct(&self) -> Option<Reconstructed> {
-        let g = self.global.as_ref()?;
-        let base = g.base.as_ref()?;
-        let live = g.live_in_block_order();
-        let cols = block_cols(live.iter().map(|x| x.1));
-        let c = g.c_cols(base, &cols);
-        let p_lg = &g.Phi * &c;
-        let mut p_gg = base.P_GG0.select_rows(&cols).select_columns(&cols) - c.tr_mul(&(&g.Psi * &c));
-        p_gg = (&p_gg + p_gg.transpose()) * 0.5;
-        let dx = c.tr_mul(&g.q);
+        let live = self.global.as_ref()?.live_in_block_order();
+        let (p_lg, p_gg, dx) = self.global_blocks(live.iter().map(|x| x.1))?;
         Some((p_lg, p_gg, dx, live.into_iter().map(|x| x.0).collect()))
     }
 
     /// A global keyframe's covariance now (§5 G2 for one block), if the base
     /// is installed.
     pub(super) fn global_keyframe_covariance(&self, id: u64) -> Option<DMatrix<f64>> {
+        let b = *self.global.as_ref()?.live.get(&id)?;
+        self.global_blocks([b]).map(|x| x.1)
+    }
+
+    /// G1–G3 for some blocks of an installed base: `(P_LG, P_GG, δx_G)`,
+    /// `P_GG` symmetrised.
+    fn global_blocks(
+        &self,
+        blocks: impl IntoIterator<Item = usize>,
+    ) -> Option<(DMatrix<f64>, DMatrix<f64>, DVector<f64>)> {
         let g = self.global.as_ref()?;
         let base = g.base.as_ref()?;
-        let b = *g.live.get(&id)?;
-        let cols = block_cols([b]);
+        let cols = block_cols(blocks);
         let c = g.c_cols(base, &cols);
-        Some(base.P_GG0.select_rows(&cols).select_columns(&cols) - c.tr_mul(&(&g.Psi * &c)))
+        let p_lg = &g.Phi * &c;
+        let mut p_gg = base.P_GG0.select_rows(&cols).select_columns(&cols) - c.tr_mul(&(&g.Psi * &c));
+        p_gg = (&p_gg + p_gg.transpose()) * 0.5;
+        Some((p_lg, p_gg, c.tr_mul(&g.q)))
     }
 
     /// The same filter in another mode (`full` or `schmidt`), with every
