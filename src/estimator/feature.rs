@@ -195,16 +195,17 @@ pub fn track_system(
 /// the last `2m − 3` rows of `Qᵀ H_x` and `Qᵀ r` are free of `δp_f`. With
 /// whitened (unit) noise the projected noise stays unit.
 pub fn nullspace_project(hx: DMatrix<f64>, hf: DMatrix<f64>, r: DVector<f64>) -> (DMatrix<f64>, DVector<f64>) {
-    let rows = hf.nrows();
-    let qr = hf.qr();
-    let mut hx = hx;
-    let mut r = DMatrix::from_column_slice(rows, 1, r.as_slice());
-    qr.q_tr_mul(&mut hx);
-    qr.q_tr_mul(&mut r);
-    let keep = rows - 3;
+    let (rows, nx) = hx.shape();
+    // [H_f | H_x | r], reflected on its first three columns.
+    let mut a = DMatrix::zeros(rows, 3 + nx + 1);
+    a.columns_mut(0, 3).copy_from(&hf);
+    a.columns_mut(3, nx).copy_from(&hx);
+    a.column_mut(3 + nx).copy_from(&r);
+    super::math::householder_in_place(&mut a, 3);
+    let keep = rows.saturating_sub(3);
     (
-        hx.rows(3, keep).into_owned(),
-        DVector::from_column_slice(&r.as_slice()[3..]),
+        a.view((3.min(rows), 3), (keep, nx)).into_owned(),
+        DVector::from_iterator(keep, a.view((3.min(rows), 3 + nx), (keep, 1)).iter().copied()),
     )
 }
 

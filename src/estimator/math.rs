@@ -52,60 +52,98 @@ mod tests {
     }
 }
 
-/// Rows per block of the blocked triangular solves.
+/// Rows per block of the blocked triangular solves, and columns per block of
+/// the symmetric rank-k update.
 const TRI_BLOCK: usize = 32;
 
-/// Solves `L X = B` in place (`L` lower triangular with a nonzero diagonal).
-/// Blocked: each block of rows is one matrix product (matrixmultiply) and a
-/// small triangular solve, several times faster than solving column by
-/// column when `B` has many columns.
-pub fn solve_lower_in_place(l: &nalgebra::DMatrix<f64>, b: &mut nalgebra::DMatrix<f64>) {
-    let n = l.nrows();
-    let mut r0 = 0;
-    while r0 < n {
-        let bs = TRI_BLOCK.min(n - r0);
-        if r0 > 0 {
-            // B_i ← B_i − L_i,<i X_<i
-            let (done, mut cur) = b.rows_range_pair_mut(0..r0, r0..r0 + bs);
-            cur.gemm(-1.0, &l.view((r0, 0), (bs, r0)), &done, 1.0);
+/// A lower-triangular factor `L` (`S = L Lᵀ`) with the inverses of its
+/// diagonal blocks formed once, so that every solve with it is matrix
+/// products only (README §3, U1).
+pub struct LowerSolver {
+    l: nalgebra::DMatrix<f64>,
+    /// `L_kk⁻¹` for each diagonal block of `TRI_BLOCK` rows.
+    inv: Vec<nalgebra::DMatrix<f64>>,
+}
+
+impl LowerSolver {
+    /// `None` if a diagonal entry is zero or not finite.
+    pub fn new(l: nalgebra::DMatrix<f64>) -> Option<Self> {
+        let n = l.nrows();
+        let mut inv = Vec::with_capacity(n.div_ceil(TRI_BLOCK));
+        let mut r0 = 0;
+        while r0 < n {
+            let k = TRI_BLOCK.min(n - r0);
+            inv.push(lower_inverse(&l.view((r0, r0), (k, k)))?);
+            r0 += k;
         }
-        apply_block_inverse(&l.view((r0, r0), (bs, bs)).into_owned(), b, r0, false);
-        r0 += bs;
+        Some(Self { l, inv })
+    }
+
+    /// Solves `L X = B` in place: block row `i` is
+    /// `X_i = L_ii⁻¹ (B_i − L_i,<i X_<i)`, two matrix products.
+    pub fn solve_in_place(&self, b: &mut nalgebra::DMatrix<f64>) {
+        let n = self.l.nrows();
+        let mut r0 = 0;
+        for inv in &self.inv {
+            let bs = inv.nrows();
+            if r0 > 0 {
+                let (done, mut cur) = b.rows_range_pair_mut(0..r0, r0..r0 + bs);
+                cur.gemm(-1.0, &self.l.view((r0, 0), (bs, r0)), &done, 1.0);
+            }
+            let cur = inv * b.rows(r0, bs);
+            b.rows_mut(r0, bs).copy_from(&cur);
+            r0 += bs;
+        }
+        debug_assert_eq!(r0, n);
     }
 }
 
-/// `B[r0..r0+k] ← L_kk⁻¹ B[r0..r0+k]` (or `L_kk⁻ᵀ`) for a diagonal block:
-/// the block's inverse (a k×k triangular solve) applied as one product.
-fn apply_block_inverse(lkk: &nalgebra::DMatrix<f64>, b: &mut nalgebra::DMatrix<f64>, r0: usize, transpose: bool) {
-    let k = lkk.nrows();
-    let eye = nalgebra::DMatrix::identity(k, k);
-    let inv = if transpose {
-        lkk.tr_solve_lower_triangular(&eye)
-    } else {
-        lkk.solve_lower_triangular(&eye)
-    };
-    // A zero pivot: leave the rows (the caller's Cholesky factor has none).
-    let Some(inv) = inv else { return };
-    let cur = &inv * b.rows(r0, k);
-    b.rows_mut(r0, k).copy_from(&cur);
+/// The inverse of a small lower-triangular matrix by forward substitution,
+/// column by column; `None` on a zero or non-finite pivot.
+fn lower_inverse(l: &nalgebra::DMatrixView<f64>) -> Option<nalgebra::DMatrix<f64>> {
+    let k = l.nrows();
+    let mut x = nalgebra::DMatrix::zeros(k, k);
+    for j in 0..k {
+        let d = l[(j, j)];
+        if d == 0.0 || !d.is_finite() {
+            return None;
+        }
+        x[(j, j)] = 1.0 / d;
+        for i in j + 1..k {
+            let mut s = 0.0;
+            for t in j..i {
+                s += l[(i, t)] * x[(t, j)];
+            }
+            x[(i, j)] = -s / l[(i, i)];
+        }
+    }
+    Some(x)
 }
 
-/// Solves `Lᵀ X = B` in place (`L` lower triangular with a nonzero
-/// diagonal), blocked as [`solve_lower_in_place`].
-pub fn solve_lower_transpose_in_place(l: &nalgebra::DMatrix<f64>, b: &mut nalgebra::DMatrix<f64>) {
-    let n = l.nrows();
-    let mut r1 = n;
-    while r1 > 0 {
-        let bs = TRI_BLOCK.min(r1);
-        let r0 = r1 - bs;
-        if r1 < n {
-            // B_i ← B_i − (L_>i,i)ᵀ X_>i
-            let lt = l.view((r1, r0), (n - r1, bs)).transpose();
-            let (mut cur, done) = b.rows_range_pair_mut(r0..r1, r1..n);
-            cur.gemm(-1.0, &lt, &done, 1.0);
+/// `P ← P + α AᵀA` for a symmetric `P` (n × n) and `A` (k × n), the
+/// symmetric rank-k form: only the column blocks of the lower triangle are
+/// computed (about half the products of a full one), then mirrored, so `P`
+/// leaves exactly symmetric.
+pub fn add_gram_symmetric(p: &mut nalgebra::DMatrix<f64>, alpha: f64, a: &nalgebra::DMatrix<f64>) {
+    let n = p.nrows();
+    let at = a.transpose();
+    let mut j0 = 0;
+    while j0 < n {
+        let jb = TRI_BLOCK.min(n - j0);
+        p.view_mut((j0, j0), (n - j0, jb))
+            .gemm(alpha, &at.rows(j0, n - j0), &a.columns(j0, jb), 1.0);
+        j0 += jb;
+    }
+    mirror_lower(p);
+}
+
+/// Copies the strict lower triangle onto the upper one.
+pub fn mirror_lower(p: &mut nalgebra::DMatrix<f64>) {
+    let n = p.nrows();
+    for j in 0..n {
+        for i in j + 1..n {
+            p[(j, i)] = p[(i, j)];
         }
-        apply_block_inverse(&l.view((r0, r0), (bs, bs)).into_owned(), b, r0, true);
-        r1 = r0;
     }
 }
 
@@ -114,23 +152,198 @@ mod tri_tests {
     use super::*;
     use nalgebra::DMatrix;
 
-    /// The blocked solves agree with nalgebra's column-by-column ones, over
-    /// sizes that cross block edges.
+    /// The blocked solve agrees with nalgebra's column-by-column one, over
+    /// sizes that cross block edges; the symmetric rank-k form with the
+    /// full product.
     #[test]
-    fn blocked_triangular_solves_match_the_reference() {
+    fn blocked_triangular_solve_and_gram_update_match_the_reference() {
         for &n in &[1usize, 7, 32, 33, 70, 131] {
             let m = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 17) as f64 / 17.0 - 0.4);
             let spd = &m * m.transpose() + DMatrix::identity(n, n) * (n as f64);
-            let l = spd.cholesky().unwrap().l();
+            let l = spd.clone().cholesky().unwrap().l();
             let b = DMatrix::from_fn(n, 9, |i, j| ((i * 3 + j * 5) % 11) as f64 - 5.0);
             let mut x = b.clone();
-            solve_lower_in_place(&l, &mut x);
+            LowerSolver::new(l.clone()).unwrap().solve_in_place(&mut x);
             let want = l.solve_lower_triangular(&b).unwrap();
             assert!((&x - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
-            let mut y = b.clone();
-            solve_lower_transpose_in_place(&l, &mut y);
-            let want = l.tr_solve_lower_triangular(&b).unwrap();
-            assert!((&y - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+            let a = DMatrix::from_fn(5, n, |i, j| ((i * 11 + j * 3) % 7) as f64 - 3.0);
+            let mut p = spd.clone();
+            add_gram_symmetric(&mut p, -0.25, &a);
+            let want = &spd - a.transpose() * &a * 0.25;
+            assert!((&p - &want).abs().max() <= 1e-12 * want.abs().max(), "n {n}");
+            assert_eq!(p, p.transpose());
+        }
+        let mut z = DMatrix::<f64>::identity(3, 3);
+        z[(1, 1)] = 0.0;
+        assert!(LowerSolver::new(z).is_none());
+    }
+}
+
+/// `Σ aᵢ bᵢ` over the common length, with eight partial sums so the
+/// compiler can keep them in vector registers.
+#[inline]
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..8 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
+}
+
+/// `y ← y + α x` over the common length.
+#[inline]
+pub fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}
+
+/// Columns per panel of the blocked Householder triangularisation.
+const QR_BLOCK: usize = 16;
+
+/// Householder triangularisation (README §3, N1 and Q1). Chooses the
+/// reflections `Q = H₀ H₁ … H_{p−1}` that zero the sub-diagonal of the
+/// first `p` columns of `a` and applies them to every column, in place:
+/// on return `a ← Qᵀ a`, its first `p` columns upper triangular with exact
+/// zeros below the diagonal. `Q` is orthogonal, so whitened (unit) noise
+/// stays unit.
+///
+/// Each reflection is `H = I − τ v vᵀ` with `v₀ = 1`, mapping the column
+/// `x` to `β e₁`, `β = −sign(x₀) ‖x‖`, `τ = (β − x₀)/β`, `v = x / (x₀ − β)`
+/// below the first entry (LAPACK's dlarfg convention). Blocked as LAPACK's
+/// dgeqrf: a panel of `QR_BLOCK` reflections is formed column by column,
+/// written as `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (T upper triangular, dlarft), and
+/// applied to the rest of the matrix as two matrix products,
+/// `C ← C − V (Tᵀ (Vᵀ C))`. `O(m p n)`.
+pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
+    use nalgebra::DMatrix;
+    let (m, n) = a.shape();
+    let p = p.min(m).min(n);
+    let mut j0 = 0;
+    while j0 < p {
+        let jb = QR_BLOCK.min(p - j0);
+        let rows = m - j0;
+        // The panel's reflectors, V (rows × jb, unit diagonal) and τ.
+        let mut v = DMatrix::<f64>::zeros(rows, jb);
+        let mut tau = [0.0f64; QR_BLOCK];
+        {
+            let data = a.as_mut_slice();
+            for jj in 0..jb {
+                let j = j0 + jj;
+                let len = m - j;
+                let col = &data[j * m + j..(j + 1) * m];
+                let alpha = col[0];
+                let sigma = dot(&col[1..], &col[1..]);
+                if sigma == 0.0 || !sigma.is_finite() {
+                    // Already zero below the diagonal (or not finite: the
+                    // caller's finiteness check rejects the result). τ = 0.
+                    continue;
+                }
+                let norm = (alpha * alpha + sigma).sqrt();
+                let beta = if alpha <= 0.0 { norm } else { -norm };
+                let inv_v0 = 1.0 / (alpha - beta);
+                let t = (beta - alpha) / beta;
+                tau[jj] = t;
+                let vj = &mut v.as_mut_slice()[jj * rows + jj..(jj + 1) * rows];
+                vj[0] = 1.0;
+                for (vi, ci) in vj[1..].iter_mut().zip(&col[1..]) {
+                    *vi = ci * inv_v0;
+                }
+                data[j * m + j] = beta;
+                data[j * m + j + 1..(j + 1) * m].fill(0.0);
+                // The rest of the panel, one column at a time.
+                let vj = &v.as_slice()[jj * rows + jj..(jj + 1) * rows];
+                for k in j + 1..j0 + jb {
+                    let c = &mut data[k * m + j..(k + 1) * m];
+                    let s = t * dot(vj, c);
+                    axpy(-s, vj, c);
+                }
+                debug_assert_eq!(vj.len(), len);
+            }
+        }
+        let rest = n - (j0 + jb);
+        if rest > 0 {
+            // T (dlarft, forward, columnwise): T_ii = τ_i,
+            // T[0..i, i] = −τ_i T[0..i, 0..i] V[:, 0..i]ᵀ v_i.
+            let mut t = DMatrix::<f64>::zeros(jb, jb);
+            for i in 0..jb {
+                t[(i, i)] = tau[i];
+                if i == 0 || tau[i] == 0.0 {
+                    continue;
+                }
+                let vi = &v.as_slice()[i * rows..(i + 1) * rows];
+                let w: Vec<f64> = (0..i)
+                    .map(|k| -tau[i] * dot(&v.as_slice()[k * rows..(k + 1) * rows], vi))
+                    .collect();
+                for r in 0..i {
+                    t[(r, i)] = (r..i).map(|k| t[(r, k)] * w[k]).sum();
+                }
+            }
+            // C ← (I − V T Vᵀ)ᵀ C = C − V (Tᵀ (Vᵀ C)).
+            let vt = v.transpose();
+            let mut c = a.view_mut((j0, j0 + jb), (rows, rest));
+            let w = &vt * &c;
+            let w = t.transpose() * w;
+            c.gemm(-1.0, &v, &w, 1.0);
+        }
+        j0 += jb;
+    }
+}
+
+#[cfg(test)]
+mod householder_tests {
+    use super::*;
+    use nalgebra::DMatrix;
+
+    /// `Qᵀ A` keeps `AᵀA` (Q orthogonal), is upper triangular in the
+    /// chosen columns, and leaves nothing to the rest: checked against
+    /// nalgebra's QR on tall, square, wide and rank-deficient matrices.
+    #[test]
+    fn householder_triangularises_and_preserves_the_gram_matrix() {
+        let cases = [
+            (145usize, 73usize, 72usize, false),
+            (145, 73, 72, true),
+            (22, 67, 3, false),
+            (9, 9, 9, true),
+            (5, 8, 5, false),
+            (40, 10, 10, false),
+        ];
+        for &(m, n, p, deficient) in &cases {
+            let mut a = DMatrix::from_fn(m, n, |i, j| (((i * 31 + j * 17) % 23) as f64 - 11.0) / 7.0 + (i as f64 * 0.1).sin());
+            if deficient {
+                // a repeated column: rank-deficient
+                let c0 = a.column(0).into_owned();
+                a.column_mut(2).copy_from(&c0);
+            }
+            let mut q = a.clone();
+            householder_in_place(&mut q, p);
+            for j in 0..p.min(m) {
+                for i in j + 1..m {
+                    assert_eq!(q[(i, j)], 0.0, "({i}, {j}) of {m}×{n}");
+                }
+            }
+            let g0 = a.transpose() * &a;
+            let g1 = q.transpose() * &q;
+            assert!((&g0 - &g1).abs().max() <= 1e-12 * g0.abs().max(), "{m}×{n}: Gram matrix changed");
+            if p + 1 >= n && m >= n && !deficient {
+                // |R| agrees with nalgebra's R row by row (signs may differ).
+                let r = a.clone().qr().r();
+                for i in 0..p {
+                    for j in 0..n {
+                        assert!((r[(i, j)].abs() - q[(i, j)].abs()).abs() <= 1e-10 * g0.abs().max().sqrt());
+                    }
+                }
+            }
         }
     }
 }

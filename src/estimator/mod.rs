@@ -1015,28 +1015,29 @@ impl Estimator {
         union.sort_unstable();
         union.dedup();
         let m: usize = rows.iter().map(|r| r.1.len()).sum();
-        let mut h = DMatrix::zeros(m, union.len());
-        let mut r = DVector::zeros(m);
+        let nc = union.len();
+        // [H | r]: the residual rides along as the last column.
+        let mut hr = DMatrix::zeros(m, nc + 1);
         let mut row = 0;
         for (hx, rr, idx) in &rows {
             for (c, col) in idx.iter().enumerate() {
                 let uc = union.binary_search(col).expect("column in union");
-                h.view_mut((row, uc), (hx.nrows(), 1)).copy_from(&hx.column(c));
+                hr.view_mut((row, uc), (hx.nrows(), 1)).copy_from(&hx.column(c));
             }
-            r.rows_mut(row, rr.len()).copy_from(rr);
+            hr.view_mut((row, nc), (rr.len(), 1)).copy_from(rr);
             row += rr.len();
         }
-        report.residual_rms = (r.norm_squared() / m as f64).sqrt();
-        // QR compression when the stack is taller than the state (§3, eq. Q1).
-        let nc = union.len();
-        let (h, r) = if m > nc {
-            let qr = h.qr();
-            let mut rm = DMatrix::from_column_slice(m, 1, r.as_slice());
-            qr.q_tr_mul(&mut rm);
-            (qr.r(), DVector::from_column_slice(&rm.as_slice()[..nc]))
+        report.residual_rms = (hr.column(nc).norm_squared() / m as f64).sqrt();
+        // QR compression when the stack is taller than the state (§3, eq. Q1):
+        // Qᵀ [H | r] = [T r_T; 0 r_⊥], keep (T, r_T).
+        let keep = if m > nc {
+            math::householder_in_place(&mut hr, nc);
+            nc
         } else {
-            (h, r)
+            m
         };
+        let h = hr.view((0, 0), (keep, nc)).into_owned();
+        let r = DVector::from_iterator(keep, hr.view((0, nc), (keep, 1)).iter().copied());
         self.ekf_update(&h, &union, &r);
         self.stats.updates += 1;
         report.events.push(FilterEvent::Update {
@@ -1049,56 +1050,52 @@ impl Estimator {
     /// eq. U1; Schmidt §6; compressed §5 eqs. C1–C3).
     /// `h` holds the columns `cols` of the full Jacobian; the rest are zero.
     fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>) {
-        let pht = self.P.select_columns(cols) * h.transpose();
-        let s = h * pht.select_rows(cols) + DMatrix::identity(r.len(), r.len());
-        let Some(ch) = s.clone().cholesky() else {
+        let (m, n) = (r.len(), self.P.nrows());
+        // H P = h P[cols, :] (P symmetric), and S = H P Hᵀ + I.
+        let hp = h * self.P.select_rows(cols);
+        let s = hp.select_columns(cols) * h.transpose() + DMatrix::identity(m, m);
+        let Some(solver) = s.cholesky().and_then(|ch| math::LowerSolver::new(ch.unpack())) else {
             *self.stats.rejected.entry("update_not_pd").or_default() += 1;
             return;
         };
-        // S = L Lᵀ. A = L⁻¹ (H P), then Kᵀ = S⁻¹ (H P) = L⁻ᵀ A (blocked
-        // triangular solves: one matrix product per block).
-        let l = ch.l();
-        let mut a = pht.transpose();
-        math::solve_lower_in_place(&l, &mut a);
-        let mut kt = a.clone();
-        math::solve_lower_transpose_in_place(&l, &mut kt);
-        let n = self.P.nrows();
-        let mut dx = kt.transpose() * r;
+        // S = L Lᵀ. One blocked solve of L X = [H P | H Φ̃ | r] gives
+        // A = L⁻¹ (H P), B = L⁻¹ (H Φ̃) and w = L⁻¹ r; then
+        // δx = K r = (H P)ᵀ S⁻¹ r = Aᵀ w.
+        let n0 = self.global.as_ref().map_or(0, |g| g.Phi.ncols());
+        let mut x = DMatrix::zeros(m, n + n0 + 1);
+        x.columns_mut(0, n).copy_from(&hp);
+        if let Some(g) = self.global.as_ref() {
+            x.columns_mut(n, n0).gemm(1.0, h, &g.Phi.select_rows(cols), 0.0);
+        }
+        x.column_mut(n + n0).copy_from(r);
+        drop(hp);
+        solver.solve_in_place(&mut x);
+        let a = x.columns(0, n).into_owned();
+        let w = x.column(n + n0).into_owned();
+        let mut dx = a.tr_mul(&w);
+        // K S Kᵀ = (H P)ᵀ S⁻¹ (H P) = Aᵀ A (symmetric rank-m form).
         if self.s.mode == Mode::Schmidt {
             // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
-            // P_AS ← P_AS − K_A (H P)_S (§6).
+            // P_AS ← P_AS − K_A (H P)_S = P_AS − (Aᵀ A)_AS (§6).
             let (k0, k1) = (ACTIVE_DIM, self.clones_offset());
             dx.rows_mut(k0, k1 - k0).fill(0.0);
-            let mut d = kt.transpose() * pht.transpose(); // K H P
-            d.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
-            // Rows of S in K are zero: keep only the active rows' products.
-            for i in k0..k1 {
-                for j in 0..n {
-                    if !(k0..k1).contains(&j) {
-                        d[(i, j)] = d[(j, i)];
-                    }
-                }
-            }
-            self.P -= d;
-        } else {
-            let at = a.transpose();
-            if let Some(g) = self.global.as_mut() {
-                // With B = L⁻¹ (HΦ) and w = L⁻¹ r (C2, C3):
-                // Ψ += (HΦ)ᵀ S⁻¹ (HΦ) = Bᵀ B, q += (HΦ)ᵀ S⁻¹ r = Bᵀ w,
-                // Φ ← Φ − K (HΦ) = Φ − Aᵀ B.
-                let mut b = h * g.Phi.select_rows(cols);
-                math::solve_lower_in_place(&l, &mut b);
-                let mut w = DMatrix::from_column_slice(r.len(), 1, r.as_slice());
-                math::solve_lower_in_place(&l, &mut w);
-                let bt = b.transpose();
-                g.Psi.gemm(1.0, &bt, &b, 1.0);
-                g.q += &bt * w.column(0);
-                g.Phi.gemm(-1.0, &at, &b, 1.0);
-            }
-            // P ← P − K S Kᵀ = P − (HP)ᵀ S⁻¹ (HP) = P − Aᵀ A (rank-m form).
-            self.P.gemm(-1.0, &at, &a, 1.0);
+            let mut kskt = DMatrix::zeros(n, n);
+            math::add_gram_symmetric(&mut kskt, 1.0, &a);
+            kskt.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
+            self.P -= kskt;
+            self.inject(&dx);
+            return;
         }
-        self.P = (&self.P + self.P.transpose()) * 0.5;
+        if let Some(g) = self.global.as_mut() {
+            // C2, C3: Ψ̃ += (HΦ̃)ᵀ S⁻¹ (HΦ̃) = Bᵀ B, q̃ += (HΦ̃)ᵀ S⁻¹ r = Bᵀ w,
+            // Φ̃ ← Φ̃ − K (HΦ̃) = Φ̃ − Aᵀ B.
+            let b = x.columns(n, n0).into_owned();
+            math::add_gram_symmetric(&mut g.Psi, 1.0, &b);
+            g.q += b.tr_mul(&w);
+            g.Phi.gemm(-1.0, &a.transpose(), &b, 1.0);
+        }
+        // P ← P − Aᵀ A, exactly symmetric.
+        math::add_gram_symmetric(&mut self.P, -1.0, &a);
         self.inject(&dx);
     }
 
