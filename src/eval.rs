@@ -239,6 +239,14 @@ impl<'a> Runner<'a> {
         self.gnss = Some(g);
     }
 
+    /// A forced global update (compressed mode), its rebase job timed into
+    /// `rebase_us` like the others.
+    pub fn force_global_update(&mut self) {
+        self.est.force_global_update();
+        let jobs = REBASE_US.with(|r| std::mem::take(&mut *r.borrow_mut()));
+        self.rebase_us.extend(jobs);
+    }
+
     /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
     /// time spent in the estimator (µs) and the frame's report.
     pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {

@@ -202,10 +202,10 @@ pub fn nullspace_project(hx: DMatrix<f64>, hf: DMatrix<f64>, r: DVector<f64>) ->
     a.columns_mut(3, nx).copy_from(&hx);
     a.column_mut(3 + nx).copy_from(&r);
     super::math::householder_in_place(&mut a, 3);
-    let keep = rows.saturating_sub(3);
+    let (r0, keep) = (3.min(rows), rows.saturating_sub(3));
     (
-        a.view((3.min(rows), 3), (keep, nx)).into_owned(),
-        DVector::from_iterator(keep, a.view((3.min(rows), 3 + nx), (keep, 1)).iter().copied()),
+        super::math::block_owned(&a, r0, 3, keep, nx),
+        DVector::from_column_slice(&a.column(3 + nx).as_slice()[r0..]),
     )
 }
 

@@ -179,6 +179,18 @@ mod tri_tests {
     }
 }
 
+/// The block of `a` at `(r0, c0)` of size `nr × nc`, copied column by
+/// column (nalgebra's `into_owned` of a view goes element by element).
+pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, nc: usize) -> nalgebra::DMatrix<f64> {
+    let m = a.nrows();
+    let mut out = nalgebra::DMatrix::zeros(nr, nc);
+    for (k, dst) in out.as_mut_slice().chunks_exact_mut(nr.max(1)).take(nc).enumerate() {
+        let src = (c0 + k) * m + r0;
+        dst.copy_from_slice(&a.as_slice()[src..src + nr]);
+    }
+    out
+}
+
 /// `Σ aᵢ bᵢ` over the common length, with eight partial sums so the
 /// compiler can keep them in vector registers.
 #[inline]
@@ -319,7 +331,9 @@ mod householder_tests {
             (40, 10, 10, false),
         ];
         for &(m, n, p, deficient) in &cases {
-            let mut a = DMatrix::from_fn(m, n, |i, j| (((i * 31 + j * 17) % 23) as f64 - 11.0) / 7.0 + (i as f64 * 0.1).sin());
+            let mut a = DMatrix::from_fn(m, n, |i, j| {
+                (((i * 31 + j * 17) % 23) as f64 - 11.0) / 7.0 + (i as f64 * 0.1).sin()
+            });
             if deficient {
                 // a repeated column: rank-deficient
                 let c0 = a.column(0).into_owned();
@@ -334,7 +348,10 @@ mod householder_tests {
             }
             let g0 = a.transpose() * &a;
             let g1 = q.transpose() * &q;
-            assert!((&g0 - &g1).abs().max() <= 1e-12 * g0.abs().max(), "{m}×{n}: Gram matrix changed");
+            assert!(
+                (&g0 - &g1).abs().max() <= 1e-12 * g0.abs().max(),
+                "{m}×{n}: Gram matrix changed"
+            );
             if p + 1 >= n && m >= n && !deficient {
                 // |R| agrees with nalgebra's R row by row (signs may differ).
                 let r = a.clone().qr().r();

@@ -1036,8 +1036,8 @@ impl Estimator {
         } else {
             m
         };
-        let h = hr.view((0, 0), (keep, nc)).into_owned();
-        let r = DVector::from_iterator(keep, hr.view((0, nc), (keep, 1)).iter().copied());
+        let h = math::block_owned(&hr, 0, 0, keep, nc);
+        let r = DVector::from_column_slice(&hr.column(nc).as_slice()[..keep]);
         self.ekf_update(&h, &union, &r);
         self.stats.updates += 1;
         report.events.push(FilterEvent::Update {
@@ -1070,8 +1070,8 @@ impl Estimator {
         x.column_mut(n + n0).copy_from(r);
         drop(hp);
         solver.solve_in_place(&mut x);
-        let a = x.columns(0, n).into_owned();
-        let w = x.column(n + n0).into_owned();
+        let a = math::block_owned(&x, 0, 0, m, n);
+        let w = DVector::from_column_slice(x.column(n + n0).as_slice());
         let mut dx = a.tr_mul(&w);
         // K S Kᵀ = (H P)ᵀ S⁻¹ (H P) = Aᵀ A (symmetric rank-m form).
         if self.s.mode == Mode::Schmidt {
@@ -1089,7 +1089,7 @@ impl Estimator {
         if let Some(g) = self.global.as_mut() {
             // C2, C3: Ψ̃ += (HΦ̃)ᵀ S⁻¹ (HΦ̃) = Bᵀ B, q̃ += (HΦ̃)ᵀ S⁻¹ r = Bᵀ w,
             // Φ̃ ← Φ̃ − K (HΦ̃) = Φ̃ − Aᵀ B.
-            let b = x.columns(n, n0).into_owned();
+            let b = math::block_owned(&x, 0, n, m, n0);
             math::add_gram_symmetric(&mut g.Psi, 1.0, &b);
             g.q += b.tr_mul(&w);
             g.Phi.gemm(-1.0, &a.transpose(), &b, 1.0);
@@ -1135,6 +1135,20 @@ impl Estimator {
             self.begin_rebase(GlobalReason::Forced);
             self.finish_rebase_inline();
         }
+    }
+
+    /// Marginalises the oldest global keyframes (compressed mode) until at
+    /// most `keep` remain (§5 G5: their blocks go dead and the next rebase
+    /// drops them). Returns how many were removed. The local part is not
+    /// touched, so the scaling benchmark uses it to give one filter maps of
+    /// several sizes with the same local part.
+    pub fn marginalise_oldest_global_keyframes(&mut self, keep: usize) -> usize {
+        let Some(g) = self.global.as_ref() else { return 0 };
+        let drop: Vec<u64> = g.live.keys().copied().take(g.live.len().saturating_sub(keep)).collect();
+        for id in &drop {
+            self.remove_keyframe(*id);
+        }
+        drop.len()
     }
 
     /// Starts a forced rebase and hands out its job instead of running it
@@ -1223,11 +1237,13 @@ impl Estimator {
         }
         // Symmetric (updates re-symmetrise, so any asymmetry is a fault), and
         // the active block positive definite (a Cholesky of 18×18: cheap).
+        // |P_ij − P_ji| ≤ 1e-9 √(P_ii P_jj), compared squared (no root).
         let n = p.nrows();
         for i in 0..n.min(ACTIVE_DIM) {
+            let pii = p[(i, i)];
             for j in 0..n {
-                let tol = 1e-9 * (p[(i, i)] * p[(j, j)]).sqrt();
-                if (p[(i, j)] - p[(j, i)]).abs() > tol {
+                let d = p[(i, j)] - p[(j, i)];
+                if d * d > 1e-18 * pii * p[(j, j)] {
                     return Err(format!("covariance is not symmetric at ({i}, {j})"));
                 }
             }
