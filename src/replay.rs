@@ -37,6 +37,11 @@ pub enum ReplayError {
     Log(#[from] crate::io::mcap_log::LogError),
 }
 
+/// Inputs per batch handed from the reading thread to the fusion loop.
+const REPLAY_BATCH: usize = 256;
+/// Batches the reading thread may run ahead (bounds its memory).
+const REPLAY_QUEUE_BATCHES: usize = 16;
+
 /// Throughput of a replay.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReplayReport {
@@ -155,7 +160,7 @@ pub fn replay(
         mode: cfg.estimator.mode.name().to_string(),
         config_toml: toml::to_string(&cfg).unwrap_or_default(),
     };
-    let log = McapLogger::create(output, &header)?;
+    let log = McapLogger::create(output, &header)?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
     let ctx = Ctx {
         counters: Counters::default(),
@@ -169,35 +174,58 @@ pub fn replay(
     let (mut n_in, mut n_out) = (0u64, 0u64);
     let (mut t_first, mut t_last) = (f64::NAN, f64::NAN);
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReplayError::Mcap(name.clone(), e.to_string()))?;
-    for (i, m) in stream.enumerate() {
-        // A log cut short ends the replay at its last whole chunk.
-        let Ok(m) = m else { break };
-        if !m.channel.topic.starts_with("/input/") {
-            continue;
-        }
-        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
-            continue;
-        };
-        let Some(msg) = to_msg(&m.channel.topic, &v) else {
-            continue;
-        };
-        if let FusionMsg::Imu(s) = &msg {
-            if t_first.is_nan() {
-                t_first = s.t_s;
+    // Reading the log (decompressing its chunks and parsing each input's
+    // JSON) runs on a thread of its own, a batch at a time, so the fusion
+    // loop here does nothing but fuse; the order is kept.
+    let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Vec<FusionMsg>>(REPLAY_QUEUE_BATCHES);
+    std::thread::scope(|scope| {
+        scope.spawn(move || {
+            let mut batch = Vec::with_capacity(REPLAY_BATCH);
+            for m in stream {
+                // A log cut short ends the replay at its last whole chunk.
+                let Ok(m) = m else { break };
+                if !m.channel.topic.starts_with("/input/") {
+                    continue;
+                }
+                let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+                    continue;
+                };
+                let Some(msg) = to_msg(&m.channel.topic, &v) else {
+                    continue;
+                };
+                batch.push(msg);
+                if batch.len() == REPLAY_BATCH {
+                    let full = std::mem::replace(&mut batch, Vec::with_capacity(REPLAY_BATCH));
+                    if batch_tx.send(full).is_err() {
+                        return;
+                    }
+                }
             }
-            t_last = s.t_s;
-        }
-        n_in += 1;
-        fusion.handle(msg, &ctx);
-        while let Ok(o) = out_rx.try_recv() {
-            if matches!(o, crate::io::mavlink::Outbound::VisionPositionEstimate { .. }) {
-                n_out += 1;
+            if !batch.is_empty() {
+                let _ = batch_tx.send(batch);
+            }
+        });
+        for batch in batch_rx {
+            for msg in batch {
+                if let FusionMsg::Imu(s) = &msg {
+                    if t_first.is_nan() {
+                        t_first = s.t_s;
+                    }
+                    t_last = s.t_s;
+                }
+                n_in += 1;
+                fusion.handle(msg, &ctx);
+                while let Ok(o) = out_rx.try_recv() {
+                    if matches!(o, crate::io::mavlink::Outbound::VisionPositionEstimate { .. }) {
+                        n_out += 1;
+                    }
+                }
+                if n_in % 4096 == 0 {
+                    progress(n_in);
+                }
             }
         }
-        if i % 4096 == 0 {
-            progress(n_in);
-        }
-    }
+    });
     fusion.finish_log(&ctx.counters);
     let wall = start.elapsed().as_secs_f64();
     let flight = if t_first.is_finite() { t_last - t_first } else { 0.0 };

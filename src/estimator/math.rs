@@ -176,6 +176,15 @@ mod tri_tests {
         let mut z = DMatrix::<f64>::identity(3, 3);
         z[(1, 1)] = 0.0;
         assert!(LowerSolver::new(z).is_none());
+        let mut v = vec![1.0; 21];
+        assert!(all_finite(&v));
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            for at in [0, 7, 8, 20] {
+                v[at] = bad;
+                assert!(!all_finite(&v), "{bad} at {at}");
+                v[at] = 1.0;
+            }
+        }
     }
 }
 
@@ -189,6 +198,20 @@ pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, 
         dst.copy_from_slice(&a.as_slice()[src..src + nr]);
     }
     out
+}
+
+/// Whether every entry is finite, without an early exit so that it runs
+/// as vector code: `x · 0` is zero for a finite `x` and NaN otherwise.
+pub fn all_finite(x: &[f64]) -> bool {
+    let mut acc = [0.0f64; 8];
+    let c = x.chunks_exact(8);
+    let rest = c.remainder();
+    for v in c {
+        for k in 0..8 {
+            acc[k] += v[k] * 0.0;
+        }
+    }
+    acc.iter().chain(rest).all(|a| (a * 0.0) == 0.0)
 }
 
 /// `Σ aᵢ bᵢ` over the common length, with eight partial sums so the
@@ -222,6 +245,8 @@ pub fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
 
 /// Columns per panel of the blocked Householder triangularisation.
 const QR_BLOCK: usize = 16;
+/// Below this many entries the triangularisation is not blocked.
+const QR_BLOCKED_MIN_ENTRIES: usize = 4096;
 
 /// Householder triangularisation (README §3, N1 and Q1). Chooses the
 /// reflections `Q = H₀ H₁ … H_{p−1}` that zero the sub-diagonal of the
@@ -241,13 +266,17 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
     use nalgebra::DMatrix;
     let (m, n) = a.shape();
     let p = p.min(m).min(n);
+    // Small matrices (a track's null-space projection) take each reflection
+    // straight to every column: there the products' set-up would cost more.
+    let blocked = m * n >= QR_BLOCKED_MIN_ENTRIES;
     let mut j0 = 0;
     while j0 < p {
-        let jb = QR_BLOCK.min(p - j0);
+        let jb = if blocked { QR_BLOCK.min(p - j0) } else { p - j0 };
+        let apply_end = if blocked { j0 + jb } else { n };
         let rows = m - j0;
         // The panel's reflectors, V (rows × jb, unit diagonal) and τ.
         let mut v = DMatrix::<f64>::zeros(rows, jb);
-        let mut tau = [0.0f64; QR_BLOCK];
+        let mut tau = vec![0.0f64; jb];
         {
             let data = a.as_mut_slice();
             for jj in 0..jb {
@@ -273,9 +302,9 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
                 }
                 data[j * m + j] = beta;
                 data[j * m + j + 1..(j + 1) * m].fill(0.0);
-                // The rest of the panel, one column at a time.
+                // The rest of the panel (or of the matrix), column by column.
                 let vj = &v.as_slice()[jj * rows + jj..(jj + 1) * rows];
-                for k in j + 1..j0 + jb {
+                for k in j + 1..apply_end {
                     let c = &mut data[k * m + j..(k + 1) * m];
                     let s = t * dot(vj, c);
                     axpy(-s, vj, c);
@@ -283,7 +312,7 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
                 debug_assert_eq!(vj.len(), len);
             }
         }
-        let rest = n - (j0 + jb);
+        let rest = n - apply_end;
         if rest > 0 {
             // T (dlarft, forward, columnwise): T_ii = τ_i,
             // T[0..i, i] = −τ_i T[0..i, 0..i] V[:, 0..i]ᵀ v_i.
@@ -329,6 +358,8 @@ mod householder_tests {
             (9, 9, 9, true),
             (5, 8, 5, false),
             (40, 10, 10, false),
+            (40, 41, 40, false),
+            (30, 31, 30, true),
         ];
         for &(m, n, p, deficient) in &cases {
             let mut a = DMatrix::from_fn(m, n, |i, j| {

@@ -44,6 +44,10 @@ pub const CLK_E: usize = IMU_DIM + 2;
 pub type MatActive = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
 
+/// The body pose `[δθ, δp]` within the IMU error state (what a clone or a
+/// keyframe copies).
+const POSE_IDX: [usize; 6] = [TH, TH + 1, TH + 2, P_OFF, P_OFF + 1, P_OFF + 2];
+
 /// State sanity bounds of [`Estimator::check_health`]: speed (m/s) and IMU
 /// biases (m/s², rad/s), far outside any multirotor's envelope or any
 /// working MEMS IMU.
@@ -604,15 +608,17 @@ impl Estimator {
         (i < self.clones.len()).then(|| self.clones_offset() + 6 * i)
     }
 
-    /// Inserts 6 new error states `J δx` at `at` (§2, eq. A1):
-    /// `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at `at`), and
-    /// `Φ' = [Φ; JΦ]` in compressed mode.
-    fn augment(&mut self, at: usize, j: &DMatrix<f64>) {
-        let jp = j * &self.P;
-        let jpj = &jp * j.transpose();
-        self.insert_local(at, &jp.transpose(), &jpj);
+    /// Inserts 6 new error states `J δx` at `at`, a copy of the body pose
+    /// (§2, eq. A1): `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at
+    /// `at`), and `Φ' = [Φ; JΦ]` in compressed mode.
+    fn augment(&mut self, at: usize) {
+        // J selects the body pose, so J P = P[pose, :] and J P Jᵀ = P[pose, pose]
+        // exactly: copies, no products.
+        let cross = self.P.select_columns(&POSE_IDX);
+        let block = cross.select_rows(&POSE_IDX);
+        self.insert_local(at, &cross, &block);
         if let Some(g) = self.global.as_mut() {
-            let jphi = j * &g.Phi;
+            let jphi = g.Phi.select_rows(&POSE_IDX);
             let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, 6, 0.0);
             g.Phi = phi;
             g.Phi.view_mut((at, 0), (6, jphi.ncols())).copy_from(&jphi);
@@ -627,16 +633,6 @@ impl Estimator {
             let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0));
             g.Phi = phi.remove_rows(at, 6);
         }
-    }
-
-    /// `J` that copies the body pose `[δθ, δp]` out of the IMU block.
-    fn pose_copy_jacobian(&self) -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(6, self.P.nrows());
-        for k in 0..3 {
-            j[(k, TH + k)] = 1.0;
-            j[(3 + k, P_OFF + k)] = 1.0;
-        }
-        j
     }
 
     // ------------------------------------------------------------ frames
@@ -695,9 +691,8 @@ impl Estimator {
             report.keyframe_created = true;
         } else {
             // New clone of the current pose, appended after the last clone.
-            let j = self.pose_copy_jacobian();
             let at = self.P.nrows();
-            self.augment(at, &j);
+            self.augment(at);
             let seq = self.next_seq;
             self.next_seq += 1;
             self.clones.push_back(CloneState {
@@ -777,9 +772,8 @@ impl Estimator {
         }
         let id = self.next_kf_id;
         self.next_kf_id += 1;
-        let j = self.pose_copy_jacobian();
         let at = self.clones_offset();
-        self.augment(at, &j);
+        self.augment(at);
         self.local_kfs.push(id);
         let mut kobs = BTreeMap::new();
         for o in obs {
@@ -1227,7 +1221,7 @@ impl Estimator {
     /// first problem found. Allocation-free, so it can run every IMU sample.
     pub fn check_health(&self) -> Result<(), String> {
         let p = &self.P;
-        if !p.iter().all(|v| v.is_finite()) {
+        if !math::all_finite(p.as_slice()) {
             return Err("covariance has non-finite entries".into());
         }
         for i in 0..p.nrows() {

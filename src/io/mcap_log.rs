@@ -146,6 +146,8 @@ pub struct McapLogger {
     tx: Option<SyncSender<Record>>,
     dropped: Arc<AtomicU64>,
     thread: Option<JoinHandle<Result<LogSummary, LogError>>>,
+    /// Replay: wait for room rather than drop.
+    block_when_full: bool,
 }
 
 /// Records queued at most (about 4 s of a busy flight).
@@ -205,10 +207,20 @@ impl McapLogger {
             tx: Some(tx),
             dropped,
             thread: Some(thread),
+            block_when_full: false,
         })
     }
 
-    /// Queues one record; never blocks. A full queue drops it and counts.
+    /// Waits for room instead of dropping when the queue is full: for
+    /// `cmsckf replay`, which has no real time to keep and must not lose a
+    /// record however fast it runs.
+    pub fn blocking(mut self) -> Self {
+        self.block_when_full = true;
+        self
+    }
+
+    /// Queues one record; never blocks (unless made [`Self::blocking`]). A
+    /// full queue drops it and counts.
     pub fn log<T: Serialize>(&self, topic: Topic, t_s: f64, value: &T) {
         let Some(tx) = &self.tx else { return };
         let Ok(data) = serde_json::to_vec(value) else {
@@ -220,7 +232,14 @@ impl McapLogger {
         } else {
             0
         };
-        match tx.try_send(Record { topic, t_ns, data }) {
+        let rec = Record { topic, t_ns, data };
+        if self.block_when_full {
+            if tx.send(rec).is_err() {
+                self.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+            return;
+        }
+        match tx.try_send(rec) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
