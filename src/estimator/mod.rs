@@ -967,8 +967,9 @@ impl Estimator {
             }
             // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1).
             let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
-            let p_sub = self.P.select_rows(&idx).select_columns(&idx);
-            let s = &hx * p_sub * hx.transpose() + DMatrix::identity(r.len(), r.len());
+            let p_sub = DMatrix::from_fn(idx.len(), idx.len(), |i, j| self.P[(idx[i], idx[j])]);
+            let mut s = DMatrix::identity(r.len(), r.len());
+            s.gemm(1.0, &(&hx * p_sub), &hx.transpose(), 1.0);
             let Some(ch) = s.cholesky() else {
                 gate_reject(report, &mut self.stats, Reject::NonFinite);
                 continue;
@@ -1032,7 +1033,7 @@ impl Estimator {
         };
         let h = math::block_owned(&hr, 0, 0, keep, nc);
         let r = DVector::from_column_slice(&hr.column(nc).as_slice()[..keep]);
-        self.ekf_update(&h, &union, &r);
+        self.ekf_update(&h, &union, &r, m > nc);
         self.stats.updates += 1;
         report.events.push(FilterEvent::Update {
             tracks: rows.len(),
@@ -1043,10 +1044,13 @@ impl Estimator {
     /// One EKF update with unit measurement noise, in the mode's form (§3
     /// eq. U1; Schmidt §6; compressed §5 eqs. C1–C3).
     /// `h` holds the columns `cols` of the full Jacobian; the rest are zero.
-    fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>) {
+    /// `upper`: `h` is the square upper-triangular `T` of Q1, whose zero
+    /// lower triangle the products skip.
+    fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>, upper: bool) {
         let (m, n) = (r.len(), self.P.nrows());
+        let h_times = |rows: DMatrix<f64>| if upper { math::upper_mul(h, &rows) } else { h * rows };
         // H P = h P[cols, :] (P symmetric), and S = H P Hᵀ + I.
-        let hp = h * self.P.select_rows(cols);
+        let hp = h_times(self.P.select_rows(cols));
         let s = hp.select_columns(cols) * h.transpose() + DMatrix::identity(m, m);
         let Some(solver) = s.cholesky().and_then(|ch| math::LowerSolver::new(ch.unpack())) else {
             *self.stats.rejected.entry("update_not_pd").or_default() += 1;
@@ -1059,7 +1063,7 @@ impl Estimator {
         let mut x = DMatrix::zeros(m, n + n0 + 1);
         x.columns_mut(0, n).copy_from(&hp);
         if let Some(g) = self.global.as_ref() {
-            x.columns_mut(n, n0).gemm(1.0, h, &g.Phi.select_rows(cols), 0.0);
+            x.columns_mut(n, n0).copy_from(&h_times(g.Phi.select_rows(cols)));
         }
         x.column_mut(n + n0).copy_from(r);
         drop(hp);
@@ -1447,7 +1451,7 @@ impl Estimator {
             }
             r[i] = *rr;
         }
-        self.ekf_update(&h, &cols, &r);
+        self.ekf_update(&h, &cols, &r, false);
         self.stats.updates += 1;
         Ok(rep)
     }
