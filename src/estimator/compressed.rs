@@ -15,7 +15,7 @@ use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{position_sigma_m, whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
+use super::{math, position_sigma_m, whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
 use crate::config::Mode;
 
 /// The global part at the last rebase (time 0), in the whitened coordinates
@@ -94,6 +94,25 @@ pub(super) type Reconstructed = (DMatrix<f64>, DMatrix<f64>, DVector<f64>, Vec<u
 
 fn block_cols(blocks: impl IntoIterator<Item = usize>) -> Vec<usize> {
     blocks.into_iter().flat_map(|b| 6 * b..6 * b + 6).collect()
+}
+
+/// `out[..k, ..k] = src[idx, idx]`, copying runs of consecutive indices
+/// (live blocks are mostly contiguous) as slices.
+fn gather_block(src: &DMatrix<f64>, idx: &[usize], out: &mut DMatrix<f64>) {
+    let (ms, mo) = (src.nrows(), out.nrows());
+    let (s, o) = (src.as_slice(), out.as_mut_slice());
+    for (c, &sc) in idx.iter().enumerate() {
+        let mut r = 0;
+        while r < idx.len() {
+            let mut len = 1;
+            while r + len < idx.len() && idx[r + len] == idx[r] + len {
+                len += 1;
+            }
+            let from = sc * ms + idx[r];
+            o[c * mo + r..c * mo + r + len].copy_from_slice(&s[from..from + len]);
+            r += len;
+        }
+    }
 }
 
 /// A rebase (global update, §5 R1–R3): everything it needs, owned, so that
@@ -246,13 +265,10 @@ impl RebaseJob {
                 // G1: P_LG(k) = Φ̃ C̃.
                 let p_lg = &self.Phi * &ct;
                 // G2: P_GG(k) = P_GG(0) − C̃ᵀ Ψ̃ C̃, as one in-place product.
-                for (c, &sc) in cols.iter().enumerate() {
-                    for (r, &sr) in cols.iter().enumerate() {
-                        p0[(r, c)] = base.P_GG0[(sr, sc)];
-                    }
-                }
+                gather_block(&base.P_GG0, &cols, &mut p0);
+                // C̃ᵀ Ψ̃ C̃ is symmetric: its lower triangle, mirrored.
                 let psi_c = &self.Psi * &ct;
-                p0.view_mut((0, 0), (g, g)).gemm(-1.0, &ct.transpose(), &psi_c, 1.0);
+                math::sub_symmetric_product(&mut p0, g, &ct, &psi_c);
                 // G3: δx_G = C̃ᵀ q̃.
                 (p_lg, ct.tr_mul(&self.q))
             }
@@ -263,17 +279,12 @@ impl RebaseJob {
             let p_og = p_lg.select_rows(&self.demoted_idx);
             p0.view_mut((g, 0), (o, g)).copy_from(&p_og);
             p0.view_mut((0, g), (g, o)).copy_from(&p_og.transpose());
+            let p_oo = self.p_demoted_rows.select_columns(&self.demoted_idx);
             p0.view_mut((g, g), (o, o))
-                .copy_from(&self.p_demoted_rows.select_columns(&self.demoted_idx));
+                .copy_from(&((&p_oo + p_oo.transpose()) * 0.5));
         }
-        // Exact symmetry: G2 cancels in floating point.
-        for c in 0..n_new {
-            for r in 0..c {
-                let v = 0.5 * (p0[(r, c)] + p0[(c, r)]);
-                p0[(r, c)] = v;
-                p0[(c, r)] = v;
-            }
-        }
+        // p0 is exactly symmetric: G2's block by mirroring, the demoted
+        // rows by construction.
         // R2: C' = W'⁻¹ P_L'G'(k).
         let nl = self.keep_idx.len();
         let mut p_lg_new = DMatrix::zeros(nl, n_new);

@@ -153,13 +153,48 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
     out
 }
 
-/// Copies the strict lower triangle onto the upper one.
+/// Copies the strict lower triangle onto the upper one, in square tiles so
+/// that both sides stay in cache on large matrices.
 pub fn mirror_lower(p: &mut nalgebra::DMatrix<f64>) {
+    const TILE: usize = 64;
     let n = p.nrows();
-    for j in 0..n {
-        for i in j + 1..n {
-            p[(j, i)] = p[(i, j)];
+    let data = p.as_mut_slice();
+    for j0 in (0..n).step_by(TILE) {
+        for i0 in (j0..n).step_by(TILE) {
+            // Tile rows i0.., columns j0..: P[j, i] = P[i, j] for i > j.
+            for j in j0..(j0 + TILE).min(n) {
+                for i in i0.max(j + 1)..(i0 + TILE).min(n) {
+                    data[i * n + j] = data[j * n + i];
+                }
+            }
         }
+    }
+}
+
+/// `P[..g, ..g] −= Aᵀ B` where `Aᵀ B` (g × g, `A`, `B` k × g) is known to be
+/// symmetric (`A = C̃`, `B = Ψ̃ C̃` in G2): only the lower triangle's column
+/// blocks are computed, about half the products, then mirrored.
+pub fn sub_symmetric_product(
+    p: &mut nalgebra::DMatrix<f64>,
+    g: usize,
+    a: &nalgebra::DMatrix<f64>,
+    b: &nalgebra::DMatrix<f64>,
+) {
+    let block = TRI_BLOCK.max(g / 16);
+    let at = a.transpose();
+    let mut j0 = 0;
+    while j0 < g {
+        let jb = block.min(g - j0);
+        p.view_mut((j0, j0), (g - j0, jb))
+            .gemm(-1.0, &at.rows(j0, g - j0), &b.columns(j0, jb), 1.0);
+        j0 += jb;
+    }
+    if g == p.nrows() {
+        mirror_lower(p);
+    } else {
+        let mut top = p.view((0, 0), (g, g)).into_owned();
+        mirror_lower(&mut top);
+        p.view_mut((0, 0), (g, g)).copy_from(&top);
     }
 }
 
@@ -188,6 +223,23 @@ mod tri_tests {
             let want = &spd - a.transpose() * &a * 0.25;
             assert!((&p - &want).abs().max() <= 1e-12 * want.abs().max(), "n {n}");
             assert_eq!(p, p.transpose());
+            let c = DMatrix::from_fn(4, n, |i, j| ((i * 5 + j * 7) % 9) as f64 - 4.0);
+            let psi = DMatrix::from_fn(4, 4, |i, j| if i == j { 2.0 } else { 0.5 });
+            let psi_c = &psi * &c;
+            for g in [n, n.saturating_sub(3)] {
+                let mut q = spd.clone();
+                sub_symmetric_product(
+                    &mut q,
+                    g,
+                    &c.columns(0, g).into_owned(),
+                    &psi_c.columns(0, g).into_owned(),
+                );
+                let mut want = spd.clone();
+                let d = c.columns(0, g).transpose() * psi_c.columns(0, g);
+                want.view_mut((0, 0), (g, g)).zip_apply(&d, |w, x| *w -= x);
+                assert!((&q - &want).abs().max() <= 1e-12 * want.abs().max(), "n {n} g {g}");
+                assert_eq!(q, q.transpose());
+            }
             let t = l.transpose();
             let um = upper_mul(&t, &b);
             let want = &t * &b;
