@@ -156,15 +156,21 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
 /// Copies the strict lower triangle onto the upper one, in square tiles so
 /// that both sides stay in cache on large matrices.
 pub fn mirror_lower(p: &mut nalgebra::DMatrix<f64>) {
-    const TILE: usize = 64;
     let n = p.nrows();
+    mirror_lower_leading(p, n);
+}
+
+/// [`mirror_lower`] on the leading `g × g` block only, in place.
+fn mirror_lower_leading(p: &mut nalgebra::DMatrix<f64>, g: usize) {
+    const TILE: usize = 64;
+    let ld = p.nrows();
     let data = p.as_mut_slice();
-    for j0 in (0..n).step_by(TILE) {
-        for i0 in (j0..n).step_by(TILE) {
+    for j0 in (0..g).step_by(TILE) {
+        for i0 in (j0..g).step_by(TILE) {
             // Tile rows i0.., columns j0..: P[j, i] = P[i, j] for i > j.
-            for j in j0..(j0 + TILE).min(n) {
-                for i in i0.max(j + 1)..(i0 + TILE).min(n) {
-                    data[i * n + j] = data[j * n + i];
+            for j in j0..(j0 + TILE).min(g) {
+                for i in i0.max(j + 1)..(i0 + TILE).min(g) {
+                    data[i * ld + j] = data[j * ld + i];
                 }
             }
         }
@@ -189,13 +195,7 @@ pub fn sub_symmetric_product(
             .gemm(-1.0, &at.rows(j0, g - j0), &b.columns(j0, jb), 1.0);
         j0 += jb;
     }
-    if g == p.nrows() {
-        mirror_lower(p);
-    } else {
-        let mut top = p.view((0, 0), (g, g)).into_owned();
-        mirror_lower(&mut top);
-        p.view_mut((0, 0), (g, g)).copy_from(&top);
-    }
+    mirror_lower_leading(p, g);
 }
 
 #[cfg(test)]
