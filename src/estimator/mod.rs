@@ -1137,16 +1137,18 @@ impl Estimator {
 
     /// Marginalises the oldest global keyframes (compressed mode) until at
     /// most `keep` remain (§5 G5: their blocks go dead and the next rebase
-    /// drops them). Returns how many were removed. The local part is not
-    /// touched, so the scaling benchmark uses it to give one filter maps of
-    /// several sizes with the same local part.
-    pub fn marginalise_oldest_global_keyframes(&mut self, keep: usize) -> usize {
-        let Some(g) = self.global.as_ref() else { return 0 };
+    /// drops them). Returns their ids. The local part is not touched, so
+    /// the scaling benchmark uses it to give one filter maps of several
+    /// sizes with the same local part.
+    pub fn marginalise_oldest_global_keyframes(&mut self, keep: usize) -> Vec<u64> {
+        let Some(g) = self.global.as_ref() else {
+            return Vec::new();
+        };
         let drop: Vec<u64> = g.live.keys().copied().take(g.live.len().saturating_sub(keep)).collect();
         for id in &drop {
             self.remove_keyframe(*id);
         }
-        drop.len()
+        drop
     }
 
     /// Starts a forced rebase and hands out its job instead of running it

@@ -75,6 +75,42 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
     assert_eq!(run.est.stats.loop_closure_deferred, 0);
 }
 
+/// Marginalising global keyframes (§5 G5: their blocks go dead until the
+/// next rebase drops them) commutes with the compressed accumulation: after
+/// removing the same keyframes from the full filter, both agree after a
+/// rebase and after more flight.
+#[test]
+fn marginalising_global_keyframes_equals_full() {
+    let (ds, cfg) = racetrack(3, 60.0);
+    let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, 3);
+    let mut full = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
+    let mid = ds.frames.len() / 2;
+    for k in 0..mid {
+        run.step_frame(k);
+        full.step_frame(k);
+    }
+    let n_global = run.est.n_global_keyframes();
+    assert!(n_global >= 3, "only {n_global} global keyframes");
+    let dropped = run.est.marginalise_oldest_global_keyframes(1);
+    assert_eq!(dropped.len(), n_global - 1);
+    assert!(dropped.windows(2).all(|w| w[0] < w[1]), "oldest first: {dropped:?}");
+    for id in &dropped {
+        full.est.remove_keyframe(*id);
+    }
+    run.force_global_update();
+    let d0 = run.est.snapshot().max_rel_diff(&full.est.snapshot());
+    for k in mid..ds.frames.len() {
+        run.step_frame(k);
+        full.step_frame(k);
+    }
+    let d1 = run.est.snapshot().max_rel_diff(&full.est.snapshot());
+    assert!(
+        d0 <= 1e-9 && d1 <= 1e-9,
+        "compressed differs from full by {d0:e}, then {d1:e}"
+    );
+    assert!(run.est.keyframes().all(|kf| !dropped.contains(&kf.id)));
+}
+
 /// Asynchronous rebases (§5 R4, R5): the job's result is installed several
 /// frames late while the local filter goes on, and keyframes of the global
 /// part being computed are promoted from the job's inputs, so nothing waits.
