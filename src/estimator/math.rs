@@ -357,12 +357,22 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
                 let col = &data[j * m + j..(j + 1) * m];
                 let alpha = col[0];
                 let sigma = dot(&col[1..], &col[1..]);
-                if sigma == 0.0 || !sigma.is_finite() {
-                    // Already zero below the diagonal (or not finite: the
-                    // caller's finiteness check rejects the result). τ = 0.
+                let norm = (alpha * alpha + sigma).sqrt();
+                if !norm.is_finite() {
+                    // Non-finite or overflowing entries: poison everything
+                    // still to be reduced, so the caller's finiteness check
+                    // rejects the result instead of using a half-reduced one.
+                    for k in j..n {
+                        data[k * m + j..(k + 1) * m].fill(f64::NAN);
+                    }
+                    return;
+                }
+                if sigma == 0.0 {
+                    // Zero below the diagonal (or underflowing): H = I
+                    // (τ = 0), and the entries are set to exact zeros.
+                    data[j * m + j + 1..(j + 1) * m].fill(0.0);
                     continue;
                 }
-                let norm = (alpha * alpha + sigma).sqrt();
                 let beta = if alpha <= 0.0 { norm } else { -norm };
                 let inv_v0 = 1.0 / (alpha - beta);
                 let t = (beta - alpha) / beta;
@@ -449,6 +459,13 @@ mod householder_tests {
                     assert_eq!(q[(i, j)], 0.0, "({i}, {j}) of {m}×{n}");
                 }
             }
+            let mut big = a.clone();
+            big[(m - 1, 0)] = 1e200;
+            householder_in_place(&mut big, p);
+            assert!(
+                !all_finite(big.as_slice()),
+                "{m}×{n}: an overflowing column must poison the result"
+            );
             let g0 = a.transpose() * &a;
             let g1 = q.transpose() * &q;
             assert!(
