@@ -245,8 +245,20 @@ impl RebaseJob {
         }
         // C'[:, Q] = W'⁻¹ P_{L', Q}(k).
         let mut c = p_l.select_rows(&self.keep_idx);
-        self.w_new.solve_lower_triangular_mut(&mut c);
+        self.unwhiten_new(&mut c);
         (c, p_g, dx)
+    }
+
+    /// `X ← W'⁻¹ X`, the new base's whitening (R2: `C' = W'⁻¹ P_L'G'(k)`),
+    /// by the blocked solve of U1 (matrix products; a column-by-column
+    /// solve over n_G columns is several times slower). `W'` comes from
+    /// `whitening_factor`, whose diagonal is positive; were it not finite,
+    /// `X` becomes NaN, which the filter's health checks catch.
+    fn unwhiten_new(&self, x: &mut DMatrix<f64>) {
+        match math::LowerSolver::new(self.w_new.clone()) {
+            Some(w) => w.solve_in_place(x),
+            None => x.fill(f64::NAN),
+        }
     }
 
     /// Computes the new base (§5 R2): the old global part brought to the
@@ -268,7 +280,7 @@ impl RebaseJob {
                 gather_block(&base.P_GG0, &cols, &mut p0);
                 // C̃ᵀ Ψ̃ C̃ is symmetric: its lower triangle, mirrored.
                 let psi_c = &self.Psi * &ct;
-                math::sub_symmetric_product(&mut p0, g, &ct, &psi_c);
+                math::add_symmetric_product(&mut p0, g, -1.0, &ct, &psi_c);
                 // G3: δx_G = C̃ᵀ q̃.
                 (p_lg, ct.tr_mul(&self.q))
             }
@@ -298,14 +310,8 @@ impl RebaseJob {
                 .view_mut((0, g), (nl, o))
                 .copy_from(&self.p_demoted_rows.select_columns(&self.keep_idx).transpose());
         }
-        // W' has a positive diagonal (whitening_factor), so W'⁻¹ exists. It is
-        // formed once (n_L³, by a triangular solve) and applied as one matrix
-        // product: a column-by-column triangular solve over n_G columns is
-        // several times slower.
-        let n_l = self.w_new.nrows();
-        let mut w_inv = DMatrix::identity(n_l, n_l);
-        self.w_new.solve_lower_triangular_mut(&mut w_inv);
-        let c_new = &w_inv * &p_lg_new;
+        let mut c_new = p_lg_new;
+        self.unwhiten_new(&mut c_new);
         RebaseResult {
             seq: self.seq,
             base: Base {

@@ -121,20 +121,11 @@ fn lower_inverse(l: &nalgebra::DMatrixView<f64>) -> Option<nalgebra::DMatrix<f64
 }
 
 /// `P ← P + α AᵀA` for a symmetric `P` (n × n) and `A` (k × n), the
-/// symmetric rank-k form: only the column blocks of the lower triangle are
-/// computed (about half the products of a full one), then mirrored, so `P`
+/// symmetric rank-k form ([`add_symmetric_product`] with `B = A`), so `P`
 /// leaves exactly symmetric.
 pub fn add_gram_symmetric(p: &mut nalgebra::DMatrix<f64>, alpha: f64, a: &nalgebra::DMatrix<f64>) {
     let n = p.nrows();
-    let at = a.transpose();
-    let mut j0 = 0;
-    while j0 < n {
-        let jb = TRI_BLOCK.min(n - j0);
-        p.view_mut((j0, j0), (n - j0, jb))
-            .gemm(alpha, &at.rows(j0, n - j0), &a.columns(j0, jb), 1.0);
-        j0 += jb;
-    }
-    mirror_lower(p);
+    add_symmetric_product(p, n, alpha, a, a);
 }
 
 /// `T M` for an upper-triangular `T` (k × k): each block of `TRI_BLOCK` rows
@@ -177,12 +168,14 @@ fn mirror_lower_leading(p: &mut nalgebra::DMatrix<f64>, g: usize) {
     }
 }
 
-/// `P[..g, ..g] −= Aᵀ B` where `Aᵀ B` (g × g, `A`, `B` k × g) is known to be
-/// symmetric (`A = C̃`, `B = Ψ̃ C̃` in G2): only the lower triangle's column
-/// blocks are computed, about half the products, then mirrored.
-pub fn sub_symmetric_product(
+/// `P[..g, ..g] += α Aᵀ B` where `Aᵀ B` (g × g; `A`, `B` k × g) is known to
+/// be symmetric (`AᵀA` in U1, `C̃ᵀ (Ψ̃ C̃)` in G2): only the lower
+/// triangle's column blocks are computed, about half the products of a full
+/// one, then mirrored, so the block leaves exactly symmetric.
+pub fn add_symmetric_product(
     p: &mut nalgebra::DMatrix<f64>,
     g: usize,
+    alpha: f64,
     a: &nalgebra::DMatrix<f64>,
     b: &nalgebra::DMatrix<f64>,
 ) {
@@ -192,7 +185,7 @@ pub fn sub_symmetric_product(
     while j0 < g {
         let jb = block.min(g - j0);
         p.view_mut((j0, j0), (g - j0, jb))
-            .gemm(-1.0, &at.rows(j0, g - j0), &b.columns(j0, jb), 1.0);
+            .gemm(alpha, &at.rows(j0, g - j0), &b.columns(j0, jb), 1.0);
         j0 += jb;
     }
     mirror_lower_leading(p, g);
@@ -228,9 +221,10 @@ mod tri_tests {
             let psi_c = &psi * &c;
             for g in [n, n.saturating_sub(3)] {
                 let mut q = spd.clone();
-                sub_symmetric_product(
+                add_symmetric_product(
                     &mut q,
                     g,
+                    -1.0,
                     &c.columns(0, g).into_owned(),
                     &psi_c.columns(0, g).into_owned(),
                 );
@@ -353,7 +347,6 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
             let data = a.as_mut_slice();
             for jj in 0..jb {
                 let j = j0 + jj;
-                let len = m - j;
                 let col = &data[j * m + j..(j + 1) * m];
                 let alpha = col[0];
                 let sigma = dot(&col[1..], &col[1..]);
@@ -391,7 +384,6 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
                     let s = t * dot(vj, c);
                     axpy(-s, vj, c);
                 }
-                debug_assert_eq!(vj.len(), len);
             }
         }
         let rest = n - apply_end;
