@@ -243,8 +243,16 @@ impl<'a> Runner<'a> {
     /// `rebase_us` like the others.
     pub fn force_global_update(&mut self) {
         self.est.force_global_update();
+        self.collect_rebase_jobs();
+    }
+
+    /// Moves the rebase jobs timed since the last call into `rebase_us`;
+    /// returns their total time (µs).
+    fn collect_rebase_jobs(&mut self) -> f64 {
         let jobs = REBASE_US.with(|r| std::mem::take(&mut *r.borrow_mut()));
+        let us = jobs.iter().map(|j| j.1).sum();
         self.rebase_us.extend(jobs);
+        us
     }
 
     /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
@@ -267,9 +275,7 @@ impl<'a> Runner<'a> {
         let frame_us = start.elapsed().as_secs_f64() * 1e6;
         // The frame time without the rebase jobs it ran (which the daemon
         // runs on its worker thread), and those apart.
-        let jobs = REBASE_US.with(|r| std::mem::take(&mut *r.borrow_mut()));
-        let job_us: f64 = jobs.iter().map(|j| j.1).sum();
-        self.rebase_us.extend(jobs);
+        let job_us = self.collect_rebase_jobs();
         (frame_us - job_us, rep)
     }
 }
