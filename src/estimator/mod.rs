@@ -1235,7 +1235,8 @@ impl Estimator {
                 return Err(format!("covariance diagonal {i} is {}", p[(i, i)]));
             }
         }
-        // Symmetric (updates re-symmetrise, so any asymmetry is a fault), and
+        // Symmetric (updates and propagation keep it exactly so, so any
+        // asymmetry is a fault), and
         // the active block positive definite (a Cholesky of 18×18: cheap).
         // |P_ij − P_ji| ≤ 1e-9 √(P_ii P_jj), compared squared (no root).
         let n = p.nrows();
