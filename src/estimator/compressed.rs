@@ -39,10 +39,9 @@ pub(super) struct Global {
     /// Live global keyframe id → its block in the base.
     pub(super) live: BTreeMap<u64, usize>,
     /// Row blocks appended to `C` by promotions, `W_Q⁻¹ P_GG(0)[Q, :]` (§5
-    /// P2), one per promotion (appending never copies the others), each
-    /// stored transposed (as the columns `P_GG(0)[:, Q] W_Q⁻ᵀ`, a contiguous
-    /// copy); `C̃ = [C; extra…ᵀ]`.
-    pub(super) extra: Vec<DMatrix<f64>>,
+    /// P2), one per promotion (appending never copies the others);
+    /// `C̃ = [C; extra…]`.
+    pub(super) extra: Vec<Extra>,
     /// `Φ̃`: maps the whitened base-local errors to the current local errors.
     pub(super) Phi: DMatrix<f64>,
     /// `Ψ̃ = Σ (HΦ̃)ᵀ S⁻¹ (HΦ̃)`.
@@ -51,6 +50,42 @@ pub(super) struct Global {
     pub(super) q: DVector<f64>,
     /// Position σ (m) of each global keyframe at the last rebase.
     pub(super) sigma_m: BTreeMap<u64, f64>,
+}
+
+/// One promotion's rows of `C̃`, `W_Q⁻¹ P_GG(0)[Q, :]` (§5 P2), with a
+/// diagonal `W_Q`.
+#[derive(Clone, Debug)]
+pub(super) enum Extra {
+    /// Read from the base they were promoted from, which outlives them
+    /// (it is the parent of the rebase that consumes them): the columns
+    /// `cols` of `P_GG(0)` (rows, by symmetry), row `j` scaled by `inv_w[j]`
+    /// (`W_Q⁻¹`).
+    /// Promoting from an installed base therefore copies nothing of size
+    /// `n_G` on the fusion thread.
+    InBase { cols: Vec<usize>, inv_w: Vec<f64> },
+    /// Computed from a pending rebase's inputs (§5 R5) before its base
+    /// exists, stored as the columns `P_G'G'(k)[:, Q] W_Q⁻ᵀ`.
+    Owned(DMatrix<f64>),
+}
+
+impl Extra {
+    /// Rows of `C̃` this block adds.
+    fn len(&self) -> usize {
+        match self {
+            Extra::InBase { cols, .. } => cols.len(),
+            Extra::Owned(m) => m.ncols(),
+        }
+    }
+
+    /// Row `j` of the block at global column `c`: `(W_Q⁻¹ P_GG(0)[Q, :])[j, c]`.
+    /// An `InBase` block without its base (which the filter never asks for)
+    /// reads NaN, which the health checks catch.
+    fn at(&self, base: Option<&Base>, c: usize, j: usize) -> f64 {
+        match self {
+            Extra::InBase { cols, inv_w } => base.map_or(f64::NAN, |b| b.P_GG0[(c, cols[j])] * inv_w[j]),
+            Extra::Owned(m) => m[(c, j)],
+        }
+    }
 }
 
 impl Global {
@@ -67,23 +102,24 @@ impl Global {
 }
 
 /// The columns `cols` of `C̃ = [C; extra…]`.
-fn c_cols(base: &Base, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
-    stack_extra(base.C.select_columns(cols), extra, cols)
+fn c_cols(base: &Base, extra: &[Extra], cols: &[usize]) -> DMatrix<f64> {
+    stack_extra(Some(base), base.C.select_columns(cols), extra, cols)
 }
 
-/// `[C_cols; extra…ᵀ[:, cols]]`: the columns `cols` of `C̃`, given those of `C`.
-fn stack_extra(c_cols: DMatrix<f64>, extra: &[DMatrix<f64>], cols: &[usize]) -> DMatrix<f64> {
+/// `[C_cols; extra…[:, cols]]`: the columns `cols` of `C̃`, given those of
+/// `C`; `base` is the one the `InBase` blocks were promoted from.
+fn stack_extra(base: Option<&Base>, c_cols: DMatrix<f64>, extra: &[Extra], cols: &[usize]) -> DMatrix<f64> {
     let n0 = c_cols.nrows();
-    let ne: usize = extra.iter().map(|e| e.ncols()).sum();
+    let ne: usize = extra.iter().map(Extra::len).sum();
     let mut out = DMatrix::zeros(n0 + ne, cols.len());
     for (k, &c) in cols.iter().enumerate() {
         out.view_mut((0, k), (n0, 1)).copy_from(&c_cols.column(k));
         let mut r = n0;
         for e in extra {
-            for j in 0..e.ncols() {
-                out[(r + j, k)] = e[(c, j)];
+            for j in 0..e.len() {
+                out[(r + j, k)] = e.at(base, c, j);
             }
-            r += e.ncols();
+            r += e.len();
         }
     }
     out
@@ -124,7 +160,7 @@ pub struct RebaseJob {
     parent: Option<Arc<Base>>,
     /// Parent blocks that stay global, in the new base's order.
     live_blocks: Vec<usize>,
-    extra: Vec<DMatrix<f64>>,
+    extra: Vec<Extra>,
     Phi: DMatrix<f64>,
     Psi: DMatrix<f64>,
     q: DVector<f64>,
@@ -522,31 +558,34 @@ impl Estimator {
         }
         let cols = block_cols(blocks.iter().copied());
         let k = cols.len();
-        // The base's columns Q: read from the base, or computed from the
-        // pending rebase's inputs (R5), with the correction they take then.
+        // The base's columns Q: `C_Q` and `P_GG(0)[Q, Q]` read from an
+        // installed base (nothing of size n_G is copied), or `C'_Q`,
+        // `P_G'G'(k)[:, Q]` and the correction they take then, computed
+        // from the pending rebase's inputs (R5).
         let while_pending = g.base.is_none();
-        let (c_base, mut cols_q, dx_base) = match (&g.base, &self.pending) {
-            (Some(base), _) => (
-                base.C.select_columns(&cols),
-                // Columns Q of P_GG(0) (rows Q, by symmetry): a contiguous copy.
-                base.P_GG0.select_columns(&cols),
-                DVector::zeros(k),
-            ),
-            (None, Some(p)) => p.job().columns(&blocks),
+        let (c_base, base_qq, owned_cols, dx_base) = match (&g.base, &self.pending) {
+            (Some(base), _) => {
+                let mut qq = DMatrix::zeros(k, k);
+                gather_block(&base.P_GG0, &cols, &mut qq);
+                (base.C.select_columns(&cols), qq, None, DVector::zeros(k))
+            }
+            (None, Some(p)) => {
+                let (c, p_gq, dx) = p.job().columns(&blocks);
+                (c, p_gq.select_rows(&cols), Some(p_gq), dx)
+            }
             (None, None) => return false,
         };
         // P1: P_LQ = Φ̃ C̃_Q, P_QQ = P_GG(0)_QQ − C̃_Qᵀ Ψ̃ C̃_Q, δx_Q = C̃_Qᵀ q̃.
-        let c_q = stack_extra(c_base, &g.extra, &cols);
+        let c_q = stack_extra(g.base.as_deref(), c_base, &g.extra, &cols);
         let p_lq = &g.Phi * &c_q;
         let psi_c = &g.Psi * &c_q;
-        let base_qq = cols_q.select_rows(&cols);
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
         p_qq = (&p_qq + p_qq.transpose()) * 0.5;
         let dx_q = c_q.tr_mul(&g.q) + dx_base;
         // P2: the base-local part grows by Q, whitened by any invertible W_Q:
         // C̃ gains the rows W_Q⁻¹ P_GG(0)[Q, :], Φ̃ the rows [−(Ψ̃ C̃_Q)ᵀ, W_Q],
         // Ψ̃ and q̃ zeros. A diagonal W_Q = diag(√P_QQ now) keeps later Ψ̃
-        // near unit scale (as W1) and costs O(n_G) to apply.
+        // near unit scale (as W1) and is applied where the rows are read.
         let w_diag: Vec<f64> = (0..k)
             .map(|i| {
                 let v = p_qq[(i, i)].abs().sqrt();
@@ -557,22 +596,23 @@ impl Estimator {
                 }
             })
             .collect();
-        let w_q = DMatrix::from_diagonal(&DVector::from_column_slice(&w_diag));
-        for (i, w) in w_diag.iter().enumerate() {
-            cols_q.column_mut(i).scale_mut(1.0 / w);
-        }
-        g.extra.push(cols_q);
-        let n0 = g.Phi.ncols();
-        let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0))
-            .insert_columns(n0, k, 0.0)
-            .insert_rows(at, k, 0.0);
-        g.Phi = phi;
-        g.Phi.view_mut((at, 0), (k, n0)).copy_from(&(-psi_c.transpose()));
-        g.Phi.view_mut((at, n0), (k, k)).copy_from(&w_q);
-        let psi = std::mem::replace(&mut g.Psi, DMatrix::zeros(0, 0));
-        g.Psi = psi.insert_columns(n0, k, 0.0).insert_rows(n0, k, 0.0);
-        let q = std::mem::replace(&mut g.q, DVector::zeros(0));
-        g.q = q.insert_rows(n0, k, 0.0);
+        let inv_w: Vec<f64> = w_diag.iter().map(|w| 1.0 / w).collect();
+        g.extra.push(match owned_cols {
+            Some(mut p_gq) => {
+                for (i, s) in inv_w.iter().enumerate() {
+                    p_gq.column_mut(i).scale_mut(*s);
+                }
+                Extra::Owned(p_gq)
+            }
+            None => Extra::InBase {
+                cols: cols.clone(),
+                inv_w,
+            },
+        });
+        g.Phi = grow_phi(&g.Phi, at, &psi_c, &w_diag);
+        let n0 = g.Psi.nrows();
+        g.Psi.resize_mut(n0 + k, n0 + k, 0.0);
+        g.q.resize_vertically_mut(n0 + k, 0.0);
         for id in ids {
             g.live.remove(id);
             g.sigma_m.remove(id);
@@ -648,24 +688,60 @@ impl Estimator {
     }
 
     /// Inserts states with covariance `block` and cross-covariance `cross`
-    /// (rows: the current local states) at index `at` of the local part.
+    /// (rows: the current local states) at index `at` of the local part,
+    /// copying whole column runs (`P` is column-major).
     pub(super) fn insert_local(&mut self, at: usize, cross: &DMatrix<f64>, block: &DMatrix<f64>) {
         let n = self.P.nrows();
         let k = block.nrows();
-        let mut p = DMatrix::zeros(n + k, n + k);
-        let map = |i: usize| if i < at { i } else { i + k };
-        for c in 0..n {
-            let mc = map(c);
-            for r in 0..n {
-                p[(map(r), mc)] = self.P[(r, c)];
+        let m = n + k;
+        let mut p = DMatrix::zeros(m, m);
+        {
+            let (src, dst) = (self.P.as_slice(), p.as_mut_slice());
+            let (xs, bs) = (cross.as_slice(), block.as_slice());
+            // Old column c goes to column c (c < at) or c + k; within it the
+            // rows split the same way around the k new rows, which hold
+            // cross[c, :].
+            for c in 0..n {
+                let mc = if c < at { c } else { c + k };
+                let (s, d) = (&src[c * n..(c + 1) * n], &mut dst[mc * m..(mc + 1) * m]);
+                d[..at].copy_from_slice(&s[..at]);
+                for j in 0..k {
+                    d[at + j] = xs[j * n + c];
+                }
+                d[at + k..].copy_from_slice(&s[at..]);
             }
+            // The new columns: cross[:, j] around block[:, j].
             for j in 0..k {
-                p[(at + j, mc)] = cross[(c, j)];
-                p[(mc, at + j)] = cross[(c, j)];
+                let (x, d) = (&xs[j * n..(j + 1) * n], &mut dst[(at + j) * m..(at + j + 1) * m]);
+                d[..at].copy_from_slice(&x[..at]);
+                d[at..at + k].copy_from_slice(&bs[j * k..(j + 1) * k]);
+                d[at + k..].copy_from_slice(&x[at..]);
             }
         }
-        p.view_mut((at, at), (k, k)).copy_from(block);
         self.P = p;
         debug_assert!(self.P.nrows() >= ACTIVE_DIM);
     }
+}
+
+/// `Φ̃` after a promotion (§5 P2): `k` new rows at `at`, `[−(Ψ̃ C̃_Q)ᵀ, W_Q]`
+/// with `W_Q = diag(w)`, and `k` new columns (zero in the old rows), built
+/// column by column in one allocation.
+fn grow_phi(phi: &DMatrix<f64>, at: usize, psi_c: &DMatrix<f64>, w: &[f64]) -> DMatrix<f64> {
+    let (n, n0) = phi.shape();
+    let k = w.len();
+    let m = n + k;
+    let mut out = DMatrix::zeros(m, n0 + k);
+    let (src, dst) = (phi.as_slice(), out.as_mut_slice());
+    for c in 0..n0 {
+        let (s, d) = (&src[c * n..(c + 1) * n], &mut dst[c * m..(c + 1) * m]);
+        d[..at].copy_from_slice(&s[..at]);
+        for j in 0..k {
+            d[at + j] = -psi_c[(c, j)];
+        }
+        d[at + k..].copy_from_slice(&s[at..]);
+    }
+    for (j, wj) in w.iter().enumerate() {
+        dst[(n0 + j) * m + at + j] = *wj;
+    }
+    out
 }
