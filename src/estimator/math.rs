@@ -179,8 +179,21 @@ pub fn add_symmetric_product(
     a: &nalgebra::DMatrix<f64>,
     b: &nalgebra::DMatrix<f64>,
 ) {
-    let block = TRI_BLOCK.max(g / 16);
     let at = a.transpose();
+    add_symmetric_product_t(p, g, alpha, at.as_view(), b.as_view());
+}
+
+/// [`add_symmetric_product`] given `Aᵀ` (g × k) rather than `A`, both as
+/// views: the EKF update (U1) takes `Aᵀ` and `Bᵀ` as rows of one transposed
+/// solve, so nothing is copied or transposed again per product.
+pub fn add_symmetric_product_t(
+    p: &mut nalgebra::DMatrix<f64>,
+    g: usize,
+    alpha: f64,
+    at: nalgebra::DMatrixView<'_, f64>,
+    b: nalgebra::DMatrixView<'_, f64>,
+) {
+    let block = TRI_BLOCK.max(g / 16);
     let mut j0 = 0;
     while j0 < g {
         let jb = block.min(g - j0);

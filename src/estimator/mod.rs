@@ -1068,9 +1068,12 @@ impl Estimator {
         x.column_mut(n + n0).copy_from(r);
         drop(hp);
         solver.solve_in_place(&mut x);
-        let a = math::block_owned(&x, 0, 0, m, n);
-        let w = DVector::from_column_slice(x.column(n + n0).as_slice());
-        let mut dx = a.tr_mul(&w);
+        // Xᵀ, once: its rows are Aᵀ, Bᵀ and wᵀ, the left factors of every
+        // product below, which read views of X and Xᵀ without copying.
+        let xt = x.transpose();
+        let (at, a) = (xt.rows(0, n), x.columns(0, n));
+        let w = x.column(n + n0);
+        let mut dx = at * w;
         // K S Kᵀ = (H P)ᵀ S⁻¹ (H P) = Aᵀ A (symmetric rank-m form).
         if self.s.mode == Mode::Schmidt {
             // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
@@ -1078,7 +1081,7 @@ impl Estimator {
             let (k0, k1) = (ACTIVE_DIM, self.clones_offset());
             dx.rows_mut(k0, k1 - k0).fill(0.0);
             let mut kskt = DMatrix::zeros(n, n);
-            math::add_gram_symmetric(&mut kskt, 1.0, &a);
+            math::add_symmetric_product_t(&mut kskt, n, 1.0, at, a);
             kskt.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
             self.P -= kskt;
             self.inject(&dx);
@@ -1087,13 +1090,13 @@ impl Estimator {
         if let Some(g) = self.global.as_mut() {
             // C2, C3: Ψ̃ += (HΦ̃)ᵀ S⁻¹ (HΦ̃) = Bᵀ B, q̃ += (HΦ̃)ᵀ S⁻¹ r = Bᵀ w,
             // Φ̃ ← Φ̃ − K (HΦ̃) = Φ̃ − Aᵀ B.
-            let b = math::block_owned(&x, 0, n, m, n0);
-            math::add_gram_symmetric(&mut g.Psi, 1.0, &b);
-            g.q += b.tr_mul(&w);
-            g.Phi.gemm(-1.0, &a.transpose(), &b, 1.0);
+            let (bt, b) = (xt.rows(n, n0), x.columns(n, n0));
+            math::add_symmetric_product_t(&mut g.Psi, n0, 1.0, bt, b);
+            g.q.gemv(1.0, &bt, &w, 1.0);
+            g.Phi.gemm(-1.0, &at, &b, 1.0);
         }
         // P ← P − Aᵀ A, exactly symmetric.
-        math::add_gram_symmetric(&mut self.P, -1.0, &a);
+        math::add_symmetric_product_t(&mut self.P, n, -1.0, at, a);
         self.inject(&dx);
     }
 
