@@ -894,7 +894,12 @@ impl Fusion {
                 self.log(
                     Topic::InputFeatures,
                     t,
-                    &json!({"t_us": fr.t_us, "t_ap_us": t_ap_us, "cam": fr.cam, "features": fr.features}),
+                    &records::Features {
+                        t_us: fr.t_us,
+                        t_ap_us,
+                        cam: fr.cam,
+                        features: &fr.features,
+                    },
                 );
                 if t <= self.last_frame_t {
                     ctx.counters.add("feature_time_backwards", 1);
@@ -943,10 +948,14 @@ impl Fusion {
                 self.last_imu_t = m.t_s;
                 ctx.counters.add("imu_samples", 1);
                 self.log(
-                Topic::InputImu,
-                m.t_s,
-                &json!({"t_us": (m.t_s * 1e6).round() as u64, "accel_mps2": m.accel_mps2.as_slice(), "gyro_radps": m.gyro_radps.as_slice()}),
-            );
+                    Topic::InputImu,
+                    m.t_s,
+                    &records::Imu {
+                        t_us: (m.t_s * 1e6).round() as u64,
+                        accel_mps2: m.accel_mps2.as_slice(),
+                        gyro_radps: m.gyro_radps.as_slice(),
+                    },
+                );
                 self.on_imu(m, &ctx.counters, &ctx.out);
                 let st = &ctx.status;
                 // An unhealthy filter was restarted in `on_imu`: a running
@@ -1315,19 +1324,37 @@ impl Fusion {
             if let Some(l) = &self.log {
                 let q = x.q_W_B.coords;
                 let (sec, nsec) = (m.t_s.floor() as u64, ((m.t_s - m.t_s.floor()) * 1e9) as u64);
+                let timestamp = records::Stamp { sec, nsec };
+                let position = records::Xyz {
+                    x: x.p_B_in_W.x,
+                    y: x.p_B_in_W.y,
+                    z: x.p_B_in_W.z,
+                };
+                let orientation = records::Quat {
+                    x: q.x,
+                    y: q.y,
+                    z: q.z,
+                    w: q.w,
+                };
                 l.log(
                     Topic::Pose,
                     m.t_s,
-                    &json!({"timestamp": {"sec": sec, "nsec": nsec}, "frame_id": "ned",
-                        "pose": {"position": {"x": x.p_B_in_W.x, "y": x.p_B_in_W.y, "z": x.p_B_in_W.z},
-                                 "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}}),
+                    &records::Pose {
+                        timestamp,
+                        frame_id: "ned",
+                        pose: records::PoseBody { position, orientation },
+                    },
                 );
                 l.log(
                     Topic::Transform,
                     m.t_s,
-                    &json!({"timestamp": {"sec": sec, "nsec": nsec}, "parent_frame_id": "ned", "child_frame_id": "body_frd",
-                        "translation": {"x": x.p_B_in_W.x, "y": x.p_B_in_W.y, "z": x.p_B_in_W.z},
-                        "rotation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}),
+                    &records::Transform {
+                        timestamp,
+                        parent_frame_id: "ned",
+                        child_frame_id: "body_frd",
+                        translation: position,
+                        rotation: orientation,
+                    },
                 );
                 if m.t_s >= self.next_state_log {
                     self.next_state_log = m.t_s + 0.1;
@@ -1356,8 +1383,13 @@ impl Fusion {
                     l.log(
                         Topic::OutputVpe,
                         m.t_s,
-                        &json!({"usec": t_us, "p_ned_m": p_ned_m.as_slice(), "rpy_rad": rpy_rad.as_slice(),
-                            "covariance": covariance.as_slice(), "reset_counter": reset_counter}),
+                        &records::Vpe {
+                            usec: *t_us,
+                            p_ned_m: p_ned_m.as_slice(),
+                            rpy_rad: rpy_rad.as_slice(),
+                            covariance: covariance.as_slice(),
+                            reset_counter: *reset_counter,
+                        },
                     );
                 }
                 if out.try_send(o).is_err() {
@@ -1506,6 +1538,85 @@ pub fn outputs(x: &ImuState, cov: &Matrix6<f64>, t_s: f64, reset_counter: u8, od
         });
     }
     v
+}
+
+/// The log records of the channels written at IMU or camera rate, serialised
+/// straight from borrowed data: building a `serde_json::Value` first costs
+/// an allocation per field and per feature. The JSON is that of the
+/// channels' schemas (`io::mcap_log`).
+mod records {
+    use serde::Serialize;
+
+    #[derive(Serialize)]
+    pub struct Imu<'a> {
+        pub t_us: u64,
+        pub accel_mps2: &'a [f64],
+        pub gyro_radps: &'a [f64],
+    }
+
+    #[derive(Serialize)]
+    pub struct Features<'a> {
+        pub t_us: u64,
+        pub t_ap_us: i64,
+        pub cam: u32,
+        /// `[landmark_id, u_px, v_px]` each.
+        pub features: &'a [(u64, f64, f64)],
+    }
+
+    #[derive(Clone, Copy, Serialize)]
+    pub struct Stamp {
+        pub sec: u64,
+        pub nsec: u64,
+    }
+
+    #[derive(Clone, Copy, Serialize)]
+    pub struct Xyz {
+        pub x: f64,
+        pub y: f64,
+        pub z: f64,
+    }
+
+    #[derive(Clone, Copy, Serialize)]
+    pub struct Quat {
+        pub x: f64,
+        pub y: f64,
+        pub z: f64,
+        pub w: f64,
+    }
+
+    #[derive(Serialize)]
+    pub struct PoseBody {
+        pub position: Xyz,
+        pub orientation: Quat,
+    }
+
+    /// foxglove.PoseInFrame.
+    #[derive(Serialize)]
+    pub struct Pose<'a> {
+        pub timestamp: Stamp,
+        pub frame_id: &'a str,
+        pub pose: PoseBody,
+    }
+
+    /// foxglove.FrameTransform.
+    #[derive(Serialize)]
+    pub struct Transform<'a> {
+        pub timestamp: Stamp,
+        pub parent_frame_id: &'a str,
+        pub child_frame_id: &'a str,
+        pub translation: Xyz,
+        pub rotation: Quat,
+    }
+
+    #[derive(Serialize)]
+    pub struct Vpe<'a> {
+        pub usec: u64,
+        pub p_ned_m: &'a [f64],
+        pub rpy_rad: &'a [f64],
+        /// Upper triangle of the 6×6 covariance, as sent.
+        pub covariance: &'a [f32],
+        pub reset_counter: u8,
+    }
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -152,6 +152,8 @@ pub struct McapLogger {
 
 /// Records queued at most (about 4 s of a busy flight).
 const QUEUE: usize = 16_384;
+/// How long the writer pauses after emptying the queue.
+const WRITER_PAUSE: std::time::Duration = std::time::Duration::from_micros(500);
 /// A chunk is closed once it spans this much sensor time (ns).
 const CHUNK_SPAN_NS: u64 = 1_000_000_000;
 
@@ -286,7 +288,30 @@ fn writer_loop(
     let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
     let mut chunk_start: Option<u64> = None;
     let mut summary = LogSummary::default();
-    while let Ok(r) = rx.recv() {
+    // Blocks for the first record, takes whatever else is queued, then
+    // pauses briefly: a busy writer is then rarely waiting on the channel,
+    // so senders seldom have to wake it (a system call each, which was a
+    // visible share of a fast replay). The pause is far below what the
+    // queue holds at any real rate.
+    let mut first = true;
+    loop {
+        let r = if first {
+            match rx.recv() {
+                Ok(r) => r,
+                Err(_) => break,
+            }
+        } else {
+            match rx.try_recv() {
+                Ok(r) => r,
+                Err(TryRecvError::Empty) => {
+                    first = true;
+                    std::thread::sleep(WRITER_PAUSE);
+                    continue;
+                }
+                Err(TryRecvError::Disconnected) => break,
+            }
+        };
+        first = false;
         let Some(&cid) = ids.get(&r.topic) else { continue };
         // Close the chunk once it spans a second of sensor time, so a killed
         // writer loses at most about that much.
