@@ -1,6 +1,6 @@
 //! Compressed mode's global part (§5): the base frozen at the last rebase,
 //! the exact promotion of global keyframes into the local part (§5 P1–P3,
-//! linear in the global size), and the rebase (global update) split into a
+//! at a cost independent of the global size), and the rebase (global update) split into a
 //! pure [`RebaseJob`] that may run on another thread while the local filter
 //! goes on (§5 R1–R4).
 //!
@@ -544,8 +544,9 @@ impl Estimator {
     }
 
     /// Brings global keyframes into the local part (§5 P1–P3), exactly and
-    /// without a global update: `O(n_L² |Q| + n_L0 n_G)` from an installed
-    /// base, `O(n_L0 n_G |Q|)` from a pending rebase's inputs (R5). Returns
+    /// without a global update: `O(n_L n_L0 |Q| + n_L²)` from an installed
+    /// base, independent of `n_G`; `O(n_L0 n_G |Q|)` from a pending rebase's
+    /// inputs (R5). Returns
     /// false (and changes nothing) if an id is not global.
     pub(super) fn promote(&mut self, ids: &[u64]) -> bool {
         let at = self.clones_offset();
