@@ -1,8 +1,8 @@
 //! Criterion benchmarks of how the filter scales with the keyframes it holds.
 //!
 //! Workload (racetrack, seed 1, 100 features per frame, GNSS off, a keyframe
-//! every 0.1 s): a 100 s flight builds about 1000 keyframes in compressed
-//! mode, and a forced rebase leaves `max_local_keyframes / 2` (10) of them
+//! every 0.5 s): a 500 s flight builds 1000 keyframes in compressed mode
+//! (about 5 minutes), and a forced rebase leaves `max_local_keyframes / 2` (10) of them
 //! local. The maps of 10, 100 and 1000 keyframes are that one filter with
 //! its oldest global keyframes marginalised (§5 G5) and the base compacted
 //! by a second forced rebase: the local part (IMU, clones, the 10 local
