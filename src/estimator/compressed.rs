@@ -53,38 +53,24 @@ pub(super) struct Global {
 }
 
 /// One promotion's rows of `C̃`, `W_Q⁻¹ P_GG(0)[Q, :]` (§5 P2), with a
-/// diagonal `W_Q`.
+/// diagonal `W_Q`, read from the base where they are used rather than
+/// copied: the base they refer to outlives them (it is the parent of the
+/// rebase that consumes them), so a promotion copies nothing of size `n_G`.
+/// That base is the installed one, or, for a promotion made while a rebase
+/// is out (§5 R5), the one that rebase will install; until then only later
+/// promotions read them, through the job ([`RebaseJob::new_base_block`]).
 #[derive(Clone, Debug)]
-pub(super) enum Extra {
-    /// Read from the base they were promoted from, which outlives them
-    /// (it is the parent of the rebase that consumes them): the columns
-    /// `cols` of `P_GG(0)` (rows, by symmetry), row `j` scaled by `inv_w[j]`
-    /// (`W_Q⁻¹`).
-    /// Promoting from an installed base therefore copies nothing of size
-    /// `n_G` on the fusion thread.
-    InBase { cols: Vec<usize>, inv_w: Vec<f64> },
-    /// Computed from a pending rebase's inputs (§5 R5) before its base
-    /// exists, stored as the columns `P_G'G'(k)[:, Q] W_Q⁻ᵀ`.
-    Owned(DMatrix<f64>),
+pub(super) struct Extra {
+    /// The promoted keyframes' scalar columns in that base.
+    cols: Vec<usize>,
+    /// `W_Q⁻¹`, the diagonal.
+    inv_w: Vec<f64>,
 }
 
 impl Extra {
-    /// Rows of `C̃` this block adds.
-    fn len(&self) -> usize {
-        match self {
-            Extra::InBase { cols, .. } => cols.len(),
-            Extra::Owned(m) => m.ncols(),
-        }
-    }
-
     /// Row `j` of the block at global column `c`: `(W_Q⁻¹ P_GG(0)[Q, :])[j, c]`.
-    /// An `InBase` block without its base (which the filter never asks for)
-    /// reads NaN, which the health checks catch.
-    fn at(&self, base: Option<&Base>, c: usize, j: usize) -> f64 {
-        match self {
-            Extra::InBase { cols, inv_w } => base.map_or(f64::NAN, |b| b.P_GG0[(c, cols[j])] * inv_w[j]),
-            Extra::Owned(m) => m[(c, j)],
-        }
+    fn at(&self, base: &Base, c: usize, j: usize) -> f64 {
+        base.P_GG0[(c, self.cols[j])] * self.inv_w[j]
     }
 }
 
@@ -101,25 +87,20 @@ impl Global {
     }
 }
 
-/// The columns `cols` of `C̃ = [C; extra…]`.
+/// The columns `cols` of `C̃ = [C; extra…]`: `C`'s, and below them each
+/// promotion's rows read from the base.
 fn c_cols(base: &Base, extra: &[Extra], cols: &[usize]) -> DMatrix<f64> {
-    stack_extra(Some(base), base.C.select_columns(cols), extra, cols)
-}
-
-/// `[C_cols; extra…[:, cols]]`: the columns `cols` of `C̃`, given those of
-/// `C`; `base` is the one the `InBase` blocks were promoted from.
-fn stack_extra(base: Option<&Base>, c_cols: DMatrix<f64>, extra: &[Extra], cols: &[usize]) -> DMatrix<f64> {
-    let n0 = c_cols.nrows();
-    let ne: usize = extra.iter().map(Extra::len).sum();
+    let n0 = base.C.nrows();
+    let ne: usize = extra.iter().map(|e| e.cols.len()).sum();
     let mut out = DMatrix::zeros(n0 + ne, cols.len());
     for (k, &c) in cols.iter().enumerate() {
-        out.view_mut((0, k), (n0, 1)).copy_from(&c_cols.column(k));
+        out.view_mut((0, k), (n0, 1)).copy_from(&base.C.column(c));
         let mut r = n0;
         for e in extra {
-            for j in 0..e.len() {
+            for j in 0..e.cols.len() {
                 out[(r + j, k)] = e.at(base, c, j);
             }
-            r += e.len();
+            r += e.cols.len();
         }
     }
     out
@@ -212,77 +193,123 @@ impl RebaseJob {
         self.ids.len()
     }
 
-    /// Flops of [`RebaseJob::columns`] for `n_blocks` keyframes (its product
-    /// `C̃ᵀ (Ψ̃ C̃_Q)` over the old global part).
-    pub(super) fn promotion_flops(&self, n_blocks: usize) -> f64 {
-        let n0 = self.Psi.nrows() as f64;
-        2.0 * (6 * self.live_blocks.len()) as f64 * n0 * (6 * n_blocks) as f64
+    /// The new base's scalar column `i` (§5 R2's order: the live global
+    /// keyframes' columns, then the demoted keyframes'): `Ok(old base
+    /// column)` for a live one, `Err(local index at the rebase time)` for a
+    /// demoted one.
+    fn new_base_source(&self, i: usize) -> Result<usize, usize> {
+        let g = 6 * self.live_blocks.len();
+        if i < g {
+            Ok(6 * self.live_blocks[i / 6] + i % 6)
+        } else {
+            Err(self.demoted_idx[i - g])
+        }
     }
 
-    /// Columns of the new base without computing it (§5 R5): for the new
-    /// blocks `blocks`, `(C'[:, Q], P_G'G'(k)[:, Q], δx_Q(k))`, from the
-    /// same inputs as [`RebaseJob::run`] in `O(n_L0 n_G |Q|)`. Lets the
-    /// filter promote keyframes while the job is still out.
-    pub(super) fn columns(&self, blocks: &[usize]) -> (DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
-        let n_live = self.live_blocks.len();
-        let (g, o) = (6 * n_live, self.demoted_idx.len());
-        let nk = self.keep_idx.len() + o;
-        let k = 6 * blocks.len();
-        let mut p_l = DMatrix::zeros(nk, k); // P_{L_k, Q}(k)
-        let mut p_g = DMatrix::zeros(g + o, k); // P_{G', Q}(k)
-        let mut dx = DVector::zeros(k);
-        let live_cols = block_cols(self.live_blocks.iter().copied());
-        let ct_all = self
-            .parent
-            .as_ref()
-            .filter(|_| g > 0)
-            .map(|b| c_cols(b, &self.extra, &live_cols));
-        // The old global part's blocks, all at once: G1–G3 for those columns.
-        let old: Vec<(usize, usize)> = blocks
-            .iter()
-            .enumerate()
-            .filter(|(_, &b)| b < n_live)
-            .map(|(i, &b)| (i, b))
-            .collect();
-        if let (Some(base), Some(ct_all), false) = (self.parent.as_ref(), ct_all.as_ref(), old.is_empty()) {
-            let ct_c = ct_all.select_columns(&block_cols(old.iter().map(|x| x.1)));
-            let pl = &self.Phi * &ct_c;
-            let mut pgg = base
-                .P_GG0
-                .select_columns(&block_cols(old.iter().map(|x| self.live_blocks[x.1])))
-                .select_rows(&live_cols);
-            pgg.gemm(-1.0, &ct_all.transpose(), &(&self.Psi * &ct_c), 1.0);
-            let dxo = ct_c.tr_mul(&self.q);
-            for (j, (i, _)) in old.iter().enumerate() {
-                let out = 6 * i;
-                p_l.view_mut((0, out), (nk, 6)).copy_from(&pl.columns(6 * j, 6));
-                p_g.view_mut((0, out), (g, 6)).copy_from(&pgg.columns(6 * j, 6));
-                if o > 0 {
-                    p_g.view_mut((g, out), (o, 6))
-                        .copy_from(&pl.columns(6 * j, 6).select_rows(&self.demoted_idx));
+    /// Entries `rows × cols` (scalar columns) of the new base's
+    /// `P_G'G'(k)` (§5 R5), from the job's inputs without computing the
+    /// base: G2 for those entries only (`P_GG(0) − C̃ᵀ Ψ̃ C̃` between live
+    /// keyframes, `(Φ̃ C̃)` rows of the demoted keyframes against live ones,
+    /// their own rows of `P(k)` between demoted ones, symmetrised as R2 does).
+    /// `O(n_L0 (|rows| + |cols|)(n_L0 + |cols|))`, independent of `n_G`.
+    pub(super) fn new_base_block(&self, rows: &[usize], cols: &[usize]) -> DMatrix<f64> {
+        // (position in `idx`, old base column or local index), live then demoted.
+        type Entries = Vec<(usize, usize)>;
+        let split = |idx: &[usize]| -> (Entries, Entries) {
+            let (mut live, mut dem) = (Vec::new(), Vec::new());
+            for (k, &i) in idx.iter().enumerate() {
+                match self.new_base_source(i) {
+                    Ok(c) => live.push((k, c)),
+                    Err(l) => dem.push((k, l)),
                 }
-                dx.rows_mut(out, 6).copy_from(&dxo.rows(6 * j, 6));
+            }
+            (live, dem)
+        };
+        let (r_live, r_dem) = split(rows);
+        let (c_live, c_dem) = split(cols);
+        let mut out = DMatrix::zeros(rows.len(), cols.len());
+        // C̃ columns of the live entries (none without a parent base).
+        let ct = |live: &[(usize, usize)]| {
+            let old: Vec<usize> = live.iter().map(|x| x.1).collect();
+            self.parent.as_ref().map(|b| c_cols(b, &self.extra, &old))
+        };
+        let (ct_r, ct_c) = (ct(&r_live), ct(&c_live));
+        if let (Some(base), Some(ct_r), Some(ct_c)) = (self.parent.as_ref(), &ct_r, &ct_c) {
+            // Live × live: P_GG(0) − C̃ᵀ Ψ̃ C̃.
+            let red = ct_r.tr_mul(&(&self.Psi * ct_c));
+            for (j, &(oc, c0)) in c_live.iter().enumerate() {
+                for (i, &(or, r0)) in r_live.iter().enumerate() {
+                    out[(or, oc)] = base.P_GG0[(r0, c0)] - red[(i, j)];
+                }
             }
         }
-        // Demoted keyframes: their local rows at k, and their cross-
-        // covariance with the old global part, P_{G,L}(k) = C̃ᵀ Φ̃ᵀ.
-        for (bi, &b) in blocks.iter().enumerate().filter(|(_, &b)| b >= n_live) {
-            let out = 6 * bi;
-            let d = 6 * (b - n_live);
-            let rows = self.p_demoted_rows.rows(d, 6).transpose(); // P_{L_k, Q}
-            p_l.view_mut((0, out), (nk, 6)).copy_from(&rows);
-            if let Some(ct_all) = &ct_all {
-                let phi_q = self.Phi.select_rows(&self.demoted_idx[d..d + 6]);
-                p_g.view_mut((0, out), (g, 6))
-                    .copy_from(&ct_all.tr_mul(&phi_q.transpose()));
+        // Demoted × live and live × demoted: P(k)[demoted, G] = (Φ̃ C̃)[demoted rows].
+        if let (Some(ct_c), false) = (&ct_c, r_dem.is_empty()) {
+            let l: Vec<usize> = r_dem.iter().map(|x| x.1).collect();
+            let v = self.Phi.select_rows(&l) * ct_c;
+            for (j, &(oc, _)) in c_live.iter().enumerate() {
+                for (i, &(or, _)) in r_dem.iter().enumerate() {
+                    out[(or, oc)] = v[(i, j)];
+                }
             }
-            p_g.view_mut((g, out), (o, 6))
-                .copy_from(&rows.select_rows(&self.demoted_idx));
+        }
+        if let (Some(ct_r), false) = (&ct_r, c_dem.is_empty()) {
+            let l: Vec<usize> = c_dem.iter().map(|x| x.1).collect();
+            let v = self.Phi.select_rows(&l) * ct_r;
+            for (j, &(oc, _)) in c_dem.iter().enumerate() {
+                for (i, &(or, _)) in r_live.iter().enumerate() {
+                    out[(or, oc)] = v[(j, i)];
+                }
+            }
+        }
+        // Demoted × demoted: their rows of P(k), symmetrised.
+        let g = 6 * self.live_blocks.len();
+        for &(oc, lc) in &c_dem {
+            for &(or, lr) in &r_dem {
+                let (dr, dc) = (rows[or] - g, cols[oc] - g);
+                out[(or, oc)] = 0.5 * (self.p_demoted_rows[(dr, lc)] + self.p_demoted_rows[(dc, lr)]);
+            }
+        }
+        out
+    }
+
+    /// What a promotion while the job is out (§5 R5) needs of the new
+    /// base's blocks `blocks`, without computing the base:
+    /// `(C'[:, Q], P_G'G'(k)[Q, Q], δx_Q(k))`, the last being the
+    /// correction the rebase gives the live ones (G3). Independent of
+    /// `n_G`: the columns `P_G'G'(k)[:, Q]` are not formed; the promotion's
+    /// rows of `C̃` are read from the new base once it is installed (§5 P2).
+    pub(super) fn promotion_columns(&self, blocks: &[usize]) -> (DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
+        let cols = block_cols(blocks.iter().copied());
+        let k = cols.len();
+        let nk = self.keep_idx.len() + self.demoted_idx.len();
+        // P_{L_k, Q}(k): Φ̃ C̃_Q for live columns, the demoted rows of P(k)
+        // for demoted ones; and δx_Q = C̃_Qᵀ q̃ for live ones.
+        let mut p_l = DMatrix::zeros(nk, k);
+        let mut dx = DVector::zeros(k);
+        let live: Vec<(usize, usize)> = (cols.iter().enumerate())
+            .filter_map(|(j, &i)| self.new_base_source(i).ok().map(|c| (j, c)))
+            .collect();
+        if let (Some(base), false) = (self.parent.as_ref(), live.is_empty()) {
+            let old: Vec<usize> = live.iter().map(|x| x.1).collect();
+            let ct = c_cols(base, &self.extra, &old);
+            let pl = &self.Phi * &ct;
+            let dxl = ct.tr_mul(&self.q);
+            for (i, &(j, _)) in live.iter().enumerate() {
+                p_l.column_mut(j).copy_from(&pl.column(i));
+                dx[j] = dxl[i];
+            }
+        }
+        let g = 6 * self.live_blocks.len();
+        for (j, &i) in cols.iter().enumerate() {
+            if i >= g {
+                p_l.column_mut(j).copy_from(&self.p_demoted_rows.row(i - g).transpose());
+            }
         }
         // C'[:, Q] = W'⁻¹ P_{L', Q}(k).
         let mut c = p_l.select_rows(&self.keep_idx);
         self.unwhiten_new(&mut c);
-        (c, p_g, dx)
+        (c, self.new_base_block(&cols, &cols), dx)
     }
 
     /// `X ← W'⁻¹ X`, the new base's whitening (R2: `C' = W'⁻¹ P_L'G'(k)`),
@@ -559,25 +586,35 @@ impl Estimator {
         }
         let cols = block_cols(blocks.iter().copied());
         let k = cols.len();
-        // The base's columns Q: `C_Q` and `P_GG(0)[Q, Q]` read from an
-        // installed base (nothing of size n_G is copied), or `C'_Q`,
-        // `P_G'G'(k)[:, Q]` and the correction they take then, computed
-        // from the pending rebase's inputs (R5).
+        // The columns Q of C̃ (C's, then the earlier promotions' rows) and
+        // P_GG(0)[Q, Q], read from an installed base; or, while a rebase is
+        // out (R5), the same entries of the base it will install, computed
+        // from its inputs, with the correction its keyframes take then.
+        // Either way nothing of size n_G is formed.
         let while_pending = g.base.is_none();
-        let (c_base, base_qq, owned_cols, dx_base) = match (&g.base, &self.pending) {
+        let (c_q, base_qq, dx_base) = match (&g.base, &self.pending) {
             (Some(base), _) => {
                 let mut qq = DMatrix::zeros(k, k);
                 gather_block(&base.P_GG0, &cols, &mut qq);
-                (base.C.select_columns(&cols), qq, None, DVector::zeros(k))
+                (c_cols(base, &g.extra, &cols), qq, DVector::zeros(k))
             }
             (None, Some(p)) => {
-                let (c, p_gq, dx) = p.job().columns(&blocks);
-                (c, p_gq.select_rows(&cols), Some(p_gq), dx)
+                let job = p.job();
+                let (c_new, qq, dx) = job.promotion_columns(&blocks);
+                let e_cols: Vec<usize> = g.extra.iter().flat_map(|e| e.cols.iter().copied()).collect();
+                let e_inv_w = g.extra.iter().flat_map(|e| e.inv_w.iter().copied());
+                let mut e_rows = job.new_base_block(&e_cols, &cols);
+                for (mut row, s) in e_rows.row_iter_mut().zip(e_inv_w) {
+                    row *= s;
+                }
+                let mut c_q = DMatrix::zeros(c_new.nrows() + e_rows.nrows(), k);
+                c_q.rows_mut(0, c_new.nrows()).copy_from(&c_new);
+                c_q.rows_mut(c_new.nrows(), e_rows.nrows()).copy_from(&e_rows);
+                (c_q, qq, dx)
             }
             (None, None) => return false,
         };
         // P1: P_LQ = Φ̃ C̃_Q, P_QQ = P_GG(0)_QQ − C̃_Qᵀ Ψ̃ C̃_Q, δx_Q = C̃_Qᵀ q̃.
-        let c_q = stack_extra(g.base.as_deref(), c_base, &g.extra, &cols);
         let p_lq = &g.Phi * &c_q;
         let psi_c = &g.Psi * &c_q;
         let mut p_qq = &base_qq - c_q.tr_mul(&psi_c);
@@ -598,17 +635,9 @@ impl Estimator {
             })
             .collect();
         let inv_w: Vec<f64> = w_diag.iter().map(|w| 1.0 / w).collect();
-        g.extra.push(match owned_cols {
-            Some(mut p_gq) => {
-                for (i, s) in inv_w.iter().enumerate() {
-                    p_gq.column_mut(i).scale_mut(*s);
-                }
-                Extra::Owned(p_gq)
-            }
-            None => Extra::InBase {
-                cols: cols.clone(),
-                inv_w,
-            },
+        g.extra.push(Extra {
+            cols: cols.clone(),
+            inv_w,
         });
         g.Phi = grow_phi(&g.Phi, at, &psi_c, &w_diag);
         let n0 = g.Psi.nrows();

@@ -59,10 +59,9 @@ const MAX_GYRO_BIAS_RADPS: f64 = 0.5;
 /// outlier (§8 K5).
 const OUTLIER_SIGMAS: f64 = 5.0;
 
-/// Budget of one promotion while a rebase job is out (§5 R5), in flops:
-/// about 2 ms here. Larger ones wait, so that a frame never stalls the IMU
-/// path on them.
-const PENDING_PROMOTION_FLOPS: f64 = 2e7;
+/// Most global keyframes promoted in one frame while a rebase is out (§5
+/// R5); the observations of the others wait for a later track.
+const PENDING_PROMOTIONS_PER_FRAME: usize = 1;
 
 /// Most keyframe observations one track uses (§4).
 const MAX_KEYFRAMES_PER_TRACK: usize = 8;
@@ -878,23 +877,34 @@ impl Estimator {
                 })
                 .unwrap_or_default();
             if !global_needed.is_empty() {
-                // While a rebase is out (§5 R5) a promotion costs
-                // O(n_L0 n_G |Q|) and the local part cannot shed keyframes:
-                // promote within the local bound and a per-frame budget;
-                // otherwise the observations wait for a later track.
-                let room = self.pending.as_ref().is_none_or(|p| {
-                    self.local_kfs.len() + global_needed.len() <= self.s.max_local_keyframes
-                        && p.job().promotion_flops(global_needed.len()) <= PENDING_PROMOTION_FLOPS
-                });
-                if room && self.promote(&global_needed) {
-                    report.promoted = global_needed.len();
-                    report.events.push(FilterEvent::Promoted {
-                        keyframes: global_needed,
-                    });
+                // While a rebase is out (§5 R5) the local part cannot shed
+                // keyframes, and each one promoted makes every update until
+                // the rebase after next dearer: promote at most
+                // PENDING_PROMOTIONS_PER_FRAME, those the most observations
+                // need, within the local bound; the other observations wait
+                // for a later track.
+                let mut chosen = global_needed.clone();
+                if self.pending.is_some() {
+                    let room = (self.s.max_local_keyframes.saturating_sub(self.local_kfs.len()))
+                        .min(PENDING_PROMOTIONS_PER_FRAME);
+                    let uses = |id: &u64| kf_use.iter().flatten().filter(|k| *k == id).count();
+                    chosen.sort_by_key(|id| (std::cmp::Reverse(uses(id)), *id));
+                    chosen.truncate(room);
+                    chosen.sort_unstable();
+                }
+                if chosen.is_empty() || !self.promote(&chosen) {
+                    chosen.clear();
                 } else {
+                    report.promoted = chosen.len();
+                    report.events.push(FilterEvent::Promoted {
+                        keyframes: chosen.clone(),
+                    });
+                }
+                let waiting: Vec<u64> = global_needed.into_iter().filter(|k| !chosen.contains(k)).collect();
+                if !waiting.is_empty() {
                     for ks in kf_use.iter_mut() {
                         let before = ks.len();
-                        ks.retain(|k| !global_needed.contains(k));
+                        ks.retain(|k| !waiting.contains(k));
                         report.deferred += before - ks.len();
                     }
                     self.stats.loop_closure_deferred += report.deferred as u64;

@@ -123,10 +123,47 @@ fn asynchronous_rebase_equals_full_after_every_install() {
     c.est.set_async_rebase(true);
     let mut in_flight: Option<(usize, RebaseResult)> = None;
     let (mut installs, mut worst, mut deferred) = (0, 0.0f64, 0);
+    // Promotions while a job is out (§5 R5): frames with one, those that
+    // follow another in the same pending period (they read the first one's
+    // rows of C̃ through the job), and keyframes the pending rebase had
+    // just demoted.
+    let (mut pending_frames, mut second_in_period, mut demoted_promoted) = (0, 0, 0);
+    let mut period_promotions = 0;
+    let mut demoted: BTreeSet<u64> = BTreeSet::new();
     for k in 0..ds.frames.len() {
+        let ids_before: BTreeSet<u64> = c.est.keyframes().map(|kf| kf.id).collect();
         let (_, rep) = c.step_frame(k);
         deferred += rep.deferred;
         f.step_frame(k);
+        let mut promoted_pending = false;
+        for ev in &rep.events {
+            match ev {
+                FilterEvent::GlobalUpdate {
+                    global_before,
+                    local_after,
+                    ..
+                } => {
+                    demoted = (ids_before.iter().copied())
+                        .filter(|id| !global_before.contains(id) && !local_after.contains(id))
+                        .collect();
+                    period_promotions = 0;
+                }
+                FilterEvent::Promoted { keyframes } if c.est.rebase_pending() => {
+                    promoted_pending = true;
+                    if period_promotions > 0 {
+                        second_in_period += 1;
+                    }
+                    period_promotions += 1;
+                    demoted_promoted += keyframes.iter().filter(|id| demoted.contains(id)).count();
+                }
+                _ => {}
+            }
+        }
+        if promoted_pending {
+            // Exact right after a frame that promoted from a pending rebase.
+            pending_frames += 1;
+            worst = worst.max(c.est.snapshot().max_rel_diff(&f.est.snapshot()));
+        }
         if let Some(job) = c.est.take_rebase_job() {
             // "Another thread": the result comes back 7 frames later.
             in_flight = Some((k + 7, job.run()));
@@ -140,14 +177,22 @@ fn asynchronous_rebase_equals_full_after_every_install() {
         }
     }
     assert!(installs > 10, "installs {installs}");
-    assert!(
-        c.est.stats.promotions_while_pending > 0,
-        "no promotion while a job was out: the test shows nothing"
-    );
-    assert_eq!(deferred, 0, "observations waited");
     eprintln!(
-        "{installs} installs, {} keyframes promoted while a job was out, worst difference {worst:e}",
+        "{installs} installs, {} keyframes promoted while a job was out ({pending_frames} frames, \
+         {second_in_period} after another in the same period, {demoted_promoted} just demoted), \
+         worst difference {worst:e}",
         c.est.stats.promotions_while_pending
+    );
+    assert!(
+        c.est.stats.promotions_while_pending > 0 && second_in_period > 0 && demoted_promoted > 0,
+        "no (second, or just demoted) promotion while a job was out: the test shows nothing"
+    );
+    // While a job is out at most one keyframe is promoted per frame (§5 R5):
+    // the observations of a second one wait, which is the exception here.
+    eprintln!("{deferred} keyframe observations waited");
+    assert!(
+        deferred < c.est.stats.promotions_while_pending as usize,
+        "{deferred} observations waited"
     );
     assert!(worst <= 1e-9, "asynchronous compressed differs from full by {worst:e}");
     // A job is handed out once, and its result installed once.
