@@ -859,8 +859,7 @@ impl Estimator {
             kf_use.push(ks);
         }
         // A measurement that touches a global keyframe first makes it local
-        // (§5 P1–P3). While the global part is being computed by a rebase,
-        // those keyframe observations wait for a later track instead.
+        // (§5 P1–P3); while a rebase is out (R5), one keyframe per frame.
         if self.s.mode == Mode::Compressed {
             let global_needed: Vec<u64> = self
                 .global
