@@ -243,25 +243,22 @@ impl RebaseJob {
                 }
             }
         }
-        // Demoted × live and live × demoted: P(k)[demoted, G] = (Φ̃ C̃)[demoted rows].
-        if let (Some(ct_c), false) = (&ct_c, r_dem.is_empty()) {
-            let l: Vec<usize> = r_dem.iter().map(|x| x.1).collect();
-            let v = self.Phi.select_rows(&l) * ct_c;
-            for (j, &(oc, _)) in c_live.iter().enumerate() {
-                for (i, &(or, _)) in r_dem.iter().enumerate() {
-                    out[(or, oc)] = v[(i, j)];
+        // Demoted × live, and live × demoted by symmetry:
+        // P(k)[demoted, G] = (Φ̃ C̃)[demoted rows].
+        let mut cross = |dem: &Entries, live: &Entries, ct: &Option<DMatrix<f64>>, swap: bool| {
+            let Some(ct) = ct.as_ref().filter(|_| !dem.is_empty()) else {
+                return;
+            };
+            let l: Vec<usize> = dem.iter().map(|x| x.1).collect();
+            let v = self.Phi.select_rows(&l) * ct;
+            for (j, &(pl, _)) in live.iter().enumerate() {
+                for (i, &(pd, _)) in dem.iter().enumerate() {
+                    out[if swap { (pl, pd) } else { (pd, pl) }] = v[(i, j)];
                 }
             }
-        }
-        if let (Some(ct_r), false) = (&ct_r, c_dem.is_empty()) {
-            let l: Vec<usize> = c_dem.iter().map(|x| x.1).collect();
-            let v = self.Phi.select_rows(&l) * ct_r;
-            for (j, &(oc, _)) in c_dem.iter().enumerate() {
-                for (i, &(or, _)) in r_live.iter().enumerate() {
-                    out[(or, oc)] = v[(j, i)];
-                }
-            }
-        }
+        };
+        cross(&r_dem, &c_live, &ct_c, false);
+        cross(&c_dem, &r_live, &ct_r, true);
         // Demoted × demoted: their rows of P(k), symmetrised.
         let g = 6 * self.live_blocks.len();
         for &(oc, lc) in &c_dem {
