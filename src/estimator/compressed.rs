@@ -2,7 +2,7 @@
 //! the exact promotion of global keyframes into the local part (§5 P1–P3,
 //! at a cost independent of the global size), and the rebase (global update) split into a
 //! pure [`RebaseJob`] that may run on another thread while the local filter
-//! goes on (§5 R1–R4).
+//! goes on (§5 R1–R5).
 //!
 //! Why it exists: the global update is the only step whose cost grows with
 //! the square of the map. Loop closures no longer need one (a promotion
@@ -213,6 +213,9 @@ impl RebaseJob {
     /// their own rows of `P(k)` between demoted ones, symmetrised as R2 does).
     /// `O(n_L0 (|rows| + |cols|)(n_L0 + |cols|))`, independent of `n_G`.
     pub(super) fn new_base_block(&self, rows: &[usize], cols: &[usize]) -> DMatrix<f64> {
+        // Live keyframes exist only with a parent base (else their entries
+        // would silently read as zeros).
+        debug_assert!(self.parent.is_some() || self.live_blocks.is_empty());
         // (position in `idx`, old base column or local index), live then demoted.
         type Entries = Vec<(usize, usize)>;
         let split = |idx: &[usize]| -> (Entries, Entries) {
@@ -568,17 +571,18 @@ impl Estimator {
     }
 
     /// Brings global keyframes into the local part (§5 P1–P3), exactly and
-    /// without a global update: `O(n_L n_L0 |Q| + n_L²)` from an installed
-    /// base, independent of `n_G`; `O(n_L0 n_G |Q|)` from a pending rebase's
-    /// inputs (R5). Returns
-    /// false (and changes nothing) if an id is not global.
+    /// without a global update, from an installed base or from a pending
+    /// rebase's inputs (R5): `O(n_L n_L0 |Q| + n_L²)`, independent of `n_G`.
+    /// Returns false (and changes nothing) if an id is not global or is
+    /// given twice.
     pub(super) fn promote(&mut self, ids: &[u64]) -> bool {
         let at = self.clones_offset();
         let Some(g) = self.global.as_mut() else {
             return false;
         };
         let blocks: Vec<usize> = ids.iter().filter_map(|id| g.live.get(id).copied()).collect();
-        if blocks.len() != ids.len() || ids.is_empty() {
+        let unique = ids.iter().collect::<std::collections::BTreeSet<_>>().len() == ids.len();
+        if blocks.len() != ids.len() || ids.is_empty() || !unique {
             return false;
         }
         let cols = block_cols(blocks.iter().copied());
@@ -720,6 +724,7 @@ impl Estimator {
     pub(super) fn insert_local(&mut self, at: usize, cross: &DMatrix<f64>, block: &DMatrix<f64>) {
         let n = self.P.nrows();
         let k = block.nrows();
+        debug_assert!(at <= n && cross.shape() == (n, k) && block.shape() == (k, k));
         let m = n + k;
         let mut p = DMatrix::zeros(m, m);
         {
@@ -756,6 +761,7 @@ impl Estimator {
 fn grow_phi(phi: &DMatrix<f64>, at: usize, psi_c: &DMatrix<f64>, w: &[f64]) -> DMatrix<f64> {
     let (n, n0) = phi.shape();
     let k = w.len();
+    debug_assert!(at <= n && psi_c.shape() == (n0, k));
     let m = n + k;
     let mut out = DMatrix::zeros(m, n0 + k);
     let (src, dst) = (phi.as_slice(), out.as_mut_slice());

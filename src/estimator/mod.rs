@@ -901,12 +901,14 @@ impl Estimator {
                 }
                 let waiting: Vec<u64> = global_needed.into_iter().filter(|k| !chosen.contains(k)).collect();
                 if !waiting.is_empty() {
+                    let mut deferred = 0;
                     for ks in kf_use.iter_mut() {
                         let before = ks.len();
                         ks.retain(|k| !waiting.contains(k));
-                        report.deferred += before - ks.len();
+                        deferred += before - ks.len();
                     }
-                    self.stats.loop_closure_deferred += report.deferred as u64;
+                    report.deferred += deferred;
+                    self.stats.loop_closure_deferred += deferred as u64;
                 }
             }
         }
