@@ -205,6 +205,84 @@ fn asynchronous_rebase_equals_full_after_every_install() {
     assert!(matches!(c.est.install_rebase(again), Err(InstallError::Stale { .. })));
 }
 
+/// A promotion changes the representation, not the estimate: the whole
+/// reconstructed state and covariance are the same before and after it,
+/// from an installed base and from a pending rebase's inputs (§5 R5), for a
+/// set that mixes keyframes that were global with one the pending rebase
+/// has just demoted (the daemon's rule promotes one per frame while a job is
+/// out, so the flights above never promote such a set).
+#[test]
+fn promotion_leaves_the_estimate_unchanged() {
+    let (ds, cfg) = racetrack(1, 75.0);
+    let mut c = eval::Runner::new(&ds, &cfg, Mode::Compressed, 1);
+    c.est.set_async_rebase(true);
+    let (mut pending_checked, mut installed_checked, mut worst) = (0, 0, 0.0f64);
+    for k in 0..ds.frames.len() {
+        let ids_before: BTreeSet<u64> = c.est.keyframes().map(|kf| kf.id).collect();
+        let (_, rep) = c.step_frame(k);
+        let demoted: Vec<u64> = rep
+            .events
+            .iter()
+            .filter_map(|ev| match ev {
+                FilterEvent::GlobalUpdate {
+                    global_before,
+                    local_after,
+                    ..
+                } => Some(
+                    (ids_before.iter().copied())
+                        .filter(|id| !global_before.contains(id) && !local_after.contains(id))
+                        .collect::<Vec<u64>>(),
+                ),
+                _ => None,
+            })
+            .flatten()
+            .collect();
+        let live: Vec<u64> = c
+            .est
+            .global
+            .as_ref()
+            .map(|g| g.live.keys().copied().collect())
+            .unwrap_or_default();
+        let was_global: Vec<u64> = live.iter().copied().filter(|id| !demoted.contains(id)).collect();
+        if c.est.rebase_pending() && !demoted.is_empty() && was_global.len() >= 2 && pending_checked < 3 {
+            // Two keyframes that were global and one just demoted, at once.
+            let ids = [was_global[0], demoted[0], was_global[was_global.len() - 1]];
+            let before = c.est.snapshot();
+            let mut p = c.est.clone();
+            assert!(p.promote(&ids), "promote {ids:?}");
+            let d = p.snapshot().max_rel_diff(&before);
+            assert!(d <= 1e-9, "pending promotion of {ids:?} changed the estimate by {d:e}");
+            worst = worst.max(d);
+            pending_checked += 1;
+        }
+        if let Some(job) = c.est.take_rebase_job() {
+            c.est.install_rebase(job.run()).unwrap();
+            let live: Vec<u64> = c
+                .est
+                .global
+                .as_ref()
+                .map(|g| g.live.keys().copied().collect())
+                .unwrap_or_default();
+            if live.len() >= 3 && installed_checked < 3 {
+                let ids = [live[0], live[live.len() / 2], live[live.len() - 1]];
+                let before = c.est.snapshot();
+                let mut p = c.est.clone();
+                assert!(p.promote(&ids), "promote {ids:?}");
+                assert!(!p.promote(&[ids[0]]), "a keyframe promoted twice");
+                let d = p.snapshot().max_rel_diff(&before);
+                assert!(d <= 1e-9, "promotion of {ids:?} changed the estimate by {d:e}");
+                worst = worst.max(d);
+                installed_checked += 1;
+            }
+        }
+    }
+    eprintln!("{pending_checked} promotions from a pending rebase, {installed_checked} from an installed base: worst {worst:e}");
+    assert!(
+        pending_checked > 0 && installed_checked > 0,
+        "checked {pending_checked} pending and {installed_checked} installed promotions: the test shows nothing"
+    );
+}
+
 /// Degenerate inputs are rejected and counted, never a panic.
 #[test]
 fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
