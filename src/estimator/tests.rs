@@ -11,6 +11,32 @@ fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
     (ds, cfg)
 }
 
+/// The global keyframes' ids (compressed mode), in id order.
+fn global_ids(est: &Estimator) -> Vec<u64> {
+    est.global
+        .as_ref()
+        .map(|g| g.live.keys().copied().collect())
+        .unwrap_or_default()
+}
+
+/// The keyframes a frame's rebase demoted, if it started one: held before
+/// the frame (`ids_before`), neither global before the rebase nor local
+/// after it.
+fn demoted_by(rep: &FrameReport, ids_before: &BTreeSet<u64>) -> Option<BTreeSet<u64>> {
+    rep.events.iter().find_map(|ev| match ev {
+        FilterEvent::GlobalUpdate {
+            global_before,
+            local_after,
+            ..
+        } => Some(
+            (ids_before.iter().copied())
+                .filter(|id| !global_before.contains(id) && !local_after.contains(id))
+                .collect(),
+        ),
+        _ => None,
+    })
+}
+
 #[test]
 fn compressed_equals_full_after_every_global_update() {
     let (ds, cfg) = racetrack(1, 75.0);
@@ -33,12 +59,7 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
     let mut checked = 0;
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
-        let global_before: BTreeSet<u64> = run
-            .est
-            .global
-            .as_ref()
-            .map(|g| g.live.keys().copied().collect())
-            .unwrap_or_default();
+        let global_before: BTreeSet<u64> = global_ids(&run.est).into_iter().collect();
         let (_, rep) = run.step_frame(k);
         full.step_frame(k);
         for (i, ev) in rep.events.iter().enumerate() {
@@ -136,19 +157,14 @@ fn asynchronous_rebase_equals_full_after_every_install() {
         deferred += rep.deferred;
         f.step_frame(k);
         let mut promoted_pending = false;
+        // A rebase starts a frame, before its promotions.
+        if let Some(d) = demoted_by(&rep, &ids_before) {
+            demoted = d;
+            period_promotions = 0;
+        }
         for ev in &rep.events {
-            match ev {
-                FilterEvent::GlobalUpdate {
-                    global_before,
-                    local_after,
-                    ..
-                } => {
-                    demoted = (ids_before.iter().copied())
-                        .filter(|id| !global_before.contains(id) && !local_after.contains(id))
-                        .collect();
-                    period_promotions = 0;
-                }
-                FilterEvent::Promoted { keyframes } if c.est.rebase_pending() => {
+            if let FilterEvent::Promoted { keyframes } = ev {
+                if c.est.rebase_pending() {
                     promoted_pending = true;
                     if period_promotions > 0 {
                         second_in_period += 1;
@@ -156,7 +172,6 @@ fn asynchronous_rebase_equals_full_after_every_install() {
                     period_promotions += 1;
                     demoted_promoted += keyframes.iter().filter(|id| demoted.contains(id)).count();
                 }
-                _ => {}
             }
         }
         if promoted_pending {
@@ -220,29 +235,8 @@ fn promotion_leaves_the_estimate_unchanged() {
     for k in 0..ds.frames.len() {
         let ids_before: BTreeSet<u64> = c.est.keyframes().map(|kf| kf.id).collect();
         let (_, rep) = c.step_frame(k);
-        let demoted: Vec<u64> = rep
-            .events
-            .iter()
-            .filter_map(|ev| match ev {
-                FilterEvent::GlobalUpdate {
-                    global_before,
-                    local_after,
-                    ..
-                } => Some(
-                    (ids_before.iter().copied())
-                        .filter(|id| !global_before.contains(id) && !local_after.contains(id))
-                        .collect::<Vec<u64>>(),
-                ),
-                _ => None,
-            })
-            .flatten()
-            .collect();
-        let live: Vec<u64> = c
-            .est
-            .global
-            .as_ref()
-            .map(|g| g.live.keys().copied().collect())
-            .unwrap_or_default();
+        let demoted: Vec<u64> = demoted_by(&rep, &ids_before).unwrap_or_default().into_iter().collect();
+        let live = global_ids(&c.est);
         let was_global: Vec<u64> = live.iter().copied().filter(|id| !demoted.contains(id)).collect();
         if c.est.rebase_pending() && !demoted.is_empty() && was_global.len() >= 2 && pending_checked < 3 {
             // Two keyframes that were global and one just demoted, at once.
@@ -257,12 +251,7 @@ fn promotion_leaves_the_estimate_unchanged() {
         }
         if let Some(job) = c.est.take_rebase_job() {
             c.est.install_rebase(job.run()).unwrap();
-            let live: Vec<u64> = c
-                .est
-                .global
-                .as_ref()
-                .map(|g| g.live.keys().copied().collect())
-                .unwrap_or_default();
+            let live = global_ids(&c.est);
             if live.len() >= 3 && installed_checked < 3 {
                 let ids = [live[0], live[live.len() / 2], live[live.len() - 1]];
                 let before = c.est.snapshot();
