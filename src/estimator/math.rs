@@ -120,14 +120,6 @@ fn lower_inverse(l: &nalgebra::DMatrixView<f64>) -> Option<nalgebra::DMatrix<f64
     Some(x)
 }
 
-/// `P ← P + α AᵀA` for a symmetric `P` (n × n) and `A` (k × n), the
-/// symmetric rank-k form ([`add_symmetric_product`] with `B = A`), so `P`
-/// leaves exactly symmetric.
-pub fn add_gram_symmetric(p: &mut nalgebra::DMatrix<f64>, alpha: f64, a: &nalgebra::DMatrix<f64>) {
-    let n = p.nrows();
-    add_symmetric_product(p, n, alpha, a, a);
-}
-
 /// `T M` for an upper-triangular `T` (k × k): each block of `TRI_BLOCK` rows
 /// takes only the columns of `T` on or right of its diagonal, skipping the
 /// zero lower triangle (about a third of the products at k ≈ 70).
@@ -144,14 +136,9 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
     out
 }
 
-/// Copies the strict lower triangle onto the upper one, in square tiles so
-/// that both sides stay in cache on large matrices.
-pub fn mirror_lower(p: &mut nalgebra::DMatrix<f64>) {
-    let n = p.nrows();
-    mirror_lower_leading(p, n);
-}
-
-/// [`mirror_lower`] on the leading `g × g` block only, in place.
+/// Copies the strict lower triangle of the leading `g × g` block onto its
+/// upper one, in place, in square tiles so that both sides stay in cache on
+/// large matrices.
 fn mirror_lower_leading(p: &mut nalgebra::DMatrix<f64>, g: usize) {
     const TILE: usize = 64;
     let ld = p.nrows();
@@ -225,7 +212,7 @@ mod tri_tests {
             assert!((&x - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
             let a = DMatrix::from_fn(5, n, |i, j| ((i * 11 + j * 3) % 7) as f64 - 3.0);
             let mut p = spd.clone();
-            add_gram_symmetric(&mut p, -0.25, &a);
+            add_symmetric_product(&mut p, n, -0.25, &a, &a);
             let want = &spd - a.transpose() * &a * 0.25;
             assert!((&p - &want).abs().max() <= 1e-12 * want.abs().max(), "n {n}");
             assert_eq!(p, p.transpose());
