@@ -236,8 +236,11 @@ impl RebaseJob {
             let old: Vec<usize> = live.iter().map(|x| x.1).collect();
             self.parent.as_ref().map(|b| c_cols(b, &self.extra, &old))
         };
-        let (ct_r, ct_c) = (ct(&r_live), ct(&c_live));
-        if let (Some(base), Some(ct_r), Some(ct_c)) = (self.parent.as_ref(), &ct_r, &ct_c) {
+        // A promotion's own block asks for rows == cols: one set of columns.
+        let ct_r = ct(&r_live);
+        let ct_c_own = if rows == cols { None } else { ct(&c_live) };
+        let ct_c = if rows == cols { &ct_r } else { &ct_c_own };
+        if let (Some(base), Some(ct_r), Some(ct_c)) = (self.parent.as_ref(), &ct_r, ct_c) {
             // Live × live: P_GG(0) − C̃ᵀ Ψ̃ C̃.
             let red = ct_r.tr_mul(&(&self.Psi * ct_c));
             for (j, &(oc, c0)) in c_live.iter().enumerate() {
@@ -260,7 +263,7 @@ impl RebaseJob {
                 }
             }
         };
-        cross(&r_dem, &c_live, &ct_c, false);
+        cross(&r_dem, &c_live, ct_c, false);
         cross(&c_dem, &r_live, &ct_r, true);
         // Demoted × demoted: their rows of P(k), symmetrised.
         let g = 6 * self.live_blocks.len();
