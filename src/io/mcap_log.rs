@@ -146,10 +146,9 @@ pub struct McapLogger {
     tx: Option<SyncSender<Record>>,
     dropped: Arc<AtomicU64>,
     thread: Option<JoinHandle<Result<LogSummary, LogError>>>,
-    /// Replay: wait for room rather than drop.
-    block_when_full: bool,
-    /// Replay: the writer pauses after emptying the queue.
-    batch_writes: Arc<AtomicBool>,
+    /// Replay ([`Self::blocking`]): wait for room rather than drop, and the
+    /// writer takes records in batches (shared with it).
+    blocking: Arc<AtomicBool>,
 }
 
 /// Records queued at most (about 4 s of a busy flight).
@@ -199,8 +198,8 @@ impl McapLogger {
         let (tx, rx) = sync_channel(QUEUE);
         let dropped = Arc::new(AtomicU64::new(0));
         let d2 = dropped.clone();
-        let batch_writes = Arc::new(AtomicBool::new(false));
-        let b2 = batch_writes.clone();
+        let blocking = Arc::new(AtomicBool::new(false));
+        let b2 = blocking.clone();
         let p = path.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("cmsckf-mcap".into())
@@ -213,17 +212,15 @@ impl McapLogger {
             tx: Some(tx),
             dropped,
             thread: Some(thread),
-            block_when_full: false,
-            batch_writes,
+            blocking,
         })
     }
 
     /// Waits for room instead of dropping when the queue is full, and lets
     /// the writer take records in batches: for `cmsckf replay`, which has no
     /// real time to keep and must not lose a record however fast it runs.
-    pub fn blocking(mut self) -> Self {
-        self.block_when_full = true;
-        self.batch_writes.store(true, Ordering::Relaxed);
+    pub fn blocking(self) -> Self {
+        self.blocking.store(true, Ordering::Relaxed);
         self
     }
 
@@ -241,7 +238,7 @@ impl McapLogger {
             0
         };
         let rec = Record { topic, t_ns, data };
-        if self.block_when_full {
+        if self.blocking.load(Ordering::Relaxed) {
             if tx.send(rec).is_err() {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
             }
@@ -285,7 +282,7 @@ fn writer_loop(
     ids: BTreeMap<Topic, u16>,
     rx: Receiver<Record>,
     dropped: Arc<AtomicU64>,
-    batch_writes: Arc<AtomicBool>,
+    blocking: Arc<AtomicBool>,
     path: PathBuf,
 ) -> Result<LogSummary, LogError> {
     let err = |e: mcap::McapError| LogError::Mcap {
@@ -295,34 +292,27 @@ fn writer_loop(
     let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
     let mut chunk_start: Option<u64> = None;
     let mut summary = LogSummary::default();
-    // Blocks for the first record and takes whatever else is queued. For
-    // replay it then pauses briefly, so that the writer is rarely waiting on
+    // Takes what is queued; once the queue is empty it blocks for the next
+    // record. For replay it first pauses briefly, so that the writer is rarely waiting on
     // the channel and the sender seldom has to wake it (a system call each,
     // about 4 % of a replay). The daemon's writer does not pause: with a
     // worker thread computing rebases on a 2-core machine, the pauses'
     // timer wake-ups took the fusion loop's IMU-to-output latency p99 from
     // 0.56 ms to 1.9 ms.
-    let mut first = true;
     loop {
-        let r = if first {
-            match rx.recv() {
-                Ok(r) => r,
-                Err(_) => break,
-            }
-        } else {
-            match rx.try_recv() {
-                Ok(r) => r,
-                Err(TryRecvError::Empty) => {
-                    first = true;
-                    if batch_writes.load(Ordering::Relaxed) {
-                        std::thread::sleep(WRITER_PAUSE);
-                    }
-                    continue;
+        let r = match rx.try_recv() {
+            Ok(r) => r,
+            Err(TryRecvError::Disconnected) => break,
+            Err(TryRecvError::Empty) => {
+                if blocking.load(Ordering::Relaxed) {
+                    std::thread::sleep(WRITER_PAUSE);
                 }
-                Err(TryRecvError::Disconnected) => break,
+                match rx.recv() {
+                    Ok(r) => r,
+                    Err(_) => break,
+                }
             }
         };
-        first = false;
         let Some(&cid) = ids.get(&r.topic) else { continue };
         // Close the chunk once it spans a second of sensor time, so a killed
         // writer loses at most about that much.
