@@ -24,7 +24,7 @@ use tokio::sync::{mpsc, watch};
 use crate::io::mcap_log::Topic;
 
 use crate::config::{Config, FeatureClock, GnssSource};
-use crate::estimator::frontend::{normalise, NormObs};
+use crate::estimator::frontend::{NormFrame, Normaliser};
 use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Settings};
 use crate::eval::initial_covariance;
 use crate::gnss::reassembly::{Reassembled, Reassembler};
@@ -75,7 +75,9 @@ pub enum FusionMsg {
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
-    Frame(FeatureFrame),
+    /// A camera frame as received (logged as such) and its features
+    /// normalised where it arrived, off the fusion thread.
+    Frame(FeatureFrame, NormFrame),
     /// One reassembled RTCM3 message from the rover.
     Rtcm(Vec<u8>),
     SystemTime {
@@ -157,7 +159,7 @@ impl RebaseExec {
 /// A measurement waiting for IMU to cover its time.
 #[derive(Debug)]
 enum Pending {
-    Frame(FeatureFrame),
+    Frame(NormFrame),
     Gnss(Vec<crate::estimator::gnss_update::SatMeas>),
 }
 
@@ -236,11 +238,16 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         let fusion_tx = fusion_tx.clone();
         let counters = counters.clone();
         let mut stop = stop_rx.clone();
+        // Frames are normalised here, beside the socket, not on the fusion thread.
+        let normaliser = Normaliser::new(&cfg);
         tokio::spawn(async move {
             loop {
                 tokio::select! {
                     f = frame_rx.recv() => match f {
-                        Some(f) => if fusion_tx.try_send(FusionMsg::Frame(f)).is_err() { counters.add("fusion_queue_full", 1) },
+                        Some(f) => {
+                            let norm = normaliser.frame(&f.features);
+                            if fusion_tx.try_send(FusionMsg::Frame(f, norm)).is_err() { counters.add("fusion_queue_full", 1) }
+                        }
                         None => return,
                     },
                     _ = stop.changed() => return,
@@ -621,7 +628,6 @@ pub struct Fusion {
     /// Next autopilot time to log the counters at (`/diagnostics`).
     next_diag_t: f64,
     cfg: Config,
-    cam: cmsckf_sitl::camera::Camera,
     est: Option<Estimator>,
     static_buf: VecDeque<ImuMeas>,
     attitude: Option<(f64, f64, f64)>,
@@ -634,7 +640,6 @@ pub struct Fusion {
     last_frame_t: f64,
     next_output_t: f64,
     reset_counter: u8,
-    norm: Vec<NormObs>,
     /// Degraded-state reasons, in autopilot time.
     tracker: status::Tracker,
 }
@@ -760,7 +765,6 @@ impl Fusion {
             est_gen: 0,
             next_state_log: f64::NEG_INFINITY,
             next_diag_t: f64::NEG_INFINITY,
-            cam: cmsckf_sitl::camera::Camera::from_config(&cfg.camera),
             est: None,
             static_buf: VecDeque::with_capacity(4096),
             attitude: None,
@@ -805,7 +809,6 @@ impl Fusion {
             next_output_t: f64::NEG_INFINITY,
             reset_counter: 0,
             tracker: status::Tracker::default(),
-            norm: Vec::with_capacity(cfg.features.max_features),
             cfg,
         }
     }
@@ -878,7 +881,7 @@ impl Fusion {
                 self.log(Topic::InputRtcm, self.last_imu_t, &json!({ "bytes": bytes }));
                 self.on_rtcm(&bytes, &ctx.counters)
             }
-            FusionMsg::Frame(fr) => {
+            FusionMsg::Frame(fr, norm) => {
                 let t_ap_us = match self.cfg.features.clock {
                     FeatureClock::Autopilot => fr.t_us as i64,
                     FeatureClock::Monotonic => {
@@ -912,7 +915,7 @@ impl Fusion {
                     return;
                 }
                 self.last_frame_t = t;
-                self.enqueue(t, Pending::Frame(fr), &ctx.counters);
+                self.enqueue(t, Pending::Frame(norm), &ctx.counters);
             }
             FusionMsg::Imu(m) => {
                 if m.t_s < self.last_imu_t - REBOOT_JUMP_S {
@@ -1188,12 +1191,7 @@ impl Fusion {
                     continue;
                 }
             };
-            let rej = normalise(
-                &self.cam,
-                self.cfg.camera.pixel_noise_px,
-                fr.features.iter().copied(),
-                &mut self.norm,
-            );
+            let rej = fr.rejects;
             for (name, n) in [
                 ("feature_non_finite", rej.non_finite),
                 ("feature_outside_image", rej.outside_image),
@@ -1205,7 +1203,7 @@ impl Fusion {
                 }
             }
             let started = std::time::Instant::now();
-            let result = est.process_frame(t, &self.norm);
+            let result = est.process_frame(t, &fr.obs);
             let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
             if let Some(job) = est.take_rebase_job() {
                 counters.add("rebases_started", 1);
@@ -1239,7 +1237,7 @@ impl Fusion {
                             Topic::FilterVision,
                             t,
                             &json!({
-                                "t_s": t, "features": self.norm.len(), "tracks_used": rep.tracks_used,
+                                "t_s": t, "features": fr.obs.len(), "tracks_used": rep.tracks_used,
                                 "rejected": rep.rejected, "nis": rep.nis, "residual_rms": rep.residual_rms,
                                 "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
                                 "global_updates": rep.global_updates, "elapsed_us": elapsed_us,

@@ -17,6 +17,7 @@ use serde_json::Value;
 
 use crate::config::{Config, FeatureClock, Mode};
 use crate::daemon::{Ctx, Fusion, FusionMsg};
+use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::FeatureFrame;
 use crate::io::mcap_log::{LogHeader, McapLogger};
@@ -77,23 +78,28 @@ fn v3(v: &Value) -> Option<Vector3<f64>> {
 }
 
 /// Turns one logged input back into what the fusion loop received.
-fn to_msg(topic: &str, v: &Value) -> Option<FusionMsg> {
+fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> {
     Some(match topic {
         "/input/imu" => FusionMsg::Imu(ImuMeas {
             t_s: v["t_us"].as_u64()? as f64 * 1e-6,
             accel_mps2: v3(&v["accel_mps2"])?,
             gyro_radps: v3(&v["gyro_radps"])?,
         }),
-        "/input/features" => FusionMsg::Frame(FeatureFrame {
-            // The clock is already mapped: replay runs in autopilot time.
-            t_us: v["t_ap_us"].as_i64()?.max(0) as u64,
-            cam: v["cam"].as_u64()? as u32,
-            features: v["features"]
-                .as_array()?
-                .iter()
-                .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
-                .collect(),
-        }),
+        "/input/features" => {
+            let fr = FeatureFrame {
+                // The clock is already mapped: replay runs in autopilot time.
+                t_us: v["t_ap_us"].as_i64()?.max(0) as u64,
+                cam: v["cam"].as_u64()? as u32,
+                features: v["features"]
+                    .as_array()?
+                    .iter()
+                    .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
+                    .collect(),
+            };
+            // As the daemon does where a frame arrives: here, on the reader's thread.
+            let norm = normaliser.frame(&fr.features);
+            FusionMsg::Frame(fr, norm)
+        }
         "/input/rebase_installed" => FusionMsg::RebaseInstalled {
             seq: v["seq"].as_u64()?,
         },
@@ -169,6 +175,7 @@ pub fn replay(
         mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
         start: Instant::now(),
     };
+    let normaliser = Normaliser::new(&cfg);
     let mut fusion = Fusion::new(cfg, Some(log)).for_replay();
     let start = Instant::now();
     let (mut n_in, mut n_out) = (0u64, 0u64);
@@ -190,7 +197,7 @@ pub fn replay(
                 let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
                     continue;
                 };
-                let Some(msg) = to_msg(&m.channel.topic, &v) else {
+                let Some(msg) = to_msg(&m.channel.topic, &v, &normaliser) else {
                     continue;
                 };
                 batch.push(msg);

@@ -27,6 +27,38 @@ pub struct FrameRejects {
     pub duplicate_id: u64,
 }
 
+/// A frame's features ready for the filter, and what normalising dropped.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NormFrame {
+    pub obs: Vec<NormObs>,
+    pub rejects: FrameRejects,
+}
+
+/// The camera model and pixel noise that normalise frames. The daemon and
+/// replay run it where a frame arrives (the feature socket's task, the log
+/// reader's thread), so the fusion thread receives frames ready to fuse.
+#[derive(Clone, Debug)]
+pub struct Normaliser {
+    pub cam: Camera,
+    pub pixel_sigma_px: f64,
+}
+
+impl Normaliser {
+    pub fn new(c: &crate::config::Config) -> Self {
+        Self {
+            cam: Camera::from_config(&c.camera),
+            pixel_sigma_px: c.camera.pixel_noise_px,
+        }
+    }
+
+    /// Normalises `(landmark_id, u_px, v_px)` features into a new frame.
+    pub fn frame(&self, features: &[(u64, f64, f64)]) -> NormFrame {
+        let mut obs = Vec::with_capacity(features.len());
+        let rejects = normalise(&self.cam, self.pixel_sigma_px, features.iter().copied(), &mut obs);
+        NormFrame { obs, rejects }
+    }
+}
+
 /// Normalises `(landmark_id, u_px, v_px)` features; `out` is cleared and
 /// refilled so a caller can reuse its buffer.
 pub fn normalise(
