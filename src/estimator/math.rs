@@ -266,6 +266,28 @@ pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, 
     out
 }
 
+/// `p[idx, idx]`, copied by runs of consecutive indices (a track's columns
+/// are pose blocks of 6, and its clones are adjacent), not entry by entry.
+pub fn gather_square(p: &nalgebra::DMatrix<f64>, idx: &[usize]) -> nalgebra::DMatrix<f64> {
+    // (position in idx, first index in p, length) of each run.
+    let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+    for (k, &i) in idx.iter().enumerate() {
+        match runs.last_mut() {
+            Some((_, start, len)) if *start + *len == i => *len += 1,
+            _ => runs.push((k, i, 1)),
+        }
+    }
+    let (n, m) = (idx.len(), p.nrows());
+    let mut out = nalgebra::DMatrix::zeros(n, n);
+    for (dst, &j) in out.as_mut_slice().chunks_exact_mut(n.max(1)).zip(idx) {
+        let col = &p.as_slice()[j * m..(j + 1) * m];
+        for &(at, start, len) in &runs {
+            dst[at..at + len].copy_from_slice(&col[start..start + len]);
+        }
+    }
+    out
+}
+
 /// Whether every entry is finite, without an early exit so that it runs
 /// as vector code: `x · 0` is zero for a finite `x` and NaN otherwise.
 pub fn all_finite(x: &[f64]) -> bool {

@@ -919,6 +919,7 @@ impl Estimator {
             *rep.rejected.entry(r.name()).or_default() += 1;
             *st.rejected.entry(r.name()).or_default() += 1;
         };
+        let (mut gate_idx, mut gate_p) = (Vec::new(), DMatrix::zeros(0, 0));
         for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
             // Views: the clones of the track, then its keyframes.
             let mut views = Vec::new();
@@ -972,15 +973,25 @@ impl Estimator {
             };
             let (hx, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
             let (hx, r) = feature::nullspace_project(hx, hf, r);
-            if !hx.iter().chain(r.iter()).all(|v| v.is_finite()) {
+            if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
                 gate_reject(report, &mut self.stats, Reject::NonFinite);
                 continue;
             }
-            // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1).
+            // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1). Most tracks span
+            // the whole window, so P_sub is gathered again only when the
+            // columns change.
             let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
-            let p_sub = DMatrix::from_fn(idx.len(), idx.len(), |i, j| self.P[(idx[i], idx[j])]);
-            let mut s = DMatrix::identity(r.len(), r.len());
-            s.gemm(1.0, &(&hx * p_sub), &hx.transpose(), 1.0);
+            if idx != gate_idx {
+                gate_p = math::gather_square(&self.P, &idx);
+                gate_idx.clone_from(&idx);
+            }
+            let (nr, nx) = hx.shape();
+            let mut hp = DMatrix::zeros(nr, nx);
+            hp.gemm(1.0, &hx, &gate_p, 0.0);
+            // Hᵀ as a view of H's storage with its strides swapped.
+            let hxt = nalgebra::DMatrixView::from_slice_with_strides(hx.as_slice(), nx, nr, nr, 1);
+            let mut s = DMatrix::identity(nr, nr);
+            s.gemm(1.0, &hp, &hxt, 1.0);
             let Some(ch) = s.cholesky() else {
                 gate_reject(report, &mut self.stats, Reject::NonFinite);
                 continue;
