@@ -79,6 +79,40 @@ impl LowerSolver {
         Some(Self { l, inv })
     }
 
+    /// Factors a symmetric positive-definite `S = L Lᵀ` (its lower triangle
+    /// is read) by blocks of `TRI_BLOCK`, right-looking: the diagonal block
+    /// `L_kk` column by column, its inverse (kept for the solves), the panel
+    /// `L_ik = S_ik L_kk⁻ᵀ` and the trailing `S_ii −= L_ik L_ikᵀ` as matrix
+    /// products. `None` if `S` is not numerically positive definite.
+    pub fn cholesky(mut a: nalgebra::DMatrix<f64>) -> Option<Self> {
+        let n = a.nrows();
+        debug_assert_eq!(n, a.ncols());
+        let mut inv = Vec::with_capacity(n.div_ceil(TRI_BLOCK));
+        let mut k0 = 0;
+        while k0 < n {
+            let kb = TRI_BLOCK.min(n - k0);
+            cholesky_unblocked(&mut a, k0, kb)?;
+            let li = lower_inverse(&a.view((k0, k0), (kb, kb)))?;
+            let rest = n - k0 - kb;
+            if rest > 0 {
+                let s21 = block_owned(&a, k0 + kb, k0, rest, kb);
+                a.view_mut((k0 + kb, k0), (rest, kb))
+                    .gemm(1.0, &s21, &li.transpose(), 0.0);
+                let l21 = block_owned(&a, k0 + kb, k0, rest, kb);
+                let l21t = nalgebra::DMatrixView::from_slice_with_strides(l21.as_slice(), kb, rest, rest, 1);
+                a.view_mut((k0 + kb, k0 + kb), (rest, rest))
+                    .gemm(-1.0, &l21, &l21t, 1.0);
+            }
+            inv.push(li);
+            k0 += kb;
+        }
+        // The strict upper triangle still holds S: clear it.
+        for j in 1..n {
+            a.as_mut_slice()[j * n..j * n + j].fill(0.0);
+        }
+        Some(Self { l: a, inv })
+    }
+
     /// Solves `L X = B` in place: block row `i` is
     /// `X_i = L_ii⁻¹ (B_i − L_i,<i X_<i)`, two matrix products.
     pub fn solve_in_place(&self, b: &mut nalgebra::DMatrix<f64>) {
@@ -98,26 +132,73 @@ impl LowerSolver {
     }
 }
 
+/// Cholesky factor of the diagonal block at `(k0, k0)` of size `kb`, in
+/// place in its lower triangle (left-looking, column by column; the block's
+/// earlier columns are already final). `None` on a pivot that is not
+/// positive and finite.
+fn cholesky_unblocked(a: &mut nalgebra::DMatrix<f64>, k0: usize, kb: usize) -> Option<()> {
+    let n = a.nrows();
+    let data = a.as_mut_slice();
+    for j in 0..kb {
+        let cj = (k0 + j) * n + k0;
+        // s_ij −= Σ_{t<j} L_it L_jt, for i ≥ j.
+        for t in 0..j {
+            let ct = (k0 + t) * n + k0;
+            let ljt = data[ct + j];
+            if ljt != 0.0 {
+                for i in j..kb {
+                    data[cj + i] -= data[ct + i] * ljt;
+                }
+            }
+        }
+        let d = data[cj + j];
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let ljj = d.sqrt();
+        data[cj + j] = ljj;
+        let inv = 1.0 / ljj;
+        for x in &mut data[cj + j + 1..cj + kb] {
+            *x *= inv;
+        }
+    }
+    Some(())
+}
+
 /// The inverse of a small lower-triangular matrix by forward substitution,
 /// column by column; `None` on a zero or non-finite pivot.
 fn lower_inverse(l: &nalgebra::DMatrixView<f64>) -> Option<nalgebra::DMatrix<f64>> {
     let k = l.nrows();
+    // L's columns, contiguous.
+    let lc = block_owned_view(l);
     let mut x = nalgebra::DMatrix::zeros(k, k);
     for j in 0..k {
-        let d = l[(j, j)];
-        if d == 0.0 || !d.is_finite() {
-            return None;
-        }
-        x[(j, j)] = 1.0 / d;
-        for i in j + 1..k {
-            let mut s = 0.0;
-            for t in j..i {
-                s += l[(i, t)] * x[(t, j)];
+        // Column j of L⁻¹ solves L x = e_j; forward substitution by columns
+        // of L (x_i −= L_it x_t for i > t), each an axpy over contiguous data.
+        let xj = &mut x.as_mut_slice()[j * k..(j + 1) * k];
+        xj[j] = 1.0;
+        for t in j..k {
+            let d = lc[t * k + t];
+            if d == 0.0 || !d.is_finite() {
+                return None;
             }
-            x[(i, j)] = -s / l[(i, i)];
+            xj[t] /= d;
+            let xt = xj[t];
+            if xt != 0.0 {
+                axpy(-xt, &lc[t * k + t + 1..(t + 1) * k], &mut xj[t + 1..]);
+            }
         }
     }
     Some(x)
+}
+
+/// A view's entries, column by column, as one contiguous vector.
+fn block_owned_view(v: &nalgebra::DMatrixView<f64>) -> Vec<f64> {
+    let mut out = Vec::with_capacity(v.nrows() * v.ncols());
+    for c in v.column_iter() {
+        out.extend(c.iter());
+    }
+    out
 }
 
 /// `T M` for an upper-triangular `T` (k × k): each block of `TRI_BLOCK` rows
@@ -210,6 +291,19 @@ mod tri_tests {
             LowerSolver::new(l.clone()).unwrap().solve_in_place(&mut x);
             let want = l.solve_lower_triangular(&b).unwrap();
             assert!((&x - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+            // The blocked factorisation gives the same factor and solves.
+            let ours = LowerSolver::cholesky(spd.clone()).unwrap();
+            assert!((&ours.l - &l).abs().max() <= 1e-12 * l.abs().max(), "n {n}");
+            let mut y = b.clone();
+            ours.solve_in_place(&mut y);
+            assert!((&y - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+            // Not positive definite: refused, whichever block holds the bad pivot.
+            let mut bad = spd.clone();
+            bad[(n - 1, n - 1)] = -1.0;
+            assert!(LowerSolver::cholesky(bad).is_none(), "n {n}");
+            let mut nan = spd.clone();
+            nan[(n / 2, n / 2)] = f64::NAN;
+            assert!(LowerSolver::cholesky(nan).is_none(), "n {n}");
             let a = DMatrix::from_fn(5, n, |i, j| ((i * 11 + j * 3) % 7) as f64 - 3.0);
             let mut p = spd.clone();
             add_symmetric_product(&mut p, n, -0.25, &a, &a);
@@ -241,7 +335,8 @@ mod tri_tests {
         }
         let mut z = DMatrix::<f64>::identity(3, 3);
         z[(1, 1)] = 0.0;
-        assert!(LowerSolver::new(z).is_none());
+        assert!(LowerSolver::new(z.clone()).is_none());
+        assert!(LowerSolver::cholesky(z).is_none());
         let mut v = vec![1.0; 21];
         assert!(all_finite(&v));
         for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
