@@ -971,27 +971,25 @@ impl Estimator {
                     continue;
                 }
             };
-            let (hx, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
-            let (hx, r) = feature::nullspace_project(hx, hf, r);
+            let (hx_views, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
+            let (hx, r) = feature::nullspace_project(&hx_views, &hf, &r);
             if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
                 gate_reject(report, &mut self.stats, Reject::NonFinite);
                 continue;
             }
-            // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1). Most tracks span
-            // the whole window, so P_sub is gathered again only when the
-            // columns change.
+            // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
+            // from the block-diagonal Jacobian before projection. Most tracks
+            // span the whole window, so P_sub is gathered again only when
+            // the columns change.
             let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
             if idx != gate_idx {
                 gate_p = math::gather_square(&self.P, &idx);
                 gate_idx.clone_from(&idx);
             }
-            let (nr, nx) = hx.shape();
-            let mut hp = DMatrix::zeros(nr, nx);
-            hp.gemm(1.0, &hx, &gate_p, 0.0);
-            // Hᵀ as a view of H's storage with its strides swapped.
-            let hxt = nalgebra::DMatrixView::from_slice_with_strides(hx.as_slice(), nx, nr, nr, 1);
-            let mut s = DMatrix::identity(nr, nr);
-            s.gemm(1.0, &hp, &hxt, 1.0);
+            let mut s = feature::projected_hph(&hx_views, &hf, &obs, &gate_p);
+            for i in 0..s.nrows() {
+                s[(i, i)] += 1.0;
+            }
             let Some(ch) = s.cholesky() else {
                 gate_reject(report, &mut self.stats, Reject::NonFinite);
                 continue;
@@ -1074,7 +1072,7 @@ impl Estimator {
         // H P = h P[cols, :] (P symmetric), and S = H P Hᵀ + I.
         let hp = h_times(self.P.select_rows(cols));
         let s = hp.select_columns(cols) * h.transpose() + DMatrix::identity(m, m);
-        let Some(solver) = s.cholesky().and_then(|ch| math::LowerSolver::new(ch.unpack())) else {
+        let Some(solver) = math::LowerSolver::cholesky(s) else {
             *self.stats.rejected.entry("update_not_pd").or_default() += 1;
             return;
         };
