@@ -96,12 +96,23 @@ impl LowerSolver {
             let rest = n - k0 - kb;
             if rest > 0 {
                 let s21 = block_owned(&a, k0 + kb, k0, rest, kb);
-                a.view_mut((k0 + kb, k0), (rest, kb))
-                    .gemm(1.0, &s21, &li.transpose(), 0.0);
+                let lit = nalgebra::DMatrixView::from_slice_with_strides(li.as_slice(), kb, kb, kb, 1);
+                a.view_mut((k0 + kb, k0), (rest, kb)).gemm(1.0, &s21, &lit, 0.0);
                 let l21 = block_owned(&a, k0 + kb, k0, rest, kb);
                 let l21t = nalgebra::DMatrixView::from_slice_with_strides(l21.as_slice(), kb, rest, rest, 1);
-                a.view_mut((k0 + kb, k0 + kb), (rest, rest))
-                    .gemm(-1.0, &l21, &l21t, 1.0);
+                // S_22 −= L_21 L_21ᵀ, its lower triangle only: each column
+                // block from its diagonal down.
+                let mut j0 = 0;
+                while j0 < rest {
+                    let jb = TRI_BLOCK.min(rest - j0);
+                    a.view_mut((k0 + kb + j0, k0 + kb + j0), (rest - j0, jb)).gemm(
+                        -1.0,
+                        &l21.rows(j0, rest - j0),
+                        &l21t.columns(j0, jb),
+                        1.0,
+                    );
+                    j0 += jb;
+                }
             }
             inv.push(li);
             k0 += kb;
@@ -165,40 +176,39 @@ fn cholesky_unblocked(a: &mut nalgebra::DMatrix<f64>, k0: usize, kb: usize) -> O
     Some(())
 }
 
-/// The inverse of a small lower-triangular matrix by forward substitution,
-/// column by column; `None` on a zero or non-finite pivot.
+/// The inverse of a small lower-triangular matrix (a diagonal block, at most
+/// `TRI_BLOCK` rows) by forward substitution on whole rows: row `i` of
+/// `L⁻¹` is `(e_i − Σ_{t<i} L_it row_t) / L_ii`. Rows are fixed-length
+/// arrays, so each step is a few full-width vector operations (the zeros
+/// right of the diagonal cost less than the branches that would skip them).
+/// `None` on a zero or non-finite pivot.
 fn lower_inverse(l: &nalgebra::DMatrixView<f64>) -> Option<nalgebra::DMatrix<f64>> {
     let k = l.nrows();
-    // L's columns, contiguous.
-    let lc = block_owned_view(l);
-    let mut x = nalgebra::DMatrix::zeros(k, k);
-    for j in 0..k {
-        // Column j of L⁻¹ solves L x = e_j; forward substitution by columns
-        // of L (x_i −= L_it x_t for i > t), each an axpy over contiguous data.
-        let xj = &mut x.as_mut_slice()[j * k..(j + 1) * k];
-        xj[j] = 1.0;
-        for t in j..k {
-            let d = lc[t * k + t];
-            if d == 0.0 || !d.is_finite() {
-                return None;
-            }
-            xj[t] /= d;
-            let xt = xj[t];
-            if xt != 0.0 {
-                axpy(-xt, &lc[t * k + t + 1..(t + 1) * k], &mut xj[t + 1..]);
+    assert!(
+        k <= TRI_BLOCK,
+        "lower_inverse takes diagonal blocks of at most {TRI_BLOCK} rows"
+    );
+    let mut x = [[0.0f64; TRI_BLOCK]; TRI_BLOCK];
+    for i in 0..k {
+        let d = l[(i, i)];
+        if d == 0.0 || !d.is_finite() {
+            return None;
+        }
+        let mut row = [0.0f64; TRI_BLOCK];
+        row[i] = 1.0;
+        for (t, xt) in x.iter().enumerate().take(i) {
+            let c = l[(i, t)];
+            for (r, v) in row.iter_mut().zip(xt) {
+                *r -= c * v;
             }
         }
+        let inv = 1.0 / d;
+        for r in &mut row {
+            *r *= inv;
+        }
+        x[i] = row;
     }
-    Some(x)
-}
-
-/// A view's entries, column by column, as one contiguous vector.
-fn block_owned_view(v: &nalgebra::DMatrixView<f64>) -> Vec<f64> {
-    let mut out = Vec::with_capacity(v.nrows() * v.ncols());
-    for c in v.column_iter() {
-        out.extend(c.iter());
-    }
-    out
+    Some(nalgebra::DMatrix::from_fn(k, k, |i, j| x[i][j]))
 }
 
 /// `T M` for an upper-triangular `T` (k × k): each block of `TRI_BLOCK` rows
