@@ -2,7 +2,7 @@
 //!
 //! Workload (racetrack, seed 1, 100 features per frame, GNSS off, a keyframe
 //! every 0.5 s): a 500 s flight builds 1000 keyframes in compressed mode
-//! (about 5 minutes), and a forced rebase leaves `max_local_keyframes / 2` (10) of them
+//! (about 3 minutes), and a forced rebase leaves `max_local_keyframes / 2` (10) of them
 //! local. The maps of 10, 100 and 1000 keyframes are that one filter with
 //! its oldest global keyframes marginalised (§5 G5) and the base compacted
 //! by a second forced rebase: the local part (IMU, clones, the 10 local
@@ -16,6 +16,9 @@
 //!   (`Estimator::into_mode`). Compressed includes its promotions; the
 //!   rebase jobs it starts are timed apart, as the daemon runs them on its
 //!   worker thread (they are `global_update`).
+//!   Before timing, each filter runs the window once and prints its workload
+//!   (tracks, loop-closure tracks, promotions, local dimension), so that
+//!   runs and binaries can be compared on the same work.
 //! - `global_update/N`: the rebase job alone (what the worker thread
 //!   computes) for a forced rebase with N keyframes.
 //!
@@ -81,6 +84,22 @@ fn bench_scaling(c: &mut Criterion) {
             if mode != Mode::Compressed {
                 start.est = r.est.clone().into_mode(mode);
             }
+            // The window's workload, so that runs can be compared: loop
+            // closures, promotions and the local dimension it ends with.
+            let mut probe = start.clone();
+            let (mut closures, mut promoted, mut tracks) = (0, 0, 0);
+            for f in k..k + FRAMES {
+                let rep = probe.step_frame(f).1;
+                closures += rep.loop_closure_tracks;
+                promoted += rep.promoted;
+                tracks += rep.tracks_used;
+            }
+            eprintln!(
+                "{}/{n}: {FRAMES} frames, {tracks} tracks, {closures} loop-closure tracks, {promoted} promoted, local dimension {} -> {}",
+                mode.name(),
+                start.est.local_dim(),
+                probe.est.local_dim()
+            );
             g.bench_function(format!("{}/{n}", mode.name()), |b| {
                 b.iter_custom(|iters| {
                     let mut total_us = 0.0;
