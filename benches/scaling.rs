@@ -22,7 +22,8 @@
 //! - `global_update/N`: the rebase job alone (what the worker thread
 //!   computes) for a forced rebase with N keyframes.
 //!
-//! `CMSCKF_BENCH_MAX_KEYFRAMES=100` skips the 1000-keyframe size.
+//! `CMSCKF_BENCH_MAX_KEYFRAMES=100` skips the 1000-keyframe size;
+//! `CMSCKF_BENCH_MAX_LOCAL=N` sets `compressed.max_local_keyframes` (default 20).
 //! Run: `cargo bench --bench scaling`; results are in docs/performance.md.
 
 use std::time::Duration;
@@ -47,6 +48,12 @@ fn bench_scaling(c: &mut Criterion) {
     let mut cfg = Config::default();
     cfg.keyframe.interval_s = KEYFRAME_INTERVAL_S;
     cfg.keyframe.max = 1000;
+    if let Some(v) = std::env::var("CMSCKF_BENCH_MAX_LOCAL")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        cfg.compressed.max_local_keyframes = v;
+    }
     // Only as long a flight as the largest size needs.
     let flight_s = if max_n >= 1000 { FLIGHT_S } else { FLIGHT_S / 8.0 };
     let ds = Dataset::generate("racetrack", 1, Some(flight_s + 2.0), &sim_config_for(&cfg)).expect("dataset");
