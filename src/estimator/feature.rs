@@ -414,4 +414,53 @@ mod tests {
             (&got - &want).amax()
         );
     }
+
+    /// The gate's `H P Hᵀ` equals the dense projected product also for long
+    /// tracks, where `nullspace_project` (and, from 32 observations, both
+    /// calls) take the blocked triangularisation, and when several
+    /// observations share a view (keyframes with `chart ≠ I` included).
+    #[test]
+    fn gate_covariance_matches_the_dense_projection_on_long_and_shared_tracks() {
+        let e = ext();
+        let p_f = Vector3::new(15.0, 2.0, -1.0);
+        for (n_obs, n_views) in [(12usize, 12usize), (24, 24), (40, 40), (9, 4)] {
+            let views: Vec<_> = (0..n_views)
+                .map(|i| {
+                    let chart = if i % 3 == 2 {
+                        crate::estimator::math::left_jacobian(&Vector3::new(0.01, -0.02, 0.03 * i as f64))
+                    } else {
+                        Matrix3::identity()
+                    };
+                    view(
+                        0.01 * i as f64,
+                        Vector3::new(0.05 * i as f64, 0.3 * i as f64, -3.0),
+                        chart,
+                    )
+                })
+                .collect();
+            let obs: Vec<_> = (0..n_obs)
+                .map(|i| {
+                    let v = i * n_views / n_obs;
+                    Obs {
+                        view: v,
+                        xn: measure(&views[v], &e, &p_f).0 + Vector2::new(1e-3 * i as f64, -2e-3),
+                        W: Matrix2::new(400.0, 20.0, 0.0, 380.0),
+                    }
+                })
+                .collect();
+            let (hx, hf, r) = track_system(&views, &e, &obs, &p_f);
+            let (hx2, _) = nullspace_project(&hx, &hf, &r);
+            let n = hx.ncols();
+            let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
+            let p = &g * g.transpose() + DMatrix::identity(n, n) * 0.01;
+            let want = &hx2 * &p * hx2.transpose();
+            let got = projected_hph(&hx, &hf, &obs, &p);
+            assert_eq!(got.shape(), (2 * n_obs - 3, 2 * n_obs - 3), "{n_obs} observations");
+            let err = (&got - &want).amax();
+            assert!(
+                err <= 1e-11 * want.amax(),
+                "{n_obs} observations of {n_views} views: {err}"
+            );
+        }
+    }
 }

@@ -292,7 +292,7 @@ mod tri_tests {
     /// full product.
     #[test]
     fn blocked_triangular_solve_and_gram_update_match_the_reference() {
-        for &n in &[1usize, 7, 32, 33, 70, 131] {
+        for &n in &[1usize, 7, 32, 33, 64, 70, 131] {
             let m = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 17) as f64 / 17.0 - 0.4);
             let spd = &m * m.transpose() + DMatrix::identity(n, n) * (n as f64);
             let l = spd.clone().cholesky().unwrap().l();
@@ -307,6 +307,14 @@ mod tri_tests {
             let mut y = b.clone();
             ours.solve_in_place(&mut y);
             assert!((&y - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+            // Only the lower triangle is read: garbage above it changes nothing.
+            let mut upper = spd.clone();
+            for j in 1..n {
+                for i in 0..j {
+                    upper[(i, j)] = if (i + j) % 2 == 0 { f64::NAN } else { 1e300 };
+                }
+            }
+            assert_eq!(LowerSolver::cholesky(upper).unwrap().l, ours.l, "n {n}");
             // Not positive definite: refused, whichever block holds the bad pivot.
             let mut bad = spd.clone();
             bad[(n - 1, n - 1)] = -1.0;
@@ -314,6 +322,14 @@ mod tri_tests {
             let mut nan = spd.clone();
             nan[(n / 2, n / 2)] = f64::NAN;
             assert!(LowerSolver::cholesky(nan).is_none(), "n {n}");
+            // Non-finite below the diagonal, in the last block.
+            if n > 1 {
+                for bad in [f64::NAN, f64::INFINITY] {
+                    let mut b = spd.clone();
+                    b[(n - 1, 0)] = bad;
+                    assert!(LowerSolver::cholesky(b).is_none(), "n {n} {bad}");
+                }
+            }
             let a = DMatrix::from_fn(5, n, |i, j| ((i * 11 + j * 3) % 7) as f64 - 3.0);
             let mut p = spd.clone();
             add_symmetric_product(&mut p, n, -0.25, &a, &a);
@@ -342,6 +358,16 @@ mod tri_tests {
             let um = upper_mul(&t, &b);
             let want = &t * &b;
             assert!((&um - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+        }
+        let empty = LowerSolver::cholesky(DMatrix::zeros(0, 0)).unwrap();
+        let mut none = DMatrix::<f64>::zeros(0, 4);
+        empty.solve_in_place(&mut none);
+        // gather_square: P[idx, idx] for runs, gaps, repeats and nothing.
+        let p = DMatrix::from_fn(9, 9, |i, j| (10 * i + j) as f64);
+        for idx in [vec![0usize, 1, 2, 6, 7, 8], vec![3], vec![5, 4, 4, 8], vec![]] {
+            let got = gather_square(&p, &idx);
+            let want = DMatrix::from_fn(idx.len(), idx.len(), |i, j| p[(idx[i], idx[j])]);
+            assert_eq!(got, want, "{idx:?}");
         }
         let mut z = DMatrix::<f64>::identity(3, 3);
         z[(1, 1)] = 0.0;

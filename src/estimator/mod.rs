@@ -996,7 +996,8 @@ impl Estimator {
             };
             let nis = r.dot(&ch.solve(&r));
             let dof = r.len();
-            if nis > cmsckf_sitl::metrics::chi2_quantile(self.s.chi2_gate_prob, dof) {
+            // A NaN NIS fails the gate too.
+            if nis.is_nan() || nis > cmsckf_sitl::metrics::chi2_quantile(self.s.chi2_gate_prob, dof) {
                 gate_reject(report, &mut self.stats, Reject::Chi2);
                 continue;
             }
