@@ -129,7 +129,14 @@ async fn bad_input_is_rejected_counted_and_survived() {
         s.write_all(b"{\"v\":1,\"t_us\":10500000,\"cam\":0,\"features\":[[1,NaN,2.0]]}\n")
             .unwrap();
         s.write_all(line(t + 0.02, "[1,300.0,200.0]").as_bytes()).unwrap();
-        s.write_all(line(t - 0.5, "[1,300.0,200.0]").as_bytes()).unwrap();
+        // A frame the filter uses, with one pixel outside the image and one
+        // landmark twice: those two features are dropped and counted.
+        s.write_all(line(t + 0.03, "[3,-50.0,200.0],[4,300.0,200.0],[4,310.0,210.0]").as_bytes())
+            .unwrap();
+        // Going backwards in time: the frame is rejected whole, so its
+        // outside-image pixel is not counted as well.
+        s.write_all(line(t - 0.5, "[1,300.0,200.0],[5,-60.0,10.0]").as_bytes())
+            .unwrap();
     }
     tokio::time::sleep(Duration::from_millis(50)).await;
     {
@@ -174,6 +181,8 @@ async fn bad_input_is_rejected_counted_and_survived() {
     assert_eq!(c("feature_line_syntax"), 2, "garbage and NaN");
     assert_eq!(c("feature_line_too_long"), 1);
     assert_eq!(c("feature_time_backwards"), 1);
+    assert_eq!(c("feature_outside_image"), 1, "only the fused frame's");
+    assert_eq!(c("feature_duplicate_id"), 1);
     assert_eq!(c("feature_connections"), 2);
     assert!(c("imu_gap") >= 1);
     assert_eq!(c("autopilot_clock_reset"), 1);
