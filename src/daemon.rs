@@ -13,7 +13,7 @@
 use std::collections::VecDeque;
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -52,6 +52,8 @@ struct Shared {
     status: Arc<Status>,
     mono_offset_us: Arc<AtomicI64>,
     start: Instant,
+    /// Camera frames in the fusion queue (`FRAMES_IN_FLIGHT`).
+    frames_queued: Arc<AtomicUsize>,
 }
 
 /// What the daemon did, returned at shutdown.
@@ -167,6 +169,11 @@ enum Pending {
 const FUSION_QUEUE: usize = 8192;
 /// Frames waiting for IMU to cover them.
 const PENDING_FRAMES: usize = 32;
+/// Camera frames allowed in the fusion queue at once. A frame there holds
+/// its raw and its normalised features (up to `features.max_features` of
+/// each); beyond the `PENDING_FRAMES` that can wait for IMU, more would only
+/// hold memory, so the forwarder drops them (`fusion_frames_full`).
+const FRAMES_IN_FLIGHT: usize = 2 * PENDING_FRAMES;
 /// An IMU time this far behind the last one is an autopilot reboot (s).
 const REBOOT_JUMP_S: f64 = 2.0;
 /// A longer IMU gap restarts the filter: the motion in between is unknown
@@ -234,10 +241,12 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         counters.clone(),
         stop_rx.clone(),
     ));
+    let frames_queued = Arc::new(AtomicUsize::new(0));
     let fwd = {
         let fusion_tx = fusion_tx.clone();
         let counters = counters.clone();
         let mut stop = stop_rx.clone();
+        let queued = frames_queued.clone();
         // Frames are normalised here, beside the socket, not on the fusion thread.
         let normaliser = Normaliser::new(&cfg);
         tokio::spawn(async move {
@@ -245,8 +254,16 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
                 tokio::select! {
                     f = frame_rx.recv() => match f {
                         Some(f) => {
+                            if queued.load(Ordering::Relaxed) >= FRAMES_IN_FLIGHT {
+                                counters.add("fusion_frames_full", 1);
+                                continue;
+                            }
                             let norm = normaliser.frame(&f.features);
-                            if fusion_tx.try_send(FusionMsg::Frame(f, norm)).is_err() { counters.add("fusion_queue_full", 1) }
+                            queued.fetch_add(1, Ordering::Relaxed);
+                            if fusion_tx.try_send(FusionMsg::Frame(f, norm)).is_err() {
+                                queued.fetch_sub(1, Ordering::Relaxed);
+                                counters.add("fusion_queue_full", 1);
+                            }
                         }
                         None => return,
                     },
@@ -574,6 +591,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
             status: status.clone(),
             mono_offset_us: mono_offset_us.clone(),
             start,
+            frames_queued,
         };
         let cfg = cfg.clone();
         let out_tx = out_tx.clone();
@@ -656,6 +674,7 @@ fn fusion_loop(
         status,
         mono_offset_us,
         start,
+        frames_queued,
     } = shared;
     let mut f = Fusion::new(cfg, log);
     let ctx = Ctx {
@@ -666,6 +685,9 @@ fn fusion_loop(
         start,
     };
     while let Some(msg) = rx.blocking_recv() {
+        if matches!(msg, FusionMsg::Frame(..)) {
+            let _ = frames_queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| Some(n.saturating_sub(1)));
+        }
         f.handle(msg, &ctx);
     }
     let counters = ctx.counters;
