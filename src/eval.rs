@@ -13,13 +13,12 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use cmsckf_sitl::camera::Camera;
 use cmsckf_sitl::config::SimConfig;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::metrics;
 
 use crate::config::{Config, Mode};
-use crate::estimator::frontend::{normalise, NormObs};
+use crate::estimator::frontend::{NormObs, Normaliser};
 use crate::estimator::propagate::{boxplus, Mat15, BA, BG, P, TH, V};
 use crate::estimator::{Estimator, ImuMeas, ImuState, Settings, Stats};
 
@@ -108,8 +107,7 @@ struct GnssInput {
 #[derive(Clone)]
 pub struct Runner<'a> {
     ds: &'a Dataset,
-    cam: Camera,
-    sigma_px: f64,
+    normaliser: Normaliser,
     pub est: Estimator,
     imu_next: usize,
     buf: Vec<NormObs>,
@@ -145,8 +143,7 @@ impl<'a> Runner<'a> {
         est.set_rebase_runner(timed_rebase);
         Self {
             ds,
-            cam: Camera::from_config(&c.camera),
-            sigma_px: c.camera.pixel_noise_px,
+            normaliser: Normaliser::new(&c),
             est,
             rebase_us: Vec::new(),
             imu_next: 0,
@@ -265,9 +262,7 @@ impl<'a> Runner<'a> {
         self.feed_imu(t_f);
         let f = &self.ds.frames[k];
         let start = Instant::now();
-        normalise(
-            &self.cam,
-            self.sigma_px,
+        self.normaliser.normalise_into(
             f.features.iter().map(|o| (o.landmark_id, o.u_px, o.v_px)),
             &mut self.buf,
         );

@@ -243,11 +243,7 @@ pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMat
     let keep = rows - 3;
     let mut b = DMatrix::zeros(rows, 3 + keep);
     b.columns_mut(0, 3).copy_from(hf);
-    for k in 0..keep {
-        for r in 0..rows {
-            b[(r, 3 + k)] = a[(3 + k, 3 + r)];
-        }
-    }
+    b.columns_mut(3, keep).tr_copy_from(&a.view((3, 3), (keep, rows)));
     super::math::householder_in_place(&mut b, 3);
     super::math::block_owned(&b, 3, 3, keep, keep)
 }

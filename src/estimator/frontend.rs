@@ -54,8 +54,17 @@ impl Normaliser {
     /// Normalises `(landmark_id, u_px, v_px)` features into a new frame.
     pub fn frame(&self, features: &[(u64, f64, f64)]) -> NormFrame {
         let mut obs = Vec::with_capacity(features.len());
-        let rejects = normalise(&self.cam, self.pixel_sigma_px, features.iter().copied(), &mut obs);
+        let rejects = self.normalise_into(features.iter().copied(), &mut obs);
         NormFrame { obs, rejects }
+    }
+
+    /// [`normalise`] with this camera and noise, into a caller's buffer.
+    pub fn normalise_into(
+        &self,
+        features: impl IntoIterator<Item = (u64, f64, f64)>,
+        out: &mut Vec<NormObs>,
+    ) -> FrameRejects {
+        normalise(&self.cam, self.pixel_sigma_px, features, out)
     }
 }
 

@@ -1417,7 +1417,7 @@ impl Estimator {
         ];
         // Columns: velocity, position, clock bias, drift, Galileo ISB.
         let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
-        let p_sub = self.P.select_rows(&cols).select_columns(&cols);
+        let p_sub = math::gather_square(&self.P, &cols);
         let mut rows: Vec<([f64; 9], f64)> = Vec::new();
         let gate = cmsckf_sitl::metrics::chi2_quantile(0.99, 1);
         let reject = |rep: &mut GnssReport, st: &mut Stats, why: &'static str| {
