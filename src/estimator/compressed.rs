@@ -113,25 +113,6 @@ fn block_cols(blocks: impl IntoIterator<Item = usize>) -> Vec<usize> {
     blocks.into_iter().flat_map(|b| 6 * b..6 * b + 6).collect()
 }
 
-/// `out[..k, ..k] = src[idx, idx]`, copying runs of consecutive indices
-/// (live blocks are mostly contiguous) as slices.
-fn gather_block(src: &DMatrix<f64>, idx: &[usize], out: &mut DMatrix<f64>) {
-    let (ms, mo) = (src.nrows(), out.nrows());
-    let (s, o) = (src.as_slice(), out.as_mut_slice());
-    for (c, &sc) in idx.iter().enumerate() {
-        let mut r = 0;
-        while r < idx.len() {
-            let mut len = 1;
-            while r + len < idx.len() && idx[r + len] == idx[r] + len {
-                len += 1;
-            }
-            let from = sc * ms + idx[r];
-            o[c * mo + r..c * mo + r + len].copy_from_slice(&s[from..from + len]);
-            r += len;
-        }
-    }
-}
-
 /// A rebase (global update, §5 R1–R3): everything it needs, owned, so that
 /// [`RebaseJob::run`] is a pure function that can run on any thread.
 #[derive(Clone, Debug)]
@@ -343,7 +324,7 @@ impl RebaseJob {
                 // G1: P_LG(k) = Φ̃ C̃.
                 let p_lg = &self.Phi * &ct;
                 // G2: P_GG(k) = P_GG(0) − C̃ᵀ Ψ̃ C̃, as one in-place product.
-                gather_block(&base.P_GG0, &cols, &mut p0);
+                math::gather_block(&base.P_GG0, &cols, &mut p0);
                 // C̃ᵀ Ψ̃ C̃ is symmetric: its lower triangle, mirrored.
                 let psi_c = &self.Psi * &ct;
                 math::add_symmetric_product(&mut p0, g, -1.0, &ct, &psi_c);
@@ -599,7 +580,7 @@ impl Estimator {
         let (c_q, base_qq, dx_base) = match (&g.base, &self.pending) {
             (Some(base), _) => {
                 let mut qq = DMatrix::zeros(k, k);
-                gather_block(&base.P_GG0, &cols, &mut qq);
+                math::gather_block(&base.P_GG0, &cols, &mut qq);
                 (c_cols(base, &g.extra, &cols), qq, DVector::zeros(k))
             }
             (None, Some(p)) => {

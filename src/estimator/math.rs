@@ -362,12 +362,22 @@ mod tri_tests {
         let empty = LowerSolver::cholesky(DMatrix::zeros(0, 0)).unwrap();
         let mut none = DMatrix::<f64>::zeros(0, 4);
         empty.solve_in_place(&mut none);
-        // gather_square: P[idx, idx] for runs, gaps, repeats and nothing.
+        // gather_block: P[idx, idx] for runs, gaps, repeats and nothing,
+        // into an exact and into a larger output (its leading block).
         let p = DMatrix::from_fn(9, 9, |i, j| (10 * i + j) as f64);
         for idx in [vec![0usize, 1, 2, 6, 7, 8], vec![3], vec![5, 4, 4, 8], vec![]] {
-            let got = gather_square(&p, &idx);
-            let want = DMatrix::from_fn(idx.len(), idx.len(), |i, j| p[(idx[i], idx[j])]);
+            let k = idx.len();
+            let want = DMatrix::from_fn(k, k, |i, j| p[(idx[i], idx[j])]);
+            let mut got = DMatrix::zeros(k, k);
+            gather_block(&p, &idx, &mut got);
             assert_eq!(got, want, "{idx:?}");
+            let mut big = DMatrix::from_element(k + 2, k + 1, -1.0);
+            gather_block(&p, &idx, &mut big);
+            assert_eq!(big.view((0, 0), (k, k)), want, "{idx:?} leading block");
+            assert!(
+                big.rows(k, 2).iter().all(|&x| x == -1.0),
+                "{idx:?} rows below untouched"
+            );
         }
         let mut z = DMatrix::<f64>::identity(3, 3);
         z[(1, 1)] = 0.0;
@@ -397,26 +407,24 @@ pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, 
     out
 }
 
-/// `p[idx, idx]`, copied by runs of consecutive indices (a track's columns
-/// are pose blocks of 6, and its clones are adjacent), not entry by entry.
-pub fn gather_square(p: &nalgebra::DMatrix<f64>, idx: &[usize]) -> nalgebra::DMatrix<f64> {
-    // (position in idx, first index in p, length) of each run.
-    let mut runs: Vec<(usize, usize, usize)> = Vec::new();
-    for (k, &i) in idx.iter().enumerate() {
-        match runs.last_mut() {
-            Some((_, start, len)) if *start + *len == i => *len += 1,
-            _ => runs.push((k, i, 1)),
+/// `out[..k, ..k] = src[idx, idx]` (`k = idx.len()`), copying runs of
+/// consecutive indices as slices: a track's columns are pose blocks of 6
+/// with its clones adjacent, and live global blocks are mostly contiguous.
+pub fn gather_block(src: &nalgebra::DMatrix<f64>, idx: &[usize], out: &mut nalgebra::DMatrix<f64>) {
+    let (ms, mo) = (src.nrows(), out.nrows());
+    let (s, o) = (src.as_slice(), out.as_mut_slice());
+    for (c, &sc) in idx.iter().enumerate() {
+        let mut r = 0;
+        while r < idx.len() {
+            let mut len = 1;
+            while r + len < idx.len() && idx[r + len] == idx[r] + len {
+                len += 1;
+            }
+            let from = sc * ms + idx[r];
+            o[c * mo + r..c * mo + r + len].copy_from_slice(&s[from..from + len]);
+            r += len;
         }
     }
-    let (n, m) = (idx.len(), p.nrows());
-    let mut out = nalgebra::DMatrix::zeros(n, n);
-    for (dst, &j) in out.as_mut_slice().chunks_exact_mut(n.max(1)).zip(idx) {
-        let col = &p.as_slice()[j * m..(j + 1) * m];
-        for &(at, start, len) in &runs {
-            dst[at..at + len].copy_from_slice(&col[start..start + len]);
-        }
-    }
-    out
 }
 
 /// Whether every entry is finite, without an early exit so that it runs

@@ -983,7 +983,8 @@ impl Estimator {
             // the columns change.
             let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
             if idx != gate_idx {
-                gate_p = math::gather_square(&self.P, &idx);
+                gate_p = DMatrix::zeros(idx.len(), idx.len());
+                math::gather_block(&self.P, &idx, &mut gate_p);
                 gate_idx.clone_from(&idx);
             }
             let mut s = feature::projected_hph(&hx_views, &hf, &obs, &gate_p);
@@ -1417,7 +1418,8 @@ impl Estimator {
         ];
         // Columns: velocity, position, clock bias, drift, Galileo ISB.
         let cols = [3usize, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
-        let p_sub = math::gather_square(&self.P, &cols);
+        let mut p_sub = DMatrix::zeros(cols.len(), cols.len());
+        math::gather_block(&self.P, &cols, &mut p_sub);
         let mut rows: Vec<([f64; 9], f64)> = Vec::new();
         let gate = cmsckf_sitl::metrics::chi2_quantile(0.99, 1);
         let reject = |rep: &mut GnssReport, st: &mut Stats, why: &'static str| {
