@@ -30,7 +30,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 
-use cmsckf::config::{Config, Mode};
+use cmsckf::config::Config;
+use cmsckf::estimator::Mode;
 use cmsckf::eval::{sim_config_for, Runner};
 use cmsckf_sitl::dataset::Dataset;
 

@@ -25,8 +25,7 @@ use crate::io::mcap_log::Topic;
 
 use crate::config::{Config, FeatureClock, GnssSource};
 use crate::estimator::frontend::{NormFrame, Normaliser};
-use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Settings};
-use crate::eval::initial_covariance;
+use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState};
 use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink::{self as mav, Inbound, Link, Outbound};
@@ -126,7 +125,7 @@ enum RebaseExec {
 
 impl RebaseExec {
     fn for_config(cfg: &Config) -> Self {
-        if cfg.estimator.mode != crate::config::Mode::Compressed || !cfg.compressed.rebase_thread {
+        if cfg.estimator.mode != crate::estimator::Mode::Compressed || !cfg.compressed.rebase_thread {
             return RebaseExec::Inline;
         }
         let (tx, job_rx) = std::sync::mpsc::channel::<RebaseWork>();
@@ -162,7 +161,7 @@ impl RebaseExec {
 #[derive(Debug)]
 enum Pending {
     Frame(NormFrame),
-    Gnss(Vec<crate::estimator::gnss_update::SatMeas>),
+    Gnss(Vec<cmsckf_models::gnss::SatMeas>),
 }
 
 /// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).
@@ -248,7 +247,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         let mut stop = stop_rx.clone();
         let queued = frames_queued.clone();
         // Frames are normalised here, beside the socket, not on the fusion thread.
-        let normaliser = Normaliser::new(&cfg);
+        let normaliser = Normaliser::new(&cfg.camera);
         tokio::spawn(async move {
             loop {
                 tokio::select! {
@@ -627,12 +626,12 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
 struct GnssIn {
     dec: crate::gnss::rtcm::RtcmDecoder,
     rx: crate::gnss::Receiver,
-    frame: Option<cmsckf_sitl::geodesy::NedFrame>,
+    frame: Option<cmsckf_models::geodesy::NedFrame>,
     /// Unix time minus autopilot boot time (s), from SYSTEM_TIME.
     unix_minus_boot_s: Option<f64>,
     msgs: Vec<crate::gnss::rtcm::GnssMessage>,
     epochs: Vec<crate::gnss::Epoch>,
-    klobuchar: Option<crate::gnss::Klobuchar>,
+    klobuchar: Option<cmsckf_models::gnss::Klobuchar>,
 }
 
 /// State of the fusion loop.
@@ -812,7 +811,7 @@ impl Fusion {
                 ),
                 frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
                     let o = &cfg.gnss.origin_llh;
-                    cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2])
+                    cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2])
                 }),
                 unix_minus_boot_s: None,
                 msgs: Vec::new(),
@@ -820,7 +819,7 @@ impl Fusion {
                 klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
                     let a = &cfg.gnss.klobuchar_alpha;
                     let b = &cfg.gnss.klobuchar_beta;
-                    crate::gnss::Klobuchar {
+                    cmsckf_models::gnss::Klobuchar {
                         alpha: [a[0], a[1], a[2], a[3]],
                         beta: [b[0], b[1], b[2], b[3]],
                     }
@@ -895,7 +894,7 @@ impl Fusion {
                     // the geoid separation (tens of metres) is a constant
                     // height offset that the clock bias cannot absorb, so
                     // `gnss.origin_llh` is the precise way to set it.
-                    self.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
+                    self.gnss.frame = Some(cmsckf_models::geodesy::NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
                     ctx.counters.add("gnss_origin_from_autopilot", 1);
                 }
             }
@@ -1058,9 +1057,9 @@ impl Fusion {
                 continue;
             };
             let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
-            let t = crate::gnss::gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / cmsckf_sitl::geodesy::C_MPS;
+            let t = cmsckf_models::gnss::gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / cmsckf_models::geodesy::C_MPS;
             if let Ok(fix) = &ep.fix {
-                let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&fix.r_ecef_m);
+                let (lat, lon, h) = cmsckf_models::geodesy::ecef_to_llh(&fix.r_ecef_m);
                 let tt = t.max(0.0);
                 // Variance approximated from the residuals and the PDOP.
                 let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
@@ -1077,10 +1076,10 @@ impl Fusion {
                 // No configured or autopilot origin: anchor the world frame so
                 // that the current estimate sits at the first fix.
                 if let (Ok(fix), Some(est)) = (&ep.fix, self.est.as_ref()) {
-                    let (lat, lon, _) = cmsckf_sitl::geodesy::ecef_to_llh(&fix.r_ecef_m);
-                    let r = cmsckf_sitl::geodesy::R_ecef_ned(lat, lon);
+                    let (lat, lon, _) = cmsckf_models::geodesy::ecef_to_llh(&fix.r_ecef_m);
+                    let r = cmsckf_models::geodesy::R_ecef_ned(lat, lon);
                     let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
-                    self.gnss.frame = Some(cmsckf_sitl::geodesy::NedFrame::from_ecef(&origin));
+                    self.gnss.frame = Some(cmsckf_models::geodesy::NedFrame::from_ecef(&origin));
                     counters.add("gnss_origin_from_fix", 1);
                 }
             }
@@ -1132,7 +1131,7 @@ impl Fusion {
         // Tell the autopilot our origin once it is known (output.set_gps_origin).
         if self.cfg.output.set_gps_origin && !self.origin_sent {
             if let Some(frame) = self.gnss.frame {
-                let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&frame.origin_ecef);
+                let (lat, lon, h) = cmsckf_models::geodesy::ecef_to_llh(&frame.origin_ecef);
                 let msg = Outbound::SetGpsGlobalOrigin {
                     lat_deg: lat.to_degrees(),
                     lon_deg: lon.to_degrees(),
@@ -1456,7 +1455,7 @@ impl Fusion {
             Some((p, v, _)) => (p, v),
             None => (Vector3::zeros(), Vector3::zeros()),
         };
-        let mut p0 = initial_covariance(&self.cfg);
+        let mut p0 = self.cfg.initial_covariance();
         let (q, b_g, v) = if is_static {
             match attitude_from_static(&acc, yaw) {
                 Some(q) => (q, gyr, Vector3::zeros()),
@@ -1480,7 +1479,7 @@ impl Fusion {
             b_g,
             b_a: Vector3::zeros(),
         };
-        let mut est = Estimator::new(Settings::from_config(&self.cfg), m.t_s, x0, &p0);
+        let mut est = Estimator::new(self.cfg.estimator_settings(), m.t_s, x0, &p0);
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
         self.est_gen += 1;
         let _ = est.add_imu(m);

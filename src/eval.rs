@@ -13,14 +13,16 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
+use cmsckf_models::stats::chi2_quantile;
 use cmsckf_sitl::config::SimConfig;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::metrics;
 
-use crate::config::{Config, Mode};
+use crate::config::Config;
+use crate::estimator::Mode;
 use crate::estimator::frontend::{NormObs, Normaliser};
-use crate::estimator::propagate::{boxplus, Mat15, BA, BG, P, TH, V};
-use crate::estimator::{Estimator, ImuMeas, ImuState, Settings, Stats};
+use crate::estimator::propagate::{boxplus, Mat15};
+use crate::estimator::{Estimator, ImuMeas, ImuState, Stats};
 
 /// The simulator settings that match a daemon config (same camera and IMU).
 pub fn sim_config_for(cfg: &Config) -> SimConfig {
@@ -28,24 +30,6 @@ pub fn sim_config_for(cfg: &Config) -> SimConfig {
     s.camera = cfg.camera.clone();
     s.imu = cfg.imu.clone();
     s
-}
-
-/// The initial covariance of the IMU block from `[init]`.
-pub fn initial_covariance(cfg: &Config) -> Mat15 {
-    let i = &cfg.init;
-    let mut p = Mat15::zeros();
-    let set = |p: &mut Mat15, o: usize, s: [f64; 3]| {
-        for k in 0..3 {
-            p[(o + k, o + k)] = s[k] * s[k];
-        }
-    };
-    let tilt = i.sigma_tilt_deg.to_radians();
-    set(&mut p, TH, [tilt, tilt, i.sigma_yaw_deg.to_radians()]);
-    set(&mut p, V, [i.sigma_velocity_mps; 3]);
-    set(&mut p, P, [i.sigma_position_m; 3]);
-    set(&mut p, BG, [i.sigma_gyro_bias_radps; 3]);
-    set(&mut p, BA, [i.sigma_accel_bias_mps2; 3]);
-    p
 }
 
 /// Initial state: the truth at t = 0 perturbed by a draw from the initial
@@ -99,7 +83,7 @@ pub struct FlightResult {
 #[derive(Clone)]
 struct GnssInput {
     ephs: crate::gnss::spp::EphStore,
-    frame: cmsckf_sitl::geodesy::NedFrame,
+    frame: cmsckf_models::geodesy::NedFrame,
     next: usize,
 }
 
@@ -137,13 +121,13 @@ impl<'a> Runner<'a> {
     pub fn new(ds: &'a Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> Self {
         let mut c = cfg.clone();
         c.estimator.mode = mode;
-        let p0 = initial_covariance(&c);
+        let p0 = c.initial_covariance();
         let x0 = init_from_truth(ds, &p0, init_seed);
-        let mut est = Estimator::new(Settings::from_config(&c), ds.truth[0].truth.t_s, x0, &p0);
+        let mut est = Estimator::new(c.estimator_settings(), ds.truth[0].truth.t_s, x0, &p0);
         est.set_rebase_runner(timed_rebase);
         Self {
             ds,
-            normaliser: Normaliser::new(&c),
+            normaliser: Normaliser::new(&c.camera),
             est,
             rebase_us: Vec::new(),
             imu_next: 0,
@@ -162,7 +146,7 @@ impl<'a> Runner<'a> {
         let o = self.ds.cfg.gnss.origin_llh;
         self.gnss = Some(GnssInput {
             ephs,
-            frame: cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]),
+            frame: cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]),
             next: 0,
         });
         self
@@ -197,9 +181,9 @@ impl<'a> Runner<'a> {
             // off by default, and `sim.gnss.ionosphere` makes it modelled as
             // unknown (variance inflated).
             let iono = if ds.cfg.gnss.ionosphere {
-                crate::config::IonoMode::Auto
+                crate::gnss::IonoMode::Auto
             } else {
-                crate::config::IonoMode::Off
+                crate::gnss::IonoMode::Off
             };
             let sats = crate::gnss::sat_measurements(
                 &g.ephs,
@@ -406,7 +390,7 @@ pub struct FlightScore {
 pub fn score(r: &FlightResult) -> FlightScore {
     let ate = metrics::ate(&r.p_est, &r.p_true);
     let rot = metrics::rotation_rmse_deg(&r.q_est, &r.q_true, ate.yaw_rad);
-    let (lo, hi) = (metrics::chi2_quantile(0.025, 6), metrics::chi2_quantile(0.975, 6));
+    let (lo, hi) = (chi2_quantile(0.025, 6), chi2_quantile(0.975, 6));
     let mut sum = 0.0;
     let mut n = 0usize;
     let mut inside = 0usize;

@@ -17,6 +17,7 @@
 pub mod config;
 pub mod daemon;
 pub mod estimator;
+#[cfg(feature = "sim")]
 pub mod eval;
 pub mod gnss;
 pub mod io;

@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 
-use cmsckf::config::{Config, Mode};
+use cmsckf::config::Config;
+use cmsckf::estimator::Mode;
 use cmsckf::eval;
 
 #[derive(Parser)]
@@ -197,7 +198,7 @@ fn gnss_file(
     if !(mask.is_finite() && (0.0..=60.0).contains(&mask)) {
         bail!("--elevation-mask-deg {mask}: give degrees in [0, 60]");
     }
-    let iono: cmsckf::config::IonoMode = iono.parse().map_err(anyhow::Error::msg)?;
+    let iono: cmsckf::gnss::IonoMode = iono.parse().map_err(anyhow::Error::msg)?;
     let systems = cmsckf::gnss::parse_systems(systems).map_err(anyhow::Error::msg)?;
     let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
     let week = week_hint.unwrap_or_else(cmsckf::gnss::gps_week_now);
@@ -228,7 +229,7 @@ fn gnss_file(
     }
     for r in &results {
         let Ok(s) = &r.fix else { continue };
-        let (lat, lon, h) = cmsckf_sitl::geodesy::ecef_to_llh(&s.r_ecef_m);
+        let (lat, lon, h) = cmsckf_models::geodesy::ecef_to_llh(&s.r_ecef_m);
         if csv {
             writeln!(
                 out,
@@ -463,7 +464,7 @@ fn main() -> anyhow::Result<()> {
             let sim = eval::sim_config_for(&cfg);
             if !sim.gnss.ionosphere {
                 // The simulated sky has no ionosphere: do not inflate for one.
-                cfg.gnss.iono = cmsckf::config::IonoMode::Off;
+                cfg.gnss.iono = cmsckf::gnss::IonoMode::Off;
             }
             let ds = cmsckf_sitl::dataset::Dataset::generate(&scenario, seed, Some(duration_s), &sim)?;
             if !json {

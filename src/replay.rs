@@ -15,7 +15,8 @@ use nalgebra::Vector3;
 use serde::Serialize;
 use serde_json::Value;
 
-use crate::config::{Config, FeatureClock, Mode};
+use crate::config::{Config, FeatureClock};
+use crate::estimator::Mode;
 use crate::daemon::{Ctx, Fusion, FusionMsg};
 use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
@@ -175,7 +176,7 @@ pub fn replay(
         mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
         start: Instant::now(),
     };
-    let normaliser = Normaliser::new(&cfg);
+    let normaliser = Normaliser::new(&cfg.camera);
     let mut fusion = Fusion::new(cfg, Some(log)).for_replay();
     let start = Instant::now();
     let (mut n_in, mut n_out) = (0u64, 0u64);

@@ -19,7 +19,7 @@ use plotters::prelude::*;
 use serde::Serialize;
 use serde_json::Value;
 
-use cmsckf_sitl::metrics::chi2_quantile;
+use cmsckf_models::stats::chi2_quantile;
 
 /// Errors of a review.
 #[derive(Debug, thiserror::Error)]

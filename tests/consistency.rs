@@ -2,7 +2,8 @@
 //! `full` and `compressed` lies in its 95% χ² interval, and Schmidt is never
 //! over-confident. Also checks compressed = full on every seed.
 
-use cmsckf::config::{Config, Mode};
+use cmsckf::config::Config;
+use cmsckf::estimator::Mode;
 use cmsckf::eval;
 use cmsckf_sitl::metrics::nees_bounds_95;
 

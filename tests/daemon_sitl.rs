@@ -18,7 +18,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     let log_path = dir.path().join("flight.mcap");
     cfg.log.path = log_path.display().to_string();
     // The simulated sky has no ionosphere.
-    cfg.gnss.iono = cmsckf::config::IonoMode::Off;
+    cfg.gnss.iono = cmsckf::gnss::IonoMode::Off;
     cfg.output.set_gps_origin = true;
     let mut daemon = common::spawn_daemon_binary(&cfg, dir.path());
     let seed = 4;
@@ -156,7 +156,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         assert!(a == b, "{topic}: replay differs ({} vs {} messages)", a.len(), b.len());
     }
     let schmidt = dir.path().join("schmidt.mcap");
-    cmsckf::replay::replay(&log_path, &schmidt, Some(cmsckf::config::Mode::Schmidt), None, |_| {}).unwrap();
+    cmsckf::replay::replay(&log_path, &schmidt, Some(cmsckf::estimator::Mode::Schmidt), None, |_| {}).unwrap();
     assert_ne!(
         messages(&log_path, "/filter/state"),
         messages(&schmidt, "/filter/state")

@@ -13,7 +13,7 @@ use cmsckf_sitl::serve::{serve, Fault, ServeOptions};
 async fn the_daemon_rides_through_injected_faults() {
     let dir = tempfile::tempdir().unwrap();
     let (mut cfg, port) = common::loopback_config(dir.path());
-    cfg.gnss.iono = cmsckf::config::IonoMode::Off; // the simulated sky has none
+    cfg.gnss.iono = cmsckf::gnss::IonoMode::Off; // the simulated sky has none
     let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
     // The durations: a 5 s link drop, a 60 s GNSS outage, a 10 s

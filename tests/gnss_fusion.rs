@@ -3,7 +3,8 @@
 //! inter-system bias track the truth, the
 //! filter stays consistent, and compressed still equals full.
 
-use cmsckf::config::{Config, Mode};
+use cmsckf::config::Config;
+use cmsckf::estimator::Mode;
 use cmsckf::eval;
 use cmsckf_sitl::metrics::nees_bounds_95;
 

@@ -1,11 +1,11 @@
 //! `cmsckf gnss` on real receiver streams against RTKLIB 2.4.3's
-//! single-point solutions (../shared/data, README there): same model, so the
+//! single-point solutions (tests/data, README there): same model, so the
 //! two must agree to centimetres; the checks ask for a median ≤ 1 m.
 
 use std::process::Command;
 
 fn data(name: &str) -> std::path::PathBuf {
-    cmsckf_sitl::shared_data_dir().join(name)
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)
 }
 
 /// GPS time of week (s) of a `YYYY/MM/DD hh:mm:ss.sss` GPST stamp.

@@ -3,7 +3,8 @@
 //! stream lands on the truth with GPS, Galileo, or both (then with the
 //! simulated inter-system bias).
 
-use cmsckf::config::{Config, IonoMode};
+use cmsckf::config::Config;
+use cmsckf::gnss::IonoMode;
 use cmsckf::eval;
 use cmsckf::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use cmsckf::gnss::spp::SppOptions;
@@ -65,7 +66,7 @@ fn simulated_rtcm_round_trips_and_solves() {
     }
     // Week and solution, per selection of constellations.
     let o = ds.cfg.gnss.origin_llh;
-    let frame = cmsckf_sitl::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]);
+    let frame = cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]);
     for systems in [
         vec![System::Gps],
         vec![System::Galileo],

@@ -12,10 +12,11 @@ use std::path::Path;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::camera::Camera;
+use cmsckf_models::camera::Camera;
 use crate::config::SimConfig;
 use crate::features::{CameraFrame, FeatureSim, TrackStats};
-use crate::gnss::{BroadcastEphemeris, GnssEpoch, GnssModel};
+use crate::gnss::{GnssEpoch, GnssModel};
+use cmsckf_models::gnss::BroadcastEphemeris;
 use crate::imu::{gauss3, ImuBias, ImuModel, ImuSample};
 use crate::trajectory::{Trajectory, TrajectoryError, TruthSample};
 

@@ -17,7 +17,7 @@ use nalgebra::{Isometry3, Vector2, Vector3};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use crate::camera::Camera;
+use cmsckf_models::camera::Camera;
 use crate::config::FeatureSimConfig;
 use crate::trajectory::TruthSample;
 
@@ -133,6 +133,25 @@ impl FeatureSim {
     /// Produces the frame seen from `truth`.
     pub fn frame<R: Rng>(&mut self, truth: &TruthSample, rng: &mut R) -> CameraFrame {
         let T_W_C = self.camera_pose(truth);
+        let mut selected = self.visible(&T_W_C);
+        self.top_up(&mut selected, &T_W_C, rng);
+        let mut features = Vec::with_capacity(selected.len());
+        let prev_live = std::mem::take(&mut self.live);
+        for (i, uv) in selected {
+            features.push(self.observe(i, uv, &prev_live, rng));
+        }
+        self.stats.frames += 1;
+        self.stats.observations += features.len();
+        self.stats.landmarks = self.landmarks.len();
+        CameraFrame {
+            t_s: truth.t_s,
+            features,
+        }
+    }
+
+    /// The landmarks in view from `T_W_C` with their true pixels: continuing
+    /// tracks first, then re-detections, at most `per_frame`.
+    fn visible(&self, T_W_C: &Isometry3<f64>) -> Vec<(usize, Vector2<f64>)> {
         let T_C_W = T_W_C.inverse();
         let p_C_in_W = T_W_C.translation.vector;
         // Project every nearby landmark.
@@ -151,8 +170,12 @@ impl FeatureSim {
         // Continuing tracks first, then re-detections, up to per_frame.
         visible.sort_by_key(|(i, _)| (!self.live.contains(i), *i));
         visible.truncate(self.cfg.per_frame);
-        let mut selected = visible;
-        // Spawn new landmarks in view to top the frame up.
+        visible
+    }
+
+    /// Spawns new landmarks at random pixels and depths in view of `T_W_C`
+    /// until `selected` holds `per_frame` of them (or the attempts run out).
+    fn top_up<R: Rng>(&mut self, selected: &mut Vec<(usize, Vector2<f64>)>, T_W_C: &Isometry3<f64>, rng: &mut R) {
         let mut attempts = 0;
         while selected.len() < self.cfg.per_frame && attempts < 4 * self.cfg.per_frame {
             attempts += 1;
@@ -169,62 +192,63 @@ impl FeatureSim {
             let idx = self.add_landmark(p_in_W.coords);
             selected.push((idx, uv));
         }
-        let mut features = Vec::with_capacity(selected.len());
-        let prev_live = std::mem::take(&mut self.live);
-        for (i, uv) in selected {
-            let lm = &mut self.landmarks[i];
-            let id = match (prev_live.contains(&i), lm.id) {
-                (true, Some(id)) => id,
-                (false, Some(id)) if rng.random::<f64>() < self.cfg.reid_prob => {
-                    self.stats.reidentified += 1;
-                    id
-                }
-                _ => {
-                    let id = self.next_id;
-                    self.next_id += 1;
-                    self.stats.new_ids += 1;
-                    id
-                }
-            };
-            lm.id = Some(id);
-            // The track survives into the next frame unless it is lost.
-            if rng.random::<f64>() >= self.cfg.track_loss_prob {
-                self.live.insert(i);
+    }
+
+    /// The front end's report of landmark `i` seen at true pixel `uv`: its
+    /// track id (kept, re-identified or new), whether the track survives,
+    /// pixel noise and, at `outlier_prob`, a wrong id or a wrong pixel.
+    fn observe<R: Rng>(
+        &mut self,
+        i: usize,
+        uv: Vector2<f64>,
+        prev_live: &std::collections::BTreeSet<usize>,
+        rng: &mut R,
+    ) -> FeatureObs {
+        let lm = &mut self.landmarks[i];
+        let id = match (prev_live.contains(&i), lm.id) {
+            (true, Some(id)) => id,
+            (false, Some(id)) if rng.random::<f64>() < self.cfg.reid_prob => {
+                self.stats.reidentified += 1;
+                id
             }
-            let noise = Vector2::new(
-                rng.sample::<f64, _>(StandardNormal),
-                rng.sample::<f64, _>(StandardNormal),
-            ) * self.pixel_noise_px;
-            let mut obs = FeatureObs {
-                landmark_id: id,
-                u_px: uv.x + noise.x,
-                v_px: uv.y + noise.y,
-            };
-            if rng.random::<f64>() < self.cfg.outlier_prob {
-                self.stats.outliers += 1;
-                if rng.random::<bool>() {
-                    obs.landmark_id = rng.random_range(1..self.next_id.max(2));
-                } else {
-                    obs.u_px = rng.random_range(0.0..self.cam.width_px);
-                    obs.v_px = rng.random_range(0.0..self.cam.height_px);
-                }
+            _ => {
+                let id = self.next_id;
+                self.next_id += 1;
+                self.stats.new_ids += 1;
+                id
             }
-            features.push(obs);
+        };
+        lm.id = Some(id);
+        // The track survives into the next frame unless it is lost.
+        if rng.random::<f64>() >= self.cfg.track_loss_prob {
+            self.live.insert(i);
         }
-        self.stats.frames += 1;
-        self.stats.observations += features.len();
-        self.stats.landmarks = self.landmarks.len();
-        CameraFrame {
-            t_s: truth.t_s,
-            features,
+        let noise = Vector2::new(
+            rng.sample::<f64, _>(StandardNormal),
+            rng.sample::<f64, _>(StandardNormal),
+        ) * self.pixel_noise_px;
+        let mut obs = FeatureObs {
+            landmark_id: id,
+            u_px: uv.x + noise.x,
+            v_px: uv.y + noise.y,
+        };
+        if rng.random::<f64>() < self.cfg.outlier_prob {
+            self.stats.outliers += 1;
+            if rng.random::<bool>() {
+                obs.landmark_id = rng.random_range(1..self.next_id.max(2));
+            } else {
+                obs.u_px = rng.random_range(0.0..self.cam.width_px);
+                obs.v_px = rng.random_range(0.0..self.cam.height_px);
+            }
         }
+        obs
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::CameraConfig;
+    use cmsckf_models::sensors::CameraConfig;
     use crate::trajectory::{racetrack, RacetrackParams};
     use rand::SeedableRng;
 

@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use crate::config::ImuConfig;
+use cmsckf_models::sensors::ImuConfig;
 use crate::trajectory::{gravity_w, TruthSample};
 
 /// One IMU measurement in the body (FRD) frame.

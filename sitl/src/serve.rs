@@ -22,13 +22,10 @@ use tokio::net::UnixStream;
 
 use crate::dataset::Dataset;
 use crate::metrics;
+use cmsckf_models::gnss::{GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S};
 
 /// Boot time of the autopilot at the start of the flight (s).
 pub const BOOT0_S: f64 = 20.0;
-/// GPS − UTC (s), in force since 2017-01-01.
-pub const GPS_UTC_LEAP_S: f64 = 18.0;
-/// Unix time of the GPS epoch, 1980-01-06 (s).
-pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
 /// RTCM reference-station id of the simulated receiver.
 pub const ROVER_STATION_ID: u16 = 7;
 
@@ -492,7 +489,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
             // Broadcast ephemerides every 30 s, as receivers repeat them.
             if (t as u64).is_multiple_of(30) {
                 for e in &ds.ephemerides {
-                    if let Ok(bytes) = crate::rtcm_out::encode_ephemeris(e) {
+                    if let Ok(bytes) = cmsckf_models::gnss::rtcm_eph::encode_ephemeris(e) {
                         for f in rtcm_fragments(&bytes, rtcm_seq) {
                             send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
                         }

@@ -15,8 +15,9 @@ use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{math, position_sigma_m, whitening_factor, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
-use crate::config::Mode;
+use super::covariance::{position_sigma_m, whitening_factor};
+use super::{math, Estimator, FilterEvent, GlobalReason, ACTIVE_DIM};
+use crate::estimator::Mode;
 
 /// The global part at the last rebase (time 0), in the whitened coordinates
 /// of §5 W1. Immutable once built: a running job shares it through an `Arc`.

@@ -6,7 +6,8 @@ use std::collections::BTreeSet;
 
 use nalgebra::{Matrix2, Vector2};
 
-use cmsckf_sitl::camera::Camera;
+use cmsckf_models::camera::Camera;
+use cmsckf_models::sensors::CameraConfig;
 
 /// One feature ready for the filter.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,10 +45,10 @@ pub struct Normaliser {
 }
 
 impl Normaliser {
-    pub fn new(c: &crate::config::Config) -> Self {
+    pub fn new(c: &CameraConfig) -> Self {
         Self {
-            cam: Camera::from_config(&c.camera),
-            pixel_sigma_px: c.camera.pixel_noise_px,
+            cam: Camera::from_config(c),
+            pixel_sigma_px: c.pixel_noise_px,
         }
     }
 

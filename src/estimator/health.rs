@@ -20,8 +20,13 @@
 //!
 //! Either is a divergence. Outages (no measurements) are not: the window
 //! then holds too few to judge. Memory is bounded by the window's length.
+//!
+//! [`Estimator::check_health`] adds the plain checks: a finite, positive
+//! covariance and a state within physical bounds.
 
 use std::collections::VecDeque;
+
+use super::{math, Estimator, ACTIVE_DIM, MAX_ACCEL_BIAS_MPS2, MAX_GYRO_BIAS_RADPS, MAX_SPEED_MPS};
 
 /// Thresholds of the monitor.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -139,6 +144,67 @@ impl NisMonitor {
             ));
         }
         Ok(())
+    }
+}
+
+impl Estimator {
+    /// Health checks (§9): the covariance finite, symmetric, with a positive
+    /// diagonal and a positive-definite active block; the state finite and
+    /// within physical bounds; and the NIS monitor's verdict. Returns the
+    /// first problem found. Allocation-free, so it can run every IMU sample.
+    pub fn check_health(&self) -> Result<(), String> {
+        let p = &self.P;
+        if !math::all_finite(p.as_slice()) {
+            return Err("covariance has non-finite entries".into());
+        }
+        for i in 0..p.nrows() {
+            if p[(i, i)] <= 0.0 {
+                return Err(format!("covariance diagonal {i} is {}", p[(i, i)]));
+            }
+        }
+        // Symmetric (updates and propagation keep it exactly so, so any
+        // asymmetry is a fault), and
+        // the active block positive definite (a Cholesky of 18×18: cheap).
+        // |P_ij − P_ji| ≤ 1e-9 √(P_ii P_jj), compared squared (no root).
+        let n = p.nrows();
+        for i in 0..n.min(ACTIVE_DIM) {
+            let pii = p[(i, i)];
+            for j in 0..n {
+                let d = p[(i, j)] - p[(j, i)];
+                if d * d > 1e-18 * pii * p[(j, j)] {
+                    return Err(format!("covariance is not symmetric at ({i}, {j})"));
+                }
+            }
+        }
+        if p.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0)
+            .into_owned()
+            .cholesky()
+            .is_none()
+        {
+            return Err("the active covariance block is not positive definite".into());
+        }
+        let i = &self.imu;
+        if ![i.v_B_in_W, i.p_B_in_W, i.b_a, i.b_g]
+            .iter()
+            .all(|v| v.iter().all(|x| x.is_finite()))
+        {
+            return Err("state has non-finite entries".into());
+        }
+        // State sanity: a multirotor's envelope, with margin.
+        if i.v_B_in_W.norm() > MAX_SPEED_MPS {
+            return Err(format!(
+                "speed {:.0} m/s is beyond {MAX_SPEED_MPS} m/s",
+                i.v_B_in_W.norm()
+            ));
+        }
+        if i.b_a.norm() > MAX_ACCEL_BIAS_MPS2 || i.b_g.norm() > MAX_GYRO_BIAS_RADPS {
+            return Err(format!(
+                "IMU bias out of range (accel {:.2} m/s², gyro {:.3} rad/s)",
+                i.b_a.norm(),
+                i.b_g.norm()
+            ));
+        }
+        self.monitor.verdict()
     }
 }
 

@@ -3,11 +3,17 @@
 //!
 //! Error state of the IMU, in this order (15): `[δθ, δv, δp, δb_g, δb_a]`,
 //! with the world-frame (left) rotation perturbation `R = Exp(δθ) R̂`.
+//!
+//! The filter's side of it is here too: buffering IMU samples, stepping the
+//! nominal state and the clock through them (the covariance step itself is
+//! `covariance.rs`'s), and the low-latency prediction the outputs use.
 
 use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 
 use super::math::{exp_so3, skew};
-use crate::config::ImuConfig;
+use cmsckf_models::sensors::ImuConfig;
+
+use super::{Estimator, InputError, MatActive, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP};
 
 pub type Mat15 = SMatrix<f64, 15, 15>;
 
@@ -170,6 +176,145 @@ pub fn boxplus(x: &ImuState, d: &[f64]) -> ImuState {
         p_B_in_W: x.p_B_in_W + v3(P),
         b_g: x.b_g + v3(BG),
         b_a: x.b_a + v3(BA),
+    }
+}
+
+impl Estimator {
+    /// Queues an IMU sample; it is integrated when a frame or a query needs
+    /// it. Non-finite or non-increasing samples are rejected.
+    pub fn add_imu(&mut self, m: ImuMeas) -> Result<(), InputError> {
+        if !(m.t_s.is_finite()
+            && m.accel_mps2.iter().all(|v| v.is_finite())
+            && m.gyro_radps.iter().all(|v| v.is_finite()))
+        {
+            *self.stats.rejected.entry("imu_non_finite").or_default() += 1;
+            return Err(InputError::NonFiniteImu(m.t_s));
+        }
+        let prev = self
+            .imu_buf
+            .back()
+            .map(|b| b.t_s)
+            .or(self.last_meas.map(|l| l.t_s))
+            .unwrap_or(f64::NEG_INFINITY);
+        if m.t_s <= prev {
+            *self.stats.rejected.entry("imu_time_backwards").or_default() += 1;
+            return Err(InputError::ImuTimeBackwards {
+                t_s: m.t_s,
+                prev_s: prev,
+            });
+        }
+        self.stats.imu_samples += 1;
+        if self.last_meas.is_none() {
+            // The first sample defines the measurement at the filter time.
+            self.last_meas = Some(ImuMeas {
+                t_s: self.t_s.min(m.t_s),
+                ..m
+            });
+            if m.t_s <= self.t_s {
+                return Ok(());
+            }
+        }
+        let mut res = Ok(());
+        if self.imu_buf.len() == IMU_BUFFER_CAP {
+            self.imu_buf.pop_front();
+            *self.stats.rejected.entry("imu_overflow").or_default() += 1;
+            res = Err(InputError::ImuOverflow(IMU_BUFFER_CAP));
+        }
+        self.imu_buf.push_back(m);
+        res
+    }
+
+    /// Integrates one step from the last measurement to `m` (§2): the
+    /// nominal state, the IMU covariance block and the accumulated
+    /// transition. No allocation.
+    pub(super) fn step(&mut self, m: ImuMeas) {
+        let Some(m0) = self.last_meas else {
+            self.last_meas = Some(m);
+            return;
+        };
+        if m.t_s <= m0.t_s {
+            return;
+        }
+        let (f15, q15) = transition(&self.imu, &m0, &m, &self.s.imu);
+        // The clock: bias integrates drift, both random walks (§8, eq. K1).
+        let dt = m.t_s - m0.t_s;
+        let mut f = MatActive::identity();
+        f.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
+        f[(CLK_B, CLK_D)] = dt;
+        let mut q = MatActive::zeros();
+        q.fixed_view_mut::<15, 15>(0, 0).copy_from(&q15);
+        let (qb, qd) = (self.s.clock_bias_rw.powi(2), self.s.clock_drift_rw.powi(2));
+        q[(CLK_B, CLK_B)] = qb * dt + qd * dt * dt * dt / 3.0;
+        q[(CLK_B, CLK_D)] = qd * dt * dt / 2.0;
+        q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
+        q[(CLK_D, CLK_D)] = qd * dt;
+        q[(CLK_E, CLK_E)] = self.s.isb_rw.powi(2) * dt;
+        self.imu = integrate(&self.imu, &m0, &m, &self.g_W);
+        self.clock.x += self.clock.y * dt;
+        self.propagate_covariance(&f, &q);
+        self.t_s = m.t_s;
+        self.last_meas = Some(m);
+    }
+
+    /// Propagates the filter to `t_s` through the buffered samples,
+    /// interpolating the last one (or holding it if none is later).
+    pub fn propagate_to(&mut self, t_s: f64) {
+        while let Some(&m) = self.imu_buf.front() {
+            if m.t_s > t_s {
+                break;
+            }
+            self.imu_buf.pop_front();
+            self.step(m);
+        }
+        if t_s > self.t_s {
+            if let Some(last) = self.last_meas {
+                let m = match self.imu_buf.front() {
+                    Some(next) => ImuMeas::lerp(&last, next, t_s),
+                    None => ImuMeas { t_s, ..last },
+                };
+                self.step(m);
+            } else {
+                self.t_s = t_s;
+            }
+        }
+    }
+
+    /// The body state predicted to `t_s` through the buffered IMU samples,
+    /// without changing the filter (for low-latency output).
+    pub fn predict(&self, t_s: f64) -> ImuState {
+        let mut x = self.imu;
+        let Some(mut last) = self.last_meas else {
+            return x;
+        };
+        for m in self.imu_buf.iter() {
+            let target = if m.t_s > t_s { ImuMeas::lerp(&last, m, t_s) } else { *m };
+            if target.t_s > last.t_s {
+                x = integrate(&x, &last, &target, &self.g_W);
+            }
+            last = target;
+            if m.t_s >= t_s {
+                return x;
+            }
+        }
+        if t_s > last.t_s {
+            x = integrate(&x, &last, &ImuMeas { t_s, ..last }, &self.g_W);
+        }
+        x
+    }
+
+    /// Brings the filter to a measurement at `t_s`, which must not be in
+    /// its past (else it is counted under `counter` and refused).
+    pub(super) fn advance_to(&mut self, t_s: f64, counter: &'static str) -> Result<(), InputError> {
+        if !t_s.is_finite() || t_s < self.t_s {
+            *self.stats.rejected.entry(counter).or_default() += 1;
+            return Err(InputError::FrameTimeBackwards {
+                t_s,
+                filter_s: self.t_s,
+            });
+        }
+        self.propagate_to(t_s);
+        self.sync();
+        Ok(())
     }
 }
 

@@ -1,7 +1,8 @@
 //! Estimator tests on simulated flights.
 
 use super::*;
-use crate::config::{Config, Mode};
+use crate::config::Config;
+use crate::estimator::Mode;
 use crate::eval;
 use cmsckf_sitl::dataset::Dataset;
 
@@ -311,7 +312,7 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
     }
     est.process_frame(t0 + 0.01, &[]).unwrap();
     // NaN pixels never reach the filter: the front end drops them.
-    let cam = cmsckf_sitl::camera::Camera::from_config(&cfg.camera);
+    let cam = cmsckf_models::camera::Camera::from_config(&cfg.camera);
     let mut out = Vec::new();
     let rej = frontend::normalise(
         &cam,

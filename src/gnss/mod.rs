@@ -14,17 +14,36 @@ pub mod stream;
 
 use std::collections::BTreeMap;
 
+use serde::{Deserialize, Serialize};
+
+use cmsckf_models::gnss::Klobuchar;
+
 use rtcm::{GnssMessage, MsmEpoch, SatObs, System};
 use spp::{EphStore, SppError, SppOptions, SppSolution};
 
-/// GPS − UTC (s), in force since 2017-01-01 (no leap second announced since).
-pub const GPS_UTC_LEAP_S: f64 = 18.0;
-/// Unix time of the GPS epoch, 1980-01-06 00:00 UTC (s).
-pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
+/// Ionosphere handling (`gnss.iono`).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum IonoMode {
+    Off,
+    Klobuchar,
+    IonoFree,
+    Auto,
+}
 
-/// Unix time (s) of a GPS week and time of week.
-pub fn gps_to_unix_s(week: u32, tow_s: f64) -> f64 {
-    GPS_EPOCH_UNIX_S + week as f64 * 604_800.0 + tow_s - GPS_UTC_LEAP_S
+impl std::str::FromStr for IonoMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "off" => Ok(IonoMode::Off),
+            "klobuchar" => Ok(IonoMode::Klobuchar),
+            "iono-free" => Ok(IonoMode::IonoFree),
+            "auto" => Ok(IonoMode::Auto),
+            _ => Err(format!(
+                "unknown ionosphere mode '{s}': use off, klobuchar, iono-free or auto"
+            )),
+        }
+    }
 }
 
 /// One completed epoch: the rover's observations and its single-point fix.
@@ -125,38 +144,6 @@ impl Receiver {
     }
 }
 
-/// Klobuchar's broadcast ionosphere model (IS-GPS-200, 20.3.3.5.2.5).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Klobuchar {
-    pub alpha: [f64; 4],
-    pub beta: [f64; 4],
-}
-
-impl Klobuchar {
-    /// L1 ionospheric delay (m) seen from geodetic `(lat, lon)` (rad) toward
-    /// azimuth/elevation `(az, el)` (rad) at GPS time of week `tow_s`.
-    pub fn delay_m(&self, lat: f64, lon: f64, az: f64, el: f64, tow_s: f64) -> f64 {
-        let pi = std::f64::consts::PI;
-        let e = el / pi; // semicircles
-        let psi = 0.0137 / (e + 0.11) - 0.022;
-        let phi_i = (lat / pi + psi * az.cos()).clamp(-0.416, 0.416);
-        let lam_i = lon / pi + psi * az.sin() / (phi_i * pi).cos();
-        let phi_m = phi_i + 0.064 * ((lam_i - 1.617) * pi).cos();
-        let t = (43_200.0 * lam_i + tow_s).rem_euclid(86_400.0);
-        let f = 1.0 + 16.0 * (0.53 - e).powi(3);
-        let poly = |c: &[f64; 4]| c[0] + phi_m * (c[1] + phi_m * (c[2] + phi_m * c[3]));
-        let amp = poly(&self.alpha).max(0.0);
-        let per = poly(&self.beta).max(72_000.0);
-        let x = 2.0 * pi * (t - 50_400.0) / per;
-        let delay_s = if x.abs() < 1.57 {
-            f * (5e-9 + amp * (1.0 - x * x / 2.0 + x.powi(4) / 24.0))
-        } else {
-            f * 5e-9
-        };
-        delay_s * cmsckf_sitl::geodesy::C_MPS
-    }
-}
-
 /// One satellite's code and Doppler as they reach [`sat_measurements`] and
 /// the single-point solver.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -208,8 +195,8 @@ impl RawSat {
     /// The ionosphere-free combination where a second code exists and the
     /// mode wants it (`iono-free`, `auto`); otherwise L1/E1 unless the mode
     /// is `iono-free`.
-    pub fn code(&self, iono: crate::config::IonoMode) -> Option<(f64, bool)> {
-        use crate::config::IonoMode;
+    pub fn code(&self, iono: crate::gnss::IonoMode) -> Option<(f64, bool)> {
+        use crate::gnss::IonoMode;
         let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
         match (self.l1_pseudorange_m, self.l2_pseudorange) {
             (Some(p1), Some((p2, f2))) if want_if => Some((spp::iono_free(p1, p2, f2), true)),
@@ -222,7 +209,7 @@ impl RawSat {
 /// How [`sat_measurements`] treats the ionosphere.
 #[derive(Clone, Copy, Debug)]
 pub struct IonoPolicy<'a> {
-    pub mode: crate::config::IonoMode,
+    pub mode: crate::gnss::IonoMode,
     /// Broadcast parameters, if known (RTCM carries none: from the config).
     pub klobuchar: Option<&'a Klobuchar>,
     /// An approximate receiver position (ECEF, m) for the Klobuchar geometry.
@@ -242,10 +229,10 @@ pub fn sat_measurements(
     tow_s: f64,
     policy: IonoPolicy<'_>,
     sats: impl IntoIterator<Item = RawSat>,
-) -> Vec<crate::estimator::gnss_update::SatMeas> {
+) -> Vec<cmsckf_models::gnss::SatMeas> {
     let iono = policy.mode;
-    use crate::config::IonoMode;
-    let c = cmsckf_sitl::geodesy::C_MPS;
+    use crate::gnss::IonoMode;
+    let c = cmsckf_models::geodesy::C_MPS;
     sats.into_iter()
         .filter_map(|s| {
             let eph = ephs.select(s.system, s.prn, week, tow_s)?;
@@ -258,8 +245,8 @@ pub fn sat_measurements(
             let dts = if is_if { st.dt_s + eph.tgd_s } else { st.dt_s };
             let klob = match (policy.klobuchar, policy.rx_ecef_m) {
                 (Some(k), Some(r)) if !is_if && iono != IonoMode::Off => {
-                    let (lat, lon, _) = cmsckf_sitl::geodesy::ecef_to_llh(&r);
-                    let (el, az) = cmsckf_sitl::geodesy::elevation_azimuth(&r, &st.r_ecef_m);
+                    let (lat, lon, _) = cmsckf_models::geodesy::ecef_to_llh(&r);
+                    let (el, az) = cmsckf_models::geodesy::elevation_azimuth(&r, &st.r_ecef_m);
                     Some(k.delay_m(lat, lon, az, el, tow_s))
                 }
                 _ => None,
@@ -271,7 +258,7 @@ pub fn sat_measurements(
                 (false, _, None) => (1.0, 25.0),
             };
             let pr = pr.map(|p| p - klob.unwrap_or(0.0));
-            Some(crate::estimator::gnss_update::SatMeas {
+            Some(cmsckf_models::gnss::SatMeas {
                 system: s.system,
                 prn: s.prn,
                 r_sat_ecef_m: st.r_ecef_m,
@@ -324,7 +311,7 @@ pub fn gps_week_now() -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::IonoMode;
+    use crate::gnss::IonoMode;
     use rand::SeedableRng;
 
     fn pol(mode: IonoMode) -> IonoPolicy<'static> {
@@ -352,7 +339,7 @@ mod tests {
             30f64.to_radians(),
             14.0 * 3600.0,
         );
-        let floor = 5e-9 * cmsckf_sitl::geodesy::C_MPS;
+        let floor = 5e-9 * cmsckf_models::geodesy::C_MPS;
         assert!((d - 6.634965).abs() < 1e-4, "{d}");
         let night = k.delay_m(
             45f64.to_radians(),
@@ -392,7 +379,7 @@ mod tests {
         assert_eq!(off.pseudorange_m, Some(2.2e7));
         assert_eq!((off.noise_scale, off.extra_var_m2), (1.0, 0.0));
         // The iono-free clock has no TGD: the two differ by exactly c·TGD.
-        assert!((auto.dts_m - off.dts_m - c[0].tgd_s * cmsckf_sitl::geodesy::C_MPS).abs() < 1e-3);
+        assert!((auto.dts_m - off.dts_m - c[0].tgd_s * cmsckf_models::geodesy::C_MPS).abs() < 1e-3);
         let single = RawSat {
             l2_pseudorange: None,
             ..raw

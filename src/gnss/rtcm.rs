@@ -11,9 +11,9 @@ use std::collections::BTreeMap;
 
 use rtcm_rs::{Message, MessageFrame};
 
-use cmsckf_sitl::geodesy::C_MPS;
-use cmsckf_sitl::gnss::BroadcastEphemeris;
-pub use cmsckf_sitl::gnss::System;
+use cmsckf_models::geodesy::C_MPS;
+use cmsckf_models::gnss::BroadcastEphemeris;
+pub use cmsckf_models::gnss::System;
 
 /// One signal of one satellite.
 #[derive(Clone, Debug, PartialEq)]
@@ -251,15 +251,15 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         // The weeks stay truncated until the receiver resolves them.
         Message::Msg1019(e) => Some(GnssMessage::Eph(RawEph {
             week_field: e.gps_week_number,
-            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1019(&e, e.gps_week_number as u32),
+            eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1019(&e, e.gps_week_number as u32),
         })),
         Message::Msg1045(e) => Some(GnssMessage::Eph(RawEph {
             week_field: e.gal_week_number,
-            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1045(&e, e.gal_week_number as u32),
+            eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1045(&e, e.gal_week_number as u32),
         })),
         Message::Msg1046(e) => Some(GnssMessage::Eph(RawEph {
             week_field: e.gal_week_number,
-            eph: cmsckf_sitl::rtcm_out::ephemeris_from_1046(&e, e.gal_week_number as u32),
+            eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1046(&e, e.gal_week_number as u32),
         })),
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
@@ -288,7 +288,7 @@ mod tests {
     use super::*;
 
     fn data(name: &str) -> Vec<u8> {
-        std::fs::read(cmsckf_sitl::shared_data_dir().join(name)).unwrap()
+        std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)).unwrap()
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //!
 //! - satellite position and clock at transmission time `t_rx − P/c − δt_sv`
 //!   (IS-GPS-200 / Galileo OS SIS ICD Kepler orbit, harmonic corrections,
-//!   relativistic term; `cmsckf_sitl::gnss::BroadcastEphemeris::state`), TGD
+//!   relativistic term; `cmsckf_models::gnss::BroadcastEphemeris::state`), TGD
 //!   (GPS) or BGD (Galileo) applied for the single-frequency code;
 //! - the Sagnac correction `ω_e (x_s y_r − y_s x_r)/c` added to the range;
 //! - Saastamoinen troposphere (standard atmosphere, 70% humidity);
@@ -22,13 +22,13 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use cmsckf_sitl::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
-use cmsckf_sitl::gnss::{saastamoinen_m, BroadcastEphemeris};
-use cmsckf_sitl::metrics::chi2_quantile;
+use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
+use cmsckf_models::gnss::{saastamoinen_m, BroadcastEphemeris};
+use cmsckf_models::stats::chi2_quantile;
 
 use super::rtcm::{SatObs, System};
 use super::RawSat;
-use crate::config::IonoMode;
+use crate::gnss::IonoMode;
 
 /// The first frequency (GPS L1, Galileo E1), Hz.
 const F1: f64 = 1_575.42e6;
@@ -144,7 +144,7 @@ pub enum SppError {
 /// The satellite's state at the transmission time of a signal received at
 /// `tow_rx_s` with pseudorange `pr_m`: `t_tx = t_rx − P/c − δt_sv` (RTKLIB's
 /// `satposs`).
-pub fn state_at_transmission(eph: &BroadcastEphemeris, tow_rx_s: f64, pr_m: f64) -> cmsckf_sitl::gnss::SatState {
+pub fn state_at_transmission(eph: &BroadcastEphemeris, tow_rx_s: f64, pr_m: f64) -> cmsckf_models::gnss::SatState {
     let t0 = tow_rx_s - pr_m / C_MPS;
     let clk0 = eph.state(t0).dt_s + eph.tgd_s;
     eph.state(t0 - clk0)

@@ -7,7 +7,7 @@
 
 use nalgebra::{Isometry3, Matrix2, Translation3, UnitQuaternion, Vector2, Vector3};
 
-use crate::config::{CameraConfig, CameraModelKind};
+use crate::sensors::{CameraConfig, CameraModelKind};
 
 /// A calibrated camera with its mounting on the body.
 #[derive(Clone, Debug)]

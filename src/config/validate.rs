@@ -1,0 +1,217 @@
+//! Checks of every configuration value, and the signing key file: each
+//! error names the field and the fix.
+
+use cmsckf_models::check::{Check, FieldError, Validate};
+
+use super::{Config, GnssSource};
+
+impl Config {
+    /// Checks every value; the error names the field and the fix.
+    pub fn validate(&self) -> Result<(), FieldError> {
+        let m = &self.mavlink;
+        let c = Check::new("mavlink");
+        let schemes = ["udpin:", "udpout:", "udpbcast:", "tcpin:", "tcpout:", "serial:"];
+        if !schemes.iter().any(|s| m.address.starts_with(s)) {
+            return Err(c.fail(
+                "address",
+                format!("'{}' has no known scheme", m.address),
+                "use udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
+            ));
+        }
+        if m.system_id == 0 {
+            return Err(c.fail(
+                "system_id",
+                "0 is the broadcast id",
+                "set the vehicle's system id, 1..255",
+            ));
+        }
+        if m.component_id == 0 {
+            return Err(c.fail(
+                "component_id",
+                "0 is the broadcast id",
+                "use 197 (visual-inertial odometry)",
+            ));
+        }
+        c.positive("imu_rate_hz", m.imu_rate_hz, 2000.0)?;
+        if !m.signing_key_file.is_empty() {
+            load_signing_key(std::path::Path::new(&m.signing_key_file))
+                .map_err(|(problem, fix)| c.fail("signing_key_file", problem, fix))?;
+        }
+
+        let c = Check::new("features");
+        if self.features.socket.is_empty() {
+            return Err(c.fail("socket", "is empty", "give a path such as /run/cmsckf/features.sock"));
+        }
+        if !(256..=16 << 20).contains(&self.features.max_line_bytes) {
+            return Err(c.fail(
+                "max_line_bytes",
+                format!("{} is out of range", self.features.max_line_bytes),
+                "set 256..16777216",
+            ));
+        }
+        if !(1..=100_000).contains(&self.features.max_features) {
+            return Err(c.fail(
+                "max_features",
+                format!("{} is out of range", self.features.max_features),
+                "set 1..100000",
+            ));
+        }
+
+        self.camera.validate("camera")?;
+        self.imu.validate("imu")?;
+
+        let e = &self.estimator;
+        let c = Check::new("estimator");
+        if !(2..=100).contains(&e.max_clones) {
+            return Err(c.fail(
+                "max_clones",
+                format!("{} is out of range", e.max_clones),
+                "set 2..100 (11 is typical)",
+            ));
+        }
+        if e.min_track_len < 2 || e.min_track_len > e.max_clones + 1 {
+            return Err(c.fail(
+                "min_track_len",
+                format!("{} is out of range", e.min_track_len),
+                "set 2..=max_clones+1",
+            ));
+        }
+        c.range("chi2_gate_prob", e.chi2_gate_prob, 0.5, 0.999_999)?;
+        c.positive("min_depth_m", e.min_depth_m, 1e3)?;
+        c.positive("max_depth_m", e.max_depth_m, 1e6)?;
+        if e.max_depth_m <= e.min_depth_m {
+            return Err(c.fail(
+                "max_depth_m",
+                "is not above min_depth_m",
+                "set max_depth_m > min_depth_m",
+            ));
+        }
+        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)?;
+
+        let i = &self.init;
+        let c = Check::new("init");
+        c.range("static_window_s", i.static_window_s, 0.1, 60.0)?;
+        c.range("yaw_deg", i.yaw_deg, -360.0, 360.0)?;
+        c.positive("sigma_tilt_deg", i.sigma_tilt_deg, 90.0)?;
+        c.positive("sigma_yaw_deg", i.sigma_yaw_deg, 180.0)?;
+        c.positive("sigma_position_m", i.sigma_position_m, 1e4)?;
+        c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
+        c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;
+        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)?;
+
+        let c = Check::new("keyframe");
+        c.positive("interval_s", self.keyframe.interval_s, 3600.0)?;
+        if self.keyframe.max > 100_000 {
+            return Err(c.fail("max", format!("{} is out of range", self.keyframe.max), "set 0..100000"));
+        }
+        let c = Check::new("compressed");
+        c.positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
+        if !(2..=10_000).contains(&self.compressed.max_local_keyframes) {
+            return Err(c.fail(
+                "max_local_keyframes",
+                format!("{} is out of range", self.compressed.max_local_keyframes),
+                "set 2..10000",
+            ));
+        }
+
+        let g = &self.gnss;
+        let c = Check::new("gnss");
+        if g.source == GnssSource::Stream && g.stream.is_empty() {
+            return Err(c.fail(
+                "stream",
+                "is empty but source = \"stream\"",
+                "give serial:DEV:BAUD, tcp:HOST:PORT or file:PATH",
+            ));
+        }
+        if let Err(why) = crate::gnss::parse_systems(&g.systems) {
+            return Err(c.fail("systems", why, "use \"G\", \"E\" or \"G,E\""));
+        }
+        c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
+        c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
+        c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
+        c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
+        c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
+        c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;
+        for (name, v) in [
+            ("klobuchar_alpha", &g.klobuchar_alpha),
+            ("klobuchar_beta", &g.klobuchar_beta),
+        ] {
+            if !(v.is_empty() || v.len() == 4) {
+                return Err(c.fail(name, format!("has {} values", v.len()), "give four coefficients or []"));
+            }
+            c.all_finite(name, v, -1e7, 1e7)?;
+        }
+        if g.klobuchar_alpha.len() != g.klobuchar_beta.len() {
+            return Err(c.fail(
+                "klobuchar_beta",
+                "is set without klobuchar_alpha (or the reverse)",
+                "give both or neither",
+            ));
+        }
+        if !g.origin_llh.is_empty() {
+            if g.origin_llh.len() != 3 {
+                return Err(c.fail(
+                    "origin_llh",
+                    format!("has {} values", g.origin_llh.len()),
+                    "give [lat_deg, lon_deg, h_m] or []",
+                ));
+            }
+            c.range("origin_llh[0]", g.origin_llh[0], -90.0, 90.0)?;
+            c.range("origin_llh[1]", g.origin_llh[1], -180.0, 180.0)?;
+            c.range("origin_llh[2]", g.origin_llh[2], -500.0, 1e4)?;
+        }
+        if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
+            return Err(c.fail(
+                "week_hint",
+                format!("{} is out of range", g.week_hint),
+                "give a full GPS week (e.g. 2443) or 0",
+            ));
+        }
+        Check::new("output").range("rate_hz", self.output.rate_hz, 1.0, 500.0)
+    }
+}
+
+/// Reads a MAVLink signing key: 64 hex digits (whitespace around them
+/// ignored) in a file only its owner can read or write. Errors are
+/// `(problem, fix)`.
+pub fn load_signing_key(path: &std::path::Path) -> Result<[u8; 32], (String, String)> {
+    use std::os::unix::fs::PermissionsExt;
+    let shown = path.display();
+    let meta = std::fs::metadata(path).map_err(|e| {
+        (
+            format!("cannot read {shown}: {e}"),
+            "create it with: head -c 32 /dev/urandom | xxd -p -c 64 > FILE; chmod 600 FILE".into(),
+        )
+    })?;
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        return Err((
+            format!("{shown} has mode {mode:03o}: others can read the key"),
+            format!("chmod 600 {shown}"),
+        ));
+    }
+    // A key file is 64 hex digits and a newline: refuse to read a large file.
+    if meta.len() > 256 {
+        return Err((
+            format!("{shown} is {} bytes", meta.len()),
+            "it holds 64 hex digits".into(),
+        ));
+    }
+    let text =
+        std::fs::read_to_string(path).map_err(|e| (format!("cannot read {shown}: {e}"), "check the file".into()))?;
+    let hex = text.trim();
+    let bad = || {
+        (
+            format!("{shown} does not hold 64 hex digits"),
+            "write the 32-byte key as 64 hex digits".to_string(),
+        )
+    };
+    if hex.len() != 64 || !hex.is_ascii() {
+        return Err(bad());
+    }
+    let mut key = [0u8; 32];
+    for (i, b) in key.iter_mut().enumerate() {
+        *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
+    }
+    Ok(key)
+}

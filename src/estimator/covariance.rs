@@ -1,0 +1,215 @@
+//! The one place that changes the covariance: the state layout, IMU
+//! propagation of the active block, cloning and marginalising pose blocks,
+//! the EKF update in each mode's form, injecting a correction into the
+//! nominal state, and re-initialising states (OpenVINS keeps the same
+//! discipline in its `StateHelper`). Updaters build `H`, `r` and call
+//! [`Estimator::ekf_update`]; nothing else writes `P` except the compressed
+//! machinery of `compressed.rs`, which owns the global part.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::math::{self, exp_so3};
+use super::propagate;
+use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, IMU_DIM, POSE_IDX};
+
+impl Estimator {
+    /// Propagates the active block with the transition `f` and noise `q` of
+    /// one IMU interval (§2, eq. F2): `P_AA ← F P_AA Fᵀ + Q`, symmetrised;
+    /// the cross-covariances wait in `f_acc` for [`Self::sync`].
+    pub(super) fn propagate_covariance(&mut self, f: &MatActive, q: &MatActive) {
+        let paa = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
+        let mut new = f * paa * f.transpose() + q;
+        new = (new + new.transpose()) * 0.5;
+        self.P.fixed_view_mut::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).copy_from(&new);
+        self.f_acc = f * self.f_acc;
+    }
+
+    /// Applies the accumulated IMU transition to the cross-covariances and
+    /// to `Φ` (§2, eq. F4): `P_IX ← F P_IX`, `Φ_I ← F Φ_I`.
+    pub(super) fn sync(&mut self) {
+        if self.f_acc == MatActive::identity() {
+            return;
+        }
+        let n = self.P.nrows();
+        if n > ACTIVE_DIM {
+            let cross = self.f_acc * self.P.view((0, ACTIVE_DIM), (ACTIVE_DIM, n - ACTIVE_DIM));
+            self.P
+                .view_mut((0, ACTIVE_DIM), (ACTIVE_DIM, n - ACTIVE_DIM))
+                .copy_from(&cross);
+            self.P
+                .view_mut((ACTIVE_DIM, 0), (n - ACTIVE_DIM, ACTIVE_DIM))
+                .copy_from(&cross.transpose());
+        }
+        if let Some(g) = self.global.as_mut() {
+            let c = g.Phi.ncols();
+            let top = self.f_acc * g.Phi.view((0, 0), (ACTIVE_DIM, c));
+            g.Phi.view_mut((0, 0), (ACTIVE_DIM, c)).copy_from(&top);
+        }
+        self.f_acc = MatActive::identity();
+    }
+
+    pub(super) fn kf_offset(&self, local_index: usize) -> usize {
+        ACTIVE_DIM + 6 * local_index
+    }
+
+    pub(super) fn clones_offset(&self) -> usize {
+        ACTIVE_DIM + 6 * self.local_kfs.len()
+    }
+
+    pub(super) fn clone_offset_by_seq(&self, seq: u64) -> Option<usize> {
+        let first = self.clones.front()?.seq;
+        let i = seq.checked_sub(first)? as usize;
+        (i < self.clones.len()).then(|| self.clones_offset() + 6 * i)
+    }
+
+    /// Inserts 6 new error states `J δx` at `at`, a copy of the body pose
+    /// (§2, eq. A1): `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at
+    /// `at`), and `Φ' = [Φ; JΦ]` in compressed mode.
+    pub(super) fn augment(&mut self, at: usize) {
+        // J selects the body pose, so J P = P[pose, :] and J P Jᵀ = P[pose, pose]
+        // exactly: copies, no products.
+        let cross = self.P.select_columns(&POSE_IDX);
+        let block = cross.select_rows(&POSE_IDX);
+        self.insert_local(at, &cross, &block);
+        if let Some(g) = self.global.as_mut() {
+            let jphi = g.Phi.select_rows(&POSE_IDX);
+            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, 6, 0.0);
+            g.Phi = phi;
+            g.Phi.view_mut((at, 0), (6, jphi.ncols())).copy_from(&jphi);
+        }
+    }
+
+    /// Marginalises 6 error states at `at` (§2, eq. A2).
+    pub(super) fn remove_block(&mut self, at: usize) {
+        let p = std::mem::replace(&mut self.P, DMatrix::zeros(0, 0));
+        self.P = p.remove_rows(at, 6).remove_columns(at, 6);
+        if let Some(g) = self.global.as_mut() {
+            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0));
+            g.Phi = phi.remove_rows(at, 6);
+        }
+    }
+
+    /// One EKF update with unit measurement noise, in the mode's form (§3
+    /// eq. U1; Schmidt §6; compressed §5 eqs. C1–C3).
+    /// `h` holds the columns `cols` of the full Jacobian; the rest are zero.
+    /// `upper`: `h` is the square upper-triangular `T` of Q1, whose zero
+    /// lower triangle the products skip.
+    pub(super) fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>, upper: bool) {
+        let (m, n) = (r.len(), self.P.nrows());
+        let h_times = |rows: DMatrix<f64>| if upper { math::upper_mul(h, &rows) } else { h * rows };
+        // H P = h P[cols, :] (P symmetric), and S = H P Hᵀ + I.
+        let hp = h_times(self.P.select_rows(cols));
+        let s = hp.select_columns(cols) * h.transpose() + DMatrix::identity(m, m);
+        let Some(solver) = math::LowerSolver::cholesky(s) else {
+            *self.stats.rejected.entry("update_not_pd").or_default() += 1;
+            return;
+        };
+        // S = L Lᵀ. One blocked solve of L X = [H P | H Φ̃ | r] gives
+        // A = L⁻¹ (H P), B = L⁻¹ (H Φ̃) and w = L⁻¹ r; then
+        // δx = K r = (H P)ᵀ S⁻¹ r = Aᵀ w.
+        let n0 = self.global.as_ref().map_or(0, |g| g.Phi.ncols());
+        let mut x = DMatrix::zeros(m, n + n0 + 1);
+        x.columns_mut(0, n).copy_from(&hp);
+        if let Some(g) = self.global.as_ref() {
+            x.columns_mut(n, n0).copy_from(&h_times(g.Phi.select_rows(cols)));
+        }
+        x.column_mut(n + n0).copy_from(r);
+        drop(hp);
+        solver.solve_in_place(&mut x);
+        // Xᵀ, once: its rows are Aᵀ, Bᵀ and wᵀ, the left factors of every
+        // product below, which read views of X and Xᵀ without copying.
+        let xt = x.transpose();
+        let (at, a) = (xt.rows(0, n), x.columns(0, n));
+        let w = x.column(n + n0);
+        let mut dx = at * w;
+        // K S Kᵀ = (H P)ᵀ S⁻¹ (H P) = Aᵀ A (symmetric rank-m form).
+        if self.s.mode == Mode::Schmidt {
+            // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
+            // P_AS ← P_AS − K_A (H P)_S = P_AS − (Aᵀ A)_AS (§6).
+            let (k0, k1) = (ACTIVE_DIM, self.clones_offset());
+            dx.rows_mut(k0, k1 - k0).fill(0.0);
+            let mut kskt = DMatrix::zeros(n, n);
+            math::add_symmetric_product_t(&mut kskt, n, 1.0, at, a);
+            kskt.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
+            self.P -= kskt;
+            self.inject(&dx);
+            return;
+        }
+        if let Some(g) = self.global.as_mut() {
+            // C2, C3: Ψ̃ += (HΦ̃)ᵀ S⁻¹ (HΦ̃) = Bᵀ B, q̃ += (HΦ̃)ᵀ S⁻¹ r = Bᵀ w,
+            // Φ̃ ← Φ̃ − K (HΦ̃) = Φ̃ − Aᵀ B.
+            let (bt, b) = (xt.rows(n, n0), x.columns(n, n0));
+            math::add_symmetric_product_t(&mut g.Psi, n0, 1.0, bt, b);
+            g.q.gemv(1.0, &bt, &w, 1.0);
+            g.Phi.gemm(-1.0, &at, &b, 1.0);
+        }
+        // P ← P − Aᵀ A, exactly symmetric.
+        math::add_symmetric_product_t(&mut self.P, n, -1.0, at, a);
+        self.inject(&dx);
+    }
+
+    /// Adds `δx[o..o+6] = [δθ, δp]` to a keyframe's nominal pose, if it
+    /// still exists (global corrections G3 and P1).
+    pub(super) fn correct_keyframe(&mut self, id: u64, dx: &DVector<f64>, o: usize) {
+        if let Some(kf) = self.keyframes.get_mut(&id) {
+            kf.delta += dx.fixed_rows::<3>(o);
+            kf.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+    }
+
+    /// Applies a correction to the local nominal state.
+    pub(super) fn inject(&mut self, dx: &DVector<f64>) {
+        self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
+        self.clock += dx.fixed_rows::<3>(CLK_B);
+        for (j, id) in self.local_kfs.clone().iter().enumerate() {
+            let o = self.kf_offset(j);
+            let kf = self.keyframes.get_mut(id).expect("local keyframe exists");
+            kf.delta += dx.fixed_rows::<3>(o);
+            kf.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+        let co = self.clones_offset();
+        for (i, c) in self.clones.iter_mut().enumerate() {
+            let o = co + 6 * i;
+            c.q_W_B = exp_so3(&dx.fixed_rows::<3>(o).into_owned()) * c.q_W_B;
+            c.p_B_in_W += dx.fixed_rows::<3>(o + 3);
+        }
+    }
+
+    /// Resets the clock states `ks` to `values`, uncorrelated with the rest,
+    /// with the variances `var` (§8, eq. K4).
+    pub(super) fn reset_clock_states(&mut self, ks: &[usize], values: &[f64], var: &[f64]) {
+        for ((&k, &x), &v) in ks.iter().zip(values).zip(var) {
+            self.clock[k - CLK_B] = x;
+            self.P.row_mut(k).fill(0.0);
+            self.P.column_mut(k).fill(0.0);
+            if let Some(g) = self.global.as_mut() {
+                g.Phi.row_mut(k).fill(0.0);
+            }
+            self.P[(k, k)] = v;
+        }
+    }
+}
+
+/// Position σ (m, `√trace`) of the pose block `[δθ, δp]` starting at `o`.
+pub(super) fn position_sigma_m(p: &DMatrix<f64>, o: usize) -> f64 {
+    let o = o + 3;
+    (p[(o, o)] + p[(o + 1, o + 1)] + p[(o + 2, o + 2)]).max(0.0).sqrt()
+}
+
+/// A lower-triangular `L` with `L Lᵀ ≈ P` and a positive diagonal: the
+/// Cholesky factor of `P + λ diag(P)` for the smallest `λ ∈ {0, 1e-12, …}`
+/// that works, else `diag(√P_ii)`.
+pub(super) fn whitening_factor(p: &DMatrix<f64>) -> DMatrix<f64> {
+    let d = DMatrix::from_diagonal(&p.diagonal().map(|v| v.abs().max(1e-300)));
+    let mut lambda = 0.0;
+    for _ in 0..8 {
+        if let Some(ch) = (p + &d * lambda).cholesky() {
+            let l = ch.l();
+            if l.diagonal().iter().all(|v| *v > 0.0 && v.is_finite()) {
+                return l;
+            }
+        }
+        lambda = if lambda == 0.0 { 1e-12 } else { lambda * 100.0 };
+    }
+    d.map(f64::sqrt)
+}

@@ -1,0 +1,409 @@
+//! The MSCKF track update (README.md §3): each camera frame adds a clone or
+//! a keyframe, then the tracks that end (or would lose their oldest view as
+//! the window slides) are triangulated, projected onto the left null space
+//! of their feature Jacobian, χ²-gated, stacked, QR-compressed and applied as
+//! one EKF update through [`Estimator::ekf_update`]. A track that re-observes
+//! a landmark held by a keyframe also constrains that keyframe (§4); in
+//! compressed mode a global keyframe is first made local (§5 P1–P3).
+
+use std::collections::BTreeSet;
+
+use nalgebra::{DMatrix, DVector, Matrix3};
+
+use super::feature::{self, Obs, Reject, View};
+use super::math::{self, left_jacobian};
+use super::{
+    CloneState, Estimator, FilterEvent, FrameReport, GlobalReason, InputError, Mode, NormObs, Stats, Track,
+    MAX_KEYFRAMES_PER_TRACK, PENDING_PROMOTIONS_PER_FRAME,
+};
+
+/// One gated track's rows: its projected Jacobian over the columns `idx` of
+/// `P`, and its projected residual.
+type TrackRows = (DMatrix<f64>, DVector<f64>, Vec<usize>);
+
+/// `P_sub` of the last gated track and its columns: most tracks span the
+/// whole window, so it is gathered again only when the columns change.
+#[derive(Default)]
+struct GateCache {
+    idx: Vec<usize>,
+    p: DMatrix<f64>,
+}
+
+/// Counts a rejected track in the frame's report and the filter's stats.
+fn reject(rep: &mut FrameReport, st: &mut Stats, r: Reject) {
+    *rep.rejected.entry(r.name()).or_default() += 1;
+    *st.rejected.entry(r.name()).or_default() += 1;
+}
+
+impl Estimator {
+    /// Processes one camera frame at `t_s` (§3–§5). The IMU samples up to
+    /// (and preferably just past) `t_s` must have been added.
+    pub fn process_frame(&mut self, t_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+        self.advance_to(t_s, "frame_time_backwards")?;
+        self.stats.frames += 1;
+        let mut report = FrameReport::default();
+        self.global_update_if_due(&mut report);
+
+        let present: BTreeSet<u64> = obs.iter().map(|o| o.landmark_id).collect();
+        self.add_view(t_s, obs, &mut report);
+
+        // Tracks to use now: lost ones, and those that would lose their
+        // oldest observation when the window slides.
+        let oldest = if self.clones.len() > self.s.max_clones {
+            self.clones.front().map(|c| c.seq)
+        } else {
+            None
+        };
+        let ready: Vec<u64> = self
+            .tracks
+            .iter()
+            .filter(|(l, tr)| !present.contains(l) || oldest.is_some_and(|s| tr.obs.first().is_some_and(|o| o.0 == s)))
+            .map(|(l, _)| *l)
+            .collect();
+        let ready_tracks: Vec<(u64, Track)> = ready
+            .iter()
+            .filter_map(|l| self.tracks.remove(l).map(|t| (*l, t)))
+            .collect();
+        self.update_tracks(ready_tracks, &mut report);
+
+        // Keyframe observations become usable once their landmark has left view
+        // (after this frame's update, so only a later re-detection uses them).
+        self.release_keyframe_observations(&present);
+        if let Some(seq) = oldest {
+            self.marginalise_clone(seq);
+        }
+        // Tracks the poses cannot explain: failed the χ² gate, or failed to
+        // triangulate to a depth or a fit (§9 D1).
+        let inconsistent = [Reject::Chi2, Reject::BadDepth, Reject::NotConverged]
+            .iter()
+            .filter_map(|r| report.rejected.get(r.name()))
+            .sum::<u64>();
+        self.monitor.push_frame(t_s, &report.nis, inconsistent);
+        Ok(report)
+    }
+
+    /// Compressed: leaving the local region triggers a global update and
+    /// moves the centre to the vehicle (§5). So does a local part over its
+    /// keyframe bound. While a rebase is still being computed the next one
+    /// waits.
+    fn global_update_if_due(&mut self, report: &mut FrameReport) {
+        let left = (self.imu.p_B_in_W - self.centre_W).norm() > self.s.local_radius_m;
+        let full = self.local_kfs.len() > self.s.max_local_keyframes;
+        if self.s.mode == Mode::Compressed && self.pending.is_none() && (left || full) {
+            if left {
+                self.centre_W = self.imu.p_B_in_W;
+            }
+            let reason = if left {
+                GlobalReason::LeftLocalRegion
+            } else {
+                GlobalReason::LocalPartFull
+            };
+            if let Some(ev) = self.begin_rebase(reason) {
+                report.events.push(ev);
+                report.global_updates += 1;
+            }
+        }
+    }
+
+    /// The frame's pose enters the state: as a keyframe when one is due
+    /// (its observations kept beside it, §4), else as a new clone appended
+    /// after the last one, its observations extending the window's tracks.
+    fn add_view(&mut self, t_s: f64, obs: &[NormObs], report: &mut FrameReport) {
+        let make_kf = self.s.mode != Mode::Msckf
+            && self.s.keyframe_max > 0
+            && t_s - self.last_kf_t_s >= self.s.keyframe_interval_s - 1e-9;
+        if make_kf {
+            let id = self.create_keyframe(t_s, obs);
+            report.events.push(FilterEvent::KeyframeCreated { id });
+            report.keyframe_created = true;
+        } else {
+            let at = self.P.nrows();
+            self.augment(at);
+            let seq = self.next_seq;
+            self.next_seq += 1;
+            self.clones.push_back(CloneState {
+                seq,
+                q_W_B: self.imu.q_W_B,
+                p_B_in_W: self.imu.p_B_in_W,
+            });
+            for o in obs {
+                self.tracks.entry(o.landmark_id).or_default().obs.push((seq, *o));
+            }
+        }
+    }
+
+    /// Marginalises the oldest clone; tracks still holding it drop it.
+    fn marginalise_clone(&mut self, seq: u64) {
+        if let Some(at) = self.clone_offset_by_seq(seq) {
+            self.remove_block(at);
+        }
+        self.clones.pop_front();
+        for tr in self.tracks.values_mut() {
+            tr.obs.retain(|o| o.0 != seq);
+        }
+        self.tracks.retain(|_, t| !t.obs.is_empty());
+    }
+
+    /// Triangulates, projects and gates each track, then applies one stacked
+    /// update (§3).
+    fn update_tracks(&mut self, ready: Vec<(u64, Track)>, report: &mut FrameReport) {
+        let mut kf_use = self.keyframes_for_tracks(&ready);
+        if self.s.mode == Mode::Compressed {
+            self.promote_for_tracks(&mut kf_use, report);
+        }
+        let mut rows: Vec<TrackRows> = Vec::new();
+        let mut involved = BTreeSet::new();
+        let mut gate = GateCache::default();
+        for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
+            let Some(row) = self.gate_track(l, &tr, &ks, &mut gate, report) else {
+                continue;
+            };
+            involved.extend(ks.iter().copied());
+            rows.push(row);
+        }
+        report.tracks_used = rows.len();
+        self.stats.tracks_used += rows.len() as u64;
+        self.stats.loop_closure_updates += report.loop_closure_tracks as u64;
+        if rows.is_empty() {
+            return;
+        }
+        self.stacked_update(&rows, report);
+        report.events.push(FilterEvent::Update {
+            tracks: rows.len(),
+            keyframes: involved.into_iter().collect(),
+        });
+    }
+
+    /// The keyframe observations each ready track may use: eligible ones
+    /// (§4), at most `MAX_KEYFRAMES_PER_TRACK`, spread from the oldest to
+    /// the newest: dense keyframes add little beyond that, and each one
+    /// costs a column block (and, if global, a promotion).
+    fn keyframes_for_tracks(&self, ready: &[(u64, Track)]) -> Vec<Vec<u64>> {
+        let mut kf_use: Vec<Vec<u64>> = Vec::with_capacity(ready.len());
+        for (l, _) in ready {
+            let mut ks = Vec::new();
+            if let Some(set) = self.kf_by_landmark.get(l) {
+                for k in set {
+                    if self
+                        .keyframes
+                        .get(k)
+                        .and_then(|kf| kf.obs.get(l))
+                        .is_some_and(|o| o.eligible)
+                    {
+                        ks.push(*k);
+                    }
+                }
+            }
+            if ks.len() > MAX_KEYFRAMES_PER_TRACK {
+                let n = ks.len() - 1;
+                ks = (0..MAX_KEYFRAMES_PER_TRACK)
+                    .map(|i| ks[i * n / (MAX_KEYFRAMES_PER_TRACK - 1)])
+                    .collect();
+            }
+            kf_use.push(ks);
+        }
+        kf_use
+    }
+
+    /// A measurement that touches a global keyframe first makes it local
+    /// (§5 P1–P3). While a rebase is out (§5 R5) the local part cannot shed
+    /// keyframes, and each one promoted makes every update until the rebase
+    /// after next dearer: promote at most `PENDING_PROMOTIONS_PER_FRAME`,
+    /// those the most observations need, within the local bound; the other
+    /// observations wait for a later track (removed from `kf_use`).
+    fn promote_for_tracks(&mut self, kf_use: &mut [Vec<u64>], report: &mut FrameReport) {
+        let global_needed: Vec<u64> = self
+            .global
+            .as_ref()
+            .map(|g| {
+                kf_use
+                    .iter()
+                    .flatten()
+                    .filter(|k| g.live.contains_key(k))
+                    .copied()
+                    .collect::<BTreeSet<u64>>()
+                    .into_iter()
+                    .collect()
+            })
+            .unwrap_or_default();
+        if global_needed.is_empty() {
+            return;
+        }
+        let mut chosen = global_needed.clone();
+        if self.pending.is_some() {
+            let room = (self.s.max_local_keyframes.saturating_sub(self.local_kfs.len())).min(PENDING_PROMOTIONS_PER_FRAME);
+            let uses = |id: &u64| kf_use.iter().flatten().filter(|k| *k == id).count();
+            chosen.sort_by_key(|id| (std::cmp::Reverse(uses(id)), *id));
+            chosen.truncate(room);
+            chosen.sort_unstable();
+        }
+        if chosen.is_empty() || !self.promote(&chosen) {
+            chosen.clear();
+        } else {
+            report.promoted = chosen.len();
+            report.events.push(FilterEvent::Promoted {
+                keyframes: chosen.clone(),
+            });
+        }
+        let waiting: Vec<u64> = global_needed.into_iter().filter(|k| !chosen.contains(k)).collect();
+        if !waiting.is_empty() {
+            let mut deferred = 0;
+            for ks in kf_use.iter_mut() {
+                let before = ks.len();
+                ks.retain(|k| !waiting.contains(k));
+                deferred += before - ks.len();
+            }
+            report.deferred += deferred;
+            self.stats.loop_closure_deferred += deferred as u64;
+        }
+    }
+
+    /// The views of track `l`: its clones, then the keyframes `ks`; with
+    /// each view's column in `P` (`usize::MAX` for a keyframe not in the
+    /// state) and the number of clone observations.
+    fn track_views(&self, l: u64, tr: &Track, ks: &[u64]) -> (Vec<View>, Vec<usize>, Vec<Obs>, usize) {
+        let mut views = Vec::new();
+        let mut cols = Vec::new();
+        let mut obs = Vec::new();
+        for (seq, o) in &tr.obs {
+            let Some(off) = self.clone_offset_by_seq(*seq) else {
+                continue;
+            };
+            let c = &self.clones[((seq - self.clones[0].seq) as usize).min(self.clones.len() - 1)];
+            obs.push(Obs {
+                view: views.len(),
+                xn: o.xn,
+                W: o.W,
+            });
+            views.push(View {
+                R_W_B: c.q_W_B.to_rotation_matrix().into_inner(),
+                p_B_in_W: c.p_B_in_W,
+                chart: Matrix3::identity(),
+            });
+            cols.push(off);
+        }
+        let clone_obs = obs.len();
+        for k in ks {
+            let kf = &self.keyframes[k];
+            let off = self.local_kfs.iter().position(|x| x == k).map(|j| self.kf_offset(j));
+            let o = kf.obs[&l].obs;
+            obs.push(Obs {
+                view: views.len(),
+                xn: o.xn,
+                W: o.W,
+            });
+            views.push(View {
+                R_W_B: kf.q_W_B().to_rotation_matrix().into_inner(),
+                p_B_in_W: kf.p_B_in_W,
+                chart: left_jacobian(&kf.delta),
+            });
+            // A keyframe in the state (local), or a Schmidt/full keyframe.
+            cols.push(off.unwrap_or(usize::MAX));
+        }
+        (views, cols, obs, clone_obs)
+    }
+
+    /// One track through triangulation, the null-space projection and the
+    /// χ² gate (§3); its rows if it passes. A loop-closure track uses each
+    /// keyframe observation once.
+    fn gate_track(
+        &mut self,
+        l: u64,
+        tr: &Track,
+        ks: &[u64],
+        gate: &mut GateCache,
+        report: &mut FrameReport,
+    ) -> Option<TrackRows> {
+        let (views, cols, obs, clone_obs) = self.track_views(l, tr, ks);
+        if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
+            reject(report, &mut self.stats, Reject::TooFewObservations);
+            return None;
+        }
+        let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
+            Ok(p) => p,
+            Err(r) => {
+                reject(report, &mut self.stats, r);
+                return None;
+            }
+        };
+        let (hx_views, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
+        let (hx, r) = feature::nullspace_project(&hx_views, &hf, &r);
+        if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
+            reject(report, &mut self.stats, Reject::NonFinite);
+            return None;
+        }
+        // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
+        // from the block-diagonal Jacobian before projection.
+        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
+        if idx != gate.idx {
+            gate.p = DMatrix::zeros(idx.len(), idx.len());
+            math::gather_block(&self.P, &idx, &mut gate.p);
+            gate.idx.clone_from(&idx);
+        }
+        let mut s = feature::projected_hph(&hx_views, &hf, &obs, &gate.p);
+        for i in 0..s.nrows() {
+            s[(i, i)] += 1.0;
+        }
+        let Some(ch) = s.cholesky() else {
+            reject(report, &mut self.stats, Reject::NonFinite);
+            return None;
+        };
+        let nis = r.dot(&ch.solve(&r));
+        let dof = r.len();
+        // A NaN NIS fails the gate too.
+        if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(self.s.chi2_gate_prob, dof) {
+            reject(report, &mut self.stats, Reject::Chi2);
+            return None;
+        }
+        report.nis.push((nis, dof));
+        if !ks.is_empty() {
+            report.loop_closure_tracks += 1;
+            let now = self.t_s;
+            for k in ks {
+                if let Some(kf) = self.keyframes.get_mut(k) {
+                    kf.obs.remove(&l);
+                    kf.last_used_s = now;
+                }
+                if let Some(set) = self.kf_by_landmark.get_mut(&l) {
+                    set.remove(k);
+                }
+            }
+        }
+        Some((hx, r, idx))
+    }
+
+    /// Stacks the gated tracks over the union of their columns, in state
+    /// order (keyframes by id, then clones by age), so every mode builds the
+    /// same matrix whatever else its state holds; compresses it by QR when
+    /// taller than the state (§3, eq. Q1) and applies it.
+    fn stacked_update(&mut self, rows: &[TrackRows], report: &mut FrameReport) {
+        let mut union: Vec<usize> = rows.iter().flat_map(|r| r.2.iter().copied()).collect();
+        union.sort_unstable();
+        union.dedup();
+        let m: usize = rows.iter().map(|r| r.1.len()).sum();
+        let nc = union.len();
+        // [H | r]: the residual rides along as the last column.
+        let mut hr = DMatrix::zeros(m, nc + 1);
+        let mut row = 0;
+        for (hx, rr, idx) in rows {
+            for (c, col) in idx.iter().enumerate() {
+                let uc = union.binary_search(col).expect("column in union");
+                hr.view_mut((row, uc), (hx.nrows(), 1)).copy_from(&hx.column(c));
+            }
+            hr.view_mut((row, nc), (rr.len(), 1)).copy_from(rr);
+            row += rr.len();
+        }
+        report.residual_rms = (hr.column(nc).norm_squared() / m as f64).sqrt();
+        // Qᵀ [H | r] = [T r_T; 0 r_⊥], keep (T, r_T).
+        let keep = if m > nc {
+            math::householder_in_place(&mut hr, nc);
+            nc
+        } else {
+            m
+        };
+        let h = math::block_owned(&hr, 0, 0, keep, nc);
+        let r = DVector::from_column_slice(&hr.column(nc).as_slice()[..keep]);
+        self.ekf_update(&h, &union, &r, m > nc);
+        self.stats.updates += 1;
+    }
+}
