@@ -1,0 +1,458 @@
+//! The fusion loop, on its own OS thread: it takes the inputs in the order
+//! they arrive (IMU, camera frames, RTCM, autopilot state), logs each as it
+//! consumes it (so `cmsckf replay` feeds them back through this same code),
+//! holds measurements until IMU covers their time, runs the estimator, and
+//! has one restart path (reboot, IMU gap, divergence).
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
+use cmsckf_models::gnss::SatMeas;
+use nalgebra::Vector3;
+use serde_json::json;
+use tokio::sync::mpsc;
+
+use super::gnss_input::GnssIn;
+use super::rebase::RebaseExec;
+use super::{records, FusionMsg, Restart, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
+use crate::config::{Config, FeatureClock};
+use crate::estimator::frontend::NormFrame;
+use crate::estimator::{Estimator, ImuMeas};
+use crate::io::feature_pipe::FeatureFrame;
+use crate::io::mavlink::Outbound;
+use crate::io::mcap_log::{McapLogger, Topic};
+use crate::io::Counters;
+use crate::status::{self, Degraded, Status};
+
+/// A measurement waiting for IMU to cover its time.
+#[derive(Debug)]
+pub(super) enum Pending {
+    Frame(NormFrame),
+    Gnss(Vec<SatMeas>),
+}
+
+/// State of the fusion loop.
+pub struct Fusion {
+    pub(super) log: Option<McapLogger>,
+    pub(super) rebase: RebaseExec,
+    /// Counts estimators started, so a rebase result of a filter since
+    /// restarted is recognised and dropped.
+    pub(super) est_gen: u64,
+    pub(super) next_state_log: f64,
+    /// Next autopilot time to log the counters at (`/diagnostics`).
+    next_diag_t: f64,
+    pub(super) cfg: Config,
+    pub(super) est: Option<Estimator>,
+    pub(super) static_buf: VecDeque<ImuMeas>,
+    pub(super) attitude: Option<(f64, f64, f64)>,
+    /// The autopilot's local position and velocity (NED) and their time (s).
+    pub(super) local: Option<(Vector3<f64>, Vector3<f64>, f64)>,
+    pub(super) pending: VecDeque<(f64, Pending)>,
+    pub(super) gnss: GnssIn,
+    origin_sent: bool,
+    pub(super) last_imu_t: f64,
+    last_frame_t: f64,
+    pub(super) next_output_t: f64,
+    pub(super) reset_counter: u8,
+    /// Degraded-state reasons, in autopilot time.
+    pub(super) tracker: status::Tracker,
+}
+
+/// What the fusion loop writes to: counters, the outbound channel and the
+/// flags and clock offset shared with the I/O tasks.
+pub struct Ctx {
+    pub counters: Counters,
+    pub out: mpsc::Sender<Outbound>,
+    pub status: Arc<Status>,
+    pub mono_offset_us: Arc<AtomicI64>,
+    /// The daemon's start (wall clock), for the IMU's wall-time age.
+    pub start: Instant,
+}
+
+/// Runs the fusion loop on its own thread until its input channel closes.
+pub(super) fn spawn(
+    cfg: Config,
+    rx: mpsc::Receiver<FusionMsg>,
+    out: mpsc::Sender<Outbound>,
+    shared: Shared,
+    log: Option<McapLogger>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("cmsckf-fusion".into())
+        .spawn(move || fusion_loop(cfg, rx, out, shared, log))
+}
+
+fn fusion_loop(
+    cfg: Config,
+    mut rx: mpsc::Receiver<FusionMsg>,
+    out: mpsc::Sender<Outbound>,
+    shared: Shared,
+    log: Option<McapLogger>,
+) {
+    let Shared {
+        counters,
+        status,
+        mono_offset_us,
+        start,
+        frames_queued,
+    } = shared;
+    let mut f = Fusion::new(cfg, log);
+    let ctx = Ctx {
+        counters,
+        out,
+        status,
+        mono_offset_us,
+        start,
+    };
+    while let Some(msg) = rx.blocking_recv() {
+        if matches!(msg, FusionMsg::Frame(..)) {
+            let _ = frames_queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| Some(n.saturating_sub(1)));
+        }
+        f.handle(msg, &ctx);
+    }
+    let counters = ctx.counters;
+    f.finish_log(&counters);
+}
+
+impl Fusion {
+    /// A fusion loop for `cfg`, logging to `log` if given.
+    pub fn new(cfg: Config, log: Option<McapLogger>) -> Self {
+        Fusion {
+            log,
+            rebase: RebaseExec::for_config(&cfg),
+            est_gen: 0,
+            next_state_log: f64::NEG_INFINITY,
+            next_diag_t: f64::NEG_INFINITY,
+            est: None,
+            static_buf: VecDeque::with_capacity(4096),
+            attitude: None,
+            local: None,
+            pending: VecDeque::with_capacity(PENDING_FRAMES),
+            origin_sent: false,
+            gnss: GnssIn::new(&cfg),
+            last_imu_t: f64::NEG_INFINITY,
+            last_frame_t: f64::NEG_INFINITY,
+            next_output_t: f64::NEG_INFINITY,
+            reset_counter: 0,
+            tracker: status::Tracker::default(),
+            cfg,
+        }
+    }
+
+    /// Finishes the log (on shutdown: `Drop` would swallow its errors),
+    /// counting its messages and raising an alarm for dropped records.
+    pub fn finish_log(&mut self, counters: &Counters) {
+        if self.last_imu_t.is_finite() {
+            self.log_diagnostics(self.last_imu_t, counters, 0);
+        }
+        let Some(l) = self.log.take() else {
+            return;
+        };
+        let dropped = l.dropped();
+        match l.finish() {
+            Ok(s) => {
+                counters.add("log_messages", s.messages);
+                counters.add("log_chunks", s.chunks);
+            }
+            Err(e) => {
+                counters.add("log_error", 1);
+                tracing::error!(error = %e, "the MCAP log could not be finished");
+            }
+        }
+        if dropped > 0 {
+            counters.add("log_dropped", dropped);
+            tracing::error!(
+                dropped,
+                "ALARM: MCAP log records were dropped (writer could not keep up)"
+            );
+        }
+    }
+
+    /// Handles one input, in the order the fusion loop received it (replay
+    /// feeds the logged inputs through here in the same order).
+    pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
+        self.poll_rebase(&ctx.counters);
+        match msg {
+            FusionMsg::RebaseInstalled { seq } => self.on_rebase_installed(seq, &ctx.counters),
+            FusionMsg::Rtcm(bytes) => {
+                self.log(Topic::InputRtcm, self.last_imu_t, &json!({ "bytes": bytes }));
+                self.on_rtcm(&bytes, &ctx.counters)
+            }
+            FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
+            FusionMsg::Imu(m) => self.on_imu_msg(m, ctx),
+            other => self.on_autopilot(other, &ctx.counters),
+        }
+    }
+
+    /// The autopilot's attitude, local position, clock and origin: kept for
+    /// initialisation and GNSS time, and logged for replay.
+    fn on_autopilot(&mut self, msg: FusionMsg, counters: &Counters) {
+        match msg {
+            FusionMsg::Attitude { roll, pitch, yaw } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"attitude_rad": [roll, pitch, yaw]}),
+                );
+                self.attitude = Some((roll, pitch, yaw))
+            }
+            FusionMsg::LocalPosition {
+                t_s,
+                p_ned_m,
+                v_ned_mps,
+            } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"local_position": {"t_s": t_s, "p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
+                );
+                self.local = Some((p_ned_m, v_ned_mps, t_s))
+            }
+            FusionMsg::SystemTime { unix_us, boot_ms } => {
+                self.log(
+                    Topic::InputSystemTime,
+                    boot_ms as f64 * 1e-3,
+                    &json!({"unix_us": unix_us, "boot_ms": boot_ms}),
+                );
+                self.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
+            }
+            FusionMsg::Origin {
+                lat_deg,
+                lon_deg,
+                alt_m,
+            } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"origin": [lat_deg, lon_deg, alt_m]}),
+                );
+                if self.gnss.frame.is_none() {
+                    // MAVLink gives the origin's altitude above mean sea level;
+                    // the geoid separation (tens of metres) is a constant
+                    // height offset that the clock bias cannot absorb, so
+                    // `gnss.origin_llh` is the precise way to set it.
+                    self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
+                    counters.add("gnss_origin_from_autopilot", 1);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// A camera frame: mapped to autopilot time, logged, and queued until
+    /// IMU covers it; a frame not after the last one is rejected.
+    fn on_frame(&mut self, fr: FeatureFrame, norm: NormFrame, ctx: &Ctx) {
+        let t_ap_us = match self.cfg.features.clock {
+            FeatureClock::Autopilot => fr.t_us as i64,
+            FeatureClock::Monotonic => {
+                let off = ctx.mono_offset_us.load(Ordering::Relaxed);
+                if off == i64::MIN {
+                    ctx.counters.add("feature_no_timesync", 1);
+                    return;
+                }
+                fr.t_us as i64 + off
+            }
+        };
+        let t = t_ap_us as f64 * 1e-6;
+        self.log(
+            Topic::InputFeatures,
+            t,
+            &records::Features {
+                t_us: fr.t_us,
+                t_ap_us,
+                cam: fr.cam,
+                features: &fr.features,
+            },
+        );
+        if t <= self.last_frame_t {
+            ctx.counters.add("feature_time_backwards", 1);
+            tracing::warn!(
+                reason = "feature_time_backwards",
+                t_s = t,
+                prev_s = self.last_frame_t,
+                "frame rejected"
+            );
+            return;
+        }
+        self.last_frame_t = t;
+        self.enqueue(t, Pending::Frame(norm), &ctx.counters);
+    }
+
+    /// An IMU sample: a clock that went back (a reboot) or a long gap
+    /// restarts the filter; then the sample is logged and fused, and the
+    /// status and diagnostics follow it.
+    fn on_imu_msg(&mut self, m: ImuMeas, ctx: &Ctx) {
+        if m.t_s < self.last_imu_t - REBOOT_JUMP_S {
+            // The autopilot's boot clock restarted (a reboot): start
+            // over rather than reject its samples forever.
+            ctx.counters.add("autopilot_clock_reset", 1);
+            tracing::error!(
+                from_s = self.last_imu_t,
+                to_s = m.t_s,
+                "autopilot clock jumped back: resetting the filter"
+            );
+            self.restart(m.t_s, "autopilot reboot seen", Restart::Reboot, &ctx.out);
+        } else if self.est.is_some() && m.t_s - self.last_imu_t > MAX_IMU_GAP_S {
+            // Seconds without IMU: the motion in between is unknown.
+            ctx.counters.add("imu_gap_restart", 1);
+            tracing::error!(
+                gap_s = m.t_s - self.last_imu_t,
+                "IMU gap too long: resetting the filter"
+            );
+            self.restart(m.t_s, "IMU gap", Restart::Gap, &ctx.out);
+        }
+        if m.t_s <= self.last_imu_t {
+            ctx.counters.add("imu_time_backwards", 1);
+            return;
+        }
+        if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.2 {
+            self.tracker.hold(Degraded::ImuGap, m.t_s);
+            if m.t_s - self.last_imu_t > 0.5 {
+                ctx.counters.add("imu_gap", 1);
+                tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
+            }
+        }
+        self.last_imu_t = m.t_s;
+        ctx.counters.add("imu_samples", 1);
+        self.log(
+            Topic::InputImu,
+            m.t_s,
+            &records::Imu {
+                t_us: (m.t_s * 1e6).round() as u64,
+                accel_mps2: m.accel_mps2.as_slice(),
+                gyro_radps: m.gyro_radps.as_slice(),
+            },
+        );
+        self.on_imu(m, &ctx.counters, &ctx.out);
+        let st = &ctx.status;
+        // An unhealthy filter was restarted in `on_imu`: a running
+        // filter is a healthy one.
+        st.initialised.store(self.est.is_some(), Ordering::Relaxed);
+        st.last_imu_wall_ms
+            .store(ctx.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+        self.tracker.update(m.t_s, self.est.is_some(), &ctx.counters, st);
+        if m.t_s >= self.next_diag_t {
+            self.next_diag_t = m.t_s + 1.0;
+            self.log_diagnostics(m.t_s, &ctx.counters, st.degraded());
+        }
+    }
+
+    pub(super) fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
+        if let Some(l) = &self.log {
+            l.log(topic, t_s, v);
+        }
+    }
+
+    /// The counters and degraded-state reasons, to `/diagnostics`.
+    fn log_diagnostics(&self, t_s: f64, counters: &Counters, degraded: u32) {
+        if self.log.is_some() {
+            self.log(
+                Topic::Diagnostics,
+                t_s,
+                &json!({"t_s": t_s, "counters": counters.snapshot(), "degraded": status::describe(degraded),
+                    "reset_counter": self.reset_counter}),
+            );
+        }
+    }
+
+    /// A `foxglove.Log` line (level: 2 info, 3 warning, 4 error).
+    pub(super) fn log_text(&self, level: u8, t_s: f64, message: &str) {
+        let t = t_s.max(0.0);
+        self.log(
+            Topic::Log,
+            t,
+            &json!({"timestamp": {"sec": t.floor() as u64, "nsec": ((t - t.floor()) * 1e9) as u64},
+                "level": level, "message": message, "name": "cmsckf", "file": file!(), "line": 0}),
+        );
+    }
+
+    /// Queues a measurement in time order (bounded; the oldest is dropped).
+    pub(super) fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
+        if self.pending.len() == PENDING_FRAMES {
+            self.pending.pop_front();
+            counters.add("pending_overflow", 1);
+        }
+        let at = self.pending.partition_point(|(u, _)| *u <= t);
+        self.pending.insert(at, (t, item));
+    }
+
+    /// Drops the filter so that the next IMU samples start a fresh one (the
+    /// one reset path): `reset_counter` moves on, the autopilot gets a
+    /// `STATUSTEXT`, the log a `/log` line, and the status shows
+    /// `filter_reset` for 2 s. After a reboot or a long IMU gap the
+    /// autopilot's attitude and position are stale, so the restart waits for
+    /// fresh ones (and, after a reboot, for SYSTEM_TIME to map GPS time).
+    fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
+        self.log_text(4, t_s, &format!("filter reset: {why}"));
+        let _ = out.try_send(Outbound::StatusText {
+            severity: if kind == Restart::Unhealthy { 2 } else { 4 },
+            text: format!("cmsckf reset: {why}"),
+        });
+        self.est = None;
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.static_buf.clear();
+        if kind != Restart::Unhealthy {
+            self.attitude = None;
+            self.local = None;
+        }
+        if kind == Restart::Reboot {
+            self.tracker.restart_clock();
+            self.gnss.unix_minus_boot_s = None;
+            self.pending.clear();
+            self.last_frame_t = f64::NEG_INFINITY;
+            self.next_output_t = f64::NEG_INFINITY;
+            self.next_state_log = f64::NEG_INFINITY;
+            self.last_imu_t = f64::NEG_INFINITY;
+        }
+        self.tracker.hold(Degraded::FilterReset, t_s);
+    }
+
+    /// One IMU sample through the filter: the origin to the autopilot once
+    /// known, initialisation, the output, then the measurements it covers,
+    /// and a health check.
+    fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        self.send_origin_once(counters, out);
+        let Some(est) = self.est.as_mut() else {
+            self.try_init(m, counters);
+            return;
+        };
+        if est.add_imu(m).is_err() {
+            counters.add("imu_rejected", 1);
+        }
+        self.emit_output(m, counters, out);
+        if self.est.is_none() {
+            return;
+        }
+        self.fuse_covered(m.t_s, counters);
+        // Once per IMU sample, after this sample's measurements (a GNSS-only
+        // divergence is caught as soon as a vision one).
+        let Some(est) = self.est.as_ref() else { return };
+        if let Err(why) = est.check_health() {
+            counters.add("filter_reset", 1);
+            tracing::error!(reason = %why, "filter unhealthy: resetting");
+            self.restart(m.t_s, &why, Restart::Unhealthy, out);
+        }
+    }
+
+    /// Tells the autopilot our origin once it is known (`output.set_gps_origin`).
+    fn send_origin_once(&mut self, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if !self.cfg.output.set_gps_origin || self.origin_sent {
+            return;
+        }
+        if let Some(frame) = self.gnss.frame {
+            let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
+            let msg = Outbound::SetGpsGlobalOrigin {
+                lat_deg: lat.to_degrees(),
+                lon_deg: lon.to_degrees(),
+                alt_m: h,
+            };
+            if out.try_send(msg).is_ok() {
+                self.origin_sent = true;
+                counters.add("gps_origin_sent", 1);
+            }
+        }
+    }
+}

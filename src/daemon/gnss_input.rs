@@ -1,0 +1,173 @@
+//! GNSS input: a receiver's raw RTCM3 stream read beside the link
+//! (`gnss.source = "stream"`), and, on the fusion thread, RTCM decoding, the
+//! receiver model, the world origin and the GPS-time → autopilot-time map
+//! that turn each completed epoch into a GNSS measurement waiting for IMU.
+
+use cmsckf_models::geodesy::{ecef_to_llh, NedFrame, R_ecef_ned, C_MPS};
+use cmsckf_models::gnss::{gps_to_unix_s, Klobuchar};
+use serde_json::json;
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+
+use super::fusion::{Fusion, Pending};
+use super::{DaemonError, FusionMsg};
+use crate::config::{Config, GnssSource};
+use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
+use crate::gnss::spp::{SppOptions, SppSolution};
+use crate::gnss::{Epoch, IonoPolicy, RawSat, Receiver};
+use crate::io::mcap_log::Topic;
+use crate::io::Counters;
+
+/// A receiver wired to the companion computer: its raw RTCM3 is read and
+/// forwarded to the fusion loop. `None` unless `gnss.source = "stream"`.
+pub(super) fn spawn_stream(
+    cfg: &Config,
+    fusion_tx: &mpsc::Sender<FusionMsg>,
+    counters: &Counters,
+    stop_rx: &watch::Receiver<bool>,
+) -> Result<Option<(JoinHandle<()>, JoinHandle<()>)>, DaemonError> {
+    if cfg.gnss.source != GnssSource::Stream {
+        return Ok(None);
+    }
+    let spec =
+        crate::gnss::stream::parse(&cfg.gnss.stream).map_err(|e| DaemonError::Config(format!("gnss.stream {e}")))?;
+    let (tx, mut rx) = mpsc::channel::<Vec<u8>>(64);
+    let fwd_tx = fusion_tx.clone();
+    let counters2 = counters.clone();
+    let mut stop = stop_rx.clone();
+    let fwd = tokio::spawn(async move {
+        loop {
+            tokio::select! {
+                b = rx.recv() => match b {
+                    Some(b) => if fwd_tx.try_send(FusionMsg::Rtcm(b)).is_err() { counters2.add("fusion_queue_full", 1) },
+                    None => return,
+                },
+                _ = stop.changed() => return,
+            }
+        }
+    });
+    let reader = tokio::spawn(crate::gnss::stream::run(spec, tx, counters.clone(), stop_rx.clone()));
+    Ok(Some((reader, fwd)))
+}
+
+/// GNSS input of the fusion loop: RTCM decoding, the receiver model, the
+/// world origin and the GPS-time → autopilot-time map.
+pub(super) struct GnssIn {
+    dec: RtcmDecoder,
+    pub(super) rx: Receiver,
+    pub(super) frame: Option<NedFrame>,
+    /// Unix time minus autopilot boot time (s), from SYSTEM_TIME.
+    pub(super) unix_minus_boot_s: Option<f64>,
+    msgs: Vec<GnssMessage>,
+    epochs: Vec<Epoch>,
+    klobuchar: Option<Klobuchar>,
+}
+
+impl GnssIn {
+    pub(super) fn new(cfg: &Config) -> Self {
+        GnssIn {
+            dec: RtcmDecoder::new(),
+            rx: Receiver::new(
+                SppOptions {
+                    elevation_mask_deg: cfg.gnss.elevation_mask_deg,
+                    iono: cfg.gnss.iono,
+                    // Validated with the config: the fallback is never taken.
+                    systems: crate::gnss::parse_systems(&cfg.gnss.systems).unwrap_or(vec![System::Gps]),
+                },
+                if cfg.gnss.week_hint != 0 {
+                    cfg.gnss.week_hint
+                } else {
+                    crate::gnss::gps_week_now()
+                },
+                cfg.gnss.rover_station_id,
+            ),
+            frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
+                let o = &cfg.gnss.origin_llh;
+                NedFrame::from_llh_deg(o[0], o[1], o[2])
+            }),
+            unix_minus_boot_s: None,
+            msgs: Vec::new(),
+            epochs: Vec::new(),
+            klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
+                let a = &cfg.gnss.klobuchar_alpha;
+                let b = &cfg.gnss.klobuchar_beta;
+                Klobuchar {
+                    alpha: [a[0], a[1], a[2], a[3]],
+                    beta: [b[0], b[1], b[2], b[3]],
+                }
+            }),
+        }
+    }
+}
+
+impl Fusion {
+    /// Decodes RTCM, completes epochs, and queues each as a GNSS update at
+    /// its autopilot time: GPS tag → Unix (leap seconds) → boot clock
+    /// (SYSTEM_TIME), less the receiver clock offset.
+    pub(super) fn on_rtcm(&mut self, bytes: &[u8], counters: &Counters) {
+        let g = &mut self.gnss;
+        let before = g.dec.stats.crc_failures;
+        g.dec.push(bytes, &mut g.msgs);
+        if g.dec.stats.crc_failures > before {
+            counters.add("rtcm_crc_failure", g.dec.stats.crc_failures - before);
+            tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
+        }
+        for m in g.msgs.drain(..) {
+            g.rx.push(m, &mut g.epochs);
+        }
+        let epochs: Vec<_> = g.epochs.drain(..).collect();
+        for ep in epochs {
+            counters.add("gnss_epochs", 1);
+            let Some(offset) = self.gnss.unix_minus_boot_s else {
+                counters.add("gnss_no_system_time", 1);
+                continue;
+            };
+            let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
+            let t = gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / C_MPS;
+            if let Ok(fix) = &ep.fix {
+                self.log_fix(t, fix);
+            }
+            if self.gnss.frame.is_none() {
+                self.origin_from_fix(&ep, counters);
+            }
+            let obs = ep.sats.iter().map(RawSat::from_obs);
+            let policy = IonoPolicy {
+                mode: self.cfg.gnss.iono,
+                klobuchar: self.gnss.klobuchar.as_ref(),
+                rx_ecef_m: ep.fix.as_ref().ok().map(|f| f.r_ecef_m),
+            };
+            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, policy, obs);
+            if !sats.is_empty() {
+                self.enqueue(t, Pending::Gnss(sats), counters);
+            }
+        }
+    }
+
+    /// The single-point fix, to `/gnss/fix` (foxglove.LocationFix).
+    fn log_fix(&self, t: f64, fix: &SppSolution) {
+        let (lat, lon, h) = ecef_to_llh(&fix.r_ecef_m);
+        let tt = t.max(0.0);
+        // Variance approximated from the residuals and the PDOP.
+        let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
+        self.log(
+            Topic::GnssFix,
+            t,
+            &json!({"timestamp": {"sec": tt.floor() as u64, "nsec": ((tt - tt.floor()) * 1e9) as u64},
+                "frame_id": "gnss", "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
+                "position_covariance": [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var], "position_covariance_type": 1,
+                "satellites": fix.sats.len(), "raim": format!("{:?}", fix.raim)}),
+        );
+    }
+
+    /// No configured or autopilot origin: anchor the world frame so that the
+    /// current estimate sits at the first fix.
+    fn origin_from_fix(&mut self, ep: &Epoch, counters: &Counters) {
+        if let (Ok(fix), Some(est)) = (&ep.fix, self.est.as_ref()) {
+            let (lat, lon, _) = ecef_to_llh(&fix.r_ecef_m);
+            let r = R_ecef_ned(lat, lon);
+            let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
+            self.gnss.frame = Some(NedFrame::from_ecef(&origin));
+            counters.add("gnss_origin_from_fix", 1);
+        }
+    }
+}

@@ -1,0 +1,106 @@
+//! What the autopilot hears from us besides estimates: `HEARTBEAT` at 1 Hz
+//! and at once on a change of state, the reasons for a degraded state as
+//! `STATUSTEXT`; and, every second, the stream requests (until the streams
+//! arrive), a TIMESYNC request and, every 10 s, the counters to the journal.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+
+use crate::io::mavlink::{self as mav, Outbound};
+use crate::io::Counters;
+use crate::status::{self, Degraded, Status};
+
+/// The status task: HEARTBEAT at 1 Hz and at once on a change, with the
+/// reasons for a degraded state as STATUSTEXT.
+pub(super) fn spawn_status(
+    out_tx: mpsc::Sender<Outbound>,
+    status: Arc<Status>,
+    start: Instant,
+    mut stop: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(50));
+        let mut last: Option<(bool, u32)> = None;
+        let mut last_sent = Instant::now();
+        loop {
+            tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
+            let initialised = status.initialised.load(Ordering::Relaxed);
+            let mut degraded = status.degraded();
+            let since_imu_ms =
+                (start.elapsed().as_millis() as u64).saturating_sub(status.last_imu_wall_ms.load(Ordering::Relaxed));
+            if initialised && since_imu_ms > 500 {
+                degraded |= Degraded::ImuGap.bit();
+            }
+            let now = (initialised, degraded);
+            if last == Some(now) && last_sent.elapsed() < Duration::from_secs(1) {
+                continue;
+            }
+            if last.map(|l| l.1) != Some(degraded) && (degraded != 0 || last.is_some()) {
+                send_status_text(&out_tx, degraded);
+            }
+            let _ = out_tx.try_send(Outbound::Heartbeat {
+                initialised,
+                degraded: degraded != 0,
+            });
+            last = Some(now);
+            last_sent = Instant::now();
+        }
+    })
+}
+
+/// `cmsckf: nominal`, or the reasons for a degraded state.
+fn send_status_text(out_tx: &mpsc::Sender<Outbound>, degraded: u32) {
+    let text = if degraded == 0 {
+        "cmsckf: nominal".to_string()
+    } else {
+        format!("cmsckf degraded: {}", status::describe(degraded))
+    };
+    tracing::warn!(degraded = %status::describe(degraded), "status changed");
+    let severity = if degraded == 0 { 6 } else { 4 };
+    let _ = out_tx.try_send(Outbound::StatusText { severity, text });
+}
+
+/// The periodic task: stream requests until the streams arrive, TIMESYNC,
+/// and the counters to the journal every 10 s.
+pub(super) fn spawn_periodic(
+    out_tx: mpsc::Sender<Outbound>,
+    counters: Counters,
+    imu_rate_hz: f64,
+    start: Instant,
+    mut stop: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    let imu_interval_us = 1e6 / imu_rate_hz as f32;
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        let mut n: u64 = 0;
+        loop {
+            tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
+            n += 1;
+            // Ask for the streams until they arrive.
+            let wanted = [
+                ("imu_highres", mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
+                ("attitude", mav::MSG_ID_ATTITUDE, 100_000.0),
+                ("system_time", mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
+                ("local_position", mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
+            ];
+            for (counter, id, interval) in wanted {
+                if counters.get(counter) == 0 {
+                    let _ = out_tx.try_send(Outbound::SetMessageInterval {
+                        message_id: id,
+                        interval_us: interval,
+                    });
+                }
+            }
+            let _ = out_tx.try_send(Outbound::TimesyncRequest {
+                ts1_ns: start.elapsed().as_nanos() as i64,
+            });
+            if n.is_multiple_of(10) {
+                tracing::info!(counters = ?counters.snapshot(), "cmsckf counters");
+            }
+        }
+    })
+}

@@ -1,0 +1,176 @@
+//! Fusing the measurements IMU now covers: GNSS epochs and camera frames in
+//! time order, their filter events to the log, and their counters.
+
+use cmsckf_models::gnss::SatMeas;
+use serde_json::json;
+
+use super::fusion::{Fusion, Pending};
+use super::rebase::dispatch_rebase;
+use crate::estimator::frontend::NormFrame;
+use crate::estimator::{Estimator, FilterEvent, FrameReport};
+use crate::io::mcap_log::{McapLogger, Topic};
+use crate::io::Counters;
+
+impl Fusion {
+    /// The measurements now covered by IMU (up to `t_imu_s`), in time order;
+    /// one older than the filter is late and counted.
+    pub(super) fn fuse_covered(&mut self, t_imu_s: f64, counters: &Counters) {
+        while let Some((t, _)) = self.pending.front() {
+            if *t > t_imu_s {
+                break;
+            }
+            let Some((t, item)) = self.pending.pop_front() else {
+                break;
+            };
+            let Some(est) = self.est.as_ref() else { return };
+            if t < est.time_s() {
+                counters.add(
+                    if matches!(item, Pending::Frame(_)) {
+                        "feature_late"
+                    } else {
+                        "gnss_late"
+                    },
+                    1,
+                );
+                continue;
+            }
+            match item {
+                Pending::Frame(fr) => self.fuse_frame(t, &fr, counters),
+                Pending::Gnss(sats) => self.fuse_gnss(t, &sats, counters),
+            }
+        }
+    }
+
+    /// One GNSS epoch into the filter (once the world origin is known).
+    fn fuse_gnss(&mut self, t: f64, sats: &[SatMeas], counters: &Counters) {
+        let Some(frame) = self.gnss.frame else { return };
+        let Some(est) = self.est.as_mut() else { return };
+        match est.process_gnss(t, &frame, sats) {
+            Ok(rep) => {
+                if let Some(l) = &self.log {
+                    let (clock, clock_var) = est.clock();
+                    l.log(
+                        Topic::FilterGnss,
+                        t,
+                        &json!({
+                            "t_s": t, "pseudoranges_used": rep.pseudoranges_used, "range_rates_used": rep.range_rates_used,
+                            "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
+                            "clock_var": clock_var.as_slice(),
+                            "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
+                        }),
+                    );
+                }
+                counters.add("gnss_epochs_fused", 1);
+                self.tracker.gnss_fused(t);
+                let codes_rejected = ["gnss_pseudorange_chi2", "gnss_pseudorange_outlier"]
+                    .iter()
+                    .filter_map(|k| rep.rejected.get(k))
+                    .sum::<u64>();
+                self.tracker.gnss_codes_rejected(t, codes_rejected);
+                counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
+                counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
+                for (k, v) in &rep.rejected {
+                    counters.add(k, *v);
+                }
+            }
+            Err(e) => {
+                counters.add("gnss_rejected", 1);
+                tracing::warn!(error = %e, "GNSS epoch rejected");
+            }
+        }
+    }
+
+    /// One camera frame into the filter; a global update it starts goes to
+    /// the rebase worker.
+    fn fuse_frame(&mut self, t: f64, fr: &NormFrame, counters: &Counters) {
+        let rej = fr.rejects;
+        for (name, n) in [
+            ("feature_non_finite", rej.non_finite),
+            ("feature_outside_image", rej.outside_image),
+            ("feature_undistort_failed", rej.undistort_failed),
+            ("feature_duplicate_id", rej.duplicate_id),
+        ] {
+            if n > 0 {
+                counters.add(name, n);
+            }
+        }
+        let Some(est) = self.est.as_mut() else { return };
+        let started = std::time::Instant::now();
+        let result = est.process_frame(t, &fr.obs);
+        let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
+        dispatch_rebase(&mut self.rebase, self.est_gen, est, counters);
+        match result {
+            Ok(rep) => {
+                if let Some(l) = &self.log {
+                    log_frame(l, est, t, fr.obs.len(), &rep, elapsed_us);
+                }
+                counters.add("frames_processed", 1);
+                self.tracker.frame_processed(t);
+                counters.add("tracks_used", rep.tracks_used as u64);
+                counters.add("global_updates", rep.global_updates as u64);
+                if rep.promoted > 0 {
+                    counters.add("keyframes_promoted", rep.promoted as u64);
+                }
+                if rep.deferred > 0 {
+                    // Loop-closure observations left for a later track while
+                    // a rebase was computing the global part.
+                    counters.add("loop_closure_deferred", rep.deferred as u64);
+                }
+                for (k, v) in &rep.rejected {
+                    counters.add(&format!("track_rejected_{k}"), *v);
+                }
+            }
+            Err(e) => {
+                counters.add("frame_rejected", 1);
+                tracing::warn!(error = %e, "frame rejected");
+            }
+        }
+    }
+}
+
+/// `/filter/update/vision` and the frame's events: global updates,
+/// keyframes created (`/filter/keyframes`) and promotions.
+fn log_frame(l: &McapLogger, est: &Estimator, t: f64, features: usize, rep: &FrameReport, elapsed_us: f64) {
+    l.log(
+        Topic::FilterVision,
+        t,
+        &json!({
+            "t_s": t, "features": features, "tracks_used": rep.tracks_used,
+            "rejected": rep.rejected, "nis": rep.nis, "residual_rms": rep.residual_rms,
+            "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
+            "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
+            "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
+            "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
+        }),
+    );
+    for ev in &rep.events {
+        match ev {
+            FilterEvent::GlobalUpdate {
+                reason,
+                global_before,
+                local_after,
+            } => l.log(
+                Topic::FilterGlobal,
+                t,
+                &json!({"t_s": t, "reason": format!("{reason:?}"), "global_before": global_before, "local_after": local_after}),
+            ),
+            FilterEvent::KeyframeCreated { id } => {
+                if let Some(kf) = est.keyframes().find(|k| k.id == *id) {
+                    let cov = est.keyframe_covariance(*id).map(|c| c.diagonal().as_slice().to_vec());
+                    let q = kf.q_W_B();
+                    l.log(
+                        Topic::FilterKeyframes,
+                        t,
+                        &json!({"t_s": t, "id": id, "p_B_in_W": kf.p_B_in_W.as_slice(), "q_W_B_wxyz": [q.w, q.i, q.j, q.k], "cov_diag": cov}),
+                    );
+                }
+            }
+            FilterEvent::Promoted { keyframes } => l.log(
+                Topic::FilterGlobal,
+                t,
+                &json!({"t_s": t, "reason": "Promotion", "promoted": keyframes}),
+            ),
+            FilterEvent::Update { .. } => {}
+        }
+    }
+}

@@ -1,0 +1,227 @@
+//! The daemon: the tasks of `cmsckf run`, their bounded channels, and the
+//! fusion loop, one room per concern:
+//!
+//! - this file: the wiring ([`run`]) and the messages the rooms exchange;
+//! - `link.rs`: the MAVLink receive and send tasks;
+//! - `features.rs`: the feature socket and its forwarder;
+//! - `gnss_input.rs`: a receiver's RTCM3 stream, and RTCM to GNSS epochs;
+//! - `heartbeat.rs`: HEARTBEAT and STATUSTEXT, stream requests, TIMESYNC;
+//! - `fusion.rs`: the fusion loop on its own thread, and the restart path;
+//! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
+//! - `init.rs`: starting the filter; `output.rs`: the estimates sent;
+//! - `rebase.rs`: compressed mode's global updates on a worker thread;
+//! - `records.rs`: the log records written at IMU and camera rate.
+//!
+//! The estimator is CPU work and must never stall the I/O tasks, so it runs
+//! on its own OS thread. Every channel is bounded; when one is full the
+//! newest item is dropped and counted. [`run`] returns when its `shutdown`
+//! future completes.
+
+mod features;
+mod fusion;
+mod gnss_input;
+mod heartbeat;
+mod init;
+mod link;
+mod measurements;
+mod output;
+mod rebase;
+mod records;
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicI64, AtomicUsize};
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use tokio::sync::{mpsc, watch};
+
+use crate::config::Config;
+use crate::estimator::frontend::NormFrame;
+use crate::estimator::ImuMeas;
+use crate::io::feature_pipe::{self, FeatureFrame};
+use crate::io::mavlink::{self as mav, Outbound};
+use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::Counters;
+use crate::status::Status;
+
+pub use fusion::{Ctx, Fusion};
+pub use output::{outputs, upper21};
+
+/// Errors that stop the daemon from starting.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("mavlink.address '{address}': {source}")]
+    Link { address: String, source: mav::LinkError },
+    #[error(transparent)]
+    Socket(#[from] feature_pipe::SocketError),
+    #[error("config: {0}")]
+    Config(String),
+    #[error(transparent)]
+    Log(#[from] crate::io::mcap_log::LogError),
+}
+
+/// Handles the fusion thread shares with the I/O tasks.
+pub(super) struct Shared {
+    pub(super) counters: Counters,
+    pub(super) status: Arc<Status>,
+    pub(super) mono_offset_us: Arc<AtomicI64>,
+    pub(super) start: Instant,
+    /// Camera frames in the fusion queue (`FRAMES_IN_FLIGHT`).
+    pub(super) frames_queued: Arc<AtomicUsize>,
+}
+
+/// What the daemon did, returned at shutdown.
+#[derive(Clone, Debug, Default)]
+pub struct RunSummary {
+    pub counters: std::collections::BTreeMap<String, u64>,
+}
+
+/// Input to the fusion loop.
+#[derive(Debug)]
+pub enum FusionMsg {
+    Imu(ImuMeas),
+    Attitude {
+        roll: f64,
+        pitch: f64,
+        yaw: f64,
+    },
+    LocalPosition {
+        /// Autopilot boot time of the sample (s).
+        t_s: f64,
+        p_ned_m: Vector3<f64>,
+        v_ned_mps: Vector3<f64>,
+    },
+    /// A camera frame as received (logged as such) and its features
+    /// normalised where it arrived, off the fusion thread.
+    Frame(FeatureFrame, NormFrame),
+    /// One reassembled RTCM3 message from the rover.
+    Rtcm(Vec<u8>),
+    SystemTime {
+        unix_us: u64,
+        boot_ms: u32,
+    },
+    Origin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+    /// Replay only: the daemon installed rebase `seq` at this point.
+    RebaseInstalled {
+        seq: u64,
+    },
+}
+
+/// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).
+pub(super) const FUSION_QUEUE: usize = 8192;
+/// Frames waiting for IMU to cover them.
+pub(super) const PENDING_FRAMES: usize = 32;
+/// Camera frames allowed in the fusion queue at once. A frame there holds
+/// its raw and its normalised features (up to `features.max_features` of
+/// each); beyond the `PENDING_FRAMES` that can wait for IMU, more would only
+/// hold memory, so the forwarder drops them (`fusion_frames_full`).
+pub(super) const FRAMES_IN_FLIGHT: usize = 2 * PENDING_FRAMES;
+/// An IMU time this far behind the last one is an autopilot reboot (s).
+pub(super) const REBOOT_JUMP_S: f64 = 2.0;
+/// A longer IMU gap restarts the filter: the motion in between is unknown
+/// (s; a 1 s gap is bridged, with a degraded status).
+pub(super) const MAX_IMU_GAP_S: f64 = 2.0;
+
+/// Why the filter is restarted (see `Fusion::restart`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Restart {
+    /// The autopilot's clock went back.
+    Reboot,
+    /// Longer than `MAX_IMU_GAP_S` without IMU.
+    Gap,
+    /// A health check failed (divergence, covariance, state).
+    Unhealthy,
+}
+
+/// The MAVLink signing key, if one is configured (validated with the config;
+/// read again here, so a file changed since is still checked).
+pub(super) fn signing_key(cfg: &Config) -> Result<Option<[u8; 32]>, DaemonError> {
+    if cfg.mavlink.signing_key_file.is_empty() {
+        return Ok(None);
+    }
+    crate::config::load_signing_key(std::path::Path::new(&cfg.mavlink.signing_key_file))
+        .map(Some)
+        .map_err(|(problem, fix)| DaemonError::Config(format!("mavlink.signing_key_file: {problem}; {fix}")))
+}
+
+/// Runs the daemon until `shutdown` completes.
+pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunSummary, DaemonError> {
+    let counters = Counters::default();
+    let link = link::connect(&cfg).await?;
+    let listener = feature_pipe::bind(&PathBuf::from(&cfg.features.socket)).await?;
+    tracing::info!(address = %cfg.mavlink.address, socket = %cfg.features.socket, mode = cfg.estimator.mode.name(), "cmsckf running");
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (fusion_tx, fusion_rx) = mpsc::channel::<FusionMsg>(FUSION_QUEUE);
+    let (out_tx, out_rx) = mpsc::channel::<Outbound>(256);
+    let status = Arc::new(Status::default());
+    // Companion monotonic → autopilot boot clock offset (µs), from TIMESYNC.
+    let mono_offset_us = Arc::new(AtomicI64::new(i64::MIN));
+    let start = Instant::now();
+    let frames_queued = Arc::new(AtomicUsize::new(0));
+
+    let (feat_task, fwd) = features::spawn(&cfg, listener, &fusion_tx, &counters, &stop_rx, frames_queued.clone());
+    let receive = link::Receive {
+        counters: counters.clone(),
+        fusion_tx: fusion_tx.clone(),
+        mono_offset_us: mono_offset_us.clone(),
+        start,
+        stop: stop_rx.clone(),
+    };
+    let rx_task = link::spawn_receiver(&cfg, link.clone(), receive);
+    let stream_task = gnss_input::spawn_stream(&cfg, &fusion_tx, &counters, &stop_rx)?;
+    drop(fusion_tx);
+    let tx_task = link::spawn_sender(link, out_rx, counters.clone());
+    let status_task = heartbeat::spawn_status(out_tx.clone(), status.clone(), start, stop_rx.clone());
+    let periodic = heartbeat::spawn_periodic(out_tx.clone(), counters.clone(), cfg.mavlink.imu_rate_hz, start, stop_rx);
+
+    let shared = Shared {
+        counters: counters.clone(),
+        status,
+        mono_offset_us,
+        start,
+        frames_queued,
+    };
+    let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, open_log(&cfg)?)
+        .map_err(|e| DaemonError::Config(format!("cannot start the fusion thread: {e}")))?;
+
+    shutdown.await;
+    tracing::info!("cmsckf shutting down");
+    let _ = stop_tx.send(true);
+    for t in [rx_task, fwd, periodic, status_task, feat_task] {
+        let _ = t.await;
+    }
+    if let Some((a, b)) = stream_task {
+        let _ = a.await;
+        let _ = b.await;
+    }
+    // The fusion thread ends when its input channel closes (all senders gone).
+    let _ = tokio::task::spawn_blocking(move || fusion.join()).await;
+    let _ = tx_task.await;
+    let _ = std::fs::remove_file(&cfg.features.socket);
+    Ok(RunSummary {
+        counters: counters.snapshot(),
+    })
+}
+
+/// The MCAP flight log, if `log.path` is set.
+fn open_log(cfg: &Config) -> Result<Option<McapLogger>, DaemonError> {
+    if cfg.log.path.is_empty() {
+        return Ok(None);
+    }
+    let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
+    let header = LogHeader {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        mode: cfg.estimator.mode.name().to_string(),
+        config_toml: toml::to_string(cfg).unwrap_or_default(),
+    };
+    let l = McapLogger::create(&path, &header)?;
+    tracing::info!(path = %path.display(), "logging to MCAP");
+    Ok(Some(l))
+}

@@ -1,0 +1,77 @@
+//! The log records of the channels written at IMU or camera rate, serialised
+//! straight from borrowed data: building a `serde_json::Value` first costs
+//! an allocation per field and per feature. The JSON is that of the
+//! channels' schemas (`io::mcap_log`).
+
+use serde::Serialize;
+
+#[derive(Serialize)]
+pub struct Imu<'a> {
+    pub t_us: u64,
+    pub accel_mps2: &'a [f64],
+    pub gyro_radps: &'a [f64],
+}
+
+#[derive(Serialize)]
+pub struct Features<'a> {
+    pub t_us: u64,
+    pub t_ap_us: i64,
+    pub cam: u32,
+    /// `[landmark_id, u_px, v_px]` each.
+    pub features: &'a [(u64, f64, f64)],
+}
+
+#[derive(Clone, Copy, Serialize)]
+pub struct Stamp {
+    pub sec: u64,
+    pub nsec: u64,
+}
+
+#[derive(Clone, Copy, Serialize)]
+pub struct Xyz {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+#[derive(Clone, Copy, Serialize)]
+pub struct Quat {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    pub w: f64,
+}
+
+#[derive(Serialize)]
+pub struct PoseBody {
+    pub position: Xyz,
+    pub orientation: Quat,
+}
+
+/// foxglove.PoseInFrame.
+#[derive(Serialize)]
+pub struct Pose<'a> {
+    pub timestamp: Stamp,
+    pub frame_id: &'a str,
+    pub pose: PoseBody,
+}
+
+/// foxglove.FrameTransform.
+#[derive(Serialize)]
+pub struct Transform<'a> {
+    pub timestamp: Stamp,
+    pub parent_frame_id: &'a str,
+    pub child_frame_id: &'a str,
+    pub translation: Xyz,
+    pub rotation: Quat,
+}
+
+#[derive(Serialize)]
+pub struct Vpe<'a> {
+    pub usec: u64,
+    pub p_ned_m: &'a [f64],
+    pub rpy_rad: &'a [f64],
+    /// Upper triangle of the 6×6 covariance, as sent.
+    pub covariance: &'a [f32],
+    pub reset_counter: u8,
+}
