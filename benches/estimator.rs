@@ -10,8 +10,8 @@
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 
 use cmsckf::config::Config;
-use cmsckf::estimator::Mode;
 use cmsckf::estimator::ImuMeas;
+use cmsckf::estimator::Mode;
 use cmsckf::eval::{sim_config_for, Runner};
 use cmsckf_sitl::dataset::Dataset;
 
@@ -87,7 +87,12 @@ fn bench_decode(c: &mut Criterion) {
         b.iter(|| cmsckf::io::feature_pipe::parse_line(line.as_bytes(), 1000).expect("valid line"))
     });
 
-    let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join("3040_msm7.rtcm3")).expect("3040 data");
+    let bytes = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data")
+            .join("3040_msm7.rtcm3"),
+    )
+    .expect("3040 data");
     // The first MSM7 frame.
     let start = bytes.iter().position(|&b| b == 0xD3).expect("frame");
     let len = (((bytes[start + 1] & 3) as usize) << 8 | bytes[start + 2] as usize) + 6;

@@ -19,9 +19,9 @@ use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::metrics;
 
 use crate::config::Config;
-use crate::estimator::Mode;
 use crate::estimator::frontend::{NormObs, Normaliser};
 use crate::estimator::propagate::{boxplus, Mat15};
+use crate::estimator::Mode;
 use crate::estimator::{Estimator, ImuMeas, ImuState, Stats};
 
 /// The simulator settings that match a daemon config (same camera and IMU).

@@ -9,18 +9,21 @@
 //! or config, the two logs can be compared.
 
 use std::path::Path;
+use std::sync::mpsc::SyncSender;
 use std::time::Instant;
 
 use nalgebra::Vector3;
 use serde::Serialize;
 use serde_json::Value;
+use tokio::sync::mpsc;
 
 use crate::config::{Config, FeatureClock};
-use crate::estimator::Mode;
 use crate::daemon::{Ctx, Fusion, FusionMsg};
 use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
+use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
+use crate::io::mavlink::Outbound;
 use crate::io::mcap_log::{LogHeader, McapLogger};
 use crate::io::Counters;
 
@@ -154,20 +157,8 @@ pub fn replay(
 ) -> Result<ReplayReport, ReplayError> {
     let name = input.display().to_string();
     let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
-    let mut cfg = match config {
-        Some(c) => c,
-        None => logged_config(&bytes, &name)?,
-    };
-    if let Some(m) = mode {
-        cfg.estimator.mode = m;
-    }
-    cfg.features.clock = FeatureClock::Autopilot;
-    let header = LogHeader {
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        mode: cfg.estimator.mode.name().to_string(),
-        config_toml: toml::to_string(&cfg).unwrap_or_default(),
-    };
-    let log = McapLogger::create(output, &header)?.blocking();
+    let cfg = replay_config(&bytes, &name, mode, config)?;
+    let log = McapLogger::create(output, &log_header(&cfg))?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
     let ctx = Ctx {
         counters: Counters::default(),
@@ -179,69 +170,130 @@ pub fn replay(
     let normaliser = Normaliser::new(&cfg.camera);
     let mut fusion = Fusion::new(cfg, Some(log)).for_replay();
     let start = Instant::now();
-    let (mut n_in, mut n_out) = (0u64, 0u64);
-    let (mut t_first, mut t_last) = (f64::NAN, f64::NAN);
+    let mut tally = Tally::new();
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReplayError::Mcap(name.clone(), e.to_string()))?;
     // Reading the log (decompressing its chunks and parsing each input's
     // JSON) runs on a thread of its own, a batch at a time, so the fusion
     // loop here does nothing but fuse; the order is kept.
     let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Vec<FusionMsg>>(REPLAY_QUEUE_BATCHES);
     std::thread::scope(|scope| {
-        scope.spawn(move || {
-            let mut batch = Vec::with_capacity(REPLAY_BATCH);
-            for m in stream {
-                // A log cut short ends the replay at its last whole chunk.
-                let Ok(m) = m else { break };
-                if !m.channel.topic.starts_with("/input/") {
-                    continue;
-                }
-                let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
-                    continue;
-                };
-                let Some(msg) = to_msg(&m.channel.topic, &v, &normaliser) else {
-                    continue;
-                };
-                batch.push(msg);
-                if batch.len() == REPLAY_BATCH {
-                    let full = std::mem::replace(&mut batch, Vec::with_capacity(REPLAY_BATCH));
-                    if batch_tx.send(full).is_err() {
-                        return;
-                    }
-                }
-            }
-            if !batch.is_empty() {
-                let _ = batch_tx.send(batch);
-            }
-        });
+        scope.spawn(move || read_inputs(stream, &normaliser, batch_tx));
         for batch in batch_rx {
             for msg in batch {
-                if let FusionMsg::Imu(s) = &msg {
-                    if t_first.is_nan() {
-                        t_first = s.t_s;
-                    }
-                    t_last = s.t_s;
-                }
-                n_in += 1;
-                fusion.handle(msg, &ctx);
-                while let Ok(o) = out_rx.try_recv() {
-                    if matches!(o, crate::io::mavlink::Outbound::VisionPositionEstimate { .. }) {
-                        n_out += 1;
-                    }
-                }
-                if n_in % 4096 == 0 {
-                    progress(n_in);
+                tally.fuse(msg, &mut fusion, &ctx, &mut out_rx);
+                if tally.n_in.is_multiple_of(4096) {
+                    progress(tally.n_in);
                 }
             }
         }
     });
     fusion.finish_log(&ctx.counters);
-    let wall = start.elapsed().as_secs_f64();
-    let flight = if t_first.is_finite() { t_last - t_first } else { 0.0 };
-    Ok(ReplayReport {
-        messages_in: n_in,
-        estimates_out: n_out,
-        flight_s: flight,
-        wall_s: wall,
-        realtime_factor: if wall > 0.0 { flight / wall } else { 0.0 },
-    })
+    Ok(tally.report(start.elapsed().as_secs_f64()))
+}
+
+/// The config to replay under: `config`, else the log's own; then `mode`
+/// if given, and the feature clock already mapped to the autopilot's.
+fn replay_config(bytes: &[u8], name: &str, mode: Option<Mode>, config: Option<Config>) -> Result<Config, ReplayError> {
+    let mut cfg = match config {
+        Some(c) => c,
+        None => logged_config(bytes, name)?,
+    };
+    if let Some(m) = mode {
+        cfg.estimator.mode = m;
+    }
+    cfg.features.clock = FeatureClock::Autopilot;
+    Ok(cfg)
+}
+
+/// The new log's header: this build, and the config replayed under.
+fn log_header(cfg: &Config) -> LogHeader {
+    LogHeader {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        mode: cfg.estimator.mode.name().to_string(),
+        config_toml: toml::to_string(cfg).unwrap_or_default(),
+    }
+}
+
+/// The reading thread: turns the log's inputs back into fusion messages, in
+/// order, and sends them in batches of [`REPLAY_BATCH`] until the log ends
+/// (or the fusion loop hangs up).
+fn read_inputs(stream: mcap::MessageStream, normaliser: &Normaliser, batch_tx: SyncSender<Vec<FusionMsg>>) {
+    let mut batch = Vec::with_capacity(REPLAY_BATCH);
+    for m in stream {
+        // A log cut short ends the replay at its last whole chunk.
+        let Ok(m) = m else { break };
+        if !m.channel.topic.starts_with("/input/") {
+            continue;
+        }
+        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+            continue;
+        };
+        let Some(msg) = to_msg(&m.channel.topic, &v, normaliser) else {
+            continue;
+        };
+        batch.push(msg);
+        if batch.len() == REPLAY_BATCH {
+            let full = std::mem::replace(&mut batch, Vec::with_capacity(REPLAY_BATCH));
+            if batch_tx.send(full).is_err() {
+                return;
+            }
+        }
+    }
+    if !batch.is_empty() {
+        let _ = batch_tx.send(batch);
+    }
+}
+
+/// What the fusion loop counts: inputs in, estimates out, and the span of
+/// the IMU times (s).
+struct Tally {
+    n_in: u64,
+    n_out: u64,
+    t_first: f64,
+    t_last: f64,
+}
+
+impl Tally {
+    fn new() -> Self {
+        Self {
+            n_in: 0,
+            n_out: 0,
+            t_first: f64::NAN,
+            t_last: f64::NAN,
+        }
+    }
+
+    /// Fuses one input and drains the outbound messages it produced,
+    /// counting both.
+    fn fuse(&mut self, msg: FusionMsg, fusion: &mut Fusion, ctx: &Ctx, out_rx: &mut mpsc::Receiver<Outbound>) {
+        if let FusionMsg::Imu(s) = &msg {
+            if self.t_first.is_nan() {
+                self.t_first = s.t_s;
+            }
+            self.t_last = s.t_s;
+        }
+        self.n_in += 1;
+        fusion.handle(msg, ctx);
+        while let Ok(o) = out_rx.try_recv() {
+            if matches!(o, Outbound::VisionPositionEstimate { .. }) {
+                self.n_out += 1;
+            }
+        }
+    }
+
+    /// The report, given the wall time the replay took (s).
+    fn report(&self, wall: f64) -> ReplayReport {
+        let flight = if self.t_first.is_finite() {
+            self.t_last - self.t_first
+        } else {
+            0.0
+        };
+        ReplayReport {
+            messages_in: self.n_in,
+            estimates_out: self.n_out,
+            flight_s: flight,
+            wall_s: wall,
+            realtime_factor: if wall > 0.0 { flight / wall } else { 0.0 },
+        }
+    }
 }

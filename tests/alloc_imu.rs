@@ -5,8 +5,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use cmsckf::config::Config;
-use cmsckf::estimator::Mode;
 use cmsckf::estimator::ImuMeas;
+use cmsckf::estimator::Mode;
 use cmsckf::eval::{sim_config_for, Runner};
 use cmsckf_sitl::dataset::Dataset;
 

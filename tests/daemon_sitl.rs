@@ -156,7 +156,14 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         assert!(a == b, "{topic}: replay differs ({} vs {} messages)", a.len(), b.len());
     }
     let schmidt = dir.path().join("schmidt.mcap");
-    cmsckf::replay::replay(&log_path, &schmidt, Some(cmsckf::estimator::Mode::Schmidt), None, |_| {}).unwrap();
+    cmsckf::replay::replay(
+        &log_path,
+        &schmidt,
+        Some(cmsckf::estimator::Mode::Schmidt),
+        None,
+        |_| {},
+    )
+    .unwrap();
     assert_ne!(
         messages(&log_path, "/filter/state"),
         messages(&schmidt, "/filter/state")

@@ -93,7 +93,12 @@ fn feature_lines() {
 #[test]
 fn rtcm_stream() {
     let mut rng = ChaCha8Rng::seed_from_u64(2);
-    let real = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join("GMSD7_20121014.rtcm3")).unwrap();
+    let real = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data")
+            .join("GMSD7_20121014.rtcm3"),
+    )
+    .unwrap();
     let mut dec = RtcmDecoder::new();
     let mut out = Vec::new();
     let mut frames = 0u64;

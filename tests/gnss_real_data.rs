@@ -5,7 +5,9 @@
 use std::process::Command;
 
 fn data(name: &str) -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
 }
 
 /// GPS time of week (s) of a `YYYY/MM/DD hh:mm:ss.sss` GPST stamp.

@@ -4,13 +4,14 @@
 //! simulated inter-system bias).
 
 use cmsckf::config::Config;
-use cmsckf::gnss::IonoMode;
 use cmsckf::eval;
 use cmsckf::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use cmsckf::gnss::spp::SppOptions;
+use cmsckf::gnss::IonoMode;
 use cmsckf::gnss::Receiver;
+use cmsckf_models::gnss::rtcm_eph::encode_ephemeris;
 use cmsckf_sitl::dataset::Dataset;
-use cmsckf_sitl::rtcm_out::{encode_ephemeris, encode_epoch};
+use cmsckf_sitl::rtcm_out::encode_epoch;
 
 #[test]
 fn simulated_rtcm_round_trips_and_solves() {

@@ -11,7 +11,12 @@ use cmsckf::config::GnssSource;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn daemon_reads_a_tcp_rtcm_stream() {
-    let mut bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join("3040_msm7.rtcm3")).unwrap();
+    let mut bytes = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data")
+            .join("3040_msm7.rtcm3"),
+    )
+    .unwrap();
     let second = bytes
         .iter()
         .enumerate()

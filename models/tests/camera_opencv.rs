@@ -466,7 +466,7 @@ fn equidistant_undistortion_matches_opencv_near_90_degrees() {
 fn radtan_case_worked_by_hand() {
     let [fx, fy, cx, cy] = EUROC_INTRINSICS;
     let [k1, k2, p1, p2] = TANGENTIAL_DISTORTION; // p1 = 0.01, p2 = -0.005
-    let p_in_C = [0.4, 0.25, 1.6];
+    let p_in_C: [f64; 3] = [0.4, 0.25, 1.6];
     let x = p_in_C[0] / p_in_C[2]; // 0.25
     let y = p_in_C[1] / p_in_C[2]; // 0.15625
     let r2 = x * x + y * y; // 0.0869140625
@@ -503,7 +503,7 @@ fn radtan_case_worked_by_hand() {
 fn equidistant_case_worked_by_hand() {
     let [fx, fy, cx, cy] = TUMVI_INTRINSICS;
     let [k1, k2, k3, k4] = TUMVI_DISTORTION;
-    let p_in_C = [1.0, -0.75, 1.0];
+    let p_in_C: [f64; 3] = [1.0, -0.75, 1.0];
     let x = p_in_C[0] / p_in_C[2]; // 1
     let y = p_in_C[1] / p_in_C[2]; // -0.75
     let r = (x * x + y * y).sqrt(); // 1.25 exactly

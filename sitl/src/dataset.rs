@@ -12,13 +12,13 @@ use std::path::Path;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use cmsckf_models::camera::Camera;
 use crate::config::SimConfig;
 use crate::features::{CameraFrame, FeatureSim, TrackStats};
 use crate::gnss::{GnssEpoch, GnssModel};
-use cmsckf_models::gnss::BroadcastEphemeris;
 use crate::imu::{gauss3, ImuBias, ImuModel, ImuSample};
 use crate::trajectory::{Trajectory, TrajectoryError, TruthSample};
+use cmsckf_models::camera::Camera;
+use cmsckf_models::gnss::BroadcastEphemeris;
 
 /// Truth at one IMU sample, with the biases in force.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -17,9 +17,9 @@ use nalgebra::{Isometry3, Vector2, Vector3};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use cmsckf_models::camera::Camera;
 use crate::config::FeatureSimConfig;
 use crate::trajectory::TruthSample;
+use cmsckf_models::camera::Camera;
 
 /// One feature observation: `(landmark_id, u_px, v_px)`, distorted pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -248,8 +248,8 @@ impl FeatureSim {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cmsckf_models::sensors::CameraConfig;
     use crate::trajectory::{racetrack, RacetrackParams};
+    use cmsckf_models::sensors::CameraConfig;
     use rand::SeedableRng;
 
     #[test]

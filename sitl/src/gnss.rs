@@ -23,11 +23,10 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 
 use crate::config::GnssSimConfig;
+use crate::trajectory::TruthSample;
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, OMEGA_E_RADPS};
 use cmsckf_models::gnss::rtcm_eph::quantise;
 use cmsckf_models::gnss::{saastamoinen_m, BroadcastEphemeris, SatState, System, WEEK_S};
-use crate::trajectory::TruthSample;
-
 
 /// Generates the 31-satellite constellation valid around `tow_s` of `week`.
 pub fn constellation<R: Rng>(week: u32, tow_s: f64, rng: &mut R) -> Vec<BroadcastEphemeris> {
@@ -356,6 +355,7 @@ pub fn rot_z(a: f64) -> Matrix3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use cmsckf_models::gnss::REL_F;
     use rand::SeedableRng;
 
     #[test]
@@ -450,7 +450,6 @@ mod tests {
         }
     }
 
-
     #[test]
     fn galileo_constellation_geometry() {
         let c = galileo_constellation(2443, 345_600.0);
@@ -461,5 +460,4 @@ mod tests {
             assert!((e.accuracy_m() - 3.12).abs() < 1e-12);
         }
     }
-
 }

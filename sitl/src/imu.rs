@@ -9,8 +9,8 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use cmsckf_models::sensors::ImuConfig;
 use crate::trajectory::{gravity_w, TruthSample};
+use cmsckf_models::sensors::ImuConfig;
 
 /// One IMU measurement in the body (FRD) frame.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -62,13 +62,19 @@ pub fn encode_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmEnco
     let mut out = Vec::new();
 
     let msg = gps_msm7(&gps, station_id, epoch_ms, !gal.is_empty());
-    out.extend_from_slice(b.build_message(&Message::Msg1077(msg)).map_err(RtcmEncodeError::Encode)?);
+    out.extend_from_slice(
+        b.build_message(&Message::Msg1077(msg))
+            .map_err(RtcmEncodeError::Encode)?,
+    );
     if gal.is_empty() {
         return Ok(out);
     }
 
     let msg = galileo_msm7(&gal, station_id, epoch_ms);
-    out.extend_from_slice(b.build_message(&Message::Msg1097(msg)).map_err(RtcmEncodeError::Encode)?);
+    out.extend_from_slice(
+        b.build_message(&Message::Msg1097(msg))
+            .map_err(RtcmEncodeError::Encode)?,
+    );
     Ok(out)
 }
 

@@ -305,12 +305,43 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
         path: path.to_path_buf(),
         source,
     })?;
+    let rows = parse_tum_rows(path, &text)?;
+    if rows.len() < 10 {
+        return Err(TrajectoryError::TooShort {
+            path: path.to_path_buf(),
+            reason: format!("{} poses; at least 10 are needed", rows.len()),
+        });
+    }
+    let t_first = rows[0].0;
+    let span = rows[rows.len() - 1].0 - t_first;
+    let duration = duration_s.map_or(span, |d| d.min(span));
+    if duration < 1.0 {
+        return Err(TrajectoryError::TooShort {
+            path: path.to_path_buf(),
+            reason: format!("spans {span:.3} s; at least 1 s is needed"),
+        });
+    }
+    let (t0, pctrl, qctrl) = tum_control_points(&rows, duration);
+    Ok(Trajectory {
+        name: format!("tum:{}", path.display()),
+        duration_s: duration,
+        pos: PositionSpline::new(t0, KNOT_DT_S, pctrl),
+        rot: RotationSpline::new(t0, KNOT_DT_S, unwrap_quaternions(qctrl)),
+    })
+}
+
+/// One pose of a TUM file: time, position and orientation in the file's world.
+type TumRow = (f64, Vector3<f64>, UnitQuaternion<f64>);
+
+/// The poses of a TUM file's `text` (comments and blank lines skipped),
+/// checked: 8 finite numbers, a unit quaternion, increasing times.
+fn parse_tum_rows(path: &Path, text: &str) -> Result<Vec<TumRow>, TrajectoryError> {
     let bad = |line: usize, reason: String| TrajectoryError::BadRow {
         path: path.to_path_buf(),
         line,
         reason,
     };
-    let mut rows: Vec<(f64, Vector3<f64>, UnitQuaternion<f64>)> = Vec::new();
+    let mut rows: Vec<TumRow> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let l = line.trim();
         if l.is_empty() || l.starts_with('#') {
@@ -346,21 +377,15 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
             UnitQuaternion::from_quaternion(qv),
         ));
     }
-    if rows.len() < 10 {
-        return Err(TrajectoryError::TooShort {
-            path: path.to_path_buf(),
-            reason: format!("{} poses; at least 10 are needed", rows.len()),
-        });
-    }
+    Ok(rows)
+}
+
+/// Resamples `rows` (at least two) at the knot spacing over `duration` s
+/// (linear / slerp, clamped at the ends) into the NED world: the first knot
+/// time and the position and rotation control points.
+fn tum_control_points(rows: &[TumRow], duration: f64) -> (f64, Vec<Vector3<f64>>, Vec<UnitQuaternion<f64>>) {
     let t_first = rows[0].0;
     let span = rows[rows.len() - 1].0 - t_first;
-    let duration = duration_s.map_or(span, |d| d.min(span));
-    if duration < 1.0 {
-        return Err(TrajectoryError::TooShort {
-            path: path.to_path_buf(),
-            reason: format!("spans {span:.3} s; at least 1 s is needed"),
-        });
-    }
     // z-up world → NED-like z-down world: 180° about x.
     let flip = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
     let at = |t_rel: f64| -> (Vector3<f64>, UnitQuaternion<f64>) {
@@ -382,12 +407,7 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
         pctrl.push(p);
         qctrl.push(q);
     }
-    Ok(Trajectory {
-        name: format!("tum:{}", path.display()),
-        duration_s: duration,
-        pos: PositionSpline::new(t0, KNOT_DT_S, pctrl),
-        rot: RotationSpline::new(t0, KNOT_DT_S, unwrap_quaternions(qctrl)),
-    })
+    (t0, pctrl, qctrl)
 }
 
 #[cfg(test)]

@@ -6,8 +6,23 @@ use cmsckf_models::check::{Check, FieldError, Validate};
 use super::{Config, GnssSource};
 
 impl Config {
-    /// Checks every value; the error names the field and the fix.
+    /// Checks every value; the error names the field and the fix. Sections
+    /// are checked in file order and the first error is returned.
     pub fn validate(&self) -> Result<(), FieldError> {
+        self.validate_mavlink()?;
+        self.validate_features()?;
+        self.camera.validate("camera")?;
+        self.imu.validate("imu")?;
+        self.validate_estimator()?;
+        self.validate_init()?;
+        self.validate_keyframe()?;
+        self.validate_compressed()?;
+        self.validate_gnss()?;
+        Check::new("output").range("rate_hz", self.output.rate_hz, 1.0, 500.0)
+    }
+
+    /// `[mavlink]`: the address, the ids, the IMU rate and the signing key.
+    fn validate_mavlink(&self) -> Result<(), FieldError> {
         let m = &self.mavlink;
         let c = Check::new("mavlink");
         let schemes = ["udpin:", "udpout:", "udpbcast:", "tcpin:", "tcpout:", "serial:"];
@@ -37,7 +52,11 @@ impl Config {
             load_signing_key(std::path::Path::new(&m.signing_key_file))
                 .map_err(|(problem, fix)| c.fail("signing_key_file", problem, fix))?;
         }
+        Ok(())
+    }
 
+    /// `[features]`: the socket path and the size limits.
+    fn validate_features(&self) -> Result<(), FieldError> {
         let c = Check::new("features");
         if self.features.socket.is_empty() {
             return Err(c.fail("socket", "is empty", "give a path such as /run/cmsckf/features.sock"));
@@ -56,10 +75,11 @@ impl Config {
                 "set 1..100000",
             ));
         }
+        Ok(())
+    }
 
-        self.camera.validate("camera")?;
-        self.imu.validate("imu")?;
-
+    /// `[estimator]`: the window, the track length, the gate and the depths.
+    fn validate_estimator(&self) -> Result<(), FieldError> {
         let e = &self.estimator;
         let c = Check::new("estimator");
         if !(2..=100).contains(&e.max_clones) {
@@ -86,8 +106,11 @@ impl Config {
                 "set max_depth_m > min_depth_m",
             ));
         }
-        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)?;
+        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)
+    }
 
+    /// `[init]`: the static window, the yaw and the initial sigmas.
+    fn validate_init(&self) -> Result<(), FieldError> {
         let i = &self.init;
         let c = Check::new("init");
         c.range("static_window_s", i.static_window_s, 0.1, 60.0)?;
@@ -97,13 +120,21 @@ impl Config {
         c.positive("sigma_position_m", i.sigma_position_m, 1e4)?;
         c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
         c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;
-        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)?;
+        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)
+    }
 
+    /// `[keyframe]`: the interval and the count.
+    fn validate_keyframe(&self) -> Result<(), FieldError> {
         let c = Check::new("keyframe");
         c.positive("interval_s", self.keyframe.interval_s, 3600.0)?;
         if self.keyframe.max > 100_000 {
             return Err(c.fail("max", format!("{} is out of range", self.keyframe.max), "set 0..100000"));
         }
+        Ok(())
+    }
+
+    /// `[compressed]`: the local radius and the local keyframe count.
+    fn validate_compressed(&self) -> Result<(), FieldError> {
         let c = Check::new("compressed");
         c.positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
         if !(2..=10_000).contains(&self.compressed.max_local_keyframes) {
@@ -113,7 +144,12 @@ impl Config {
                 "set 2..10000",
             ));
         }
+        Ok(())
+    }
 
+    /// `[gnss]`: the source, the systems, the noise, the Klobuchar
+    /// coefficients, the origin and the week hint.
+    fn validate_gnss(&self) -> Result<(), FieldError> {
         let g = &self.gnss;
         let c = Check::new("gnss");
         if g.source == GnssSource::Stream && g.stream.is_empty() {
@@ -132,6 +168,22 @@ impl Config {
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
         c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;
+        self.validate_klobuchar(&c)?;
+        self.validate_origin(&c)?;
+        if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
+            return Err(c.fail(
+                "week_hint",
+                format!("{} is out of range", g.week_hint),
+                "give a full GPS week (e.g. 2443) or 0",
+            ));
+        }
+        Ok(())
+    }
+
+    /// `gnss.klobuchar_alpha` and `gnss.klobuchar_beta`: four finite
+    /// coefficients each, or both empty.
+    fn validate_klobuchar(&self, c: &Check) -> Result<(), FieldError> {
+        let g = &self.gnss;
         for (name, v) in [
             ("klobuchar_alpha", &g.klobuchar_alpha),
             ("klobuchar_beta", &g.klobuchar_beta),
@@ -148,6 +200,12 @@ impl Config {
                 "give both or neither",
             ));
         }
+        Ok(())
+    }
+
+    /// `gnss.origin_llh`: empty, or a latitude, longitude and height in range.
+    fn validate_origin(&self, c: &Check) -> Result<(), FieldError> {
+        let g = &self.gnss;
         if !g.origin_llh.is_empty() {
             if g.origin_llh.len() != 3 {
                 return Err(c.fail(
@@ -160,14 +218,7 @@ impl Config {
             c.range("origin_llh[1]", g.origin_llh[1], -180.0, 180.0)?;
             c.range("origin_llh[2]", g.origin_llh[2], -500.0, 1e4)?;
         }
-        if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
-            return Err(c.fail(
-                "week_hint",
-                format!("{} is out of range", g.week_hint),
-                "give a full GPS week (e.g. 2443) or 0",
-            ));
-        }
-        Check::new("output").range("rate_hz", self.output.rate_hz, 1.0, 500.0)
+        Ok(())
     }
 }
 

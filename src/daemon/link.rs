@@ -236,7 +236,11 @@ fn on_rtcm_fragment(flags: u8, data: &[u8], src: mav::Source, st: &mut RxState, 
 }
 
 /// The send task: every outbound message goes through here.
-pub(super) fn spawn_sender(link: Arc<Link>, mut out_rx: mpsc::Receiver<Outbound>, counters: Counters) -> JoinHandle<()> {
+pub(super) fn spawn_sender(
+    link: Arc<Link>,
+    mut out_rx: mpsc::Receiver<Outbound>,
+    counters: Counters,
+) -> JoinHandle<()> {
     tokio::spawn(async move {
         while let Some(m) = out_rx.recv().await {
             match link.send(&m).await {

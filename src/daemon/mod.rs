@@ -179,7 +179,13 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     drop(fusion_tx);
     let tx_task = link::spawn_sender(link, out_rx, counters.clone());
     let status_task = heartbeat::spawn_status(out_tx.clone(), status.clone(), start, stop_rx.clone());
-    let periodic = heartbeat::spawn_periodic(out_tx.clone(), counters.clone(), cfg.mavlink.imu_rate_hz, start, stop_rx);
+    let periodic = heartbeat::spawn_periodic(
+        out_tx.clone(),
+        counters.clone(),
+        cfg.mavlink.imu_rate_hz,
+        start,
+        stop_rx,
+    );
 
     let shared = Shared {
         counters: counters.clone(),

@@ -36,9 +36,7 @@ pub(super) enum RebaseExec {
     },
     /// Replay: computed at once, installed where the log says the daemon
     /// installed it, so a replay reproduces the flight bit for bit.
-    Logged {
-        held: Option<RebaseResult>,
-    },
+    Logged { held: Option<RebaseResult> },
 }
 
 impl RebaseExec {

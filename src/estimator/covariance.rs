@@ -4,7 +4,7 @@
 //! nominal state, and re-initialising states (OpenVINS keeps the same
 //! discipline in its `StateHelper`). Updaters build `H`, `r` and call
 //! [`Estimator::ekf_update`]; nothing else writes `P` except the compressed
-//! machinery of `compressed.rs`, which owns the global part.
+//! machinery of `compressed/`, which owns the global part.
 
 use nalgebra::{DMatrix, DVector};
 

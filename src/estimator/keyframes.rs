@@ -4,13 +4,13 @@
 //! track uses each once (a loop closure), and the oldest is marginalised when
 //! the map is full. The compressed mode's entry points for global updates
 //! (forced, benchmark hooks) are here too; their machinery is
-//! `compressed.rs`'s.
+//! `compressed/`'s.
 
 use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::Vector3;
 
-use super::{Estimator, GlobalReason, KfObs, Keyframe, Mode, NormObs, RebaseJob, RebaseResult};
+use super::{Estimator, GlobalReason, Keyframe, KfObs, Mode, NormObs, RebaseJob, RebaseResult};
 
 impl Estimator {
     pub(super) fn create_keyframe(&mut self, t_s: f64, obs: &[NormObs]) -> u64 {

@@ -10,10 +10,10 @@
 //! - `propagate.rs`: IMU kinematics and the filter's propagation;
 //! - `msckf.rs`: the track update of each camera frame;
 //! - `keyframes.rs`: the keyframe life cycle;
-//! - `compressed.rs`: the local/global split, rebases and promotions;
+//! - `compressed/`: the local/global split, rebases and promotions;
 //! - `gnss_update.rs`: the GNSS update, whole;
 //! - `health.rs`: divergence detection and state checks;
-//! - `feature.rs`, `math.rs`, `frontend.rs`, `settings.rs`: triangulation and
+//! - `feature.rs`, `math/`, `frontend.rs`, `settings.rs`: triangulation and
 //!   the track Jacobians, dense kernels, pixel normalisation, settings.
 //!
 //! Error-state layout of the covariance `P` (the *local* part in compressed
@@ -396,31 +396,6 @@ impl Estimator {
         Some(Matrix6::from_fn(|r, c| pgg[(r, c)]))
     }
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
     /// The whole state, reconstructed, in a fixed order: IMU, clones,
     /// keyframes by id. Does not change the filter.
     pub fn snapshot(&self) -> Snapshot {
@@ -465,13 +440,7 @@ impl Estimator {
             P,
         }
     }
-
 }
-
-
-
-
-
 
 /// Roll and pitch from the mean specific force of a static segment, with a
 /// given yaw (§7): at rest `f_B = −R_W_Bᵀ g_W`, so the body's down axis in

@@ -231,7 +231,8 @@ impl Estimator {
         }
         let mut chosen = global_needed.clone();
         if self.pending.is_some() {
-            let room = (self.s.max_local_keyframes.saturating_sub(self.local_kfs.len())).min(PENDING_PROMOTIONS_PER_FRAME);
+            let room =
+                (self.s.max_local_keyframes.saturating_sub(self.local_kfs.len())).min(PENDING_PROMOTIONS_PER_FRAME);
             let uses = |id: &u64| kf_use.iter().flatten().filter(|k| *k == id).count();
             chosen.sort_by_key(|id| (std::cmp::Reverse(uses(id)), *id));
             chosen.truncate(room);

@@ -176,77 +176,84 @@ impl RtcmDecoder {
     }
 }
 
-fn convert(t: u16, m: Message) -> Option<GnssMessage> {
-    macro_rules! msm {
-        ($v:ident, $sys:expr, $epoch:ident, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
-            let d = &$v.data_segment;
-            let mut sats = Vec::with_capacity(d.satellite_data.len());
-            for s in d.satellite_data.iter() {
-                let rough_ms = s.gnss_satellite_rough_range_integer_ms.map(|n| n as f64 + s.gnss_satellite_rough_range_mod1ms_ms);
-                let rough_rate = msm!(@rough_rate $rate, s);
-                let mut signals = Vec::new();
-                for g in d.signal_data.iter().filter(|g| g.satellite_id == s.satellite_id) {
-                    let pr = match (rough_ms, g.$fine) {
-                        (Some(r), Some(f)) => Some((r + f) * C_MPS * 1e-3),
-                        _ => None,
-                    };
-                    signals.push(SignalObs {
-                        band: g.signal_id.band(),
-                        attribute: g.signal_id.attribute(),
-                        pseudorange_m: pr,
-                        range_rate_mps: msm!(@fine_rate $rate, rough_rate, g),
-                        cnr_dbhz: g.$cnr.map(|c| c as f64),
-                    });
-                }
-                sats.push(SatObs {
-                    system: $sys,
-                    prn: s.satellite_id,
-                    signals,
+/// One MSM4–MSM7 message `$v` (of type `$t`) of system `$sys` as an
+/// [`MsmEpoch`] in SI units. The message types differ in their field names
+/// (`$epoch`, `$fine`, `$cnr`) and in whether they carry range rates
+/// (`rate: yes | no`), hence a macro rather than a function.
+macro_rules! msm_epoch {
+    ($t:ident, $v:ident, $sys:expr, $epoch:ident, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
+        let d = &$v.data_segment;
+        let mut sats = Vec::with_capacity(d.satellite_data.len());
+        for s in d.satellite_data.iter() {
+            let rough_ms = s.gnss_satellite_rough_range_integer_ms.map(|n| n as f64 + s.gnss_satellite_rough_range_mod1ms_ms);
+            let rough_rate = msm_epoch!(@rough_rate $rate, s);
+            let mut signals = Vec::new();
+            for g in d.signal_data.iter().filter(|g| g.satellite_id == s.satellite_id) {
+                let pr = match (rough_ms, g.$fine) {
+                    (Some(r), Some(f)) => Some((r + f) * C_MPS * 1e-3),
+                    _ => None,
+                };
+                signals.push(SignalObs {
+                    band: g.signal_id.band(),
+                    attribute: g.signal_id.attribute(),
+                    pseudorange_m: pr,
+                    range_rate_mps: msm_epoch!(@fine_rate $rate, rough_rate, g),
+                    cnr_dbhz: g.$cnr.map(|c| c as f64),
                 });
             }
-            Some(GnssMessage::Msm(MsmEpoch {
+            sats.push(SatObs {
                 system: $sys,
-                msg_type: t,
-                station_id: $v.reference_station_id,
-                tow_ms: $v.$epoch,
-                multiple: $v.msm_multiple_message_flag != 0,
-                sats,
-            }))
-        }};
-        (@rough_rate yes, $s:ident) => { $s.gnss_satellite_rough_phaserange_rates_m_s };
-        (@rough_rate no, $s:ident) => { None::<i16> };
-        (@fine_rate yes, $r:ident, $g:ident) => {
-            match ($r, $g.gnss_signal_fine_phaserange_rate_m_s) {
-                (Some(r), Some(f)) => Some(r as f64 + f),
-                _ => None,
-            }
-        };
-        (@fine_rate no, $r:ident, $g:ident) => {{ let _ = $r; None }};
-    }
+                prn: s.satellite_id,
+                signals,
+            });
+        }
+        Some(GnssMessage::Msm(MsmEpoch {
+            system: $sys,
+            msg_type: $t,
+            station_id: $v.reference_station_id,
+            tow_ms: $v.$epoch,
+            multiple: $v.msm_multiple_message_flag != 0,
+            sats,
+        }))
+    }};
+    (@rough_rate yes, $s:ident) => { $s.gnss_satellite_rough_phaserange_rates_m_s };
+    (@rough_rate no, $s:ident) => { None::<i16> };
+    (@fine_rate yes, $r:ident, $g:ident) => {
+        match ($r, $g.gnss_signal_fine_phaserange_rate_m_s) {
+            (Some(r), Some(f)) => Some(r as f64 + f),
+            _ => None,
+        }
+    };
+    (@fine_rate no, $r:ident, $g:ident) => {{ let _ = $r; None }};
+}
+
+/// A checked frame's message, of type `t`, in the GNSS module's types:
+/// `None` when it cannot be decoded.
+fn convert(t: u16, m: Message) -> Option<GnssMessage> {
     match m {
         Message::Msg1074(v) => {
-            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1075(v) => {
-            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1076(v) => {
-            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1077(v) => {
-            msm!(v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1094(v) => {
-            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1095(v) => {
-            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1096(v) => {
-            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1097(v) => {
-            msm!(v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
         // The weeks stay truncated until the receiver resolves them.
         Message::Msg1019(e) => Some(GnssMessage::Eph(RawEph {
@@ -288,7 +295,12 @@ mod tests {
     use super::*;
 
     fn data(name: &str) -> Vec<u8> {
-        std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)).unwrap()
+        std::fs::read(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("tests/data")
+                .join(name),
+        )
+        .unwrap()
     }
 
     #[test]

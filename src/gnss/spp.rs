@@ -258,6 +258,9 @@ struct LsqOut {
     rms: f64,
 }
 
+/// Weighted Gauss–Newton least squares on the position and one clock per
+/// constellation, from the Earth's centre; `exclude` leaves one satellite
+/// out (RAIM). Ends with the χ² test of the residuals and the DOPs.
 fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free: bool) -> Result<LsqOut, SppError> {
     let mut x = Vector3::zeros();
     // One clock per constellation present, in a fixed order (GPS first).
@@ -268,34 +271,7 @@ fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free
     let mut clk = vec![0.0; systems.len()];
     let mask = opt.elevation_mask_deg.to_radians();
     for _iter in 0..10 {
-        let (lat, _, h) = ecef_to_llh(&x);
-        let known = x.norm() > 6.0e6;
-        // (−line of sight, clock column, residual m, variance m², satellite)
-        let mut rows: Vec<Row> = Vec::new();
-        for m in meas.iter().filter(|m| Some(m.sat) != exclude) {
-            let (el, _) = if known {
-                elevation_azimuth(&x, &m.r_sat)
-            } else {
-                (std::f64::consts::FRAC_PI_2, 0.0)
-            };
-            if known && el < mask {
-                continue;
-            }
-            let k = systems.iter().position(|s| *s == m.sat.0).unwrap_or(0);
-            let d = m.r_sat - x;
-            let rho = d.norm() + OMEGA_E_RADPS * (m.r_sat.x * x.y - m.r_sat.y * x.x) / C_MPS;
-            let u = d / d.norm();
-            let trop = if known { saastamoinen_m(lat, h, el) } else { 0.0 };
-            let v = m.pr_m - (rho + clk[k] - m.dts_m + trop);
-            let sin_el = el.sin();
-            let mut var = 0.09 * (1.0 + 1.0 / sin_el);
-            if iono_free {
-                var *= 9.0;
-            }
-            let var_iono = if iono_free { 0.0 } else { 25.0 };
-            var += m.ura_m * m.ura_m + 0.09 + var_iono + (0.3 / (sin_el + 0.1)).powi(2);
-            rows.push((-u, k, v, var, m.sat));
-        }
+        let rows = lsq_rows(meas, exclude, &x, &systems, &clk, mask, iono_free);
         let n = rows.len();
         // Every constellation's clock needs one of its own satellites.
         let present = (0..systems.len()).filter(|k| rows.iter().any(|r| r.1 == *k)).count();
@@ -303,6 +279,83 @@ fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free
         if n < need || present < systems.len() {
             return Err(SppError::TooFewSatellites { have: n, need });
         }
+        let ls = LsqSystem::new(&rows, nu);
+        let Some(ch) = (ls.a.transpose() * &ls.a).cholesky() else {
+            return Err(SppError::Geometry(u32::MAX));
+        };
+        let dx = ch.solve(&(ls.a.transpose() * &ls.b));
+        x += Vector3::new(dx[0], dx[1], dx[2]);
+        for (k, c) in clk.iter_mut().enumerate() {
+            *c += dx[3 + k];
+        }
+        if dx.norm() < 1e-4 {
+            return converged(&ls, &dx, &rows, x, &systems, &clk);
+        }
+    }
+    Err(SppError::NotConverged)
+}
+
+/// The rows of one iteration at the receiver position `x` (m, ECEF) and
+/// clocks `clk` (m): each satellite above `mask` (rad), all of them while
+/// the position is still unknown (near the Earth's centre).
+fn lsq_rows(
+    meas: &[Meas],
+    exclude: Option<(System, u8)>,
+    x: &Vector3<f64>,
+    systems: &[System],
+    clk: &[f64],
+    mask: f64,
+    iono_free: bool,
+) -> Vec<Row> {
+    let (lat, _, h) = ecef_to_llh(x);
+    let known = x.norm() > 6.0e6;
+    // (−line of sight, clock column, residual m, variance m², satellite)
+    let mut rows: Vec<Row> = Vec::new();
+    for m in meas.iter().filter(|m| Some(m.sat) != exclude) {
+        let (el, _) = if known {
+            elevation_azimuth(x, &m.r_sat)
+        } else {
+            (std::f64::consts::FRAC_PI_2, 0.0)
+        };
+        if known && el < mask {
+            continue;
+        }
+        let k = systems.iter().position(|s| *s == m.sat.0).unwrap_or(0);
+        let d = m.r_sat - x;
+        let rho = d.norm() + OMEGA_E_RADPS * (m.r_sat.x * x.y - m.r_sat.y * x.x) / C_MPS;
+        let u = d / d.norm();
+        let trop = if known { saastamoinen_m(lat, h, el) } else { 0.0 };
+        let v = m.pr_m - (rho + clk[k] - m.dts_m + trop);
+        rows.push((-u, k, v, code_variance_m2(el, m.ura_m, iono_free), m.sat));
+    }
+    rows
+}
+
+/// A pseudorange's variance (m²) at elevation `el` (rad): the RTKLIB model
+/// (tripled σ for the iono-free combination, else 5 m of ionosphere), plus
+/// the URA `ura_m`.
+fn code_variance_m2(el: f64, ura_m: f64, iono_free: bool) -> f64 {
+    let sin_el = el.sin();
+    let mut var = 0.09 * (1.0 + 1.0 / sin_el);
+    if iono_free {
+        var *= 9.0;
+    }
+    let var_iono = if iono_free { 0.0 } else { 25.0 };
+    var += ura_m * ura_m + 0.09 + var_iono + (0.3 / (sin_el + 0.1)).powi(2);
+    var
+}
+
+/// One iteration's linear system: the geometry matrix `g` (unweighted), and
+/// `a`, `b` weighted by `1/σ`.
+struct LsqSystem {
+    g: DMatrix<f64>,
+    a: DMatrix<f64>,
+    b: DVector<f64>,
+}
+
+impl LsqSystem {
+    fn new(rows: &[Row], nu: usize) -> Self {
+        let n = rows.len();
         // Geometry matrix G (unweighted) and the weighted system.
         let mut g = DMatrix::zeros(n, nu);
         for (i, (e, k, ..)) in rows.iter().enumerate() {
@@ -312,36 +365,40 @@ fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free
         let w = DVector::from_iterator(n, rows.iter().map(|r| 1.0 / r.3.sqrt()));
         let a = DMatrix::from_fn(n, nu, |i, j| g[(i, j)] * w[i]);
         let b = DVector::from_iterator(n, rows.iter().zip(w.iter()).map(|(r, wi)| r.2 * wi));
-        let Some(ch) = (a.transpose() * &a).cholesky() else {
-            return Err(SppError::Geometry(u32::MAX));
-        };
-        let dx = ch.solve(&(a.transpose() * &b));
-        x += Vector3::new(dx[0], dx[1], dx[2]);
-        for (k, c) in clk.iter_mut().enumerate() {
-            *c += dx[3 + k];
-        }
-        if dx.norm() < 1e-4 {
-            // Residuals at the solution, the χ² test and the DOPs.
-            let vv = (&b - &a * &dx).norm_squared();
-            let rms = (rows.iter().map(|r| r.2 * r.2).sum::<f64>() / n as f64).sqrt();
-            if n > nu && vv > chi2_quantile(0.999, n - nu) {
-                return Err(SppError::Chi2);
-            }
-            let q = (g.transpose() * &g).try_inverse().ok_or(SppError::Geometry(u32::MAX))?;
-            let gdop = q.trace().sqrt();
-            if !(gdop > 0.0 && gdop <= 30.0) {
-                return Err(SppError::Geometry(gdop.min(1e9) as u32));
-            }
-            let pdop = (q[(0, 0)] + q[(1, 1)] + q[(2, 2)]).sqrt();
-            return Ok(LsqOut {
-                x,
-                clocks_m: systems.iter().copied().zip(clk).collect(),
-                sats: rows.iter().map(|r| r.4).collect(),
-                n_unknowns: nu,
-                pdop,
-                rms,
-            });
-        }
+        Self { g, a, b }
     }
-    Err(SppError::NotConverged)
+}
+
+/// The converged solution (`x`, `clk`, after the step `dx`): residuals at
+/// the solution, the χ² test and the DOPs.
+fn converged(
+    ls: &LsqSystem,
+    dx: &DVector<f64>,
+    rows: &[Row],
+    x: Vector3<f64>,
+    systems: &[System],
+    clk: &[f64],
+) -> Result<LsqOut, SppError> {
+    let (n, nu) = ls.a.shape();
+    let vv = (&ls.b - &ls.a * dx).norm_squared();
+    let rms = (rows.iter().map(|r| r.2 * r.2).sum::<f64>() / n as f64).sqrt();
+    if n > nu && vv > chi2_quantile(0.999, n - nu) {
+        return Err(SppError::Chi2);
+    }
+    let q = (ls.g.transpose() * &ls.g)
+        .try_inverse()
+        .ok_or(SppError::Geometry(u32::MAX))?;
+    let gdop = q.trace().sqrt();
+    if !(gdop > 0.0 && gdop <= 30.0) {
+        return Err(SppError::Geometry(gdop.min(1e9) as u32));
+    }
+    let pdop = (q[(0, 0)] + q[(1, 1)] + q[(2, 2)]).sqrt();
+    Ok(LsqOut {
+        x,
+        clocks_m: systems.iter().copied().zip(clk.iter().copied()).collect(),
+        sats: rows.iter().map(|r| r.4).collect(),
+        n_unknowns: nu,
+        pdop,
+        rms,
+    })
 }

@@ -1,5 +1,5 @@
-//! The MAVLink link to the autopilot: the only file of the `cmsckf` crate that
-//! names `mavlink::` types.
+//! The MAVLink link to the autopilot: the only module of the `cmsckf` crate
+//! that names `mavlink::` types (this file and `mavlink/encode.rs`).
 //!
 //! It converts at the boundary, both ways: MAVLink's messages and scaled
 //! integers become [`Inbound`] values in SI units, and [`Outbound`] values
@@ -20,6 +20,9 @@ use std::sync::Arc;
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{AsyncMavConnection, MavHeader, Message as _};
 use nalgebra::Vector3;
+
+mod encode;
+use encode::encode;
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
 const G0: f64 = 9.80665;
@@ -409,129 +412,6 @@ fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
         M::COMMAND_ACK(_) => Inbound::Other("COMMAND_ACK"),
         _ => Inbound::Other("other"),
     })
-}
-
-/// [`Outbound`] → MAVLink message. (`SET_GPS_GLOBAL_ORIGIN` is deprecated
-/// in favour of `MAV_CMD_DO_SET_GLOBAL_ORIGIN`, but it is what ArduPilot 4.x
-/// takes.)
-#[allow(deprecated)]
-fn encode(out: &Outbound, target_system: u8, target_component: u8) -> apm::MavMessage {
-    use apm::MavMessage as M;
-    match out {
-        Outbound::Heartbeat { initialised, degraded } => M::HEARTBEAT(apm::HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: apm::MavType::MAV_TYPE_ONBOARD_CONTROLLER,
-            autopilot: apm::MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: apm::MavModeFlag::empty(),
-            system_status: match (initialised, degraded) {
-                (false, _) => apm::MavState::MAV_STATE_STANDBY,
-                (true, false) => apm::MavState::MAV_STATE_ACTIVE,
-                (true, true) => apm::MavState::MAV_STATE_CRITICAL,
-            },
-            mavlink_version: 3,
-        }),
-        Outbound::StatusText { severity, text } => {
-            // Cut at a character boundary within 50 bytes.
-            let mut end = text.len().min(50);
-            while !text.is_char_boundary(end) {
-                end -= 1;
-            }
-            M::STATUSTEXT(apm::STATUSTEXT_DATA {
-                severity: match severity {
-                    0 => apm::MavSeverity::MAV_SEVERITY_EMERGENCY,
-                    1 => apm::MavSeverity::MAV_SEVERITY_ALERT,
-                    2 => apm::MavSeverity::MAV_SEVERITY_CRITICAL,
-                    3 => apm::MavSeverity::MAV_SEVERITY_ERROR,
-                    4 => apm::MavSeverity::MAV_SEVERITY_WARNING,
-                    5 => apm::MavSeverity::MAV_SEVERITY_NOTICE,
-                    6 => apm::MavSeverity::MAV_SEVERITY_INFO,
-                    _ => apm::MavSeverity::MAV_SEVERITY_DEBUG,
-                },
-                text: text[..end].into(),
-                id: 0,
-                chunk_seq: 0,
-            })
-        }
-        Outbound::SetMessageInterval {
-            message_id,
-            interval_us,
-        } => M::COMMAND_LONG(apm::COMMAND_LONG_DATA {
-            param1: *message_id as f32,
-            param2: *interval_us,
-            param3: 0.0,
-            param4: 0.0,
-            param5: 0.0,
-            param6: 0.0,
-            param7: 0.0,
-            command: apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
-            target_system,
-            target_component,
-            confirmation: 0,
-        }),
-        Outbound::TimesyncRequest { ts1_ns } => M::TIMESYNC(apm::TIMESYNC_DATA {
-            tc1: 0,
-            ts1: *ts1_ns,
-            target_system,
-            target_component,
-        }),
-        Outbound::VisionPositionEstimate {
-            t_us,
-            p_ned_m,
-            rpy_rad,
-            covariance,
-            reset_counter,
-        } => M::VISION_POSITION_ESTIMATE(apm::VISION_POSITION_ESTIMATE_DATA {
-            usec: *t_us,
-            x: p_ned_m.x as f32,
-            y: p_ned_m.y as f32,
-            z: p_ned_m.z as f32,
-            roll: rpy_rad.x as f32,
-            pitch: rpy_rad.y as f32,
-            yaw: rpy_rad.z as f32,
-            covariance: *covariance,
-            reset_counter: *reset_counter,
-        }),
-        Outbound::Odometry {
-            t_us,
-            p_ned_m,
-            q_wxyz,
-            v_body_mps,
-            w_body_radps,
-            pose_covariance,
-            velocity_covariance,
-            reset_counter,
-        } => M::ODOMETRY(apm::ODOMETRY_DATA {
-            time_usec: *t_us,
-            x: p_ned_m.x as f32,
-            y: p_ned_m.y as f32,
-            z: p_ned_m.z as f32,
-            q: *q_wxyz,
-            vx: v_body_mps.x as f32,
-            vy: v_body_mps.y as f32,
-            vz: v_body_mps.z as f32,
-            rollspeed: w_body_radps.x as f32,
-            pitchspeed: w_body_radps.y as f32,
-            yawspeed: w_body_radps.z as f32,
-            pose_covariance: *pose_covariance,
-            velocity_covariance: *velocity_covariance,
-            frame_id: apm::MavFrame::MAV_FRAME_LOCAL_FRD,
-            child_frame_id: apm::MavFrame::MAV_FRAME_BODY_FRD,
-            reset_counter: *reset_counter,
-            estimator_type: apm::MavEstimatorType::MAV_ESTIMATOR_TYPE_VIO,
-            quality: 100,
-        }),
-        Outbound::SetGpsGlobalOrigin {
-            lat_deg,
-            lon_deg,
-            alt_m,
-        } => M::SET_GPS_GLOBAL_ORIGIN(apm::SET_GPS_GLOBAL_ORIGIN_DATA {
-            latitude: (lat_deg * 1e7).round() as i32,
-            longitude: (lon_deg * 1e7).round() as i32,
-            altitude: (alt_m * 1000.0).round() as i32,
-            target_system,
-            time_usec: 0,
-        }),
-    }
 }
 
 #[cfg(test)]

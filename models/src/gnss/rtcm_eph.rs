@@ -101,7 +101,9 @@ pub fn encode_ephemeris(eph: &BroadcastEphemeris) -> Result<Vec<u8>, RtcmEncodeE
         System::Galileo => Message::Msg1046(msg1046(eph)),
     };
     let mut b = MessageBuilder::new();
-    b.build_message(&msg).map(<[u8]>::to_vec).map_err(RtcmEncodeError::Encode)
+    b.build_message(&msg)
+        .map(<[u8]>::to_vec)
+        .map_err(RtcmEncodeError::Encode)
 }
 
 /// The ephemeris a decoded 1019 carries (semicircles → radians), with the

@@ -1,0 +1,137 @@
+//! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME and
+//! GPS_GLOBAL_ORIGIN at 1 Hz, ATTITUDE and LOCAL_POSITION_NED (its EKF's
+//! view: here, the truth) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! the IMU faults applied.
+
+use std::time::Instant;
+
+use mavlink::dialects::ardupilotmega as apm;
+
+use super::fault::{imu_order, Active, FaultKind};
+use super::stream::Streamer;
+use crate::config::GnssSimConfig;
+use crate::imu::ImuSample;
+use cmsckf_models::gnss::{GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S};
+
+impl Streamer<'_> {
+    /// The 1 Hz messages at flight time `t`, and every 30 s the broadcast
+    /// ephemerides.
+    pub(super) async fn send_1hz(&mut self, t: f64) {
+        self.next_1hz += 1.0;
+        self.send(heartbeat()).await;
+        let g = &self.ds.cfg.gnss;
+        self.send(system_time(g, t, self.boot(t))).await;
+        self.send(gps_global_origin(g, self.boot(t))).await;
+        // Broadcast ephemerides every 30 s, as receivers repeat them.
+        if (t as u64).is_multiple_of(30) {
+            self.send_ephemerides().await;
+        }
+    }
+
+    /// The 10 Hz attitude and position at flight time `t`.
+    pub(super) async fn send_10hz(&mut self, t: f64) {
+        self.next_slow += 0.1;
+        let s = self.ds.trajectory.sample(t);
+        let (r, p, y) = s.q_W_B.euler_angles();
+        let ms = (self.boot(t) / 1000) as u32;
+        self.send(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
+            time_boot_ms: ms,
+            roll: r as f32,
+            pitch: p as f32,
+            yaw: y as f32,
+            rollspeed: s.w_B.x as f32,
+            pitchspeed: s.w_B.y as f32,
+            yawspeed: s.w_B.z as f32,
+        }))
+        .await;
+        self.send(apm::MavMessage::LOCAL_POSITION_NED(apm::LOCAL_POSITION_NED_DATA {
+            time_boot_ms: ms,
+            x: s.p_B_in_W.x as f32,
+            y: s.p_B_in_W.y as f32,
+            z: s.p_B_in_W.z as f32,
+            vx: s.v_B_in_W.x as f32,
+            vy: s.v_B_in_W.y as f32,
+            vz: s.v_B_in_W.z as f32,
+        }))
+        .await;
+    }
+
+    /// The next IMU sample (or, duplicated and reordered, the next two),
+    /// with the IMU faults in force; stamps the wall time of first sending.
+    pub(super) async fn send_imu(&mut self, active: &Active<'_>) {
+        if active.has(FaultKind::ImuGap) {
+            self.k_imu += 1;
+            return;
+        }
+        let nan = active.has(FaultKind::NanImu);
+        let spike = if active.has(FaultKind::ImuSpike) { 50.0 } else { 0.0 };
+        let k_imu = self.k_imu;
+        let order = imu_order(active.copies(), k_imu + 1 < self.ds.imu.len());
+        for &j in order {
+            let k = k_imu + j;
+            self.send(highres_imu(
+                &self.ds.imu[k],
+                k,
+                self.boot(self.ds.imu[k].t_s),
+                nan,
+                spike,
+            ))
+            .await;
+            if !nan && self.sent_wall[k].is_none() {
+                self.sent_wall[k] = Some(Instant::now());
+            }
+        }
+        self.k_imu += order.iter().max().map_or(1, |m| m + 1);
+    }
+}
+
+/// The autopilot's heartbeat: an active ArduPilot quadrotor.
+fn heartbeat() -> apm::MavMessage {
+    apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
+        autopilot: apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        base_mode: apm::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        system_status: apm::MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
+}
+
+/// UTC (from the GNSS start time of `g`) and boot time at flight time `t`.
+fn system_time(g: &GnssSimConfig, t: f64, boot_us: u64) -> apm::MavMessage {
+    let unix_s = GPS_EPOCH_UNIX_S + g.start_week as f64 * 604_800.0 + g.start_tow_s + t - GPS_UTC_LEAP_S;
+    apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
+        time_unix_usec: (unix_s * 1e6).round() as u64,
+        time_boot_ms: (boot_us / 1000) as u32,
+    })
+}
+
+/// The EKF origin: the simulation's geodetic origin.
+#[allow(deprecated)]
+fn gps_global_origin(g: &GnssSimConfig, boot_us: u64) -> apm::MavMessage {
+    let o = g.origin_llh;
+    apm::MavMessage::GPS_GLOBAL_ORIGIN(apm::GPS_GLOBAL_ORIGIN_DATA {
+        latitude: (o[0] * 1e7).round() as i32,
+        longitude: (o[1] * 1e7).round() as i32,
+        altitude: (o[2] * 1e3).round() as i32,
+        time_usec: boot_us,
+    })
+}
+
+/// IMU sample `m` (index `k`) stamped `time_usec`; with `nan`, its x
+/// acceleration is NaN (even `k`) or 1e5 m/s² (odd `k`), else `spike` is
+/// added to it.
+fn highres_imu(m: &ImuSample, k: usize, time_usec: u64, nan: bool, spike: f64) -> apm::MavMessage {
+    let bad = if k.is_multiple_of(2) { f32::NAN } else { 1e5 };
+    apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+        time_usec,
+        xacc: if nan { bad } else { (m.accel_mps2.x + spike) as f32 },
+        yacc: m.accel_mps2.y as f32,
+        zacc: m.accel_mps2.z as f32,
+        xgyro: m.gyro_radps.x as f32,
+        ygyro: m.gyro_radps.y as f32,
+        zgyro: m.gyro_radps.z as f32,
+        fields_updated: apm::HighresImuUpdatedFlags::from_bits_truncate(0x3f),
+        ..Default::default()
+    })
+}

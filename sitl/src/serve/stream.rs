@@ -1,0 +1,117 @@
+//! The flight on the wire: one loop that sends every IMU sample, camera
+//! frame, GNSS epoch and slow telemetry message in time order, paced by the
+//! wall clock, and the state it keeps while doing so. What each kind of
+//! message looks like lives in the sibling modules.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::AsyncMavConnection;
+
+use super::clock::boot_us;
+use super::fault::Active;
+use super::feature_socket::FeatureSocket;
+use super::{Link, ServeOptions, HEADER};
+use crate::dataset::Dataset;
+
+/// The sending side of a served flight.
+pub(super) struct Streamer<'a> {
+    pub(super) conn: Arc<Link>,
+    pub(super) opts: &'a ServeOptions,
+    pub(super) ds: &'a Dataset,
+    /// Flight time of the autopilot's reboot, if one is injected.
+    pub(super) reboot_s: Option<f64>,
+    /// Wall time at which each IMU sample first went out (never for a
+    /// NaN-corrupted one).
+    pub(super) sent_wall: Vec<Option<Instant>>,
+    /// The connection to the daemon's feature socket.
+    pub(super) feat: FeatureSocket<'a>,
+    /// Next IMU sample, camera frame and GNSS epoch to send.
+    pub(super) k_imu: usize,
+    pub(super) k_cam: usize,
+    pub(super) k_gnss: usize,
+    /// Flight time of the next 10 Hz attitude / position.
+    pub(super) next_slow: f64,
+    /// Flight time of the next 1 Hz heartbeat, system time and origin.
+    pub(super) next_1hz: f64,
+    /// Sequence number of the next RTCM message (MAVLink fragment flags).
+    pub(super) rtcm_seq: u8,
+    /// Frames written to the feature socket.
+    pub(super) frames_sent: usize,
+}
+
+impl<'a> Streamer<'a> {
+    pub(super) fn new(conn: Arc<Link>, opts: &'a ServeOptions, ds: &'a Dataset, reboot_s: Option<f64>) -> Self {
+        Self {
+            conn,
+            opts,
+            ds,
+            reboot_s,
+            sent_wall: vec![None; ds.imu.len()],
+            feat: FeatureSocket::new(&opts.feature_socket),
+            k_imu: 0,
+            k_cam: 0,
+            k_gnss: 0,
+            next_slow: 0.0,
+            next_1hz: 0.0,
+            rtcm_seq: 0,
+            frames_sent: 0,
+        }
+    }
+
+    /// Sends one message to the daemon (errors are the link's problem).
+    pub(super) async fn send(&self, m: apm::MavMessage) {
+        let _ = self.conn.send(&HEADER, &m).await;
+    }
+
+    /// The autopilot's boot clock (µs) at flight time `t`.
+    pub(super) fn boot(&self, t: f64) -> u64 {
+        boot_us(t, self.reboot_s)
+    }
+
+    /// Streams the whole flight, flight time 0 being `t_start` on the wall
+    /// clock divided by the speed-up. At equal times, GNSS goes first, then
+    /// the 1 Hz, the 10 Hz, the IMU and last the camera.
+    pub(super) async fn run(&mut self, t_start: Instant) {
+        let ds = self.ds;
+        loop {
+            let t_imu = ds.imu.get(self.k_imu).map_or(f64::INFINITY, |m| m.t_s);
+            let t_cam = ds.frames.get(self.k_cam).map_or(f64::INFINITY, |f| f.t_s);
+            let t_gnss = ds.gnss.get(self.k_gnss).map_or(f64::INFINITY, |e| e.t_s.max(0.0));
+            let t = t_imu.min(t_cam).min(self.next_slow).min(self.next_1hz).min(t_gnss);
+            if !t.is_finite() || t > ds.duration_s + 1e-9 {
+                break;
+            }
+            let target = t_start + Duration::from_secs_f64(t.max(0.0) / self.opts.speedup);
+            tokio::time::sleep_until(target.into()).await;
+            let active = Active::at(&self.opts.faults, t);
+            if t == t_gnss {
+                self.send_gnss_epoch(&active).await;
+            } else if active.link_down() && (t == t_imu || t == self.next_1hz || t == self.next_slow) {
+                // Nothing from the autopilot gets through (the camera, on its
+                // own socket, still does).
+                self.skip(t, t_imu);
+            } else if t == self.next_1hz {
+                self.send_1hz(t).await;
+            } else if t == self.next_slow {
+                self.send_10hz(t).await;
+            } else if t == t_imu {
+                self.send_imu(&active).await;
+            } else {
+                self.send_frame(&active).await;
+            }
+        }
+    }
+
+    /// Drops the autopilot's message due at `t` while the link is down.
+    fn skip(&mut self, t: f64, t_imu: f64) {
+        if t == t_imu {
+            self.k_imu += 1;
+        } else if t == self.next_1hz {
+            self.next_1hz += 1.0;
+        } else {
+            self.next_slow += 0.1;
+        }
+    }
+}

@@ -1,0 +1,54 @@
+//! The subcommands of the `cmsckf` binary, one module each: its arguments
+//! (a `clap` struct) and the function that runs it. Binary-only: the library
+//! does not see these modules.
+//!
+//! `evaluate` and `demo` drive the simulator, so they exist only with the
+//! `sim` feature.
+
+#[cfg(feature = "sim")]
+pub mod demo;
+#[cfg(feature = "sim")]
+pub mod evaluate;
+pub mod gnss;
+pub mod replay;
+pub mod review;
+pub mod run;
+
+#[cfg(feature = "sim")]
+use std::path::PathBuf;
+
+#[cfg(feature = "sim")]
+use anyhow::bail;
+
+#[cfg(feature = "sim")]
+use cmsckf::config::Config;
+
+/// Logs to stderr, filtered by `RUST_LOG` or else by `default`.
+fn init_tracing(default: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// The config at `path`, or the defaults.
+#[cfg(feature = "sim")]
+fn load_config(path: &Option<PathBuf>) -> anyhow::Result<Config> {
+    Ok(match path {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    })
+}
+
+/// Refuses a flight length outside (1, 86400] s.
+#[cfg(feature = "sim")]
+fn check_duration(d: Option<f64>) -> anyhow::Result<()> {
+    if let Some(d) = d {
+        if !(d.is_finite() && d > 1.0 && d <= 86_400.0) {
+            bail!("--duration-s {d}: give a number of seconds in (1, 86400]");
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,47 @@
+//! `cmsckf review`: a flight log's summary (see [`cmsckf::review`]) printed
+//! as JSON, with its plots and TUM trajectory written where asked.
+
+use std::path::PathBuf;
+
+// The arguments of `cmsckf review` (a plain comment: a doc comment here would
+// replace the subcommand's own help line).
+#[derive(clap::Args)]
+pub struct ReviewArgs {
+    input: PathBuf,
+    /// Write trajectory.png, figure1.png, nis.png and timing.png here.
+    #[arg(long)]
+    plots: Option<PathBuf>,
+    /// Export the estimated trajectory in TUM format.
+    #[arg(long)]
+    tum: Option<PathBuf>,
+    /// The keyframe zoomed in Figure 1 (default: the fifth).
+    #[arg(long)]
+    keyframe: Option<u64>,
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `cmsckf review` and prints the summary (compact with `--json`,
+/// else pretty, with a note when the log was cut short).
+pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
+    let ReviewArgs {
+        input,
+        plots,
+        tum,
+        keyframe,
+        json,
+    } = args;
+    let s = cmsckf::review::review(&input, plots.as_deref(), tum.as_deref(), keyframe)?;
+    if json {
+        println!("{}", serde_json::to_string(&s)?);
+    } else {
+        if s.truncated {
+            println!("note: the log ends early (no summary): reviewed up to its last complete chunk");
+        }
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        if let Some(p) = plots {
+            println!("plots in {}", p.display());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,143 @@
+//! The estimator's numerical kernels: the SO(3) helpers of README §1, and
+//! the dense linear algebra the updates are built from (blocked triangular
+//! solves and Cholesky, §3 U1, in `triangular`; the Householder
+//! triangularisation of §3 N1/Q1 in `qr`; gathers, dot products and
+//! finiteness checks here).
+//!
+//! Why it exists: the filter's cost is in a few dense kernels whose
+//! results must not change by a bit; keeping them here, apart from the
+//! filter logic, lets them be tested against nalgebra's references and
+//! tuned without touching the equations that use them.
+
+mod qr;
+mod triangular;
+
+pub use qr::householder_in_place;
+pub use triangular::{add_symmetric_product, add_symmetric_product_t, upper_mul, LowerSolver};
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+/// `[v]×`, the cross-product matrix: `[a]× b = a × b`.
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// `Exp(φ)` as a unit quaternion.
+pub fn exp_so3(phi: &Vector3<f64>) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_scaled_axis(*phi)
+}
+
+/// Left Jacobian of SO(3) (README §1, eq. J_l):
+/// `Exp(φ + ε) ≈ Exp(J_l(φ) ε) Exp(φ)`,
+/// `J_l(φ) = I + (1 − cos θ)/θ² [φ]× + (θ − sin θ)/θ³ [φ]×²`.
+pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let th = phi.norm();
+    let k = skew(phi);
+    if th < 1e-6 {
+        return Matrix3::identity() + k * 0.5 + k * k / 6.0;
+    }
+    let th2 = th * th;
+    Matrix3::identity() + k * ((1.0 - th.cos()) / th2) + k * k * ((th - th.sin()) / (th2 * th))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn left_jacobian_matches_finite_differences() {
+        for phi in [
+            Vector3::new(0.3, -0.2, 0.1),
+            Vector3::new(1e-8, 0.0, 2e-8),
+            Vector3::new(-1.0, 2.0, 0.5),
+        ] {
+            let jl = left_jacobian(&phi);
+            let base = exp_so3(&phi);
+            let h = 1e-6;
+            for k in 0..3 {
+                let mut e = Vector3::zeros();
+                e[k] = h;
+                // Exp(φ+ε) Exp(φ)ᵀ = Exp(J_l ε)
+                let plus = (exp_so3(&(phi + e)) * base.inverse()).scaled_axis();
+                let minus = (exp_so3(&(phi - e)) * base.inverse()).scaled_axis();
+                let col = (plus - minus) / (2.0 * h);
+                assert!((col - jl.column(k)).norm() < 1e-8, "{col} vs {}", jl.column(k));
+            }
+        }
+    }
+}
+
+/// The block of `a` at `(r0, c0)` of size `nr × nc`, copied column by
+/// column (nalgebra's `into_owned` of a view goes element by element).
+pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, nc: usize) -> nalgebra::DMatrix<f64> {
+    let m = a.nrows();
+    let mut out = nalgebra::DMatrix::zeros(nr, nc);
+    for (k, dst) in out.as_mut_slice().chunks_exact_mut(nr.max(1)).take(nc).enumerate() {
+        let src = (c0 + k) * m + r0;
+        dst.copy_from_slice(&a.as_slice()[src..src + nr]);
+    }
+    out
+}
+
+/// `out[..k, ..k] = src[idx, idx]` (`k = idx.len()`), copying runs of
+/// consecutive indices as slices: a track's columns are pose blocks of 6
+/// with its clones adjacent, and live global blocks are mostly contiguous.
+pub fn gather_block(src: &nalgebra::DMatrix<f64>, idx: &[usize], out: &mut nalgebra::DMatrix<f64>) {
+    let (ms, mo) = (src.nrows(), out.nrows());
+    let (s, o) = (src.as_slice(), out.as_mut_slice());
+    for (c, &sc) in idx.iter().enumerate() {
+        let mut r = 0;
+        while r < idx.len() {
+            let mut len = 1;
+            while r + len < idx.len() && idx[r + len] == idx[r] + len {
+                len += 1;
+            }
+            let from = sc * ms + idx[r];
+            o[c * mo + r..c * mo + r + len].copy_from_slice(&s[from..from + len]);
+            r += len;
+        }
+    }
+}
+
+/// Whether every entry is finite, without an early exit so that it runs
+/// as vector code: `x · 0` is zero for a finite `x` and NaN otherwise.
+pub fn all_finite(x: &[f64]) -> bool {
+    let mut acc = [0.0f64; 8];
+    let c = x.chunks_exact(8);
+    let rest = c.remainder();
+    for v in c {
+        for k in 0..8 {
+            acc[k] += v[k] * 0.0;
+        }
+    }
+    acc.iter().chain(rest).all(|a| (a * 0.0) == 0.0)
+}
+
+/// `Σ aᵢ bᵢ` over the common length, with eight partial sums so the
+/// compiler can keep them in vector registers.
+#[inline]
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..8 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
+}
+
+/// `y ← y + α x` over the common length.
+#[inline]
+pub fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}

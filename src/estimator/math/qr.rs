@@ -1,0 +1,212 @@
+//! The Householder triangularisation (README §3, N1 and Q1), plain for
+//! small matrices and blocked as LAPACK's dgeqrf for large ones.
+//!
+//! Why it exists: the track update projects onto the left null space of
+//! the feature Jacobian (N1) and compresses the stacked rows (Q1) with it;
+//! it is the camera update's main cost, and its reflections must stay
+//! exactly those of the reference convention (dlarfg) so that results do
+//! not change.
+
+use super::{axpy, dot};
+
+/// Columns per panel of the blocked Householder triangularisation.
+const QR_BLOCK: usize = 16;
+/// Below this many entries the triangularisation is not blocked.
+const QR_BLOCKED_MIN_ENTRIES: usize = 4096;
+
+/// Householder triangularisation (README §3, N1 and Q1). Chooses the
+/// reflections `Q = H₀ H₁ … H_{p−1}` that zero the sub-diagonal of the
+/// first `p` columns of `a` and applies them to every column, in place:
+/// on return `a ← Qᵀ a`, its first `p` columns upper triangular with exact
+/// zeros below the diagonal. `Q` is orthogonal, so whitened (unit) noise
+/// stays unit.
+///
+/// Each reflection is `H = I − τ v vᵀ` with `v₀ = 1`, mapping the column
+/// `x` to `β e₁`, `β = −sign(x₀) ‖x‖`, `τ = (β − x₀)/β`, `v = x / (x₀ − β)`
+/// below the first entry (LAPACK's dlarfg convention). Blocked as LAPACK's
+/// dgeqrf: a panel of `QR_BLOCK` reflections is formed column by column,
+/// written as `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (T upper triangular, dlarft), and
+/// applied to the rest of the matrix as two matrix products,
+/// `C ← C − V (Tᵀ (Vᵀ C))`. `O(m p n)`.
+pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
+    let (m, n) = a.shape();
+    let p = p.min(m).min(n);
+    // Small matrices (a track's null-space projection) take each reflection
+    // straight to every column: there the products' set-up would cost more.
+    let blocked = m * n >= QR_BLOCKED_MIN_ENTRIES;
+    let mut j0 = 0;
+    while j0 < p {
+        let jb = if blocked { QR_BLOCK.min(p - j0) } else { p - j0 };
+        let apply_end = if blocked { j0 + jb } else { n };
+        let Some((v, tau)) = reduce_panel(a, j0, jb, apply_end) else {
+            return;
+        };
+        let rest = n - apply_end;
+        if rest > 0 {
+            apply_block_reflector(a, &v, &tau, j0, rest);
+        }
+        j0 += jb;
+    }
+}
+
+/// Forms the `jb` reflections of the panel starting at column `j0`, column
+/// by column, each applied at once to the panel's later columns up to
+/// `apply_end` (the whole matrix when not blocked). Returns the panel's
+/// reflectors, `V` (`m − j0` × `jb`, unit diagonal) and `τ`; `None` after
+/// poisoning with NaN everything still to be reduced, on a non-finite or
+/// overflowing column.
+fn reduce_panel(
+    a: &mut nalgebra::DMatrix<f64>,
+    j0: usize,
+    jb: usize,
+    apply_end: usize,
+) -> Option<(nalgebra::DMatrix<f64>, Vec<f64>)> {
+    use nalgebra::DMatrix;
+    let (m, n) = a.shape();
+    let rows = m - j0;
+    // The panel's reflectors, V (rows × jb, unit diagonal) and τ.
+    let mut v = DMatrix::<f64>::zeros(rows, jb);
+    let mut tau = vec![0.0f64; jb];
+    let data = a.as_mut_slice();
+    for jj in 0..jb {
+        let j = j0 + jj;
+        let col = &data[j * m + j..(j + 1) * m];
+        let alpha = col[0];
+        let sigma = dot(&col[1..], &col[1..]);
+        let norm = (alpha * alpha + sigma).sqrt();
+        if !norm.is_finite() {
+            // Non-finite or overflowing entries: poison everything
+            // still to be reduced, so the caller's finiteness check
+            // rejects the result instead of using a half-reduced one.
+            for k in j..n {
+                data[k * m + j..(k + 1) * m].fill(f64::NAN);
+            }
+            return None;
+        }
+        if sigma == 0.0 {
+            // Zero below the diagonal (or underflowing): H = I
+            // (τ = 0), and the entries are set to exact zeros.
+            data[j * m + j + 1..(j + 1) * m].fill(0.0);
+            continue;
+        }
+        let beta = if alpha <= 0.0 { norm } else { -norm };
+        let inv_v0 = 1.0 / (alpha - beta);
+        let t = (beta - alpha) / beta;
+        tau[jj] = t;
+        let vj = &mut v.as_mut_slice()[jj * rows + jj..(jj + 1) * rows];
+        vj[0] = 1.0;
+        for (vi, ci) in vj[1..].iter_mut().zip(&col[1..]) {
+            *vi = ci * inv_v0;
+        }
+        data[j * m + j] = beta;
+        data[j * m + j + 1..(j + 1) * m].fill(0.0);
+        // The rest of the panel (or of the matrix), column by column.
+        let vj = &v.as_slice()[jj * rows + jj..(jj + 1) * rows];
+        for k in j + 1..apply_end {
+            let c = &mut data[k * m + j..(k + 1) * m];
+            let s = t * dot(vj, c);
+            axpy(-s, vj, c);
+        }
+    }
+    Some((v, tau))
+}
+
+/// Applies a panel's reflections `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (`b = τ.len()`,
+/// the panel starting at column `j0`) to the `rest` columns right of it, as
+/// two matrix products.
+fn apply_block_reflector(
+    a: &mut nalgebra::DMatrix<f64>,
+    v: &nalgebra::DMatrix<f64>,
+    tau: &[f64],
+    j0: usize,
+    rest: usize,
+) {
+    use nalgebra::DMatrix;
+    let rows = a.nrows() - j0;
+    let jb = tau.len();
+    // T (dlarft, forward, columnwise): T_ii = τ_i,
+    // T[0..i, i] = −τ_i T[0..i, 0..i] V[:, 0..i]ᵀ v_i.
+    let mut t = DMatrix::<f64>::zeros(jb, jb);
+    for i in 0..jb {
+        t[(i, i)] = tau[i];
+        if i == 0 || tau[i] == 0.0 {
+            continue;
+        }
+        let vi = &v.as_slice()[i * rows..(i + 1) * rows];
+        let w: Vec<f64> = (0..i)
+            .map(|k| -tau[i] * dot(&v.as_slice()[k * rows..(k + 1) * rows], vi))
+            .collect();
+        for r in 0..i {
+            t[(r, i)] = (r..i).map(|k| t[(r, k)] * w[k]).sum();
+        }
+    }
+    // C ← (I − V T Vᵀ)ᵀ C = C − V (Tᵀ (Vᵀ C)).
+    let vt = v.transpose();
+    let mut c = a.view_mut((j0, j0 + jb), (rows, rest));
+    let w = &vt * &c;
+    let w = t.transpose() * w;
+    c.gemm(-1.0, v, &w, 1.0);
+}
+
+#[cfg(test)]
+mod householder_tests {
+    use super::*;
+    use crate::estimator::math::all_finite;
+    use nalgebra::DMatrix;
+
+    /// `Qᵀ A` keeps `AᵀA` (Q orthogonal), is upper triangular in the
+    /// chosen columns, and leaves nothing to the rest: checked against
+    /// nalgebra's QR on tall, square, wide and rank-deficient matrices.
+    #[test]
+    fn householder_triangularises_and_preserves_the_gram_matrix() {
+        let cases = [
+            (145usize, 73usize, 72usize, false),
+            (145, 73, 72, true),
+            (22, 67, 3, false),
+            (9, 9, 9, true),
+            (5, 8, 5, false),
+            (40, 10, 10, false),
+            (40, 41, 40, false),
+            (30, 31, 30, true),
+        ];
+        for &(m, n, p, deficient) in &cases {
+            let mut a = DMatrix::from_fn(m, n, |i, j| {
+                (((i * 31 + j * 17) % 23) as f64 - 11.0) / 7.0 + (i as f64 * 0.1).sin()
+            });
+            if deficient {
+                // a repeated column: rank-deficient
+                let c0 = a.column(0).into_owned();
+                a.column_mut(2).copy_from(&c0);
+            }
+            let mut q = a.clone();
+            householder_in_place(&mut q, p);
+            for j in 0..p.min(m) {
+                for i in j + 1..m {
+                    assert_eq!(q[(i, j)], 0.0, "({i}, {j}) of {m}×{n}");
+                }
+            }
+            let mut big = a.clone();
+            big[(m - 1, 0)] = 1e200;
+            householder_in_place(&mut big, p);
+            assert!(
+                !all_finite(big.as_slice()),
+                "{m}×{n}: an overflowing column must poison the result"
+            );
+            let g0 = a.transpose() * &a;
+            let g1 = q.transpose() * &q;
+            assert!(
+                (&g0 - &g1).abs().max() <= 1e-12 * g0.abs().max(),
+                "{m}×{n}: Gram matrix changed"
+            );
+            if p + 1 >= n && m >= n && !deficient {
+                // |R| agrees with nalgebra's R row by row (signs may differ).
+                let r = a.clone().qr().r();
+                for i in 0..p {
+                    for j in 0..n {
+                        assert!((r[(i, j)].abs() - q[(i, j)].abs()).abs() <= 1e-10 * g0.abs().max().sqrt());
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! `cmsckf review`: a flight log's summary, its plots, and a TUM export.
+//!
+//! Reads a log in file order and stops at the first unreadable record, so a
+//! log whose writer was killed (no summary section) is reviewed up to its
+//! last complete chunk, and says so. Plots are PNG through `plotters` with a
+//! bundled font (DejaVu Sans), so no system font libraries are needed:
+//! 1. `trajectory.png`: the estimate from above, with the keyframes and the
+//!    autopilot's local position (in SITL logs, the ground truth);
+//! 2. `figure1.png`: the paper's Figure 1, the position σ of every keyframe
+//!    over time, and a zoom on one keyframe with the vision updates, the GNSS
+//!    corrections and the global (compressed) updates marked;
+//! 3. `nis.png`: per-update NIS/dof with its 95% χ² band;
+//! 4. `timing.png`: a histogram of the estimator time per update.
+//!
+//! [`review`] reads the log (`reader.rs`), derives the NIS and timing
+//! statistics, and writes the TUM file and the plots (`plots.rs`).
+
+mod plots;
+mod reader;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use plotters::style::FontStyle;
+use serde::Serialize;
+
+use cmsckf_models::stats::chi2_quantile;
+
+use plots::plot_all;
+use reader::{Data, LogReader};
+
+/// Errors of a review.
+#[derive(Debug, thiserror::Error)]
+pub enum ReviewError {
+    #[error("cannot read '{0}': {1}")]
+    Io(String, std::io::Error),
+    #[error("'{0}' is not an MCAP log: {1}")]
+    Mcap(String, String),
+    #[error("plotting '{0}': {1}")]
+    Plot(String, String),
+}
+
+/// The summary `review --json` prints.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ReviewSummary {
+    pub duration_s: f64,
+    pub messages: u64,
+    /// The log ended early (no summary): read up to the last whole chunk.
+    pub truncated: bool,
+    pub input_rates_hz: BTreeMap<String, f64>,
+    pub vision_updates: u64,
+    pub tracks_used: u64,
+    pub rejected: BTreeMap<String, u64>,
+    pub nis_per_dof_mean: f64,
+    pub nis_in_95: f64,
+    pub update_us_p50: f64,
+    pub update_us_p99: f64,
+    pub update_us_max: f64,
+    pub gnss_updates: u64,
+    pub global_updates: u64,
+    /// Global keyframes made local for a loop closure (promotion records).
+    pub promotions: u64,
+    pub keyframes: u64,
+    pub estimates: u64,
+}
+
+/// The value at fraction `p` of `v` once sorted (nearest rank); 0 if empty.
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+/// Reviews `log`; writes the plots to `plots` and the TUM trajectory to
+/// `tum` if given. `keyframe` picks the zoomed keyframe of Figure 1.
+pub fn review(
+    log: &Path,
+    plots: Option<&Path>,
+    tum: Option<&Path>,
+    keyframe: Option<u64>,
+) -> Result<ReviewSummary, ReviewError> {
+    let name = log.display().to_string();
+    let bytes = std::fs::read(log).map_err(|e| ReviewError::Io(name.clone(), e))?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReviewError::Mcap(name.clone(), e.to_string()))?;
+    let mut reader = LogReader::new();
+    for m in stream {
+        let Ok(m) = m else {
+            reader.s.truncated = true;
+            break;
+        };
+        reader.on_message(&m);
+    }
+    let (mut s, d) = reader.finish();
+    nis_statistics(&mut s, &d);
+    timing_statistics(&mut s, &d);
+
+    if let Some(path) = tum {
+        write_tum(path, &d)?;
+    }
+    if let Some(dir) = plots {
+        std::fs::create_dir_all(dir).map_err(|e| ReviewError::Io(dir.display().to_string(), e))?;
+        // The bundled font; registering twice is harmless.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
+        plot_all(dir, &d, keyframe).map_err(|e| ReviewError::Plot(dir.display().to_string(), e))?;
+    }
+    Ok(s)
+}
+
+/// The mean NIS per degree of freedom and the share inside its 95% χ² band.
+fn nis_statistics(s: &mut ReviewSummary, d: &Data) {
+    if !d.nis.is_empty() {
+        s.nis_per_dof_mean = d.nis.iter().map(|x| x.1 / x.2 as f64).sum::<f64>() / d.nis.len() as f64;
+        let inside = d
+            .nis
+            .iter()
+            .filter(|x| (chi2_quantile(0.025, x.2)..=chi2_quantile(0.975, x.2)).contains(&x.1))
+            .count();
+        s.nis_in_95 = inside as f64 / d.nis.len() as f64;
+    }
+}
+
+/// The median, 99th percentile and maximum of the time per update (µs).
+fn timing_statistics(s: &mut ReviewSummary, d: &Data) {
+    let mut el = d.elapsed.clone();
+    s.update_us_p50 = percentile(&mut el, 0.5);
+    s.update_us_p99 = percentile(&mut el, 0.99);
+    s.update_us_max = el.last().copied().unwrap_or(0.0);
+}
+
+/// Writes the estimated trajectory to `path` in TUM format.
+fn write_tum(path: &Path, d: &Data) -> Result<(), ReviewError> {
+    let mut out = String::from("# t x y z qx qy qz qw (world NED, body FRD)\n");
+    for (t, n, e, q, dn) in &d.track {
+        out += &format!("{t:.6} {n} {e} {dn} {} {} {} {}\n", q[1], q[2], q[3], q[0]);
+    }
+    std::fs::write(path, out).map_err(|e| ReviewError::Io(path.display().to_string(), e))
+}
