@@ -18,6 +18,9 @@ use crate::gnss::{Epoch, IonoPolicy, RawSat, Receiver};
 use crate::io::mcap_log::Topic;
 use crate::io::Counters;
 
+/// The stream reader's task and its forwarder's.
+pub(super) type StreamTasks = (JoinHandle<()>, JoinHandle<()>);
+
 /// A receiver wired to the companion computer: its raw RTCM3 is read and
 /// forwarded to the fusion loop. `None` unless `gnss.source = "stream"`.
 pub(super) fn spawn_stream(
@@ -25,7 +28,7 @@ pub(super) fn spawn_stream(
     fusion_tx: &mpsc::Sender<FusionMsg>,
     counters: &Counters,
     stop_rx: &watch::Receiver<bool>,
-) -> Result<Option<(JoinHandle<()>, JoinHandle<()>)>, DaemonError> {
+) -> Result<Option<StreamTasks>, DaemonError> {
     if cfg.gnss.source != GnssSource::Stream {
         return Ok(None);
     }

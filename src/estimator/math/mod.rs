@@ -40,33 +40,6 @@ pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() + k * ((1.0 - th.cos()) / th2) + k * k * ((th - th.sin()) / (th2 * th))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn left_jacobian_matches_finite_differences() {
-        for phi in [
-            Vector3::new(0.3, -0.2, 0.1),
-            Vector3::new(1e-8, 0.0, 2e-8),
-            Vector3::new(-1.0, 2.0, 0.5),
-        ] {
-            let jl = left_jacobian(&phi);
-            let base = exp_so3(&phi);
-            let h = 1e-6;
-            for k in 0..3 {
-                let mut e = Vector3::zeros();
-                e[k] = h;
-                // Exp(φ+ε) Exp(φ)ᵀ = Exp(J_l ε)
-                let plus = (exp_so3(&(phi + e)) * base.inverse()).scaled_axis();
-                let minus = (exp_so3(&(phi - e)) * base.inverse()).scaled_axis();
-                let col = (plus - minus) / (2.0 * h);
-                assert!((col - jl.column(k)).norm() < 1e-8, "{col} vs {}", jl.column(k));
-            }
-        }
-    }
-}
-
 /// The block of `a` at `(r0, c0)` of size `nr × nc`, copied column by
 /// column (nalgebra's `into_owned` of a view goes element by element).
 pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, nc: usize) -> nalgebra::DMatrix<f64> {
@@ -139,5 +112,32 @@ pub fn dot(a: &[f64], b: &[f64]) -> f64 {
 pub fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
     for (yi, xi) in y.iter_mut().zip(x) {
         *yi += alpha * xi;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn left_jacobian_matches_finite_differences() {
+        for phi in [
+            Vector3::new(0.3, -0.2, 0.1),
+            Vector3::new(1e-8, 0.0, 2e-8),
+            Vector3::new(-1.0, 2.0, 0.5),
+        ] {
+            let jl = left_jacobian(&phi);
+            let base = exp_so3(&phi);
+            let h = 1e-6;
+            for k in 0..3 {
+                let mut e = Vector3::zeros();
+                e[k] = h;
+                // Exp(φ+ε) Exp(φ)ᵀ = Exp(J_l ε)
+                let plus = (exp_so3(&(phi + e)) * base.inverse()).scaled_axis();
+                let minus = (exp_so3(&(phi - e)) * base.inverse()).scaled_axis();
+                let col = (plus - minus) / (2.0 * h);
+                assert!((col - jl.column(k)).norm() < 1e-8, "{col} vs {}", jl.column(k));
+            }
+        }
     }
 }
