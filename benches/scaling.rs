@@ -41,6 +41,47 @@ const FRAMES: usize = 10;
 const KEYFRAME_INTERVAL_S: f64 = 0.5;
 const FLIGHT_S: f64 = 500.0;
 
+/// The flight run in compressed mode up to `flight_s`, then a global
+/// update: the map every size is cut from. Returns the runner, the first
+/// frame after the flight, and the number of local keyframes.
+fn build_map<'a>(ds: &'a Dataset, cfg: &Config, flight_s: f64) -> (Runner<'a>, usize, usize) {
+    let t0 = std::time::Instant::now();
+    let mut run = Runner::new(ds, cfg, Mode::Compressed, 1);
+    let mut k = 0;
+    while k < ds.frames.len() && ds.frames[k].t_s < flight_s {
+        run.step_frame(k);
+        k += 1;
+    }
+    run.force_global_update();
+    let local = run.est.keyframes().count() - run.est.n_global_keyframes();
+    eprintln!(
+        "built {} keyframes ({local} local, local dimension {}) in {:.1} s",
+        run.est.keyframes().count(),
+        run.est.local_dim(),
+        t0.elapsed().as_secs_f64()
+    );
+    (run, k, local)
+}
+
+/// Prints the window's workload, so that runs can be compared: tracks, loop
+/// closures, promotions and the local dimension it ends with.
+fn print_workload(start: &Runner, mode: Mode, n: usize, k: usize) {
+    let mut probe = start.clone();
+    let (mut closures, mut promoted, mut tracks) = (0, 0, 0);
+    for f in k..k + FRAMES {
+        let rep = probe.step_frame(f).1;
+        closures += rep.loop_closure_tracks;
+        promoted += rep.promoted;
+        tracks += rep.tracks_used;
+    }
+    eprintln!(
+        "{}/{n}: {FRAMES} frames, {tracks} tracks, {closures} loop-closure tracks, {promoted} promoted, local dimension {} -> {}",
+        mode.name(),
+        start.est.local_dim(),
+        probe.est.local_dim()
+    );
+}
+
 fn bench_scaling(c: &mut Criterion) {
     let max_n: usize = std::env::var("CMSCKF_BENCH_MAX_KEYFRAMES")
         .ok()
@@ -58,21 +99,7 @@ fn bench_scaling(c: &mut Criterion) {
     // Only as long a flight as the largest size needs.
     let flight_s = if max_n >= 1000 { FLIGHT_S } else { FLIGHT_S / 8.0 };
     let ds = Dataset::generate("racetrack", 1, Some(flight_s + 2.0), &sim_config_for(&cfg)).expect("dataset");
-    let t0 = std::time::Instant::now();
-    let mut run = Runner::new(&ds, &cfg, Mode::Compressed, 1);
-    let mut k = 0;
-    while k < ds.frames.len() && ds.frames[k].t_s < flight_s {
-        run.step_frame(k);
-        k += 1;
-    }
-    run.force_global_update();
-    let local = run.est.keyframes().count() - run.est.n_global_keyframes();
-    eprintln!(
-        "built {} keyframes ({local} local, local dimension {}) in {:.1} s",
-        run.est.keyframes().count(),
-        run.est.local_dim(),
-        t0.elapsed().as_secs_f64()
-    );
+    let (run, k, local) = build_map(&ds, &cfg, flight_s);
 
     let mut g = c.benchmark_group("mode_scaling");
     g.sample_size(10);
@@ -92,22 +119,7 @@ fn bench_scaling(c: &mut Criterion) {
             if mode != Mode::Compressed {
                 start.est = r.est.clone().into_mode(mode);
             }
-            // The window's workload, so that runs can be compared: loop
-            // closures, promotions and the local dimension it ends with.
-            let mut probe = start.clone();
-            let (mut closures, mut promoted, mut tracks) = (0, 0, 0);
-            for f in k..k + FRAMES {
-                let rep = probe.step_frame(f).1;
-                closures += rep.loop_closure_tracks;
-                promoted += rep.promoted;
-                tracks += rep.tracks_used;
-            }
-            eprintln!(
-                "{}/{n}: {FRAMES} frames, {tracks} tracks, {closures} loop-closure tracks, {promoted} promoted, local dimension {} -> {}",
-                mode.name(),
-                start.est.local_dim(),
-                probe.est.local_dim()
-            );
+            print_workload(&start, mode, n, k);
             g.bench_function(format!("{}/{n}", mode.name()), |b| {
                 b.iter_custom(|iters| {
                     let mut total_us = 0.0;

@@ -23,8 +23,8 @@ use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mavlink::Outbound;
 use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::messages::Outbound;
 use crate::io::Counters;
 
 /// Errors of a replay.

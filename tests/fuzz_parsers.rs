@@ -182,7 +182,8 @@ fn config_files() {
 
 #[test]
 fn mavlink_frames() {
-    use cmsckf::io::mavlink::{decode_bytes, encode_bytes, Outbound};
+    use cmsckf::io::mavlink::{decode_bytes, encode_bytes};
+    use cmsckf::io::messages::Outbound;
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let seeds = [
         encode_bytes(

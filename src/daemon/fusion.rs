@@ -16,14 +16,14 @@ use serde_json::json;
 use tokio::sync::mpsc;
 
 use super::gnss_input::GnssIn;
-use super::rebase::RebaseExec;
+use super::rebase::{InstallSite, RebaseExec};
 use super::{records, FusionMsg, Restart, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
 use crate::config::{Config, FeatureClock};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, ImuMeas};
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mavlink::Outbound;
 use crate::io::mcap_log::{McapLogger, Topic};
+use crate::io::messages::Outbound;
 use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
 
@@ -70,6 +70,22 @@ pub struct Ctx {
     pub mono_offset_us: Arc<AtomicI64>,
     /// The daemon's start (wall clock), for the IMU's wall-time age.
     pub start: Instant,
+}
+
+/// Where a rebase result goes: the filter (of generation `est_gen`), its
+/// log, and the latest IMU time to log it at.
+fn install_site<'a>(
+    est: &'a mut Option<Estimator>,
+    est_gen: u64,
+    log: &'a Option<McapLogger>,
+    t_s: f64,
+) -> InstallSite<'a> {
+    InstallSite {
+        est: est.as_mut(),
+        est_gen,
+        log: log.as_ref(),
+        t_s,
+    }
 }
 
 /// Runs the fusion loop on its own thread until its input channel closes.
@@ -171,12 +187,22 @@ impl Fusion {
         }
     }
 
+    /// For `cmsckf replay`: rebases are installed where the log says.
+    pub fn for_replay(mut self) -> Self {
+        self.rebase = self.rebase.for_replay();
+        self
+    }
+
     /// Handles one input, in the order the fusion loop received it (replay
     /// feeds the logged inputs through here in the same order).
     pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
-        self.poll_rebase(&ctx.counters);
+        let site = install_site(&mut self.est, self.est_gen, &self.log, self.last_imu_t);
+        self.rebase.poll(site, &ctx.counters);
         match msg {
-            FusionMsg::RebaseInstalled { seq } => self.on_rebase_installed(seq, &ctx.counters),
+            FusionMsg::RebaseInstalled { seq } => {
+                let site = install_site(&mut self.est, self.est_gen, &self.log, self.last_imu_t);
+                self.rebase.on_installed(seq, site, &ctx.counters);
+            }
             FusionMsg::Rtcm(bytes) => {
                 self.log(Topic::InputRtcm, self.last_imu_t, &json!({ "bytes": bytes }));
                 self.on_rtcm(&bytes, &ctx.counters)
@@ -184,6 +210,17 @@ impl Fusion {
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu_msg(m, ctx),
             other => self.on_autopilot(other, &ctx.counters),
+        }
+    }
+
+    /// RTCM from the rover: each completed epoch's measurements wait in
+    /// time order for IMU to cover them.
+    fn on_rtcm(&mut self, bytes: &[u8], counters: &Counters) {
+        let mut epochs = Vec::new();
+        self.gnss
+            .on_rtcm(bytes, self.est.as_ref(), self.log.as_ref(), counters, &mut epochs);
+        for (t, sats) in epochs {
+            self.enqueue(t, Pending::Gnss(sats), counters);
         }
     }
 

@@ -1,21 +1,22 @@
 //! GNSS input: a receiver's raw RTCM3 stream read beside the link
-//! (`gnss.source = "stream"`), and, on the fusion thread, RTCM decoding, the
+//! (`gnss.source = "stream"`), and, for the fusion thread, RTCM decoding, the
 //! receiver model, the world origin and the GPS-time → autopilot-time map
-//! that turn each completed epoch into a GNSS measurement waiting for IMU.
+//! that turn each completed epoch into satellite measurements at an
+//! autopilot time.
 
 use cmsckf_models::geodesy::{ecef_to_llh, NedFrame, R_ecef_ned, C_MPS};
-use cmsckf_models::gnss::{gps_to_unix_s, Klobuchar};
+use cmsckf_models::gnss::{gps_to_unix_s, Klobuchar, SatMeas};
 use serde_json::json;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::fusion::{Fusion, Pending};
 use super::{DaemonError, FusionMsg};
 use crate::config::{Config, GnssSource};
+use crate::estimator::Estimator;
 use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use crate::gnss::spp::{SppOptions, SppSolution};
-use crate::gnss::{Epoch, IonoPolicy, RawSat, Receiver};
-use crate::io::mcap_log::Topic;
+use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver};
+use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::Counters;
 
 /// The stream reader's task and its forwarder's.
@@ -33,7 +34,7 @@ pub(super) fn spawn_stream(
         return Ok(None);
     }
     let spec =
-        crate::gnss::stream::parse(&cfg.gnss.stream).map_err(|e| DaemonError::Config(format!("gnss.stream {e}")))?;
+        crate::io::gnss_stream::parse(&cfg.gnss.stream).map_err(|e| DaemonError::Config(format!("gnss.stream {e}")))?;
     let (tx, mut rx) = mpsc::channel::<Vec<u8>>(64);
     let fwd_tx = fusion_tx.clone();
     let counters2 = counters.clone();
@@ -49,7 +50,7 @@ pub(super) fn spawn_stream(
             }
         }
     });
-    let reader = tokio::spawn(crate::gnss::stream::run(spec, tx, counters.clone(), stop_rx.clone()));
+    let reader = tokio::spawn(crate::io::gnss_stream::run(spec, tx, counters.clone(), stop_rx.clone()));
     Ok(Some((reader, fwd)))
 }
 
@@ -64,6 +65,8 @@ pub(super) struct GnssIn {
     msgs: Vec<GnssMessage>,
     epochs: Vec<Epoch>,
     klobuchar: Option<Klobuchar>,
+    /// `gnss.iono`: how the measurements handle the ionosphere.
+    iono: IonoMode,
 }
 
 impl GnssIn {
@@ -91,6 +94,7 @@ impl GnssIn {
             unix_minus_boot_s: None,
             msgs: Vec::new(),
             epochs: Vec::new(),
+            iono: cfg.gnss.iono,
             klobuchar: (cfg.gnss.klobuchar_alpha.len() == 4 && cfg.gnss.klobuchar_beta.len() == 4).then(|| {
                 let a = &cfg.gnss.klobuchar_alpha;
                 let b = &cfg.gnss.klobuchar_beta;
@@ -103,74 +107,82 @@ impl GnssIn {
     }
 }
 
-impl Fusion {
-    /// Decodes RTCM, completes epochs, and queues each as a GNSS update at
-    /// its autopilot time: GPS tag → Unix (leap seconds) → boot clock
-    /// (SYSTEM_TIME), less the receiver clock offset.
-    pub(super) fn on_rtcm(&mut self, bytes: &[u8], counters: &Counters) {
-        let g = &mut self.gnss;
-        let before = g.dec.stats.crc_failures;
-        g.dec.push(bytes, &mut g.msgs);
-        if g.dec.stats.crc_failures > before {
-            counters.add("rtcm_crc_failure", g.dec.stats.crc_failures - before);
+impl GnssIn {
+    /// Decodes RTCM and completes epochs; each becomes the satellites'
+    /// measurements at its autopilot time (GPS tag → Unix (leap seconds) →
+    /// boot clock (SYSTEM_TIME), less the receiver clock offset), pushed to
+    /// `out` for the fusion loop to queue. `est` places the world origin at
+    /// the first fix when none is configured; fixes go to `log`.
+    pub(super) fn on_rtcm(
+        &mut self,
+        bytes: &[u8],
+        est: Option<&Estimator>,
+        log: Option<&McapLogger>,
+        counters: &Counters,
+        out: &mut Vec<(f64, Vec<SatMeas>)>,
+    ) {
+        let before = self.dec.stats.crc_failures;
+        self.dec.push(bytes, &mut self.msgs);
+        if self.dec.stats.crc_failures > before {
+            counters.add("rtcm_crc_failure", self.dec.stats.crc_failures - before);
             tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
         }
-        for m in g.msgs.drain(..) {
-            g.rx.push(m, &mut g.epochs);
+        for m in self.msgs.drain(..) {
+            self.rx.push(m, &mut self.epochs);
         }
-        let epochs: Vec<_> = g.epochs.drain(..).collect();
+        let epochs: Vec<_> = self.epochs.drain(..).collect();
         for ep in epochs {
             counters.add("gnss_epochs", 1);
-            let Some(offset) = self.gnss.unix_minus_boot_s else {
+            let Some(offset) = self.unix_minus_boot_s else {
                 counters.add("gnss_no_system_time", 1);
                 continue;
             };
             let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
             let t = gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / C_MPS;
-            if let Ok(fix) = &ep.fix {
-                self.log_fix(t, fix);
+            if let (Ok(fix), Some(l)) = (&ep.fix, log) {
+                log_fix(l, t, fix);
             }
-            if self.gnss.frame.is_none() {
-                self.origin_from_fix(&ep, counters);
+            if self.frame.is_none() {
+                self.origin_from_fix(&ep, est, counters);
             }
             let obs = ep.sats.iter().map(RawSat::from_obs);
             let policy = IonoPolicy {
-                mode: self.cfg.gnss.iono,
-                klobuchar: self.gnss.klobuchar.as_ref(),
+                mode: self.iono,
+                klobuchar: self.klobuchar.as_ref(),
                 rx_ecef_m: ep.fix.as_ref().ok().map(|f| f.r_ecef_m),
             };
-            let sats = crate::gnss::sat_measurements(&self.gnss.rx.ephs, ep.week, ep.tow_s, policy, obs);
+            let sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
             if !sats.is_empty() {
-                self.enqueue(t, Pending::Gnss(sats), counters);
+                out.push((t, sats));
             }
         }
-    }
-
-    /// The single-point fix, to `/gnss/fix` (foxglove.LocationFix).
-    fn log_fix(&self, t: f64, fix: &SppSolution) {
-        let (lat, lon, h) = ecef_to_llh(&fix.r_ecef_m);
-        let tt = t.max(0.0);
-        // Variance approximated from the residuals and the PDOP.
-        let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
-        self.log(
-            Topic::GnssFix,
-            t,
-            &json!({"timestamp": {"sec": tt.floor() as u64, "nsec": ((tt - tt.floor()) * 1e9) as u64},
-                "frame_id": "gnss", "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
-                "position_covariance": [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var], "position_covariance_type": 1,
-                "satellites": fix.sats.len(), "raim": format!("{:?}", fix.raim)}),
-        );
     }
 
     /// No configured or autopilot origin: anchor the world frame so that the
     /// current estimate sits at the first fix.
-    fn origin_from_fix(&mut self, ep: &Epoch, counters: &Counters) {
-        if let (Ok(fix), Some(est)) = (&ep.fix, self.est.as_ref()) {
+    fn origin_from_fix(&mut self, ep: &Epoch, est: Option<&Estimator>, counters: &Counters) {
+        if let (Ok(fix), Some(est)) = (&ep.fix, est) {
             let (lat, lon, _) = ecef_to_llh(&fix.r_ecef_m);
             let r = R_ecef_ned(lat, lon);
             let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
-            self.gnss.frame = Some(NedFrame::from_ecef(&origin));
+            self.frame = Some(NedFrame::from_ecef(&origin));
             counters.add("gnss_origin_from_fix", 1);
         }
     }
+}
+
+/// The single-point fix, to `/gnss/fix` (foxglove.LocationFix).
+fn log_fix(l: &McapLogger, t: f64, fix: &SppSolution) {
+    let (lat, lon, h) = ecef_to_llh(&fix.r_ecef_m);
+    let tt = t.max(0.0);
+    // Variance approximated from the residuals and the PDOP.
+    let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
+    l.log(
+        Topic::GnssFix,
+        t,
+        &json!({"timestamp": {"sec": tt.floor() as u64, "nsec": ((tt - tt.floor()) * 1e9) as u64},
+            "frame_id": "gnss", "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
+            "position_covariance": [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var], "position_covariance_type": 1,
+            "satellites": fix.sats.len(), "raim": format!("{:?}", fix.raim)}),
+    );
 }

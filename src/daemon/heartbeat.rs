@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use crate::io::mavlink::{self as mav, Outbound};
+use crate::io::messages::{self as mav, Outbound};
 use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
 

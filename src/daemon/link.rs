@@ -14,7 +14,8 @@ use super::{signing_key, DaemonError, FusionMsg};
 use crate::config::{Config, GnssSource};
 use crate::estimator::ImuMeas;
 use crate::gnss::reassembly::{Reassembled, Reassembler};
-use crate::io::mavlink::{self as mav, Inbound, Link, Outbound};
+use crate::io::mavlink::{self as mav, Link};
+use crate::io::messages::{Inbound, Outbound, Source};
 use crate::io::Counters;
 
 /// Opens the link to the autopilot.
@@ -108,7 +109,7 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
 
 /// One inbound message as the fusion loop takes it, if it takes it;
 /// TIMESYNC replies and RTCM fragments are handled here.
-fn to_fusion(msg: Inbound, src: mav::Source, st: &mut RxState, r: &Receive) -> Option<FusionMsg> {
+fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option<FusionMsg> {
     let counters = &r.counters;
     match msg {
         Inbound::Imu {
@@ -205,7 +206,7 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
 
 /// Reassembles `GPS_RTCM_DATA` fragments (MAVLink spec) and forwards each
 /// whole RTCM3 message from the rover.
-fn on_rtcm_fragment(flags: u8, data: &[u8], src: mav::Source, st: &mut RxState, r: &Receive) {
+fn on_rtcm_fragment(flags: u8, data: &[u8], src: Source, st: &mut RxState, r: &Receive) {
     let counters = &r.counters;
     let mut got = st.reasm.push(flags, data);
     loop {

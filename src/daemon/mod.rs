@@ -41,8 +41,9 @@ use crate::config::Config;
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
-use crate::io::mavlink::{self as mav, Outbound};
+use crate::io::mavlink as mav;
 use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::messages::Outbound;
 use crate::io::Counters;
 use crate::status::Status;
 

@@ -14,8 +14,8 @@ use tokio::sync::mpsc;
 use super::fusion::Fusion;
 use super::records;
 use crate::estimator::{Estimator, ImuMeas, ImuState};
-use crate::io::mavlink::Outbound;
 use crate::io::mcap_log::{McapLogger, Topic};
+use crate::io::messages::Outbound;
 use crate::io::Counters;
 
 impl Fusion {

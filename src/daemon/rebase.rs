@@ -8,10 +8,9 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::fusion::Fusion;
 use crate::config::Config;
 use crate::estimator::{Estimator, RebaseJob, RebaseResult};
-use crate::io::mcap_log::Topic;
+use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::Counters;
 
 /// What the rebase thread is asked to do.
@@ -73,37 +72,48 @@ impl RebaseExec {
     }
 }
 
-impl Fusion {
+/// Where a rebase result is installed: the filter of generation `est_gen`
+/// (if one runs), the log, and the autopilot time to log it at.
+pub(super) struct InstallSite<'a> {
+    pub est: Option<&'a mut Estimator>,
+    pub est_gen: u64,
+    pub log: Option<&'a McapLogger>,
+    pub t_s: f64,
+}
+
+impl RebaseExec {
     /// For `cmsckf replay`: rebases are installed where the log says.
-    pub fn for_replay(mut self) -> Self {
-        if !matches!(self.rebase, RebaseExec::Inline) {
-            self.rebase = RebaseExec::Logged { held: None };
+    pub(super) fn for_replay(self) -> Self {
+        if matches!(self, RebaseExec::Inline) {
+            self
+        } else {
+            RebaseExec::Logged { held: None }
         }
-        self
     }
 
     /// Installs the results the rebase thread has finished (logging where,
     /// for replay); results of a filter since restarted are dropped.
-    pub(super) fn poll_rebase(&mut self, counters: &Counters) {
-        let RebaseExec::Thread { rx, tx } = &self.rebase else {
+    pub(super) fn poll(&self, site: InstallSite<'_>, counters: &Counters) {
+        let RebaseExec::Thread { rx, tx } = self else {
             return;
         };
+        let mut est = site.est;
         while let Ok((gen, res, compute_ms)) = rx.try_recv() {
             let seq = res.seq;
-            match self.est.as_mut() {
-                Some(est) if gen == self.est_gen => match est.install_rebase(res) {
+            match est.as_deref_mut() {
+                Some(est) if gen == site.est_gen => match est.install_rebase(res) {
                     Ok(job) => {
                         counters.add("rebases_installed", 1);
                         if let Some(job) = job {
                             // If the worker is gone the job is freed here.
                             let _ = tx.send(RebaseWork::Free(job));
                         }
-                        if let Some(l) = &self.log {
+                        if let Some(l) = site.log {
                             // With the worker's wall time for the job (replay
                             // reads only the sequence number).
                             l.log(
                                 Topic::InputRebase,
-                                self.last_imu_t,
+                                site.t_s,
                                 &json!({"seq": seq, "compute_ms": compute_ms, "global_keyframes": est.n_global_keyframes()}),
                             );
                         }
@@ -120,11 +130,11 @@ impl Fusion {
 
     /// Replay: the daemon installed rebase `seq` here; install the result
     /// computed for it.
-    pub(super) fn on_rebase_installed(&mut self, seq: u64, counters: &Counters) {
-        if let RebaseExec::Logged { held } = &mut self.rebase {
-            if let (Some(res), Some(est)) = (held.take(), self.est.as_mut()) {
-                if let Some(l) = &self.log {
-                    l.log(Topic::InputRebase, self.last_imu_t, &json!({ "seq": seq }));
+    pub(super) fn on_installed(&mut self, seq: u64, site: InstallSite<'_>, counters: &Counters) {
+        if let RebaseExec::Logged { held } = self {
+            if let (Some(res), Some(est)) = (held.take(), site.est) {
+                if let Some(l) = site.log {
+                    l.log(Topic::InputRebase, site.t_s, &json!({ "seq": seq }));
                 }
                 if est.install_rebase(res).is_ok() {
                     counters.add("rebases_installed", 1);

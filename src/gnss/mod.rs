@@ -6,11 +6,14 @@
 //! in order, ephemerides stored as they come, observations grouped into
 //! epochs (by time of week and the MSM multiple-message bit) and solved once
 //! the epoch is complete.
+//!
+//! Like the estimator it does no I/O and keeps no clock (but for
+//! [`gps_week_now`], the week hint's fallback): bytes come in from
+//! `io::mavlink` or `io::gnss_stream`, and it stands on `cmsckf-models` alone.
 
 pub mod reassembly;
 pub mod rtcm;
 pub mod spp;
-pub mod stream;
 
 use std::collections::BTreeMap;
 

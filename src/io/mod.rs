@@ -1,10 +1,12 @@
 //! I/O adapters: they convert between the outside world and the pure
 //! estimator at the boundary. `mavlink.rs` is the only place that names
-//! `mavlink::` types.
+//! `mavlink::` types; `messages.rs` holds what crosses that boundary.
 
 pub mod feature_pipe;
+pub mod gnss_stream;
 pub mod mavlink;
 pub mod mcap_log;
+pub mod messages;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};

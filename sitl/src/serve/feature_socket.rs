@@ -7,8 +7,6 @@ use std::path::Path;
 use tokio::io::AsyncWriteExt;
 use tokio::net::UnixStream;
 
-use super::fault::{Active, FaultKind};
-use super::stream::Streamer;
 use crate::features::CameraFrame;
 
 /// A connection to the feature socket, opened when first needed.
@@ -23,13 +21,13 @@ impl<'a> FeatureSocket<'a> {
     }
 
     /// Drops the connection (the front end has crashed).
-    fn disconnect(&mut self) {
+    pub(super) fn disconnect(&mut self) {
         self.stream = None;
     }
 
     /// Writes `bytes`, connecting first if not connected; whether they were
     /// written. A failed write drops the connection.
-    async fn write(&mut self, bytes: &[u8]) -> bool {
+    pub(super) async fn write(&mut self, bytes: &[u8]) -> bool {
         if self.stream.is_none() {
             self.stream = UnixStream::connect(self.path).await.ok();
         }
@@ -46,7 +44,7 @@ impl<'a> FeatureSocket<'a> {
 }
 
 /// One frame as the front end's JSON line, stamped `t_us` on the boot clock.
-fn feature_line(t_us: u64, f: &CameraFrame) -> String {
+pub(super) fn feature_line(t_us: u64, f: &CameraFrame) -> String {
     let mut line = format!("{{\"v\":1,\"t_us\":{t_us},\"cam\":0,\"features\":[");
     for (i, o) in f.features.iter().enumerate() {
         if i > 0 {
@@ -56,25 +54,4 @@ fn feature_line(t_us: u64, f: &CameraFrame) -> String {
     }
     line += "]}\n";
     line
-}
-
-impl Streamer<'_> {
-    /// Sends the next camera frame, unless the front end is down or the
-    /// camera out.
-    pub(super) async fn send_frame(&mut self, active: &Active<'_>) {
-        let f = &self.ds.frames[self.k_cam];
-        self.k_cam += 1;
-        if active.has(FaultKind::FrontendRestart) {
-            // The front end has crashed: no connection, no frames.
-            self.feat.disconnect();
-            return;
-        }
-        if active.has(FaultKind::CameraOutage) {
-            return;
-        }
-        let line = feature_line(self.boot(f.t_s), f);
-        if self.feat.write(line.repeat(active.copies()).as_bytes()).await {
-            self.frames_sent += 1;
-        }
-    }
 }

@@ -7,10 +7,9 @@ use std::time::Instant;
 use mavlink::dialects::ardupilotmega as apm;
 use serde::Serialize;
 
-use super::clock::flight_times;
 use super::fault::Fault;
 use super::receive::{Inbox, Received};
-use super::ServeOptions;
+use super::{ServeOptions, BOOT0_S};
 use crate::dataset::Dataset;
 use crate::metrics;
 
@@ -232,5 +231,24 @@ fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[(f64, apm::MavStat
         peak_error_m: peak,
         resets,
         degraded_reported,
+    }
+}
+
+/// Flight times of the estimates, in arrival order: their boot-clock stamps
+/// mapped back through [`super::clock::boot_us`], switching to the post-reboot clock at
+/// the first stamp that falls back by more than 2 s.
+pub(super) fn flight_times(rec: &mut [Received], reboot_s: Option<f64>) {
+    let mut after = false;
+    let mut max_boot_s = f64::NEG_INFINITY;
+    for r in rec {
+        let boot_s = r.t_us as f64 * 1e-6;
+        if reboot_s.is_some() && boot_s < max_boot_s - 2.0 {
+            after = true;
+        }
+        max_boot_s = max_boot_s.max(boot_s);
+        r.t_s = match reboot_s {
+            Some(rb) if after => boot_s + rb - 1.0,
+            _ => boot_s - BOOT0_S,
+        };
     }
 }

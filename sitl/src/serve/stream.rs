@@ -10,8 +10,8 @@ use mavlink::dialects::ardupilotmega as apm;
 use mavlink::AsyncMavConnection;
 
 use super::clock::boot_us;
-use super::fault::Active;
-use super::feature_socket::FeatureSocket;
+use super::fault::{Active, FaultKind};
+use super::feature_socket::{feature_line, FeatureSocket};
 use super::{Link, ServeOptions, HEADER};
 use crate::dataset::Dataset;
 
@@ -112,6 +112,27 @@ impl<'a> Streamer<'a> {
             self.next_1hz += 1.0;
         } else {
             self.next_slow += 0.1;
+        }
+    }
+}
+
+impl Streamer<'_> {
+    /// Sends the next camera frame, unless the front end is down or the
+    /// camera out.
+    pub(super) async fn send_frame(&mut self, active: &Active<'_>) {
+        let f = &self.ds.frames[self.k_cam];
+        self.k_cam += 1;
+        if active.has(FaultKind::FrontendRestart) {
+            // The front end has crashed: no connection, no frames.
+            self.feat.disconnect();
+            return;
+        }
+        if active.has(FaultKind::CameraOutage) {
+            return;
+        }
+        let line = feature_line(self.boot(f.t_s), f);
+        if self.feat.write(line.repeat(active.copies()).as_bytes()).await {
+            self.frames_sent += 1;
         }
     }
 }

@@ -1,0 +1,116 @@
+//! What crosses the MAVLink boundary, as the rest of the daemon sees it:
+//! plain values in SI units (who sent a message, each inbound message we
+//! read, each outbound message we write). `io::mavlink` converts them to and
+//! from MAVLink's own types; nothing here names the `mavlink` crate.
+
+use nalgebra::Vector3;
+
+/// Who sent a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Source {
+    pub system: u32,
+    pub component: u8,
+}
+
+/// A message from the autopilot, in SI units.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Inbound {
+    /// IMU sample: boot time (µs), specific force (m/s², FRD), rate (rad/s).
+    Imu {
+        t_us: u64,
+        accel_mps2: Vector3<f64>,
+        gyro_radps: Vector3<f64>,
+        /// `highres`, `scaled` or `raw`.
+        kind: &'static str,
+    },
+    /// Attitude (rad) at boot time (ms).
+    Attitude {
+        t_boot_ms: u32,
+        roll_rad: f64,
+        pitch_rad: f64,
+        yaw_rad: f64,
+    },
+    /// The autopilot's local position and velocity (NED, m and m/s).
+    LocalPosition {
+        t_boot_ms: u32,
+        p_ned_m: Vector3<f64>,
+        v_ned_mps: Vector3<f64>,
+    },
+    SystemTime {
+        unix_us: u64,
+        boot_ms: u32,
+    },
+    Timesync {
+        tc1_ns: i64,
+        ts1_ns: i64,
+    },
+    /// One `GPS_RTCM_DATA` fragment.
+    RtcmFragment {
+        flags: u8,
+        data: Vec<u8>,
+    },
+    Heartbeat,
+    /// The autopilot's EKF origin (deg, deg, m above the ellipsoid... as
+    /// MAVLink gives it: AMSL).
+    GpsGlobalOrigin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+    /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
+    /// for the SITL scorer's own tests).
+    Other(&'static str),
+}
+
+/// A message to the autopilot.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outbound {
+    /// `MAV_STATE_STANDBY` until initialised, then `ACTIVE`, or `CRITICAL`
+    /// while degraded (an input stale or being rejected, or just restarted).
+    Heartbeat {
+        initialised: bool,
+        degraded: bool,
+    },
+    /// A `STATUSTEXT` (RFC-5424 severity: 2 critical, 4 warning, 6 info);
+    /// the text is cut to MAVLink's 50 bytes.
+    StatusText {
+        severity: u8,
+        text: String,
+    },
+    SetMessageInterval {
+        message_id: u32,
+        interval_us: f32,
+    },
+    TimesyncRequest {
+        ts1_ns: i64,
+    },
+    VisionPositionEstimate {
+        t_us: u64,
+        p_ned_m: Vector3<f64>,
+        rpy_rad: Vector3<f64>,
+        /// Upper triangle of the 6×6 covariance of `[x y z roll pitch yaw]`.
+        covariance: [f32; 21],
+        reset_counter: u8,
+    },
+    Odometry {
+        t_us: u64,
+        p_ned_m: Vector3<f64>,
+        q_wxyz: [f32; 4],
+        v_body_mps: Vector3<f64>,
+        w_body_radps: Vector3<f64>,
+        pose_covariance: [f32; 21],
+        velocity_covariance: [f32; 21],
+        reset_counter: u8,
+    },
+    SetGpsGlobalOrigin {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+}
+
+/// Message ids the daemon asks streams for.
+pub const MSG_ID_HIGHRES_IMU: u32 = 105;
+pub const MSG_ID_ATTITUDE: u32 = 30;
+pub const MSG_ID_SYSTEM_TIME: u32 = 2;
+pub const MSG_ID_LOCAL_POSITION_NED: u32 = 32;
