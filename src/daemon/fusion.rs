@@ -1,6 +1,6 @@
 //! The fusion loop, on its own OS thread: it takes the inputs in the order
-//! they arrive (IMU, camera frames, RTCM, autopilot state), logs each as it
-//! consumes it (so `cmsckf replay` feeds them back through this same code),
+//! they arrive (IMU, camera frames, RTCM, autopilot state), logs each one it
+//! uses (so `cmsckf replay` feeds them back through this same code),
 //! holds measurements until IMU covers their time, runs the estimator, and
 //! has one restart path (reboot, IMU gap, divergence).
 

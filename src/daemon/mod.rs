@@ -61,6 +61,8 @@ pub enum DaemonError {
     Config(String),
     #[error(transparent)]
     Log(#[from] crate::io::mcap_log::LogError),
+    #[error("cannot start the fusion thread: {0}")]
+    Thread(std::io::Error),
 }
 
 /// Handles the fusion thread shares with the I/O tasks.
@@ -195,8 +197,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         start,
         frames_queued,
     };
-    let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, open_log(&cfg)?)
-        .map_err(|e| DaemonError::Config(format!("cannot start the fusion thread: {e}")))?;
+    let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, open_log(&cfg)?).map_err(DaemonError::Thread)?;
 
     shutdown.await;
     tracing::info!("cmsckf shutting down");
