@@ -85,7 +85,7 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         print!("{}", ev.table());
     }
     if let Some(p) = csv {
-        std::fs::write(&p, csv_rows(&ev)).with_context(|| format!("writing {}", p.display()))?;
+        std::fs::write(&p, ev.csv()).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }
@@ -112,26 +112,4 @@ fn load_sim_config(p: &Path) -> anyhow::Result<cmsckf_sitl::config::SimConfig> {
     let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
     let over = cmsckf_sitl::config::SimConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
     Ok(over)
-}
-
-/// The CSV of `--csv`: a header and one row per mode.
-fn csv_rows(ev: &eval::Evaluation) -> String {
-    let mut s = String::from("mode,ate_unaligned_m,ate_aligned_m,rot_rmse_deg,nees_mean,nees_in_bounds,keyframes,loop_closure_updates,global_updates,frame_us_mean,frame_us_p99,max_rel_diff_vs_full\n");
-    for (m, r) in &ev.modes {
-        s += &format!(
-            "{m},{},{},{},{},{},{},{},{},{},{},{}\n",
-            r.ate_unaligned_m,
-            r.ate_aligned_m,
-            r.rot_rmse_deg,
-            r.nees_mean,
-            r.nees_in_bounds,
-            r.keyframes,
-            r.loop_closure_updates,
-            r.global_updates,
-            r.frame_us_mean,
-            r.frame_us_p99,
-            r.max_rel_diff_vs_full.map_or(String::new(), |d| d.to_string())
-        );
-    }
-    s
 }

@@ -1,0 +1,217 @@
+//! Scoring the flights and summarising them per mode: the rows of the
+//! evaluation table, and the table itself as text (`cmsckf evaluate`) and
+//! CSV (`--csv`).
+
+use serde::Serialize;
+
+use cmsckf_models::stats::chi2_quantile;
+use cmsckf_sitl::metrics;
+
+use super::{Evaluation, FlightResult};
+use crate::estimator::Mode;
+
+/// The per-mode row of the evaluation table.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModeSummary {
+    pub ate_unaligned_m: f64,
+    pub ate_aligned_m: f64,
+    pub rot_rmse_deg: f64,
+    pub nees_mean: f64,
+    pub nees_in_bounds: f64,
+    pub keyframes: f64,
+    pub loop_closure_updates: f64,
+    pub global_updates: f64,
+    pub frame_us_mean: f64,
+    pub frame_us_p99: f64,
+    pub frame_us_p50: f64,
+    pub frame_us_max: f64,
+    /// Global keyframes brought local for loop closures, per flight.
+    pub promotions: f64,
+    /// Rebase job time (ms), mean and largest, and every `(global keyframes,
+    /// ms)` of the first seed.
+    pub rebase_ms_mean: f64,
+    pub rebase_ms_max: f64,
+    pub rebase_ms: Vec<(usize, f64)>,
+    pub per_seed_ate_unaligned_m: Vec<f64>,
+    pub per_seed_ate_aligned_m: Vec<f64>,
+    pub per_seed_nees_mean: Vec<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_rel_diff_vs_full: Option<f64>,
+    /// RMS of the clock-bias error at the GNSS epochs after the first 5 s (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_bias_rmse_m: Option<f64>,
+    /// RMS of the Galileo inter-system-bias error, likewise (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub isb_galileo_rmse_m: Option<f64>,
+}
+
+/// Scores of one flight.
+#[derive(Clone, Copy, Debug)]
+pub struct FlightScore {
+    pub ate: metrics::Ate,
+    pub rot_rmse_deg: f64,
+    pub nees_mean: f64,
+    pub nees_in_bounds: f64,
+}
+
+pub fn score(r: &FlightResult) -> FlightScore {
+    let ate = metrics::ate(&r.p_est, &r.p_true);
+    let rot = metrics::rotation_rmse_deg(&r.q_est, &r.q_true, ate.yaw_rad);
+    let (lo, hi) = (chi2_quantile(0.025, 6), chi2_quantile(0.975, 6));
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    let mut inside = 0usize;
+    for i in 0..r.t_s.len() {
+        if let Some(v) = metrics::nees_pose(&r.q_est[i], &r.p_est[i], &r.q_true[i], &r.p_true[i], &r.cov_pose[i]) {
+            sum += v;
+            n += 1;
+            if (lo..=hi).contains(&v) {
+                inside += 1;
+            }
+        }
+    }
+    FlightScore {
+        ate,
+        rot_rmse_deg: rot,
+        nees_mean: sum / n.max(1) as f64,
+        nees_in_bounds: inside as f64 / n.max(1) as f64,
+    }
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    let i = ((v.len() - 1) as f64 * p).round() as usize;
+    v[i]
+}
+
+/// Summarises the runs of one mode over seeds.
+pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
+    let scores: Vec<FlightScore> = runs.iter().map(score).collect();
+    let n = runs.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&FlightScore) -> f64| scores.iter().map(f).sum::<f64>() / n;
+    let mut times: Vec<f64> = runs.iter().flat_map(|r| r.frame_us.iter().copied()).collect();
+    let tmean = times.iter().sum::<f64>() / times.len().max(1) as f64;
+    let p99 = percentile(&mut times, 0.99);
+    let diff = runs
+        .iter()
+        .filter_map(|r| r.max_rel_diff_vs_full)
+        .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |x| x.max(d))));
+    ModeSummary {
+        ate_unaligned_m: mean(&|s| s.ate.unaligned_m),
+        ate_aligned_m: mean(&|s| s.ate.aligned_m),
+        rot_rmse_deg: mean(&|s| s.rot_rmse_deg),
+        nees_mean: mean(&|s| s.nees_mean),
+        nees_in_bounds: mean(&|s| s.nees_in_bounds),
+        keyframes: runs.iter().map(|r| r.keyframes as f64).sum::<f64>() / n,
+        loop_closure_updates: runs.iter().map(|r| r.stats.loop_closure_updates as f64).sum::<f64>() / n,
+        global_updates: runs.iter().map(|r| r.stats.global_updates as f64).sum::<f64>() / n,
+        frame_us_mean: tmean,
+        frame_us_p99: p99,
+        frame_us_p50: percentile(&mut times, 0.5),
+        frame_us_max: times.last().copied().unwrap_or(0.0),
+        promotions: runs.iter().map(|r| r.stats.promotions as f64).sum::<f64>() / n,
+        rebase_ms_mean: {
+            let all: Vec<f64> = runs.iter().flat_map(|r| r.rebase_us.iter().map(|x| x.1)).collect();
+            all.iter().sum::<f64>() / all.len().max(1) as f64 / 1e3
+        },
+        rebase_ms_max: runs
+            .iter()
+            .flat_map(|r| r.rebase_us.iter().map(|x| x.1))
+            .fold(0.0, f64::max)
+            / 1e3,
+        rebase_ms: runs
+            .first()
+            .map(|r| r.rebase_us.iter().map(|(n, us)| (*n, us / 1e3)).collect())
+            .unwrap_or_default(),
+        per_seed_ate_unaligned_m: scores.iter().map(|s| s.ate.unaligned_m).collect(),
+        per_seed_ate_aligned_m: scores.iter().map(|s| s.ate.aligned_m).collect(),
+        per_seed_nees_mean: scores.iter().map(|s| s.nees_mean).collect(),
+        max_rel_diff_vs_full: diff,
+        // RMS of one clock error over the epochs after the first 5 s (NaN:
+        // not estimated yet).
+        clock_bias_rmse_m: clock_rmse(runs, |c| c.1),
+        isb_galileo_rmse_m: clock_rmse(runs, |c| c.2),
+    }
+}
+
+/// RMS of `pick` of the clock errors at the GNSS epochs after the first 5 s,
+/// skipping NaN (a state not estimated yet); `None` when there are none.
+fn clock_rmse(runs: &[FlightResult], pick: impl Fn(&(f64, f64, f64)) -> f64) -> Option<f64> {
+    let e: Vec<f64> = runs
+        .iter()
+        .flat_map(|r| r.clock_errors.iter().filter(|c| c.0 > 5.0).map(&pick))
+        .filter(|x| x.is_finite())
+        .collect();
+    (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
+}
+
+impl Evaluation {
+    /// The human-readable table.
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "scenario {} · {} seeds · {:.0} s · GNSS {}\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
+            self.scenario, self.seeds, self.duration_s, if self.gnss { "on" } else { "off" }, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
+        );
+        for m in Mode::ALL {
+            if let Some(r) = self.modes.get(m.name()) {
+                s += &format!(
+                    "{:<11} {:>9.3} {:>9.3} {:>8.3} {:>7.2} {:>6.2} {:>5.1} {:>6.0} {:>6.1} {:>9.0} {:>9.0} {:>10}\n",
+                    m.name(),
+                    r.ate_unaligned_m,
+                    r.ate_aligned_m,
+                    r.rot_rmse_deg,
+                    r.nees_mean,
+                    r.nees_in_bounds,
+                    r.keyframes,
+                    r.loop_closure_updates,
+                    r.global_updates,
+                    r.frame_us_mean,
+                    r.frame_us_p99,
+                    r.max_rel_diff_vs_full.map_or("-".to_string(), |d| format!("{d:.1e}"))
+                );
+            }
+        }
+        if let Some(r) = self.modes.get(Mode::Compressed.name()) {
+            s += &format!(
+                "compressed  frame p50 {:.0} µs, max {:.0} µs · {:.0} promotions · rebase jobs mean {:.2} ms, max {:.2} ms (timed apart: the daemon runs them on a worker thread)\n",
+                r.frame_us_p50, r.frame_us_max, r.promotions, r.rebase_ms_mean, r.rebase_ms_max
+            );
+        }
+        for m in Mode::ALL {
+            if let Some(r) = self.modes.get(m.name()) {
+                if let (Some(b), Some(e)) = (r.clock_bias_rmse_m, r.isb_galileo_rmse_m) {
+                    s += &format!(
+                        "{:<11} clock-bias RMSE {b:.3} m · Galileo ISB RMSE {e:.3} m\n",
+                        m.name()
+                    );
+                }
+            }
+        }
+        s
+    }
+
+    /// The CSV of `--csv`: a header and one row per mode.
+    pub fn csv(&self) -> String {
+        let mut s = String::from("mode,ate_unaligned_m,ate_aligned_m,rot_rmse_deg,nees_mean,nees_in_bounds,keyframes,loop_closure_updates,global_updates,frame_us_mean,frame_us_p99,max_rel_diff_vs_full\n");
+        for (m, r) in &self.modes {
+            s += &format!(
+                "{m},{},{},{},{},{},{},{},{},{},{},{}\n",
+                r.ate_unaligned_m,
+                r.ate_aligned_m,
+                r.rot_rmse_deg,
+                r.nees_mean,
+                r.nees_in_bounds,
+                r.keyframes,
+                r.loop_closure_updates,
+                r.global_updates,
+                r.frame_us_mean,
+                r.frame_us_p99,
+                r.max_rel_diff_vs_full.map_or(String::new(), |d| d.to_string())
+            );
+        }
+        s
+    }
+}
