@@ -23,7 +23,7 @@ use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::mcap_log::McapLogger;
 use crate::io::messages::Outbound;
 use crate::io::Counters;
 
@@ -158,7 +158,7 @@ pub fn replay(
     let name = input.display().to_string();
     let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
     let cfg = replay_config(&bytes, &name, mode, config)?;
-    let log = McapLogger::create(output, &log_header(&cfg))?.blocking();
+    let log = McapLogger::create(output, &cfg.log_header())?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
     let ctx = Ctx {
         counters: Counters::default(),
@@ -203,15 +203,6 @@ fn replay_config(bytes: &[u8], name: &str, mode: Option<Mode>, config: Option<Co
     }
     cfg.features.clock = FeatureClock::Autopilot;
     Ok(cfg)
-}
-
-/// The new log's header: this build, and the config replayed under.
-fn log_header(cfg: &Config) -> LogHeader {
-    LogHeader {
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        mode: cfg.estimator.mode.name().to_string(),
-        config_toml: toml::to_string(cfg).unwrap_or_default(),
-    }
 }
 
 /// The reading thread: turns the log's inputs back into fusion messages, in

@@ -15,6 +15,7 @@ use cmsckf_models::sensors::{CameraConfig, ImuConfig};
 
 use crate::estimator::Mode;
 use crate::gnss::IonoMode;
+use crate::io::mcap_log::LogHeader;
 
 mod settings;
 mod validate;
@@ -346,6 +347,16 @@ impl Default for LogConfig {
 }
 
 impl Config {
+    /// The header of a flight log written under this config (the daemon's
+    /// and replay's): this build's version, the mode and the config itself.
+    pub fn log_header(&self) -> LogHeader {
+        LogHeader {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            mode: self.estimator.mode.name().to_string(),
+            config_toml: toml::to_string(self).unwrap_or_default(),
+        }
+    }
+
     /// Parses TOML text (unknown keys are errors) and validates it.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
         let cfg: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {

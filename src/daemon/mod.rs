@@ -42,7 +42,7 @@ use crate::estimator::frontend::NormFrame;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink as mav;
-use crate::io::mcap_log::{LogHeader, McapLogger};
+use crate::io::mcap_log::McapLogger;
 use crate::io::messages::Outbound;
 use crate::io::Counters;
 use crate::status::Status;
@@ -224,12 +224,7 @@ fn open_log(cfg: &Config) -> Result<Option<McapLogger>, DaemonError> {
         return Ok(None);
     }
     let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
-    let header = LogHeader {
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        mode: cfg.estimator.mode.name().to_string(),
-        config_toml: toml::to_string(cfg).unwrap_or_default(),
-    };
-    let l = McapLogger::create(&path, &header)?;
+    let l = McapLogger::create(&path, &cfg.log_header())?;
     tracing::info!(path = %path.display(), "logging to MCAP");
     Ok(Some(l))
 }
