@@ -61,6 +61,14 @@ impl<'a> Check<'a> {
         }
         Ok(())
     }
+    /// `lo ≤ v ≤ hi` for a count, a size or an id; `fix` says what to set.
+    pub fn within(&self, field: &str, v: u64, lo: u64, hi: u64, fix: &str) -> Result<(), FieldError> {
+        if (lo..=hi).contains(&v) {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("{v} is out of range"), fix))
+        }
+    }
     pub fn all_finite(&self, field: &str, v: &[f64], lo: f64, hi: f64) -> Result<(), FieldError> {
         for (i, x) in v.iter().enumerate() {
             self.range(&format!("{field}[{i}]"), *x, lo, hi)?;

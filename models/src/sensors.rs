@@ -110,20 +110,8 @@ impl Default for CameraConfig {
 impl Validate for CameraConfig {
     fn validate(&self, prefix: &str) -> Result<(), FieldError> {
         let c = Check::new(prefix);
-        if self.width_px < 16 || self.width_px > 16384 {
-            return Err(c.fail(
-                "width_px",
-                format!("{} is out of range", self.width_px),
-                "set 16..16384",
-            ));
-        }
-        if self.height_px < 16 || self.height_px > 16384 {
-            return Err(c.fail(
-                "height_px",
-                format!("{} is out of range", self.height_px),
-                "set 16..16384",
-            ));
-        }
+        c.within("width_px", self.width_px as u64, 16, 16384, "set 16..16384")?;
+        c.within("height_px", self.height_px as u64, 16, 16384, "set 16..16384")?;
         c.all_finite("intrinsics", &self.intrinsics, 1.0, 1e5)?;
         c.all_finite("distortion", &self.distortion, -10.0, 10.0)?;
         c.all_finite("p_C_in_B_m", &self.p_C_in_B_m, -10.0, 10.0)?;

@@ -51,13 +51,7 @@ impl Default for FeatureSimConfig {
 impl Validate for FeatureSimConfig {
     fn validate(&self, prefix: &str) -> Result<(), FieldError> {
         let c = Check::new(prefix);
-        if self.per_frame == 0 || self.per_frame > 2000 {
-            return Err(c.fail(
-                "per_frame",
-                format!("{} is out of range", self.per_frame),
-                "set 1..2000",
-            ));
-        }
+        c.within("per_frame", self.per_frame as u64, 1, 2000, "set 1..2000")?;
         c.positive("depth_min_m", self.depth_min_m, 1e4)?;
         c.positive("depth_max_m", self.depth_max_m, 1e4)?;
         if self.depth_max_m < self.depth_min_m {
@@ -144,13 +138,13 @@ impl Validate for GnssSimConfig {
         c.range("origin_llh[0]", self.origin_llh[0], -90.0, 90.0)?;
         c.range("origin_llh[1]", self.origin_llh[1], -180.0, 180.0)?;
         c.range("origin_llh[2]", self.origin_llh[2], -500.0, 10_000.0)?;
-        if self.start_week < 1024 || self.start_week > 10_000 {
-            return Err(c.fail(
-                "start_week",
-                format!("{} is out of range", self.start_week),
-                "give the full GPS week, e.g. 2443",
-            ));
-        }
+        c.within(
+            "start_week",
+            self.start_week as u64,
+            1024,
+            10_000,
+            "give the full GPS week, e.g. 2443",
+        )?;
         c.range("start_tow_s", self.start_tow_s, 0.0, 604_799.0)?;
         c.positive("pseudorange_noise_m", self.pseudorange_noise_m, 1e3)?;
         c.positive("pseudorange_rate_noise_mps", self.pseudorange_rate_noise_mps, 1e2)?;

@@ -61,20 +61,20 @@ impl Config {
         if self.features.socket.is_empty() {
             return Err(c.fail("socket", "is empty", "give a path such as /run/cmsckf/features.sock"));
         }
-        if !(256..=16 << 20).contains(&self.features.max_line_bytes) {
-            return Err(c.fail(
-                "max_line_bytes",
-                format!("{} is out of range", self.features.max_line_bytes),
-                "set 256..16777216",
-            ));
-        }
-        if !(1..=100_000).contains(&self.features.max_features) {
-            return Err(c.fail(
-                "max_features",
-                format!("{} is out of range", self.features.max_features),
-                "set 1..100000",
-            ));
-        }
+        c.within(
+            "max_line_bytes",
+            self.features.max_line_bytes as u64,
+            256,
+            16 << 20,
+            "set 256..16777216",
+        )?;
+        c.within(
+            "max_features",
+            self.features.max_features as u64,
+            1,
+            100_000,
+            "set 1..100000",
+        )?;
         Ok(())
     }
 
@@ -82,20 +82,14 @@ impl Config {
     fn validate_estimator(&self) -> Result<(), FieldError> {
         let e = &self.estimator;
         let c = Check::new("estimator");
-        if !(2..=100).contains(&e.max_clones) {
-            return Err(c.fail(
-                "max_clones",
-                format!("{} is out of range", e.max_clones),
-                "set 2..100 (11 is typical)",
-            ));
-        }
-        if e.min_track_len < 2 || e.min_track_len > e.max_clones + 1 {
-            return Err(c.fail(
-                "min_track_len",
-                format!("{} is out of range", e.min_track_len),
-                "set 2..=max_clones+1",
-            ));
-        }
+        c.within("max_clones", e.max_clones as u64, 2, 100, "set 2..100 (11 is typical)")?;
+        c.within(
+            "min_track_len",
+            e.min_track_len as u64,
+            2,
+            e.max_clones as u64 + 1,
+            "set 2..=max_clones+1",
+        )?;
         c.range("chi2_gate_prob", e.chi2_gate_prob, 0.5, 0.999_999)?;
         c.positive("min_depth_m", e.min_depth_m, 1e3)?;
         c.positive("max_depth_m", e.max_depth_m, 1e6)?;
@@ -127,23 +121,20 @@ impl Config {
     fn validate_keyframe(&self) -> Result<(), FieldError> {
         let c = Check::new("keyframe");
         c.positive("interval_s", self.keyframe.interval_s, 3600.0)?;
-        if self.keyframe.max > 100_000 {
-            return Err(c.fail("max", format!("{} is out of range", self.keyframe.max), "set 0..100000"));
-        }
-        Ok(())
+        c.within("max", self.keyframe.max as u64, 0, 100_000, "set 0..100000")
     }
 
     /// `[compressed]`: the local radius and the local keyframe count.
     fn validate_compressed(&self) -> Result<(), FieldError> {
         let c = Check::new("compressed");
         c.positive("local_radius_m", self.compressed.local_radius_m, 1e5)?;
-        if !(2..=10_000).contains(&self.compressed.max_local_keyframes) {
-            return Err(c.fail(
-                "max_local_keyframes",
-                format!("{} is out of range", self.compressed.max_local_keyframes),
-                "set 2..10000",
-            ));
-        }
+        c.within(
+            "max_local_keyframes",
+            self.compressed.max_local_keyframes as u64,
+            2,
+            10_000,
+            "set 2..10000",
+        )?;
         Ok(())
     }
 
@@ -170,12 +161,14 @@ impl Config {
         c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;
         self.validate_klobuchar(&c)?;
         self.validate_origin(&c)?;
-        if g.week_hint != 0 && !(1024..=10_000).contains(&g.week_hint) {
-            return Err(c.fail(
+        if g.week_hint != 0 {
+            c.within(
                 "week_hint",
-                format!("{} is out of range", g.week_hint),
+                g.week_hint as u64,
+                1024,
+                10_000,
                 "give a full GPS week (e.g. 2443) or 0",
-            ));
+            )?;
         }
         Ok(())
     }
