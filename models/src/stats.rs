@@ -1,5 +1,5 @@
-//! Statistics the filters and the solvers gate with: the standard normal and
-//! χ² quantiles.
+//! Statistics the filters and the solvers gate with, and the tools report
+//! with: the standard normal and χ² quantiles, and percentiles.
 
 #[allow(clippy::excessive_precision)]
 /// Standard normal quantile (Acklam's rational approximation, |ε| < 1.2e-9).
@@ -64,6 +64,16 @@ pub fn chi2_quantile(p: f64, dof: usize) -> f64 {
     k * (1.0 - h + z * h.sqrt()).powi(3).max(0.0)
 }
 
+/// The value at fraction `p` (0..1) of `v` once sorted, by nearest rank
+/// (`v` is sorted in place); `None` if `v` is empty.
+pub fn percentile(v: &mut [f64], p: f64) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    Some(v[((v.len() - 1) as f64 * p).round() as usize])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -75,5 +85,16 @@ mod tests {
         assert!((chi2_quantile(0.975, 30) - 46.979).abs() < 0.1);
         assert!((chi2_quantile(0.025, 30) - 16.791).abs() < 0.1);
         assert!((normal_quantile(0.975) - 1.959964).abs() < 1e-6);
+    }
+
+    #[test]
+    fn percentile_by_nearest_rank() {
+        let mut v = [5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v, 0.5), Some(3.0));
+        assert_eq!(percentile(&mut v, 0.99), Some(5.0));
+        assert_eq!(percentile(&mut v, 0.0), Some(1.0));
+        // (5 − 1) · 0.4 = 1.6 rounds to rank 2.
+        assert_eq!(percentile(&mut v, 0.4), Some(3.0));
+        assert_eq!(percentile(&mut [], 0.5), None);
     }
 }

@@ -4,7 +4,7 @@
 
 use serde::Serialize;
 
-use cmsckf_models::stats::chi2_quantile;
+use cmsckf_models::stats::{chi2_quantile, percentile};
 use cmsckf_sitl::metrics;
 
 use super::{Evaluation, FlightResult};
@@ -78,15 +78,6 @@ pub fn score(r: &FlightResult) -> FlightScore {
     }
 }
 
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    let i = ((v.len() - 1) as f64 * p).round() as usize;
-    v[i]
-}
-
 /// Summarises the runs of one mode over seeds.
 pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
     let scores: Vec<FlightScore> = runs.iter().map(score).collect();
@@ -94,7 +85,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
     let mean = |f: &dyn Fn(&FlightScore) -> f64| scores.iter().map(f).sum::<f64>() / n;
     let mut times: Vec<f64> = runs.iter().flat_map(|r| r.frame_us.iter().copied()).collect();
     let tmean = times.iter().sum::<f64>() / times.len().max(1) as f64;
-    let p99 = percentile(&mut times, 0.99);
+    let p99 = percentile(&mut times, 0.99).unwrap_or(0.0);
     let diff = runs
         .iter()
         .filter_map(|r| r.max_rel_diff_vs_full)
@@ -110,7 +101,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         global_updates: runs.iter().map(|r| r.stats.global_updates as f64).sum::<f64>() / n,
         frame_us_mean: tmean,
         frame_us_p99: p99,
-        frame_us_p50: percentile(&mut times, 0.5),
+        frame_us_p50: percentile(&mut times, 0.5).unwrap_or(0.0),
         frame_us_max: times.last().copied().unwrap_or(0.0),
         promotions: runs.iter().map(|r| r.stats.promotions as f64).sum::<f64>() / n,
         rebase_ms_mean: {

@@ -24,7 +24,7 @@ use std::path::Path;
 use plotters::style::FontStyle;
 use serde::Serialize;
 
-use cmsckf_models::stats::chi2_quantile;
+use cmsckf_models::stats::{chi2_quantile, percentile};
 
 use plots::plot_all;
 use reader::{Data, LogReader};
@@ -62,15 +62,6 @@ pub struct ReviewSummary {
     pub promotions: u64,
     pub keyframes: u64,
     pub estimates: u64,
-}
-
-/// The value at fraction `p` of `v` once sorted (nearest rank); 0 if empty.
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
 /// Reviews `log`; writes the plots to `plots` and the TUM trajectory to
@@ -124,8 +115,8 @@ fn nis_statistics(s: &mut ReviewSummary, d: &Data) {
 /// The median, 99th percentile and maximum of the time per update (µs).
 fn timing_statistics(s: &mut ReviewSummary, d: &Data) {
     let mut el = d.elapsed.clone();
-    s.update_us_p50 = percentile(&mut el, 0.5);
-    s.update_us_p99 = percentile(&mut el, 0.99);
+    s.update_us_p50 = percentile(&mut el, 0.5).unwrap_or(0.0);
+    s.update_us_p99 = percentile(&mut el, 0.99).unwrap_or(0.0);
     s.update_us_max = el.last().copied().unwrap_or(0.0);
 }
 

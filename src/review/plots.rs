@@ -8,9 +8,8 @@ use plotters::coord::ranged1d::AsRangedCoord;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use cmsckf_models::stats::chi2_quantile;
+use cmsckf_models::stats::{chi2_quantile, percentile};
 
-use super::percentile;
 use super::reader::Data;
 
 /// A plotting error as text.
@@ -219,7 +218,7 @@ fn plot_timing(dir: &Path, d: &Data) -> Result<(), String> {
     let root = BitMapBackend::new(&p, (900, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let mut v = d.elapsed.clone();
-    let hi = percentile(&mut v, 0.995).max(1.0);
+    let hi = percentile(&mut v, 0.995).unwrap_or(0.0).max(1.0);
     let bins = 60usize;
     let w = hi / bins as f64;
     let mut h = vec![0u32; bins];

@@ -4,6 +4,7 @@
 
 use std::time::Instant;
 
+use cmsckf_models::stats::percentile;
 use mavlink::dialects::ardupilotmega as apm;
 use serde::Serialize;
 
@@ -105,14 +106,6 @@ pub(super) fn report(
     report
 }
 
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[((v.len() - 1) as f64 * p).round() as usize]
-}
-
 fn score(
     ds: &Dataset,
     rec: &[Received],
@@ -162,8 +155,8 @@ fn score(
         },
         ate_m: ate.map_or(f64::NAN, |a| a.unaligned_m),
         ate_aligned_m: ate.map_or(f64::NAN, |a| a.aligned_m),
-        latency_ms_p50: percentile(&mut lat.clone(), 0.5),
-        latency_ms_p99: percentile(&mut lat.clone(), 0.99),
+        latency_ms_p50: percentile(&mut lat.clone(), 0.5).unwrap_or(f64::NAN),
+        latency_ms_p99: percentile(&mut lat.clone(), 0.99).unwrap_or(f64::NAN),
         latency_ms_max: lat.iter().copied().fold(f64::NAN, f64::max),
         time_to_first_estimate_s: t_first,
         reset_count: resets,
@@ -196,7 +189,7 @@ fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[(f64, apm::MavStat
         .filter(|e| e.0 >= f.start_s - 5.0 && e.0 < f.start_s)
         .map(|e| e.1)
         .collect();
-    let baseline = percentile(&mut before, 0.5);
+    let baseline = percentile(&mut before, 0.5).unwrap_or(f64::NAN);
     let threshold = 2.0 * if baseline.is_finite() { baseline } else { 0.0 } + 0.5;
     let window: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= f.start_s && e.0 <= end + 5.0).collect();
     let peak = window.iter().map(|e| e.1).fold(0.0, f64::max);
