@@ -198,8 +198,7 @@ impl RawSat {
     /// The ionosphere-free combination where a second code exists and the
     /// mode wants it (`iono-free`, `auto`); otherwise L1/E1 unless the mode
     /// is `iono-free`.
-    pub fn code(&self, iono: crate::gnss::IonoMode) -> Option<(f64, bool)> {
-        use crate::gnss::IonoMode;
+    pub fn code(&self, iono: IonoMode) -> Option<(f64, bool)> {
         let want_if = matches!(iono, IonoMode::IonoFree | IonoMode::Auto);
         match (self.l1_pseudorange_m, self.l2_pseudorange) {
             (Some(p1), Some((p2, f2))) if want_if => Some((spp::iono_free(p1, p2, f2), true)),
@@ -212,7 +211,7 @@ impl RawSat {
 /// How [`sat_measurements`] treats the ionosphere.
 #[derive(Clone, Copy, Debug)]
 pub struct IonoPolicy<'a> {
-    pub mode: crate::gnss::IonoMode,
+    pub mode: IonoMode,
     /// Broadcast parameters, if known (RTCM carries none: from the config).
     pub klobuchar: Option<&'a Klobuchar>,
     /// An approximate receiver position (ECEF, m) for the Klobuchar geometry.
@@ -234,7 +233,6 @@ pub fn sat_measurements(
     sats: impl IntoIterator<Item = RawSat>,
 ) -> Vec<cmsckf_models::gnss::SatMeas> {
     let iono = policy.mode;
-    use crate::gnss::IonoMode;
     let c = cmsckf_models::geodesy::C_MPS;
     sats.into_iter()
         .filter_map(|s| {
@@ -314,7 +312,6 @@ pub fn gps_week_now() -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gnss::IonoMode;
     use rand::SeedableRng;
 
     fn pol(mode: IonoMode) -> IonoPolicy<'static> {

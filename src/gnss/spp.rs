@@ -27,8 +27,8 @@ use cmsckf_models::gnss::{saastamoinen_m, BroadcastEphemeris};
 use cmsckf_models::stats::chi2_quantile;
 
 use super::rtcm::{SatObs, System};
+use super::IonoMode;
 use super::RawSat;
-use crate::gnss::IonoMode;
 
 /// The first frequency (GPS L1, Galileo E1), Hz.
 const F1: f64 = 1_575.42e6;

@@ -3,10 +3,11 @@
 //!
 //! It converts at the boundary, both ways: MAVLink's messages and scaled
 //! integers become [`Inbound`] values in SI units, and [`Outbound`] values
-//! become MAVLink messages (those plain types are `io::messages`'s). Transport (UDP, TCP, serial) and framing are the
-//! `mavlink` crate's. The crate's reader drops frames with a bad CRC or an
-//! unknown id without telling its caller, so the link counts them from the
-//! gaps they leave in each sender's sequence numbers.
+//! become MAVLink messages (those plain types are `io::messages`'s).
+//! Transport (UDP, TCP, serial) and framing are the `mavlink` crate's. The
+//! crate's reader drops frames with a bad CRC or an unknown id without
+//! telling its caller, so the link counts them from the gaps they leave in
+//! each sender's sequence numbers.
 //!
 //! With a signing key (MAVLink 2 message signing), frames are read raw and
 //! checked here, so that an unsigned or badly signed one is rejected with
