@@ -5,6 +5,20 @@
 //! so the two cannot drift apart. Every field carries its unit in its name or
 //! doc, and [`Validate`] rejects non-finite or out-of-range values with a
 //! message that names the field and the fix.
+//!
+//! [`SimConfig::new`] is deliberately as unkind as a real drone, because a
+//! filter tuned on punctual, co-located, airborne-from-the-start sensors
+//! fails on the first real flight:
+//! - a camera's frames reach the host 30–60 ms after exposure
+//!   (`camera_latency_s`), and its clock is off the IMU's by an unknown
+//!   offset (`camera_time_offset_s`, OpenVINS's `t_imu = t_cam + t_d`);
+//! - a GNSS receiver reports an epoch 0.2–0.6 s after it
+//!   (`gnss.latency_s`), and measures at its antenna, not at the IMU
+//!   (`gnss.p_A_in_B_m`);
+//! - a multirotor sits on the ground before it takes off (`standstill_s`).
+//!
+//! Setting the latencies, the offset, the lever arm and the standstill to 0
+//! gives back ideal sensors and the historical airborne scenarios.
 
 use serde::{Deserialize, Serialize};
 
@@ -104,6 +118,15 @@ pub struct GnssSimConfig {
     pub galileo: bool,
     /// The receiver's Galileo − GPS inter-system bias (m).
     pub isb_galileo_m: f64,
+    /// Delivery delay of an epoch after its instant, drawn uniformly per
+    /// epoch from `[min, max]` (s): a receiver solves and serialises an epoch
+    /// before it sends it, and the link adds its own delay.
+    pub latency_s: [f64; 2],
+    /// The antenna's position in the body frame (FRD, m): pseudoranges and
+    /// rates are measured at the antenna, which sits away from the IMU.
+    /// The default, `[0.10, 0.05, −0.10]`, is 10 cm forward, 5 cm right and
+    /// 10 cm up, 0.15 m from the IMU, a mast on a small multirotor.
+    pub p_A_in_B_m: [f64; 3],
 }
 
 impl Default for GnssSimConfig {
@@ -127,6 +150,8 @@ impl Default for GnssSimConfig {
             ionosphere: false,
             galileo: true,
             isb_galileo_m: 6.0,
+            latency_s: [0.2, 0.6],
+            p_A_in_B_m: [0.10, 0.05, -0.10],
         }
     }
 }
@@ -165,8 +190,23 @@ impl Validate for GnssSimConfig {
         c.range("clock_drift0_mps", self.clock_drift0_mps, -1e3, 1e3)?;
         c.range("multipath_prob", self.multipath_prob, 0.0, 1.0)?;
         c.range("multipath_m", self.multipath_m, 0.0, 1e4)?;
-        c.range("isb_galileo_m", self.isb_galileo_m, -1e3, 1e3)
+        c.range("isb_galileo_m", self.isb_galileo_m, -1e3, 1e3)?;
+        latency_range(&c, "latency_s", &self.latency_s, 5.0)?;
+        c.all_finite("p_A_in_B_m", &self.p_A_in_B_m, -5.0, 5.0)
     }
+}
+
+/// A delivery-latency range `[min, max]` (s): both in `[0, hi]`, min ≤ max.
+fn latency_range(c: &Check, field: &str, v: &[f64; 2], hi: f64) -> Result<(), FieldError> {
+    c.all_finite(field, v, 0.0, hi)?;
+    if v[1] < v[0] {
+        return Err(c.fail(
+            field,
+            format!("max {} is below min {}", v[1], v[0]),
+            "give [min, max] with min ≤ max",
+        ));
+    }
+    Ok(())
 }
 
 /// Everything the simulator needs besides the scenario, seed and duration.
@@ -181,8 +221,22 @@ pub struct SimConfig {
     /// One-sigma spread of the true initial gyroscope bias (rad/s).
     pub gyro_bias0_sigma: f64,
     pub camera: CameraConfig,
+    /// Delivery delay of a frame after its exposure, drawn uniformly per
+    /// frame from `[min, max]` (s, IMU clock): a real camera reads out,
+    /// transfers and the front end tracks before the features arrive.
+    pub camera_latency_s: [f64; 2],
+    /// True camera–IMU clock offset `t_d` (s), unknown to the filter, with
+    /// OpenVINS's convention `t_imu = t_cam + t_d`: a frame exposed at IMU
+    /// time `t` is stamped `t − t_d` by the camera's clock.
+    pub camera_time_offset_s: f64,
     pub features: FeatureSimConfig,
     pub gnss: GnssSimConfig,
+    /// Time at rest on the ground, level at the origin, before an analytic
+    /// scenario (racetrack, figure8, hover) takes off smoothly (s): a real
+    /// flight starts on the ground, where the filter initialises. 0 gives the
+    /// historical scenarios exactly (racetrack and figure8 airborne from
+    /// t = 0, hover with its 4 s wait). TUM trajectories ignore it.
+    pub standstill_s: f64,
 }
 
 impl SimConfig {
@@ -191,6 +245,9 @@ impl SimConfig {
             imu_rate_hz: 100.0,
             accel_bias0_sigma: 0.02,
             gyro_bias0_sigma: 0.002,
+            camera_latency_s: [0.03, 0.06],
+            camera_time_offset_s: 0.012,
+            standstill_s: 5.0,
             ..Default::default()
         }
     }
@@ -237,6 +294,9 @@ impl Validate for SimConfig {
         c.range("accel_bias0_sigma", self.accel_bias0_sigma, 0.0, 10.0)?;
         c.range("gyro_bias0_sigma", self.gyro_bias0_sigma, 0.0, 1.0)?;
         self.camera.validate(&p("camera"))?;
+        latency_range(&c, "camera_latency_s", &self.camera_latency_s, 1.0)?;
+        c.range("camera_time_offset_s", self.camera_time_offset_s, -0.1, 0.1)?;
+        c.range("standstill_s", self.standstill_s, 0.0, 600.0)?;
         self.features.validate(&p("features"))?;
         self.gnss.validate(&p("gnss"))
     }
@@ -245,6 +305,7 @@ impl Validate for SimConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
 
     #[test]
     fn defaults_are_valid() {
@@ -261,5 +322,40 @@ mod tests {
         assert!(e.contains("bogus"), "{e}");
         let e = SimConfig::from_toml("imu_rate_hz = inf\n").unwrap_err();
         assert!(e.contains("imu_rate_hz"), "{e}");
+    }
+
+    #[test]
+    fn timing_lever_arm_and_standstill_knobs() {
+        let d = SimConfig::new();
+        assert_eq!(d.camera_latency_s, [0.03, 0.06]);
+        assert_eq!(d.camera_time_offset_s, 0.012);
+        assert_eq!(d.gnss.latency_s, [0.2, 0.6]);
+        assert!((Vector3::from(d.gnss.p_A_in_B_m).norm() - 0.15).abs() < 1e-12);
+        assert_eq!(d.standstill_s, 5.0);
+        let c = SimConfig::from_toml(
+            "camera_latency_s = [0.0, 0.1]\ncamera_time_offset_s = -0.05\nstandstill_s = 0.0\n\
+             [gnss]\nlatency_s = [0.5, 0.5]\np_A_in_B_m = [0.0, 0.0, -0.3]\n",
+        )
+        .unwrap();
+        assert_eq!(c.camera_latency_s, [0.0, 0.1]);
+        assert_eq!(c.camera_time_offset_s, -0.05);
+        assert_eq!(c.standstill_s, 0.0);
+        assert_eq!(c.gnss.latency_s, [0.5, 0.5]);
+        assert_eq!(c.gnss.p_A_in_B_m, [0.0, 0.0, -0.3]);
+        for (toml, field) in [
+            ("camera_latency_s = [0.06, 0.03]\n", "camera_latency_s"),
+            ("camera_latency_s = [0.0, 1.5]\n", "camera_latency_s[1]"),
+            ("camera_latency_s = [-0.01, 0.03]\n", "camera_latency_s[0]"),
+            ("camera_latency_s = [0.03]\n", "camera_latency_s"),
+            ("camera_time_offset_s = 0.2\n", "camera_time_offset_s"),
+            ("camera_time_offset_s = nan\n", "camera_time_offset_s"),
+            ("standstill_s = -1.0\n", "standstill_s"),
+            ("[gnss]\nlatency_s = [0.6, 0.2]\n", "gnss.latency_s"),
+            ("[gnss]\nlatency_s = [0.2, inf]\n", "gnss.latency_s[1]"),
+            ("[gnss]\np_A_in_B_m = [0.0, nan, 0.0]\n", "gnss.p_A_in_B_m[1]"),
+        ] {
+            let e = SimConfig::from_toml(toml).unwrap_err();
+            assert!(e.contains(field), "{toml}: {e}");
+        }
     }
 }

@@ -4,12 +4,20 @@
 //! Each sensor draws from its own ChaCha8 stream derived from the seed, so the
 //! same scenario and seed give a bit-identical dataset, and switching one
 //! sensor off does not change the others' noise.
+//!
+//! Real sensors are late and off-clock, and so are these: a camera frame is
+//! exposed on the IMU clock's frame grid `k / rate`, stamped by the camera's
+//! clock `camera_time_offset_s` earlier (`t_imu = t_cam + t_d`) and
+//! delivered `camera_latency_s` after its exposure; a GNSS epoch is
+//! delivered `gnss.latency_s` after its instant. The latencies are drawn
+//! uniformly per frame and per epoch from streams of their own, so the
+//! sensors' noise is the same with and without them.
 
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
 
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::SimConfig;
@@ -44,22 +52,30 @@ pub struct Dataset {
     pub trajectory: Trajectory,
 }
 
+/// The RNG stream `stream` of `seed`. Streams: 1 initial biases, 2 IMU
+/// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency.
 fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);
     r
 }
 
+/// A draw from `[lo, hi]` (s), uniform; exactly `lo` when they are equal.
+fn uniform_in(range: [f64; 2], rng: &mut ChaCha8Rng) -> f64 {
+    range[0] + (range[1] - range[0]) * rng.random::<f64>()
+}
+
 impl Dataset {
     /// Generates the flight. `duration_s = None` takes the scenario's own
-    /// length (70 s, or the TUM file's span).
+    /// length (70 s, or the TUM file's span); an analytic scenario starts
+    /// with `cfg.standstill_s` on the ground.
     pub fn generate(
         scenario: &str,
         seed: u64,
         duration_s: Option<f64>,
         cfg: &SimConfig,
     ) -> Result<Self, TrajectoryError> {
-        let traj = Trajectory::from_scenario(scenario, duration_s)?;
+        let traj = Trajectory::from_scenario(scenario, duration_s, cfg.standstill_s)?;
         Ok(Self::from_trajectory(&traj, seed, cfg))
     }
 
@@ -69,6 +85,8 @@ impl Dataset {
         let mut rng_imu = rng_for(seed, 2);
         let mut rng_cam = rng_for(seed, 3);
         let mut rng_gnss = rng_for(seed, 4);
+        let mut rng_cam_latency = rng_for(seed, 5);
+        let mut rng_gnss_latency = rng_for(seed, 6);
 
         let bias0 = ImuBias {
             b_a: gauss3(&mut rng_bias) * cfg.accel_bias0_sigma,
@@ -90,14 +108,24 @@ impl Dataset {
         let mut fsim = FeatureSim::new(&cfg.features, cam, cfg.camera.pixel_noise_px);
         let n_cam = (duration * cfg.camera.rate_hz).floor() as usize + 1;
         let frames = (0..n_cam)
-            .map(|k| fsim.frame(&traj.sample(k as f64 / cfg.camera.rate_hz), &mut rng_cam))
+            .map(|k| {
+                let t_exposure_s = k as f64 / cfg.camera.rate_hz;
+                fsim.frame(&traj.sample(t_exposure_s), &mut rng_cam).stamped(
+                    cfg.camera_time_offset_s,
+                    uniform_in(cfg.camera_latency_s, &mut rng_cam_latency),
+                )
+            })
             .collect();
 
         let mut gnss_model = GnssModel::new(&cfg.gnss, &mut rng_gnss);
         let gnss = if cfg.gnss.enabled {
             let n = (duration * cfg.gnss.rate_hz).floor() as usize + 1;
             (0..n)
-                .map(|k| gnss_model.epoch_at(traj, k as f64 / cfg.gnss.rate_hz, &mut rng_gnss))
+                .map(|k| {
+                    gnss_model
+                        .epoch_at(traj, k as f64 / cfg.gnss.rate_hz, &mut rng_gnss)
+                        .delivered(uniform_in(cfg.gnss.latency_s, &mut rng_gnss_latency))
+                })
                 .collect()
         } else {
             Vec::new()
@@ -121,8 +149,13 @@ impl Dataset {
     pub fn summary(&self) -> Vec<String> {
         let c = &self.cfg;
         let dt = 1.0 / c.imu_rate_hz;
+        let standstill = if self.scenario.starts_with("tum:") {
+            String::new()
+        } else {
+            format!(", {:.1} s standstill before take-off", c.standstill_s)
+        };
         let mut out = vec![format!(
-            "truth:  {:.1} s of '{}' (seed {}), {} samples",
+            "truth:  {:.1} s of '{}' (seed {}), {} samples{standstill}",
             self.duration_s,
             self.scenario,
             self.seed,
@@ -139,28 +172,43 @@ impl Dataset {
         ));
         let s = &self.track_stats;
         out.push(format!(
-            "camera: {:.1} Hz, {} frames, {:.1} features/frame, σ {:.2} px, {} landmarks, {} re-identifications, {} outliers",
+            "camera: {:.1} Hz, {} frames, {:.1} features/frame, σ {:.2} px, {} landmarks, {} re-identifications, {} outliers; \
+             clock offset t_d {:+.1} ms (t_imu = t_cam + t_d), delivered {:.0}–{:.0} ms after exposure",
             c.camera.rate_hz,
             self.frames.len(),
             s.observations as f64 / s.frames.max(1) as f64,
             c.camera.pixel_noise_px,
             s.landmarks,
             s.reidentified,
-            s.outliers
+            s.outliers,
+            c.camera_time_offset_s * 1e3,
+            c.camera_latency_s[0] * 1e3,
+            c.camera_latency_s[1] * 1e3
         ));
         let nsat: usize = self.gnss.iter().map(|e| e.sats.len()).sum();
+        let a = c.gnss.p_A_in_B_m;
         out.push(format!(
-            "gnss:   {:.1} Hz, {} epochs, {:.1} satellites/epoch, pseudorange σ {:.2} m, rate σ {:.3} m/s at zenith",
+            "gnss:   {:.1} Hz, {} epochs, {:.1} satellites/epoch, pseudorange σ {:.2} m, rate σ {:.3} m/s at zenith; \
+             delivered {:.2}–{:.2} s after the epoch, antenna at [{:.3}, {:.3}, {:.3}] m body FRD ({:.3} m from the IMU)",
             if c.gnss.enabled { c.gnss.rate_hz } else { 0.0 },
             self.gnss.len(),
             nsat as f64 / self.gnss.len().max(1) as f64,
             c.gnss.pseudorange_noise_m,
-            c.gnss.pseudorange_rate_noise_mps
+            c.gnss.pseudorange_rate_noise_mps,
+            c.gnss.latency_s[0],
+            c.gnss.latency_s[1],
+            a[0],
+            a[1],
+            a[2],
+            (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
         ));
         out
     }
 
     /// Writes `truth.csv`, `imu.csv`, `features.csv` and `gnss.csv` into `dir`.
+    /// In `features.csv`, `t_s` is the camera's stamp and `t_exposure_s`,
+    /// `t_delivered_s` are on the IMU clock; in `gnss.csv`, `t_s` is the
+    /// epoch and `t_delivered_s` its arrival, both on the IMU clock.
     pub fn write_csv(&self, dir: &Path) -> std::io::Result<()> {
         std::fs::create_dir_all(dir)?;
         let mut s = String::from("t_s,p_n_m,p_e_m,p_d_m,v_n_mps,v_e_mps,v_d_mps,qw,qx,qy,qz,w_x_radps,w_y_radps,w_z_radps,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z\n");
@@ -199,20 +247,25 @@ impl Dataset {
             let _ = writeln!(s, "{},{},{},{},{},{},{}", m.t_s, a.x, a.y, a.z, g.x, g.y, g.z);
         }
         write_file(&dir.join("imu.csv"), &s)?;
-        let mut s = String::from("t_s,landmark_id,u_px,v_px\n");
+        let mut s = String::from("t_s,t_exposure_s,t_delivered_s,landmark_id,u_px,v_px\n");
         for f in &self.frames {
             for o in &f.features {
-                let _ = writeln!(s, "{},{},{},{}", f.t_s, o.landmark_id, o.u_px, o.v_px);
+                let _ = writeln!(
+                    s,
+                    "{},{},{},{},{},{}",
+                    f.t_s, f.t_exposure_s, f.t_delivered_s, o.landmark_id, o.u_px, o.v_px
+                );
             }
         }
         write_file(&dir.join("features.csv"), &s)?;
-        let mut s = String::from("t_s,gps_week,gps_tow_s,prn,pseudorange_m,pseudorange_rate_mps,cn0_dbhz,elevation_deg,clock_bias_m,clock_drift_mps\n");
+        let mut s = String::from("t_s,t_delivered_s,gps_week,gps_tow_s,prn,pseudorange_m,pseudorange_rate_mps,cn0_dbhz,elevation_deg,clock_bias_m,clock_drift_mps\n");
         for e in &self.gnss {
             for o in &e.sats {
                 let _ = writeln!(
                     s,
-                    "{},{},{},{},{},{},{},{},{},{}",
+                    "{},{},{},{},{},{},{},{},{},{},{}",
                     e.t_s,
+                    e.t_delivered_s,
                     e.week,
                     e.tow_s,
                     o.prn,
@@ -260,5 +313,104 @@ mod tests {
         assert_eq!(a.imu.len(), 501);
         assert_eq!(a.frames.len(), 151);
         assert_eq!(a.gnss.len(), 6);
+        let summary = a.summary().join("\n");
+        for part in [
+            "standstill",
+            "t_d +12.0 ms",
+            "30–60 ms",
+            "0.20–0.60 s",
+            "0.150 m from the IMU",
+        ] {
+            assert!(summary.contains(part), "{part}: {summary}");
+        }
+    }
+
+    /// A frame is exposed on the IMU clock's grid, its features are the
+    /// projections of the landmarks from the truth at that exposure (not at
+    /// its stamp), its stamp is the camera clock's `t_exposure − t_d`, and
+    /// it is delivered within the latency range.
+    #[test]
+    fn frames_are_exposed_on_the_imu_clock_stamped_by_the_camera_and_late() {
+        use nalgebra::{Point3, Vector2, Vector3};
+        let mut cfg = SimConfig::new();
+        cfg.standstill_s = 0.0; // moving from the start, so the times differ in pixels
+        cfg.camera.pixel_noise_px = 0.0;
+        cfg.features.outlier_prob = 0.0;
+        let seed = 3;
+        let ds = Dataset::generate("racetrack", seed, Some(3.0), &cfg).unwrap();
+        let cam = Camera::from_config(&cfg.camera);
+        // The same front end on the same stream, fed the truth at exposure.
+        let mut sim = FeatureSim::new(&cfg.features, cam.clone(), 0.0);
+        let mut rng = rng_for(seed, 3);
+        let [lo, hi] = cfg.camera_latency_s;
+        let (mut lat_min, mut lat_max, mut off_px) = (f64::MAX, 0.0f64, 0.0f64);
+        for (k, f) in ds.frames.iter().enumerate() {
+            assert_eq!(f.t_exposure_s, k as f64 / cfg.camera.rate_hz);
+            assert!((f.t_s - (f.t_exposure_s - 0.012)).abs() < 1e-12, "{f:?}");
+            let lat = f.t_delivered_s - f.t_exposure_s;
+            assert!(lat >= lo && lat <= hi, "latency {lat}");
+            (lat_min, lat_max) = (lat_min.min(lat), lat_max.max(lat));
+            let truth = ds.trajectory.sample(f.t_exposure_s);
+            assert_eq!(sim.frame(&truth, &mut rng).features, f.features);
+            let by_id: std::collections::BTreeMap<u64, Vector3<f64>> = sim
+                .landmarks()
+                .iter()
+                .filter_map(|l| l.id().map(|id| (id, l.p_in_W)))
+                .collect();
+            let T_C_W = sim.camera_pose(&truth).inverse();
+            let T_C_W_at_stamp = sim.camera_pose(&ds.trajectory.sample(f.t_s)).inverse();
+            for o in &f.features {
+                let p = Point3::from(by_id[&o.landmark_id]);
+                let uv = Vector2::new(o.u_px, o.v_px);
+                let proj = cam.project(&(T_C_W * p).coords).unwrap();
+                assert!((proj - uv).norm() < 1e-6, "{proj} vs {uv}");
+                if let Some(at_stamp) = cam.project(&(T_C_W_at_stamp * p).coords) {
+                    off_px = off_px.max((at_stamp - uv).norm());
+                }
+            }
+        }
+        assert!(off_px > 1.0, "the stamp's pose projects within {off_px} px");
+        assert!(lat_min < lo + 0.003 && lat_max > hi - 0.003, "{lat_min}..{lat_max}");
+    }
+
+    #[test]
+    fn gnss_epochs_are_delivered_late() {
+        let cfg = SimConfig::new();
+        let ds = Dataset::generate("hover", 4, Some(40.0), &cfg).unwrap();
+        let [lo, hi] = cfg.gnss.latency_s;
+        let lat: Vec<f64> = ds.gnss.iter().map(|e| e.t_delivered_s - e.t_s).collect();
+        assert_eq!(lat.len(), 41);
+        for (k, e) in ds.gnss.iter().enumerate() {
+            // The epoch is the receiver's tag k/rate at true time tag − δt.
+            assert!((e.t_s - (k as f64 - e.clock_bias_m / cmsckf_models::geodesy::C_MPS)).abs() < 1e-9);
+        }
+        assert!(lat.iter().all(|&l| l >= lo && l <= hi), "{lat:?}");
+        let spread = lat.iter().fold(f64::MAX, |a, &b| a.min(b))..lat.iter().fold(0.0f64, |a, &b| a.max(b));
+        assert!(spread.start < lo + 0.1 && spread.end > hi - 0.1, "{spread:?}");
+    }
+
+    /// The latencies and the clock offset draw from streams of their own:
+    /// with them set to zero, the measurements are the same, only the times
+    /// change.
+    #[test]
+    fn timing_does_not_change_the_measurements() {
+        let real = SimConfig::new();
+        let mut ideal = real.clone();
+        ideal.camera_latency_s = [0.0, 0.0];
+        ideal.camera_time_offset_s = 0.0;
+        ideal.gnss.latency_s = [0.0, 0.0];
+        let a = Dataset::generate("figure8", 9, Some(8.0), &real).unwrap();
+        let b = Dataset::generate("figure8", 9, Some(8.0), &ideal).unwrap();
+        assert_eq!(a.imu, b.imu);
+        for (fa, fb) in a.frames.iter().zip(&b.frames) {
+            assert_eq!(fa.features, fb.features);
+            assert_eq!(fa.t_exposure_s, fb.t_exposure_s);
+            assert_eq!((fb.t_s, fb.t_delivered_s), (fb.t_exposure_s, fb.t_exposure_s));
+        }
+        for (ea, eb) in a.gnss.iter().zip(&b.gnss) {
+            assert_eq!(ea.sats, eb.sats);
+            assert_eq!(eb.t_delivered_s, eb.t_s);
+            assert!(ea.t_delivered_s > ea.t_s);
+        }
     }
 }

@@ -10,6 +10,13 @@
 //!
 //! Everything is deterministic for a given seed: containers are ordered
 //! (`BTreeMap`, `Vec`), never hashed.
+//!
+//! A frame carries three times, because a real camera is off-clock and late:
+//! it is exposed at `t_exposure_s` (IMU clock; the features are rendered from
+//! the truth then), stamped `t_s` by the camera's own clock, and delivered to
+//! the host at `t_delivered_s` (IMU clock). [`FeatureSim::frame`] makes an
+//! ideal camera's frame (all three equal); [`CameraFrame::stamped`] applies a
+//! clock offset and a delivery latency, as [`crate::dataset`] does.
 
 use std::collections::BTreeMap;
 
@@ -32,8 +39,28 @@ pub struct FeatureObs {
 /// One camera frame of feature observations.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraFrame {
+    /// The frame's stamp by the camera's clock (s): `t_exposure_s − t_d`
+    /// for the true camera–IMU offset `t_d` (`t_imu = t_cam + t_d`). This is
+    /// what the front end reports.
     pub t_s: f64,
+    /// When the frame was exposed, on the IMU clock (s): the instant whose
+    /// truth the features are projected from.
+    pub t_exposure_s: f64,
+    /// When the frame reaches the host, on the IMU clock (s): after the
+    /// exposure by the camera's latency.
+    pub t_delivered_s: f64,
     pub features: Vec<FeatureObs>,
+}
+
+impl CameraFrame {
+    /// This frame as a real camera delivers it: stamped by a clock
+    /// `time_offset_s` (`t_d`) behind the IMU's and delivered `latency_s`
+    /// after its exposure.
+    pub fn stamped(mut self, time_offset_s: f64, latency_s: f64) -> Self {
+        self.t_s = self.t_exposure_s - time_offset_s;
+        self.t_delivered_s = self.t_exposure_s + latency_s;
+        self
+    }
 }
 
 /// A landmark of the simulated world.
@@ -42,6 +69,13 @@ pub struct Landmark {
     pub p_in_W: Vector3<f64>,
     /// The id the front end last reported it under.
     id: Option<u64>,
+}
+
+impl Landmark {
+    /// The id the front end last reported it under (none if never seen).
+    pub fn id(&self) -> Option<u64> {
+        self.id
+    }
 }
 
 /// Size of a cell of the spatial index (m).
@@ -130,7 +164,8 @@ impl FeatureSim {
         out
     }
 
-    /// Produces the frame seen from `truth`.
+    /// Produces the frame seen from `truth`, as an ideal camera would: its
+    /// stamp and delivery equal its exposure time, `truth.t_s`.
     pub fn frame<R: Rng>(&mut self, truth: &TruthSample, rng: &mut R) -> CameraFrame {
         let T_W_C = self.camera_pose(truth);
         let mut selected = self.visible(&T_W_C);
@@ -145,6 +180,8 @@ impl FeatureSim {
         self.stats.landmarks = self.landmarks.len();
         CameraFrame {
             t_s: truth.t_s,
+            t_exposure_s: truth.t_s,
+            t_delivered_s: truth.t_s,
             features,
         }
     }
@@ -261,7 +298,7 @@ mod tests {
             ..Default::default()
         };
         let mut sim = FeatureSim::new(&fc, cam.clone(), 0.0);
-        let tr = racetrack(&RacetrackParams::default(), 140.0);
+        let tr = racetrack(&RacetrackParams::default(), 140.0, 0.0);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let mut ids_lap1 = std::collections::BTreeSet::new();
         let mut revisits = 0;

@@ -94,7 +94,7 @@ mod tests {
     /// on (q, v, p) and checks the drift against the truth.
     #[test]
     fn integrating_ideal_imu_reproduces_the_trajectory() {
-        let tr = racetrack(&RacetrackParams::default(), 70.0);
+        let tr = racetrack(&RacetrackParams::default(), 70.0, 0.0);
         let g = 9.81;
         let rate = 400.0;
         let dt = 1.0 / rate;

@@ -46,6 +46,7 @@ pub struct Config {
     pub keyframe: KeyframeConfig,
     pub compressed: CompressedConfig,
     pub gnss: GnssConfig,
+    pub zupt: ZuptConfig,
     pub output: OutputConfig,
     pub log: LogConfig,
 }
@@ -142,6 +143,17 @@ pub struct EstimatorConfig {
     /// Largest accepted condition number of the triangulation's normal
     /// matrix (unitless).
     pub max_triangulation_cond: f64,
+    /// Tracks whose bearings span less than this are skipped, not counted
+    /// against health (deg): a hover or a far landmark gives no parallax.
+    pub min_parallax_deg: f64,
+    /// Prior of the camera–IMU time offset `t_d` (s): the IMU clock's time
+    /// of a frame is its camera stamp plus `t_d`. Estimated online.
+    pub time_offset_s: f64,
+    /// Sigma of that prior (s); real cameras are 5–30 ms off.
+    pub time_offset_sigma_s: f64,
+    /// Time after (re)initialisation during which the divergence monitor
+    /// does not judge (s).
+    pub health_grace_s: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -154,6 +166,10 @@ impl Default for EstimatorConfig {
             min_depth_m: 0.3,
             max_depth_m: 300.0,
             max_triangulation_cond: 1e6,
+            min_parallax_deg: 0.3,
+            time_offset_s: 0.0,
+            time_offset_sigma_s: 0.02,
+            health_grace_s: 2.0,
         }
     }
 }
@@ -284,6 +300,14 @@ pub struct GnssConfig {
     pub klobuchar_alpha: Vec<f64>,
     /// Klobuchar ionosphere β0..β3 (s, s/semicircle, …); empty = unknown.
     pub klobuchar_beta: Vec<f64>,
+    /// GNSS antenna phase centre in the body frame, `[fwd, right, down]` (m).
+    #[serde(rename = "p_A_in_B_m")]
+    pub p_A_in_B_m: [f64; 3],
+    /// The receiver's epoch rate (Hz), assumed until two epochs show theirs.
+    pub epoch_rate_hz: f64,
+    /// Latest an epoch may arrive after its own time and still be fused at
+    /// that time (s); later ones are counted as `gnss_late`.
+    pub max_delay_s: f64,
 }
 
 impl Default for GnssConfig {
@@ -304,6 +328,42 @@ impl Default for GnssConfig {
             origin_llh: Vec::new(),
             klobuchar_alpha: Vec::new(),
             klobuchar_beta: Vec::new(),
+            p_A_in_B_m: [0.0; 3],
+            epoch_rate_hz: 1.0,
+            max_delay_s: 1.0,
+        }
+    }
+}
+
+/// Zero-velocity updates at standstill (on the ground, in a hover): a frame
+/// is one when all of these hold.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZuptConfig {
+    pub enabled: bool,
+    /// Largest body rate of any IMU sample since the last frame (rad/s).
+    pub max_gyro_radps: f64,
+    /// Largest deviation of the specific force's norm from gravity (m/s²).
+    pub max_accel_deviation_mps2: f64,
+    /// Largest median feature displacement since the last clone (px). Pixel
+    /// noise alone moves a still feature by a median of 1.7 σ_px between two
+    /// frames: keep this about 3 σ_px.
+    pub max_disparity_px: f64,
+    /// Largest estimated speed (m/s).
+    pub max_speed_mps: f64,
+    /// Sigma of the zero-velocity measurement (m/s).
+    pub sigma_mps: f64,
+}
+
+impl Default for ZuptConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_gyro_radps: 0.02,
+            max_accel_deviation_mps2: 0.3,
+            max_disparity_px: 3.0,
+            max_speed_mps: 0.5,
+            sigma_mps: 0.01,
         }
     }
 }

@@ -6,7 +6,7 @@ use cmsckf_models::camera::Camera;
 use super::Config;
 use crate::estimator::feature::{Extrinsic, TriangulationLimits};
 use crate::estimator::propagate::{Mat15, BA, BG, P, TH, V};
-use crate::estimator::Settings;
+use crate::estimator::{Settings, ZuptSettings};
 
 impl Config {
     /// The estimator's settings.
@@ -35,6 +35,22 @@ impl Config {
             range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
             async_rebase: false,
+            time_offset_s: c.estimator.time_offset_s,
+            time_offset_sigma_s: c.estimator.time_offset_sigma_s,
+            p_A_in_B_m: nalgebra::Vector3::from(c.gnss.p_A_in_B_m),
+            gnss_period_s: 1.0 / c.gnss.epoch_rate_hz,
+            gnss_max_delay_s: c.gnss.max_delay_s,
+            min_parallax_rad: c.estimator.min_parallax_deg.to_radians(),
+            zupt: ZuptSettings {
+                enabled: c.zupt.enabled,
+                max_gyro_radps: c.zupt.max_gyro_radps,
+                max_accel_dev_mps2: c.zupt.max_accel_deviation_mps2,
+                // Pixels to normalised units through the mean focal length.
+                max_disparity: c.zupt.max_disparity_px / (0.5 * (c.camera.intrinsics[0] + c.camera.intrinsics[1])),
+                max_speed_mps: c.zupt.max_speed_mps,
+                sigma_mps: c.zupt.sigma_mps,
+            },
+            health_grace_s: c.estimator.health_grace_s,
             ext: Extrinsic {
                 R_B_C: cam.T_B_C.rotation.to_rotation_matrix().into_inner(),
                 p_C_in_B: cam.T_B_C.translation.vector,

@@ -14,6 +14,7 @@ impl Config {
         self.camera.validate("camera")?;
         self.imu.validate("imu")?;
         self.validate_estimator()?;
+        self.validate_zupt()?;
         self.validate_init()?;
         self.validate_keyframe()?;
         self.validate_compressed()?;
@@ -100,7 +101,22 @@ impl Config {
                 "set max_depth_m > min_depth_m",
             ));
         }
-        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)
+        c.range("max_triangulation_cond", e.max_triangulation_cond, 10.0, 1e12)?;
+        c.range("min_parallax_deg", e.min_parallax_deg, 0.0, 10.0)?;
+        c.range("time_offset_s", e.time_offset_s, -0.5, 0.5)?;
+        c.positive("time_offset_sigma_s", e.time_offset_sigma_s, 0.5)?;
+        c.range("health_grace_s", e.health_grace_s, 0.0, 60.0)
+    }
+
+    /// `[zupt]`: the stillness thresholds and the measurement sigma.
+    fn validate_zupt(&self) -> Result<(), FieldError> {
+        let z = &self.zupt;
+        let c = Check::new("zupt");
+        c.positive("max_gyro_radps", z.max_gyro_radps, 10.0)?;
+        c.positive("max_accel_deviation_mps2", z.max_accel_deviation_mps2, 50.0)?;
+        c.positive("max_disparity_px", z.max_disparity_px, 1000.0)?;
+        c.positive("max_speed_mps", z.max_speed_mps, 100.0)?;
+        c.positive("sigma_mps", z.sigma_mps, 10.0)
     }
 
     /// `[init]`: the static window, the yaw and the initial sigmas.
@@ -159,6 +175,11 @@ impl Config {
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
         c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;
+        for (k, v) in g.p_A_in_B_m.iter().enumerate() {
+            c.range(&format!("p_A_in_B_m[{k}]"), *v, -10.0, 10.0)?;
+        }
+        c.positive("epoch_rate_hz", g.epoch_rate_hz, 100.0)?;
+        c.range("max_delay_s", g.max_delay_s, 0.0, 10.0)?;
         self.validate_klobuchar(&c)?;
         self.validate_origin(&c)?;
         if g.week_hint != 0 {

@@ -12,26 +12,26 @@ use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::Counters;
 
 impl Fusion {
-    /// The measurements now covered by IMU (up to `t_imu_s`), in time order;
-    /// one older than the filter is late and counted.
+    /// The measurements now covered by IMU (up to `t_imu_s`), in time order.
+    /// A frame older than the filter is late and counted; a GNSS epoch goes
+    /// to the filter whatever its time, which fuses it at that time through
+    /// its clone or refuses it as late (§8b).
     pub(super) fn fuse_covered(&mut self, t_imu_s: f64, counters: &Counters) {
-        while let Some((t, _)) = self.pending.front() {
-            if *t > t_imu_s {
+        while let Some((t, item)) = self.pending.front() {
+            // A frame is fused at its stamp plus the time offset (§3b).
+            let t_d = match (item, self.est.as_ref()) {
+                (Pending::Frame(_), Some(est)) => est.time_offset().0,
+                _ => 0.0,
+            };
+            if *t + t_d > t_imu_s {
                 break;
             }
             let Some((t, item)) = self.pending.pop_front() else {
                 break;
             };
             let Some(est) = self.est.as_ref() else { return };
-            if t < est.time_s() {
-                counters.add(
-                    if matches!(item, Pending::Frame(_)) {
-                        "feature_late"
-                    } else {
-                        "gnss_late"
-                    },
-                    1,
-                );
+            if matches!(item, Pending::Frame(_)) && t + est.time_offset().0 < est.time_s() {
+                counters.add("feature_late", 1);
                 continue;
             }
             match item {
@@ -72,6 +72,10 @@ impl Fusion {
                 for (k, v) in &rep.rejected {
                     counters.add(k, *v);
                 }
+            }
+            Err(e @ crate::estimator::InputError::GnssLate { .. }) => {
+                counters.add("gnss_late", 1);
+                tracing::warn!(reason = "gnss_late", error = %e, "GNSS epoch too late to fuse");
             }
             Err(e) => {
                 counters.add("gnss_rejected", 1);

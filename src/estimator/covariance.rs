@@ -6,11 +6,11 @@
 //! [`Estimator::ekf_update`]; nothing else writes `P` except the compressed
 //! machinery of `compressed/`, which owns the global part.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::math::{self, exp_so3};
 use super::propagate;
-use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, IMU_DIM, POSE_IDX};
+use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, GNSS_CLONE_DIM, IMU_DIM, POSE_IDX, TD};
 
 impl Estimator {
     /// Propagates the active block with the transition `f` and noise `q` of
@@ -62,30 +62,72 @@ impl Estimator {
         (i < self.clones.len()).then(|| self.clones_offset() + 6 * i)
     }
 
-    /// Inserts 6 new error states `J δx` at `at`, a copy of the body pose
-    /// (§2, eq. A1): `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at
-    /// `at`), and `Φ' = [Φ; JΦ]` in compressed mode.
-    pub(super) fn augment(&mut self, at: usize) {
-        // J selects the body pose, so J P = P[pose, :] and J P Jᵀ = P[pose, pose]
-        // exactly: copies, no products.
-        let cross = self.P.select_columns(&POSE_IDX);
-        let block = cross.select_rows(&POSE_IDX);
+    /// Offset of the first GNSS clone: after the camera clones.
+    pub(super) fn gnss_clones_offset(&self) -> usize {
+        self.clones_offset() + 6 * self.clones.len()
+    }
+
+    /// Inserts new error states `J δx` at `at` (§2, eq. A1): `J` selects the
+    /// states `rows` and, with `td_rate = Some(c)`, adds `c δt_d` (the pose
+    /// of a camera view at `t_cam + t_d` moves with the time offset, §3b,
+    /// eq. T3): `J P = P[rows, :] + c P[TD, :]`,
+    /// `P' = [P, PJᵀ; JP, JPJᵀ]` (rows and columns placed at `at`), and
+    /// `Φ' = [Φ; JΦ]` in compressed mode.
+    pub(super) fn augment(&mut self, at: usize, rows: &[usize], td_rate: Option<&[f64; 6]>) {
+        let k = rows.len();
+        // P J ᵀ: column j is P[:, rows_j] (+ c_j P[:, TD]); P is symmetric.
+        let mut cross = self.P.select_columns(rows);
+        if let Some(c) = td_rate {
+            let p_td = self.P.column(TD).into_owned();
+            for (j, cj) in c.iter().enumerate().take(k) {
+                cross.column_mut(j).axpy(*cj, &p_td, 1.0);
+            }
+        }
+        // J P Jᵀ = J (P Jᵀ): row i of J applied to each column of P Jᵀ,
+        // symmetrised (the two orders of the sums differ by round-off).
+        let mut block = cross.select_rows(rows);
+        if let Some(c) = td_rate {
+            for i in 0..k {
+                for j in 0..k {
+                    block[(i, j)] += c[i] * cross[(TD, j)];
+                }
+            }
+            block = (&block + block.transpose()) * 0.5;
+        }
         self.insert_local(at, &cross, &block);
         if let Some(g) = self.global.as_mut() {
-            let jphi = g.Phi.select_rows(&POSE_IDX);
-            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, 6, 0.0);
+            let mut jphi = g.Phi.select_rows(rows);
+            if let Some(c) = td_rate {
+                let phi_td = g.Phi.row(TD).into_owned();
+                for (i, ci) in c.iter().enumerate().take(k) {
+                    let mut row = jphi.row_mut(i);
+                    row += &phi_td * *ci;
+                }
+            }
+            let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0)).insert_rows(at, k, 0.0);
             g.Phi = phi;
-            g.Phi.view_mut((at, 0), (6, jphi.ncols())).copy_from(&jphi);
+            g.Phi.view_mut((at, 0), (k, jphi.ncols())).copy_from(&jphi);
         }
     }
 
-    /// Marginalises 6 error states at `at` (§2, eq. A2).
-    pub(super) fn remove_block(&mut self, at: usize) {
+    /// A camera view's pose enters the state at `at` (a clone or a
+    /// keyframe): the body pose at the frame's time `t_cam + t̂_d`, with the
+    /// time offset's column `c = [R_W_B ω_B; v_B_in_W]` (§3b, eq. T3).
+    pub(super) fn augment_view(&mut self, at: usize) {
+        let w_B = self.last_meas.map_or(Vector3::zeros(), |m| m.gyro_radps - self.imu.b_g);
+        let w_W = self.imu.q_W_B * w_B;
+        let v = self.imu.v_B_in_W;
+        let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
+        self.augment(at, &POSE_IDX, Some(&c));
+    }
+
+    /// Marginalises `width` error states at `at` (§2, eq. A2).
+    pub(super) fn remove_block(&mut self, at: usize, width: usize) {
         let p = std::mem::replace(&mut self.P, DMatrix::zeros(0, 0));
-        self.P = p.remove_rows(at, 6).remove_columns(at, 6);
+        self.P = p.remove_rows(at, width).remove_columns(at, width);
         if let Some(g) = self.global.as_mut() {
             let phi = std::mem::replace(&mut g.Phi, DMatrix::zeros(0, 0));
-            g.Phi = phi.remove_rows(at, 6);
+            g.Phi = phi.remove_rows(at, width);
         }
     }
 
@@ -124,14 +166,23 @@ impl Estimator {
         let mut dx = at * w;
         // K S Kᵀ = (H P)ᵀ S⁻¹ (H P) = Aᵀ A (symmetric rank-m form).
         if self.s.mode == Mode::Schmidt {
-            // Keyframes are nuisance states: K_S = 0, P_SS unchanged,
-            // P_AS ← P_AS − K_A (H P)_S = P_AS − (Aᵀ A)_AS (§6).
+            // Keyframes are nuisance states (S = [k0, k1)), everything else
+            // is updated (A: the active block before them, the clones and
+            // any pose blocks after them). With A = [A_A | A_S] by columns:
+            // K_S = 0, so δx_S = 0 and P_SS unchanged;
+            // P_AA ← P_AA − K_A S K_Aᵀ = P_AA − A_Aᵀ A_A;
+            // P_AS ← P_AS − K_A (H P)_S = P_AS − A_Aᵀ A_S, P_SA its transpose
+            // (§6). The keyframes are touched only through their
+            // cross-covariances: O(m·n_A·n), no n × n temporary.
             let (k0, k1) = (ACTIVE_DIM, self.clones_offset());
             dx.rows_mut(k0, k1 - k0).fill(0.0);
-            let mut kskt = DMatrix::zeros(n, n);
-            math::add_symmetric_product_t(&mut kskt, n, 1.0, at, a);
-            kskt.view_mut((k0, k0), (k1 - k0, k1 - k0)).fill(0.0);
-            self.P -= kskt;
+            // Tests can swap in the former formula (Aᵀ A formed n × n, its
+            // SS block zeroed) to compare whole flights.
+            #[cfg(test)]
+            let downdate = schmidt_tests::downdate();
+            #[cfg(not(test))]
+            let downdate = math::add_gram_outside_block;
+            downdate(&mut self.P, -1.0, at, a, k0, k1);
             self.inject(&dx);
             return;
         }
@@ -161,6 +212,7 @@ impl Estimator {
     pub(super) fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
         self.clock += dx.fixed_rows::<3>(CLK_B);
+        self.t_d_s += dx[TD];
         for (j, id) in self.local_kfs.clone().iter().enumerate() {
             let o = self.kf_offset(j);
             let kf = self.keyframes.get_mut(id).expect("local keyframe exists");
@@ -173,11 +225,19 @@ impl Estimator {
             c.q_W_B = exp_so3(&dx.fixed_rows::<3>(o).into_owned()) * c.q_W_B;
             c.p_B_in_W += dx.fixed_rows::<3>(o + 3);
         }
+        let go = self.gnss_clones_offset();
+        for (i, g) in self.gnss_clones.iter_mut().enumerate() {
+            g.nom.correct(&dx.as_slice()[go + GNSS_CLONE_DIM * i..go + GNSS_CLONE_DIM * (i + 1)]);
+        }
     }
 
     /// Resets the clock states `ks` to `values`, uncorrelated with the rest,
-    /// with the variances `var` (§8, eq. K4).
+    /// with the variances `var` (§8, eq. K4). A GNSS clone's copy of a reset
+    /// state becomes the same value, fully correlated with the live one (the
+    /// clock moves by its drift and noise in the clone's fraction of a
+    /// second, far below the reset's variance).
     pub(super) fn reset_clock_states(&mut self, ks: &[usize], values: &[f64], var: &[f64]) {
+        let go = self.gnss_clones_offset();
         for ((&k, &x), &v) in ks.iter().zip(values).zip(var) {
             self.clock[k - CLK_B] = x;
             self.P.row_mut(k).fill(0.0);
@@ -186,6 +246,18 @@ impl Estimator {
                 g.Phi.row_mut(k).fill(0.0);
             }
             self.P[(k, k)] = v;
+            for (i, c) in self.gnss_clones.iter_mut().enumerate() {
+                let ck = go + GNSS_CLONE_DIM * i + 12 + (k - CLK_B);
+                c.nom.clock[k - CLK_B] = x;
+                self.P.row_mut(ck).fill(0.0);
+                self.P.column_mut(ck).fill(0.0);
+                if let Some(g) = self.global.as_mut() {
+                    g.Phi.row_mut(ck).fill(0.0);
+                }
+                for (a, b) in [(k, ck), (ck, k), (ck, ck)] {
+                    self.P[(a, b)] = v;
+                }
+            }
         }
     }
 }
@@ -213,3 +285,7 @@ pub(super) fn whitening_factor(p: &DMatrix<f64>) -> DMatrix<f64> {
     }
     d.map(f64::sqrt)
 }
+
+#[cfg(test)]
+#[path = "schmidt_tests.rs"]
+mod schmidt_tests;

@@ -87,6 +87,25 @@ pub fn measure(
     (Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), h_pose, jp * r_cw)
 }
 
+/// The widest angle between two of a track's bearing rays in the world
+/// frame (rad): the parallax a triangulation has to work with.
+pub fn parallax_rad(views: &[View], e: &Extrinsic, obs: &[Obs]) -> f64 {
+    let dirs: Vec<Vector3<f64>> = obs
+        .iter()
+        .map(|o| (views[o.view].R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize())
+        .collect();
+    let mut min_cos = 1.0f64;
+    for (i, a) in dirs.iter().enumerate() {
+        for b in &dirs[i + 1..] {
+            min_cos = min_cos.min(a.dot(b));
+        }
+    }
+    if min_cos.is_nan() {
+        return f64::NAN;
+    }
+    min_cos.clamp(-1.0, 1.0).acos()
+}
+
 /// Triangulation limits.
 #[derive(Clone, Copy, Debug)]
 pub struct TriangulationLimits {

@@ -4,19 +4,30 @@
 //! and χ² gate of each measurement, and their Jacobians; the update itself
 //! goes through [`Estimator::ekf_update`].
 //!
-//! The receiver is at the body origin, `r = o + R_en p_B_in_W` in ECEF with
-//! `o` the world origin and `R_en` the NED→ECEF rotation. Everything here
-//! involves only active states (velocity, position, clock), so in compressed
-//! mode it is a local update.
+//! The antenna sits at `p_A_in_B_m` in the body, so it is at
+//! `r = o + R_en (p_B_in_W + R_W_B p_A_in_B)` in ECEF, with `o` the world
+//! origin and `R_en` the NED→ECEF rotation, and moves with
+//! `v_B_in_W + R_W_B (ω_B × p_A_in_B)`: the rows have attitude and gyro-bias
+//! columns as well as velocity, position and clock ones.
+//!
+//! Epochs arrive late (0.1–0.6 s on real hardware, §8b). The filter clones
+//! the states a GNSS row involves at each instant an epoch is expected (a
+//! grid learnt from the epochs themselves), keeps the clone until its epoch
+//! arrives, and fuses the epoch against the clone: exactly at its own time.
+//! An epoch later than `gnss_max_delay_s`, or with no clone at its instant,
+//! is refused and counted as `gnss_late`. Everything here involves only
+//! local states, so in compressed mode it is a local update.
 
 use std::collections::BTreeMap;
 
-use nalgebra::{DMatrix, DVector, Matrix3, RowVector3, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, RowVector3, SMatrix, Vector3};
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, OMEGA_E_RADPS};
 use cmsckf_models::gnss::{saastamoinen_m, SatMeas, System};
 
-use super::{math, Estimator, InputError, Stats, CLK_B, CLK_D, CLK_E, OUTLIER_SIGMAS};
+use super::math::{exp_so3, skew};
+use super::propagate::{integrate, transition, ImuMeas, ImuState};
+use super::{math, Estimator, GnssClone, GnssGrid, InputError, Stats, CLK_B, CLK_D, CLK_E, OUTLIER_SIGMAS};
 
 /// What one GNSS epoch did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -27,28 +38,114 @@ pub struct GnssReport {
     /// `(prn, pseudorange residual m, range-rate residual m/s)` before the update.
     pub residuals: Vec<(u8, Option<f64>, Option<f64>)>,
     pub clock_initialised: bool,
+    /// How far behind the filter the epoch arrived (s; 0 when on time).
+    pub late_s: f64,
 }
 
-/// Columns of `P` a GNSS measurement involves: velocity, position, clock
-/// bias, drift, Galileo ISB.
-const GNSS_COLS: [usize; 9] = [3, 4, 5, 6, 7, 8, CLK_B, CLK_D, CLK_E];
+/// Error-state size of a GNSS clone, and the column order of every GNSS
+/// row: `[δθ, δv, δp, δb_g, δb, δḃ, δisb]`.
+pub const GNSS_CLONE_DIM: usize = 15;
 
-/// One whitened measurement row over [`GNSS_COLS`] and its residual.
-type GnssRow = ([f64; 9], f64);
+/// The active states a GNSS row involves, in the row's column order.
+pub(super) const GNSS_COLS: [usize; GNSS_CLONE_DIM] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, CLK_B, CLK_D, CLK_E];
+/// Shortest epoch period the grid takes (s): 20 Hz, beyond any receiver's
+/// raw-measurement rate on a drone.
+const MIN_GNSS_PERIOD_S: f64 = 0.05;
+/// Row offsets of the blocks within a GNSS row.
+const G_TH: usize = 0;
+const G_V: usize = 3;
+const G_P: usize = 6;
+const G_BG: usize = 9;
+const G_B: usize = 12;
+const G_D: usize = 13;
+const G_E: usize = 14;
+
+/// The transition of a clone's states to its epoch's time.
+type ShiftF = SMatrix<f64, GNSS_CLONE_DIM, GNSS_CLONE_DIM>;
+
+/// One whitened measurement row and its residual.
+type GnssRow = ([f64; GNSS_CLONE_DIM], f64);
+
+/// The states a GNSS epoch is predicted from: the live ones, or a clone's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GnssNominal {
+    /// Attitude, velocity, position and gyro bias (the accelerometer bias
+    /// is not used).
+    pub imu: ImuState,
+    /// The measured body rate at the instant (rad/s).
+    pub gyro_radps: Vector3<f64>,
+    /// `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]`.
+    pub clock: Vector3<f64>,
+}
+
+impl GnssNominal {
+    /// `x ⊕ δx` in the GNSS row order.
+    pub fn correct(&mut self, d: &[f64]) {
+        let v3 = |o: usize| Vector3::new(d[o], d[o + 1], d[o + 2]);
+        self.imu.q_W_B = exp_so3(&v3(G_TH)) * self.imu.q_W_B;
+        self.imu.v_B_in_W += v3(G_V);
+        self.imu.p_B_in_W += v3(G_P);
+        self.imu.b_g += v3(G_BG);
+        self.clock += v3(G_B);
+    }
+}
+
+/// A satellite's predicted measurements and their Jacobians over the GNSS
+/// row order.
+#[derive(Clone, Copy, Debug)]
+pub struct SatPrediction {
+    pub pseudorange_m: f64,
+    pub h_pseudorange: [f64; GNSS_CLONE_DIM],
+    pub range_rate_mps: f64,
+    pub h_range_rate: [f64; GNSS_CLONE_DIM],
+    pub elevation_rad: f64,
+}
+
+/// The pseudorange and range rate of `s` seen by the antenna at
+/// `p_A_in_B_m` (§8, eqs. K2, K3, L1, L2). With `R = Exp(δθ) R̂`:
+/// `∂p_A/∂δθ = −[R p_A_in_B]×`, `∂v_A/∂δθ = −[R (ω × p_A_in_B)]×` and
+/// `∂v_A/∂δb_g = R [p_A_in_B]×` (as `ω = ω_m − b_g`).
+pub fn predict_sat(frame: &NedFrame, nom: &GnssNominal, p_A_in_B_m: &Vector3<f64>, s: &SatMeas) -> SatPrediction {
+    let r_wb = nom.imu.q_W_B.to_rotation_matrix().into_inner();
+    let lever_W = r_wb * p_A_in_B_m;
+    let w_B = nom.gyro_radps - nom.imu.b_g;
+    let spin_W = r_wb * w_B.cross(p_A_in_B_m);
+    let p_A = nom.imu.p_B_in_W + lever_W;
+    let v_A = nom.imu.v_B_in_W + spin_W;
+    let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
+    let (pr, hp, el) = pseudorange(frame, &p_A, nom.clock.x + isb * nom.clock.z, s);
+    let (rate, hv, hpr) = range_rate(frame, &p_A, &v_A, nom.clock.y, s);
+    let dpa_dth = -skew(&lever_W);
+    let dva_dth = -skew(&spin_W);
+    let dva_dbg = r_wb * skew(p_A_in_B_m);
+    let mut h_pr = [0.0; GNSS_CLONE_DIM];
+    let mut h_rate = [0.0; GNSS_CLONE_DIM];
+    let put = |h: &mut [f64; GNSS_CLONE_DIM], o: usize, v: RowVector3<f64>| {
+        h[o..o + 3].copy_from_slice(v.as_slice());
+    };
+    put(&mut h_pr, G_TH, hp * dpa_dth);
+    put(&mut h_pr, G_P, hp);
+    h_pr[G_B] = 1.0;
+    h_pr[G_E] = isb;
+    put(&mut h_rate, G_TH, hv * dva_dth + hpr * dpa_dth);
+    put(&mut h_rate, G_V, hv);
+    put(&mut h_rate, G_P, hpr);
+    put(&mut h_rate, G_BG, hv * dva_dbg);
+    h_rate[G_D] = 1.0;
+    SatPrediction {
+        pseudorange_m: pr,
+        h_pseudorange: h_pr,
+        range_rate_mps: rate,
+        h_range_rate: h_rate,
+        elevation_rad: el,
+    }
+}
 
 /// The median of the finite values (upper median), if any.
 fn median(mut v: Vec<f64>) -> Option<f64> {
     v.retain(|x| x.is_finite());
     v.sort_by(|a, b| a.total_cmp(b));
     v.get(v.len() / 2).copied()
-}
-
-/// Code residuals of constellation `sys` at position `p` with clock `bias`.
-fn code_residuals(frame: &NedFrame, sats: &[SatMeas], p: &Vector3<f64>, sys: System, bias: f64) -> Vec<f64> {
-    sats.iter()
-        .filter(|s| s.system == sys)
-        .filter_map(|s| s.pseudorange_m.map(|z| z - pseudorange(frame, p, bias, s).0))
-        .collect()
 }
 
 /// Counts a rejected GNSS measurement in the epoch's report and the stats.
@@ -71,6 +168,42 @@ fn gated<const N: usize>(h: &[f64; N], r: f64, sigma: f64, p: &DMatrix<f64>, gat
     Some((w, r / sigma))
 }
 
+/// The clone's states moved by `dt_s` to the epoch's own time (§8b, eq.
+/// D2): the instant the grid expected and the epoch's tag differ by the
+/// time map's jitter (milliseconds). One IMU step at the clone's measured
+/// rates: `x(t_e) = f(x_c)`, so a row `H` at `x(t_e)` is `H F` on the
+/// clone, with `F` the step's transition in the GNSS row order (the
+/// accelerometer bias's effect over milliseconds is below a micrometre and
+/// left out, as is the step's process noise).
+fn shift_clone(c: &GnssClone, dt_s: f64, g_W: &Vector3<f64>, imu: &cmsckf_models::sensors::ImuConfig) -> (GnssNominal, ShiftF) {
+    let mut f = SMatrix::<f64, GNSS_CLONE_DIM, GNSS_CLONE_DIM>::identity();
+    if dt_s == 0.0 {
+        return (c.nom, f);
+    }
+    let m1 = ImuMeas {
+        t_s: c.meas.t_s + dt_s,
+        ..c.meas
+    };
+    let x = integrate(&c.nom.imu, &c.meas, &m1, g_W);
+    let (f15, _) = transition(&c.nom.imu, &c.meas, &m1, imu);
+    // [θ, v, p, b_g] are the IMU error state's first twelve, in order.
+    f.fixed_view_mut::<12, 12>(0, 0).copy_from(&f15.fixed_view::<12, 12>(0, 0));
+    f[(G_B, G_D)] = dt_s;
+    let mut nom = c.nom;
+    nom.imu = x;
+    nom.clock.x += c.nom.clock.y * dt_s;
+    (nom, f)
+}
+
+/// Where an epoch's states come from.
+#[derive(Clone, Copy)]
+enum EpochStates {
+    /// The live state, propagated to the epoch.
+    Live,
+    /// The GNSS clone at this index.
+    Clone(usize),
+}
+
 impl Estimator {
     /// The receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]` and its
     /// variances.
@@ -86,61 +219,235 @@ impl Estimator {
         self.isb_initialised
     }
 
-    /// One GNSS epoch at `t_s` (§8): pseudoranges and range rates of the
-    /// satellites in `sats`, against the world origin `frame`. GPS is the
-    /// reference clock: the first epoch with GPS pseudoranges sets the bias
-    /// and drift from the median residuals, and the first with Galileo ones
-    /// sets the inter-system bias the same way; until then those
-    /// measurements wait.
-    pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
-        self.advance_to(t_s, "gnss_time_backwards")?;
-        let mut rep = GnssReport::default();
-        if !self.init_clock_states(frame, sats, &mut rep) {
-            return Ok(rep);
+    /// The live states a GNSS row involves.
+    fn live_gnss_nominal(&self) -> GnssNominal {
+        GnssNominal {
+            imu: self.imu,
+            gyro_radps: self.last_meas.map_or(Vector3::zeros(), |m| m.gyro_radps),
+            clock: self.clock,
         }
-        let rows = self.gnss_rows(frame, sats, &mut rep);
+    }
+
+    /// One GNSS epoch at `t_s` (its instant on the IMU clock, §8): the
+    /// pseudoranges and range rates of the satellites in `sats`, against the
+    /// world origin `frame`. An epoch in the filter's past is fused at its
+    /// own time through the clone taken at its instant (§8b); one later
+    /// than `gnss_max_delay_s`, or with no clone, is refused
+    /// ([`InputError::GnssLate`], counted as `gnss_late`).
+    ///
+    /// GPS is the reference clock: the first epoch with GPS pseudoranges
+    /// sets the bias and drift from the median residuals, and the first
+    /// with Galileo ones sets the inter-system bias the same way.
+    pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
+        let mut rep = GnssReport::default();
+        if t_s.is_finite() {
+            // Before propagating: an on-time epoch needs no clone at its own
+            // instant.
+            self.learn_gnss_grid(t_s);
+        }
+        // A clone at the epoch's instant is its state, however late the
+        // epoch (the filter may also stand exactly at that instant).
+        let clone = if t_s.is_finite() { self.gnss_clone_at(t_s) } else { None };
+        let states = if let Some(i) = clone {
+            self.sync();
+            rep.late_s = (self.t_s - t_s).max(0.0);
+            EpochStates::Clone(i)
+        } else if !t_s.is_finite() || t_s >= self.t_s {
+            self.advance_to(t_s, "gnss_time_invalid")?;
+            EpochStates::Live
+        } else if !self.clock_initialised && self.t_s - t_s <= self.s.gnss_max_delay_s {
+            // The very first epoch has no clone (no grid yet): it only sets
+            // the clock, from the live state; the variance it is given
+            // (30 m) covers the motion since the epoch.
+            self.learn_gnss_grid(t_s);
+            self.sync();
+            let nom = self.live_gnss_nominal();
+            rep.late_s = self.t_s - t_s;
+            self.init_clock_states(frame, sats, &nom, &mut rep);
+            return Ok(rep);
+        } else {
+            *self.stats.rejected.entry("gnss_late").or_default() += 1;
+            self.stats.gnss_epochs_late += 1;
+            return Err(InputError::GnssLate {
+                t_s,
+                late_s: self.t_s - t_s,
+                max_s: self.s.gnss_max_delay_s,
+            });
+        };
+        let fused = self.fuse_epoch(frame, sats, states, t_s, &mut rep);
+        if let EpochStates::Clone(i) = states {
+            // The clone has served its epoch.
+            let o = self.gnss_clones_offset() + GNSS_CLONE_DIM * i;
+            self.remove_block(o, GNSS_CLONE_DIM);
+            self.gnss_clones.remove(i);
+            if fused {
+                self.stats.gnss_epochs_fused_late += 1;
+            }
+        }
+        if fused {
+            self.stats.gnss_epochs_fused += 1;
+        }
+        Ok(rep)
+    }
+
+    /// The states of an epoch at `t_s`, the columns of `P` they occupy, and
+    /// for a clone its shift to the epoch's time.
+    fn epoch_states(&self, states: EpochStates, t_s: f64) -> (GnssNominal, Vec<usize>, Option<ShiftF>) {
+        match states {
+            EpochStates::Live => (self.live_gnss_nominal(), GNSS_COLS.to_vec(), None),
+            EpochStates::Clone(i) => {
+                let c = self.gnss_clones[i];
+                let (nom, f) = shift_clone(&c, t_s - c.t_s, &self.g_W, &self.s.imu);
+                let o = self.gnss_clones_offset() + GNSS_CLONE_DIM * i;
+                (nom, (o..o + GNSS_CLONE_DIM).collect(), Some(f))
+            }
+        }
+    }
+
+    /// The clock initialisation, the rows and the update of one epoch at
+    /// `t_s` from `states`. Whether it updated.
+    fn fuse_epoch(
+        &mut self,
+        frame: &NedFrame,
+        sats: &[SatMeas],
+        states: EpochStates,
+        t_s: f64,
+        rep: &mut GnssReport,
+    ) -> bool {
+        let (nom, _, _) = self.epoch_states(states, t_s);
+        if !self.init_clock_states(frame, sats, &nom, rep) {
+            return false;
+        }
+        // Again: the clock may just have been set.
+        let (nom, cols, f) = self.epoch_states(states, t_s);
+        let mut rows = self.gnss_rows(frame, sats, &nom, &cols, rep);
         let pr_rejected = rep.rejected.get("gnss_pseudorange_chi2").copied().unwrap_or(0)
             + rep.rejected.get("gnss_pseudorange_outlier").copied().unwrap_or(0);
         self.monitor.push_gnss(rep.pseudoranges_used, pr_rejected as usize);
         if rows.is_empty() {
-            return Ok(rep);
+            return false;
         }
-        let mut h = DMatrix::zeros(rows.len(), GNSS_COLS.len());
+        if let Some(f) = f {
+            // A row at the epoch's time is H F on the clone (D2).
+            for (h, _) in rows.iter_mut() {
+                let hf = nalgebra::SVector::<f64, GNSS_CLONE_DIM>::from_column_slice(h).transpose() * f;
+                h.copy_from_slice(hf.as_slice());
+            }
+        }
+        let mut h = DMatrix::zeros(rows.len(), GNSS_CLONE_DIM);
         let mut r = DVector::zeros(rows.len());
         for (i, (hr, rr)) in rows.iter().enumerate() {
-            for k in 0..GNSS_COLS.len() {
+            for k in 0..GNSS_CLONE_DIM {
                 h[(i, k)] = hr[k];
             }
             r[i] = *rr;
         }
-        self.ekf_update(&h, &GNSS_COLS, &r, false);
+        self.ekf_update(&h, &cols, &r, false);
         self.stats.updates += 1;
-        Ok(rep)
+        true
+    }
+
+    /// The clone taken at the instant of an epoch at `t_s`, if any: within
+    /// a quarter period (at most 50 ms) of it.
+    fn gnss_clone_at(&self, t_s: f64) -> Option<usize> {
+        let tol = self.gnss_grid.map_or(0.05, |g| (g.period_s / 4.0).min(0.05));
+        self.gnss_clones
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| (c.t_s - t_s).abs() <= tol)
+            .min_by(|a, b| (a.1.t_s - t_s).abs().total_cmp(&(b.1.t_s - t_s).abs()))
+            .map(|(i, _)| i)
+    }
+
+    /// Learns the epoch grid from an epoch at `t_s` (§8b): the period is the
+    /// smallest spacing seen (a dropped epoch doubles one spacing, never
+    /// halves it), `gnss_period_s` until two epochs are seen; the next clone
+    /// is due one period after the epoch, or the first instant of the grid
+    /// still ahead of the filter.
+    pub(super) fn learn_gnss_grid(&mut self, t_s: f64) {
+        let default = self.s.gnss_period_s;
+        let mut g = self.gnss_grid.unwrap_or(GnssGrid {
+            last_epoch_s: f64::NEG_INFINITY,
+            period_s: default,
+            measured: false,
+            next_s: f64::INFINITY,
+        });
+        let spacing = t_s - g.last_epoch_s;
+        if spacing.is_finite() && spacing > 1e-3 {
+            // At most 20 Hz: a bogus tag cannot make the grid dense.
+            let spacing = spacing.max(MIN_GNSS_PERIOD_S);
+            g.period_s = if g.measured { g.period_s.min(spacing) } else { spacing };
+            g.measured = true;
+        }
+        if t_s > g.last_epoch_s {
+            g.last_epoch_s = t_s;
+        }
+        // Clones already taken cover the instants up to the filter time.
+        let k = ((self.t_s - g.last_epoch_s) / g.period_s).floor().max(0.0) + 1.0;
+        g.next_s = g.last_epoch_s + k * g.period_s;
+        self.gnss_grid = Some(g);
+    }
+
+    /// Clones the states a GNSS row involves at `t_s`, the filter's time
+    /// (§8b, eq. D1): the body pose, velocity, gyro bias and clock.
+    pub(super) fn take_gnss_clone(&mut self, t_s: f64) {
+        let Some(meas) = self.last_meas else {
+            return;
+        };
+        self.sync();
+        let at = self.P.nrows();
+        self.augment(at, &GNSS_COLS, None);
+        self.gnss_clones.push_back(GnssClone {
+            t_s,
+            nom: self.live_gnss_nominal(),
+            meas,
+        });
+    }
+
+    /// Marginalises the clones whose epochs are later than the delay bound.
+    pub(super) fn drop_stale_gnss_clones(&mut self) {
+        while self
+            .gnss_clones
+            .front()
+            .is_some_and(|c| self.t_s - c.t_s > self.s.gnss_max_delay_s)
+        {
+            let at = self.gnss_clones_offset();
+            self.remove_block(at, GNSS_CLONE_DIM);
+            self.gnss_clones.pop_front();
+        }
     }
 
     /// Sets the clock states the first time an epoch can (§8, eq. K4): GPS's
     /// bias and the drift from the median residuals of the first epoch with
     /// GPS codes, Galileo's inter-system bias from the first with Galileo
     /// ones. `false`: no GPS code yet, the epoch waits.
-    fn init_clock_states(&mut self, frame: &NedFrame, sats: &[SatMeas], rep: &mut GnssReport) -> bool {
-        let p = self.imu.p_B_in_W;
-        let v = self.imu.v_B_in_W;
+    fn init_clock_states(&mut self, frame: &NedFrame, sats: &[SatMeas], nom: &GnssNominal, rep: &mut GnssReport) -> bool {
+        let lever = self.s.p_A_in_B_m;
+        let residuals = |sys: Option<System>, bias: f64| -> Vec<f64> {
+            sats.iter()
+                .filter(|s| sys.map_or(true, |y| s.system == y))
+                .filter_map(|s| {
+                    let mut n = *nom;
+                    n.clock = Vector3::new(bias, 0.0, 0.0);
+                    let p = predict_sat(frame, &n, &lever, s);
+                    match sys {
+                        Some(_) => s.pseudorange_m.map(|z| z - p.pseudorange_m),
+                        None => s.range_rate_mps.map(|z| z - p.range_rate_mps),
+                    }
+                })
+                .collect()
+        };
         if !self.clock_initialised {
-            let Some(b) = median(code_residuals(frame, sats, &p, System::Gps, 0.0)) else {
+            let Some(b) = median(residuals(Some(System::Gps), 0.0)) else {
                 return false;
             };
-            let d = median(
-                sats.iter()
-                    .filter_map(|s| s.range_rate_mps.map(|z| z - range_rate(frame, &p, &v, 0.0, s).0))
-                    .collect(),
-            )
-            .unwrap_or(0.0);
+            let d = median(residuals(None, 0.0)).unwrap_or(0.0);
             self.reset_clock_states(&[CLK_B, CLK_D], &[b, d], &[30.0f64.powi(2), 1.0]);
             self.clock_initialised = true;
             rep.clock_initialised = true;
         }
         if !self.isb_initialised {
-            if let Some(isb) = median(code_residuals(frame, sats, &p, System::Galileo, self.clock.x)) {
+            if let Some(isb) = median(residuals(Some(System::Galileo), self.clock.x)) {
                 self.reset_clock_states(&[CLK_E], &[isb], &[30.0f64.powi(2)]);
                 self.isb_initialised = true;
             }
@@ -148,33 +455,44 @@ impl Estimator {
         true
     }
 
-    /// The gated, whitened rows of an epoch's measurements. Robust
-    /// pre-screen (K5): each constellation's median code residual stands for
-    /// its clock error, so a code far from it is an outlier whatever the
-    /// clock's variance (the χ² gate alone lets a 30 m multipath code through
-    /// while the clock is still uncertain).
-    fn gnss_rows(&mut self, frame: &NedFrame, sats: &[SatMeas], rep: &mut GnssReport) -> Vec<GnssRow> {
-        let p = self.imu.p_B_in_W;
+    /// The gated, whitened rows of an epoch's measurements against `nom`,
+    /// gated with the covariance of the columns `cols`. Robust pre-screen
+    /// (K5): each constellation's median code residual stands for its clock
+    /// error, so a code far from it is an outlier whatever the clock's
+    /// variance (the χ² gate alone lets a 30 m multipath code through while
+    /// the clock is still uncertain).
+    fn gnss_rows(
+        &mut self,
+        frame: &NedFrame,
+        sats: &[SatMeas],
+        nom: &GnssNominal,
+        cols: &[usize],
+        rep: &mut GnssReport,
+    ) -> Vec<GnssRow> {
+        let preds: Vec<SatPrediction> = sats
+            .iter()
+            .map(|s| predict_sat(frame, nom, &self.s.p_A_in_B_m, s))
+            .collect();
         let median_res = |sys: System| {
-            median(code_residuals(
-                frame,
-                sats,
-                &p,
-                sys,
-                self.clock.x + self.clock.z * f64::from(sys == System::Galileo),
-            ))
+            median(
+                sats.iter()
+                    .zip(&preds)
+                    .filter(|(s, _)| s.system == sys)
+                    .filter_map(|(s, p)| s.pseudorange_m.map(|z| z - p.pseudorange_m))
+                    .collect(),
+            )
         };
         let medians = [
             (System::Gps, median_res(System::Gps)),
             (System::Galileo, median_res(System::Galileo)),
         ];
-        let mut p_sub = DMatrix::zeros(GNSS_COLS.len(), GNSS_COLS.len());
-        math::gather_block(&self.P, &GNSS_COLS, &mut p_sub);
+        let mut p_sub = DMatrix::zeros(cols.len(), cols.len());
+        math::gather_block(&self.P, cols, &mut p_sub);
         let gate = cmsckf_models::stats::chi2_quantile(0.99, 1);
         let mut rows: Vec<GnssRow> = Vec::new();
-        for s in sats {
+        for (s, pred) in sats.iter().zip(&preds) {
             let median = medians.iter().find(|m| m.0 == s.system).and_then(|m| m.1);
-            self.sat_rows(frame, s, median, &p_sub, gate, rep, &mut rows);
+            self.sat_rows(s, pred, median, &p_sub, gate, rep, &mut rows);
         }
         rows
     }
@@ -184,32 +502,27 @@ impl Estimator {
     #[allow(clippy::too_many_arguments)]
     fn sat_rows(
         &mut self,
-        frame: &NedFrame,
         s: &SatMeas,
+        pred: &SatPrediction,
         median: Option<f64>,
         p_sub: &DMatrix<f64>,
         gate: f64,
         rep: &mut GnssReport,
         rows: &mut Vec<GnssRow>,
     ) {
-        let (p, v) = (self.imu.p_B_in_W, self.imu.v_B_in_W);
-        let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
-        let (pr_pred, hp, el) = pseudorange(frame, &p, self.clock.x + isb * self.clock.z, s);
-        if el < self.s.elevation_mask_deg.to_radians() {
+        if pred.elevation_rad < self.s.elevation_mask_deg.to_radians() {
             reject(rep, &mut self.stats, "gnss_below_mask");
             return;
         }
-        let sin_el = el.sin().max(0.1);
+        let sin_el = pred.elevation_rad.sin().max(0.1);
         let mut res = (s.prn, None, None);
         if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
             let sigma = ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2).sqrt();
-            // ∂P/∂[v, p, b, ḃ, isb] (K2): Galileo's code sees b + isb.
-            let h = [0.0, 0.0, 0.0, hp[0], hp[1], hp[2], 1.0, 0.0, isb];
-            let r = z - pr_pred;
+            let r = z - pred.pseudorange_m;
             res.1 = Some(r);
             if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * sigma) {
                 reject(rep, &mut self.stats, "gnss_pseudorange_outlier");
-            } else if let Some(row) = gated(&h, r, sigma, p_sub, gate) {
+            } else if let Some(row) = gated(&pred.h_pseudorange, r, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.pseudoranges_used += 1;
             } else {
@@ -217,12 +530,10 @@ impl Estimator {
             }
         }
         if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {
-            let (pred, hv, hpr) = range_rate(frame, &p, &v, self.clock.y, s);
             let sigma = self.s.range_rate_sigma_mps / sin_el;
-            let h = [hv[0], hv[1], hv[2], hpr[0], hpr[1], hpr[2], 0.0, 1.0, 0.0];
-            let r = z - pred;
+            let r = z - pred.range_rate_mps;
             res.2 = Some(r);
-            if let Some(row) = gated(&h, r, sigma, p_sub, gate) {
+            if let Some(row) = gated(&pred.h_range_rate, r, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.range_rates_used += 1;
             } else {
@@ -259,8 +570,10 @@ pub fn pseudorange(
     (rho + sagnac + clock_bias_m - s.dts_m + trop, h_p, el)
 }
 
-/// Predicted range rate (K3): `(v_s − v)·u + ḃ − c·δṫ_s`, with Jacobians with
-/// respect to the world-frame velocity and position.
+/// Predicted range rate (K3): `(v_s − v)·u + ω_e (ẋ_s y + x_s ẏ − ẏ_s x − y_s ẋ)/c
+/// + ḃ − c·δṫ_s`, the time derivative of K2 (the second term is the Sagnac
+/// term's rate, a few mm/s), with Jacobians with respect to the world-frame
+/// velocity and position.
 pub fn range_rate(
     frame: &NedFrame,
     p_B_in_W: &Vector3<f64>,
@@ -274,11 +587,14 @@ pub fn range_rate(
     let rho = d.norm();
     let u = d / rho;
     let dv = s.v_sat_ecef_mps - v;
+    let (rs, vs) = (&s.r_sat_ecef_m, &s.v_sat_ecef_mps);
+    let k = OMEGA_E_RADPS / C_MPS;
+    let sagnac_rate = k * (vs.x * r.y + rs.x * v.y - vs.y * r.x - rs.y * v.x);
     // ∂u/∂r = −(I − uuᵀ)/ρ.
     let du_dr: Matrix3<f64> = -(Matrix3::identity() - u * u.transpose()) / rho;
-    let h_v = -u.transpose() * frame.R_ecef_ned;
-    let h_p = dv.transpose() * du_dr * frame.R_ecef_ned;
-    (dv.dot(&u) + clock_drift_mps - s.ddts_mps, h_v, h_p)
+    let h_v = (-u.transpose() + RowVector3::new(-rs.y, rs.x, 0.0) * k) * frame.R_ecef_ned;
+    let h_p = (dv.transpose() * du_dr + RowVector3::new(-vs.y, vs.x, 0.0) * k) * frame.R_ecef_ned;
+    (dv.dot(&u) + sagnac_rate + clock_drift_mps - s.ddts_mps, h_v, h_p)
 }
 
 #[cfg(test)]

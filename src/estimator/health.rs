@@ -204,6 +204,11 @@ impl Estimator {
                 i.b_g.norm()
             ));
         }
+        // A short grace period after the start: the first tracks are short
+        // and the prior still settling, so the innovations judge nothing yet.
+        if self.t_s - self.t_start_s < self.s.health_grace_s {
+            return Ok(());
+        }
         self.monitor.verdict()
     }
 }

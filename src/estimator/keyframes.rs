@@ -22,7 +22,7 @@ impl Estimator {
         let id = self.next_kf_id;
         self.next_kf_id += 1;
         let at = self.clones_offset();
-        self.augment(at);
+        self.augment_view(at);
         self.local_kfs.push(id);
         let mut kobs = BTreeMap::new();
         for o in obs {
@@ -56,7 +56,7 @@ impl Estimator {
     pub(super) fn remove_keyframe(&mut self, id: u64) {
         if let Some(j) = self.local_kfs.iter().position(|&k| k == id) {
             let at = self.kf_offset(j);
-            self.remove_block(at);
+            self.remove_block(at, 6);
             self.local_kfs.remove(j);
         } else if let Some(g) = self.global.as_mut() {
             // Deleting a global state commutes with Ψ and q (§5, eq. G5): its

@@ -33,6 +33,7 @@ pub mod math;
 mod msckf;
 pub mod propagate;
 pub mod settings;
+mod zupt;
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
@@ -43,20 +44,23 @@ use nalgebra::{DMatrix, DVector, Matrix6, UnitQuaternion, Vector3};
 
 use covariance::position_sigma_m;
 pub use frontend::NormObs;
-pub use gnss_update::GnssReport;
+pub use gnss_update::{GnssReport, GNSS_CLONE_DIM};
 use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
-pub use settings::{Mode, Settings};
+pub use settings::{Mode, Settings, ZuptSettings};
 
 /// Active (always-local) states: the IMU, then the GNSS receiver clock
 /// `[c·δt_G (m), c·δṫ (m/s), c·(δt_E − δt_G) (m)]`: GPS's bias, the common
 /// drift, and Galileo's inter-system bias (so Galileo's own bias is
-/// `c·δt_E = c·δt_G + isb`: a bias per constellation and one drift).
-pub const ACTIVE_DIM: usize = IMU_DIM + 3;
+/// `c·δt_E = c·δt_G + isb`: a bias per constellation and one drift), then
+/// the camera–IMU time offset `t_d` (s, `t_imu = t_cam + t_d`, §3b).
+pub const ACTIVE_DIM: usize = IMU_DIM + 4;
 /// Offsets of the clock bias, drift and Galileo inter-system bias.
 pub const CLK_B: usize = IMU_DIM;
 pub const CLK_D: usize = IMU_DIM + 1;
 pub const CLK_E: usize = IMU_DIM + 2;
+/// Offset of the camera–IMU time offset.
+pub const TD: usize = IMU_DIM + 3;
 /// The active block's transition.
 pub type MatActive = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
@@ -97,6 +101,8 @@ pub enum InputError {
     FrameTimeBackwards { t_s: f64, filter_s: f64 },
     #[error("IMU buffer full ({0} samples); oldest dropped")]
     ImuOverflow(usize),
+    #[error("GNSS epoch at {t_s} s is {late_s:.3} s behind the filter: past the {max_s} s it may be late, or no clone was taken at its instant")]
+    GnssLate { t_s: f64, late_s: f64, max_s: f64 },
 }
 
 /// A sliding-window clone of the body pose.
@@ -105,6 +111,38 @@ struct CloneState {
     seq: u64,
     q_W_B: UnitQuaternion<f64>,
     p_B_in_W: Vector3<f64>,
+}
+
+/// A stochastic clone for a GNSS epoch (§8b): the states its measurements
+/// involve, taken at the instant the receiver's next epoch is expected and
+/// kept until the epoch arrives (or `gnss_max_delay_s` has passed), so a
+/// late epoch is fused at its own time, exactly.
+#[derive(Clone, Copy, Debug)]
+struct GnssClone {
+    t_s: f64,
+    nom: gnss_update::GnssNominal,
+    /// The IMU measurement at the instant (to shift to the epoch's own time).
+    meas: ImuMeas,
+}
+
+/// Where GNSS epochs are expected: every `period_s` after the last one.
+#[derive(Clone, Copy, Debug)]
+struct GnssGrid {
+    last_epoch_s: f64,
+    period_s: f64,
+    /// Whether `period_s` was measured from two epochs (else the setting).
+    measured: bool,
+    /// The next instant to clone at.
+    next_s: f64,
+}
+
+/// IMU stillness since the last frame (§3c): the largest body rate and the
+/// largest deviation of the specific force's norm from gravity.
+#[derive(Clone, Copy, Debug, Default)]
+struct Stillness {
+    samples: u32,
+    max_gyro_radps: f64,
+    max_accel_dev_mps2: f64,
 }
 
 /// A keyframe observation of a landmark.
@@ -159,6 +197,15 @@ pub struct Stats {
     pub loop_closure_deferred: u64,
     pub keyframes_created: u64,
     pub keyframes_marginalised: u64,
+    /// GNSS epochs fused (on time or through their clone).
+    pub gnss_epochs_fused: u64,
+    /// Of those, fused at their own time through a clone (late arrivals).
+    pub gnss_epochs_fused_late: u64,
+    /// GNSS epochs refused as later than `gnss_max_delay_s` (or with no
+    /// clone at their instant).
+    pub gnss_epochs_late: u64,
+    /// Frames taken as zero-velocity updates instead of clones (§3c).
+    pub zupt_updates: u64,
 }
 
 /// Why a global update happened.
@@ -258,6 +305,15 @@ pub struct Estimator {
     pending_eligible: BTreeSet<u64>,
     next_kf_id: u64,
     last_kf_t_s: f64,
+    /// Camera–IMU time offset `t_d` (s), the nominal of state [`TD`].
+    t_d_s: f64,
+    /// GNSS clones waiting for their epochs, oldest first; their blocks
+    /// sit after the camera clones, `GNSS_CLONE_DIM` each.
+    gnss_clones: VecDeque<GnssClone>,
+    gnss_grid: Option<GnssGrid>,
+    still: Stillness,
+    /// Time the filter started (the monitor's grace period runs from it).
+    t_start_s: f64,
     pub stats: Stats,
     /// Divergence detection from the innovations (§9).
     pub monitor: health::NisMonitor,
@@ -302,7 +358,13 @@ impl Estimator {
         P[(CLK_B, CLK_B)] = 1.0;
         P[(CLK_D, CLK_D)] = 1.0;
         P[(CLK_E, CLK_E)] = 1.0;
+        P[(TD, TD)] = s.time_offset_sigma_s.powi(2).max(1e-12);
         Self {
+            t_d_s: s.time_offset_s,
+            gnss_clones: VecDeque::new(),
+            gnss_grid: None,
+            still: Stillness::default(),
+            t_start_s: t_s,
             clock: nalgebra::Vector3::zeros(),
             clock_initialised: false,
             isb_initialised: false,
@@ -347,6 +409,15 @@ impl Estimator {
     }
     pub fn n_clones(&self) -> usize {
         self.clones.len()
+    }
+    /// The camera–IMU time offset estimate `t_d` (s, `t_imu = t_cam + t_d`)
+    /// and its variance (s²).
+    pub fn time_offset(&self) -> (f64, f64) {
+        (self.t_d_s, self.P[(TD, TD)])
+    }
+    /// GNSS clones waiting for their epochs.
+    pub fn n_gnss_clones(&self) -> usize {
+        self.gnss_clones.len()
     }
     pub fn n_global_keyframes(&self) -> usize {
         self.global.as_ref().map_or(0, |g| g.live.len())
@@ -413,6 +484,8 @@ impl Estimator {
         for off in kf_pos.values() {
             idx.extend(*off..*off + 6);
         }
+        let go = est.gnss_clones_offset();
+        idx.extend(go..go + GNSS_CLONE_DIM * est.gnss_clones.len());
         let P = est.P.select_rows(&idx).select_columns(&idx);
         let mut x = Vec::new();
         let push_q = |x: &mut Vec<f64>, q: &UnitQuaternion<f64>| {
@@ -426,6 +499,7 @@ impl Estimator {
             x.extend(v.iter());
         }
         x.extend(est.clock.iter());
+        x.push(est.t_d_s);
         for c in &est.clones {
             push_q(&mut x, &c.q_W_B);
             x.extend(c.p_B_in_W.iter());
@@ -434,6 +508,12 @@ impl Estimator {
             let kf = &est.keyframes[id];
             x.extend(kf.delta.iter());
             x.extend(kf.p_B_in_W.iter());
+        }
+        for g in &est.gnss_clones {
+            push_q(&mut x, &g.nom.imu.q_W_B);
+            for v in [g.nom.imu.v_B_in_W, g.nom.imu.p_B_in_W, g.nom.imu.b_g, g.nom.clock] {
+                x.extend(v.iter());
+            }
         }
         Snapshot {
             x: DVector::from_vec(x),
@@ -460,3 +540,5 @@ pub fn attitude_from_static(mean_accel_B: &Vector3<f64>, yaw_rad: f64) -> Option
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_real;

@@ -36,13 +36,21 @@ fn reject(rep: &mut FrameReport, st: &mut Stats, r: Reject) {
 }
 
 impl Estimator {
-    /// Processes one camera frame at `t_s` (§3–§5). The IMU samples up to
-    /// (and preferably just past) `t_s` must have been added.
-    pub fn process_frame(&mut self, t_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+    /// Processes one camera frame stamped `t_cam_s` by the camera's clock
+    /// (§3–§5): it is fused at `t_cam_s + t_d` on the IMU clock, with `t_d`
+    /// the time offset estimate (§3b). The IMU samples up to (and preferably
+    /// just past) that time must have been added.
+    pub fn process_frame(&mut self, t_cam_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+        let t_s = t_cam_s + self.t_d_s;
         self.advance_to(t_s, "frame_time_backwards")?;
         self.stats.frames += 1;
         let mut report = FrameReport::default();
         self.global_update_if_due(&mut report);
+        let still = std::mem::take(&mut self.still);
+        if self.zero_velocity_update(&still, obs) {
+            self.monitor.push_frame(t_s, &[], 0);
+            return Ok(report);
+        }
 
         let present: BTreeSet<u64> = obs.iter().map(|o| o.landmark_id).collect();
         self.add_view(t_s, obs, &mut report);
@@ -117,8 +125,8 @@ impl Estimator {
             report.events.push(FilterEvent::KeyframeCreated { id });
             report.keyframe_created = true;
         } else {
-            let at = self.P.nrows();
-            self.augment(at);
+            let at = self.gnss_clones_offset();
+            self.augment_view(at);
             let seq = self.next_seq;
             self.next_seq += 1;
             self.clones.push_back(CloneState {
@@ -135,7 +143,7 @@ impl Estimator {
     /// Marginalises the oldest clone; tracks still holding it drop it.
     fn marginalise_clone(&mut self, seq: u64) {
         if let Some(at) = self.clone_offset_by_seq(seq) {
-            self.remove_block(at);
+            self.remove_block(at, 6);
         }
         self.clones.pop_front();
         for tr in self.tracks.values_mut() {
@@ -318,6 +326,12 @@ impl Estimator {
         let (views, cols, obs, clone_obs) = self.track_views(l, tr, ks);
         if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
             reject(report, &mut self.stats, Reject::TooFewObservations);
+            return None;
+        }
+        // Too little parallax to triangulate (a hover, a standstill, a far
+        // landmark): skipped, and not a sign of inconsistency (§3c).
+        if feature::parallax_rad(&views, &self.s.ext, &obs) < self.s.min_parallax_rad {
+            reject(report, &mut self.stats, Reject::PoorParallax);
             return None;
         }
         let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {

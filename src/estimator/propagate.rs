@@ -249,6 +249,8 @@ impl Estimator {
         q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_D)] = qd * dt;
         q[(CLK_E, CLK_E)] = self.s.isb_rw.powi(2) * dt;
+        let (b_g, b_a) = (self.imu.b_g, self.imu.b_a);
+        self.still.push(&m, &b_g, &b_a, self.g_W.z);
         self.imu = integrate(&self.imu, &m0, &m, &self.g_W);
         self.clock.x += self.clock.y * dt;
         self.propagate_covariance(&f, &q);
@@ -257,8 +259,34 @@ impl Estimator {
     }
 
     /// Propagates the filter to `t_s` through the buffered samples,
-    /// interpolating the last one (or holding it if none is later).
+    /// interpolating the last one (or holding it if none is later). On the
+    /// way it clones the state at each instant a GNSS epoch is expected
+    /// (§8b), and marginalises the clones whose epochs never came.
     pub fn propagate_to(&mut self, t_s: f64) {
+        let oldest_useful = t_s - self.s.gnss_max_delay_s;
+        while let Some(g) = self.gnss_grid.as_mut() {
+            let tc = g.next_s;
+            if tc > t_s {
+                break;
+            }
+            if tc < oldest_useful {
+                // Instants the filter jumps over by more than the delay
+                // bound (a gap in the IMU) are not cloned: their epochs
+                // would be refused as late anyway.
+                g.next_s = tc + g.period_s * ((oldest_useful - tc) / g.period_s).ceil().max(1.0);
+                continue;
+            }
+            g.next_s = tc + g.period_s;
+            self.propagate_through(tc);
+            self.take_gnss_clone(tc);
+        }
+        self.propagate_through(t_s);
+        self.drop_stale_gnss_clones();
+    }
+
+    /// Propagates the filter to `t_s` through the buffered samples,
+    /// interpolating the last one (or holding it if none is later).
+    fn propagate_through(&mut self, t_s: f64) {
         while let Some(&m) = self.imu_buf.front() {
             if m.t_s > t_s {
                 break;

@@ -3,6 +3,7 @@
 //! The daemon's configuration fills these in (`config/settings.rs`); the
 //! estimator itself never reads a configuration file.
 
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use cmsckf_models::sensors::ImuConfig;
@@ -72,4 +73,54 @@ pub struct Settings {
     /// Compressed mode: rebases are computed by whoever takes the job
     /// ([`Estimator::take_rebase_job`]) instead of at once (§5 R4).
     pub async_rebase: bool,
+    /// Prior of the camera–IMU time offset `t_d` (s, `t_imu = t_cam + t_d`)
+    /// and its sigma (s); estimated online (§3b).
+    pub time_offset_s: f64,
+    pub time_offset_sigma_s: f64,
+    /// GNSS antenna phase centre in the body frame (m, FRD; §8).
+    pub p_A_in_B_m: Vector3<f64>,
+    /// GNSS epoch period assumed until two epochs show theirs (s).
+    pub gnss_period_s: f64,
+    /// Latest a GNSS epoch may arrive after its instant and still be fused
+    /// at its own time through a clone (s, §8b).
+    pub gnss_max_delay_s: f64,
+    /// Tracks whose bearings span less than this angle are skipped (rad):
+    /// they cannot be triangulated, and say nothing about health.
+    pub min_parallax_rad: f64,
+    pub zupt: ZuptSettings,
+    /// Time after the start during which the divergence monitor does not
+    /// judge (s): the first tracks are short and the prior still settling.
+    pub health_grace_s: f64,
+}
+
+/// When a frame is a zero-velocity update instead of a clone (§3c): the
+/// IMU still since the last frame, the features not moving, and the
+/// estimated speed small.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ZuptSettings {
+    pub enabled: bool,
+    /// Largest body rate of any IMU sample since the last frame (rad/s).
+    pub max_gyro_radps: f64,
+    /// Largest `| |a_m − b_a| − g |` of any IMU sample (m/s²).
+    pub max_accel_dev_mps2: f64,
+    /// Largest median feature displacement since the last clone
+    /// (normalised image units: pixels / focal length).
+    pub max_disparity: f64,
+    /// Largest estimated speed (m/s).
+    pub max_speed_mps: f64,
+    /// Sigma of the zero-velocity measurement (m/s).
+    pub sigma_mps: f64,
+}
+
+impl Default for ZuptSettings {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_gyro_radps: 0.02,
+            max_accel_dev_mps2: 0.3,
+            max_disparity: 3.0 / 450.0,
+            max_speed_mps: 0.5,
+            sigma_mps: 0.01,
+        }
+    }
 }

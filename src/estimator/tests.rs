@@ -7,8 +7,18 @@ use crate::eval;
 use cmsckf_sitl::dataset::Dataset;
 
 fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
+    scenario_for_tests("racetrack", seed, duration_s)
+}
+
+/// The racetrack with the default simulator and config.
+pub(super) fn racetrack_for_tests(seed: u64, duration_s: f64) -> (Dataset, Config) {
+    racetrack(seed, duration_s)
+}
+
+/// A scenario with the default simulator and config.
+pub(super) fn scenario_for_tests(scenario: &str, seed: u64, duration_s: f64) -> (Dataset, Config) {
     let cfg = Config::default();
-    let ds = Dataset::generate("racetrack", seed, Some(duration_s), &eval::sim_config_for(&cfg)).unwrap();
+    let ds = Dataset::generate(scenario, seed, Some(duration_s), &eval::sim_config_for(&cfg)).unwrap();
     (ds, cfg)
 }
 

@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use nalgebra::{Matrix6, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
@@ -66,6 +66,14 @@ pub struct FlightResult {
     pub cov_pose: Vec<Matrix6<f64>>,
     pub p_true: Vec<Vector3<f64>>,
     pub q_true: Vec<UnitQuaternion<f64>>,
+    pub v_est: Vec<Vector3<f64>>,
+    pub v_true: Vec<Vector3<f64>>,
+    /// Covariance of the velocity (m²/s²).
+    pub cov_vel: Vec<Matrix3<f64>>,
+    /// The camera–IMU time offset: the final estimate and the simulator's
+    /// truth (s).
+    pub time_offset_s: f64,
+    pub time_offset_true_s: f64,
     /// Estimator time per frame (µs), without the compressed rebases, which
     /// the daemon computes on its worker thread.
     pub frame_us: Vec<f64>,
@@ -81,12 +89,51 @@ pub struct FlightResult {
     pub clock_errors: Vec<(f64, f64, f64)>,
 }
 
-/// GNSS input of a run: the broadcast ephemerides and the world origin.
+/// GNSS input of a run: the broadcast ephemerides, the world origin, and
+/// the epochs in the order they reach the host.
 #[derive(Clone)]
 struct GnssInput {
     ephs: crate::gnss::spp::EphStore,
     frame: cmsckf_models::geodesy::NedFrame,
+    /// Epoch indices by delivery time, and the next to deliver.
+    order: Vec<usize>,
     next: usize,
+    /// Deliver each epoch at its own instant (no latency), for comparisons.
+    on_time: bool,
+}
+
+/// The satellites' measurements of epoch `i`, as the daemon would make them.
+fn epoch_measurements(
+    ds: &Dataset,
+    ephs: &crate::gnss::spp::EphStore,
+    i: usize,
+) -> Vec<cmsckf_models::gnss::SatMeas> {
+    let ep = &ds.gnss[i];
+    // The simulated receiver is single-frequency; its ionosphere is off by
+    // default, and `sim.gnss.ionosphere` makes it modelled as unknown
+    // (variance inflated).
+    let iono = if ds.cfg.gnss.ionosphere {
+        crate::gnss::IonoMode::Auto
+    } else {
+        crate::gnss::IonoMode::Off
+    };
+    crate::gnss::sat_measurements(
+        ephs,
+        ep.week,
+        ep.tow_s,
+        crate::gnss::IonoPolicy {
+            mode: iono,
+            klobuchar: None,
+            rx_ecef_m: None,
+        },
+        ep.sats.iter().map(|s| crate::gnss::RawSat {
+            system: s.system,
+            prn: s.prn,
+            l1_pseudorange_m: Some(s.pseudorange_m),
+            l2_pseudorange: None,
+            l1_range_rate_mps: Some(s.pseudorange_rate_mps),
+        }),
+    )
 }
 
 /// Drives one estimator through a dataset.
@@ -139,19 +186,62 @@ impl<'a> Runner<'a> {
         }
     }
 
-    /// Fuses the dataset's pseudoranges and range rates too.
-    pub fn with_gnss(mut self) -> Self {
+    /// Fuses the dataset's pseudoranges and range rates too, each epoch
+    /// as it reaches the host (`t_delivered_s`, late by the simulated
+    /// receiver's latency).
+    pub fn with_gnss(self) -> Self {
+        self.gnss_input(false)
+    }
+
+    /// As [`Self::with_gnss`], but each epoch delivered at its own instant:
+    /// the reference the late deliveries are compared with.
+    pub fn with_gnss_on_time(self) -> Self {
+        self.gnss_input(true)
+    }
+
+    fn gnss_input(mut self, on_time: bool) -> Self {
         let mut ephs = crate::gnss::spp::EphStore::default();
         for e in &self.ds.ephemerides {
             ephs.insert(e.clone());
         }
         let o = self.ds.cfg.gnss.origin_llh;
+        let delivered = |i: usize| {
+            let e = &self.ds.gnss[i];
+            if on_time {
+                e.t_s
+            } else {
+                e.t_delivered_s
+            }
+        };
+        let mut order: Vec<usize> = (0..self.ds.gnss.len()).collect();
+        order.sort_by(|a, b| delivered(*a).total_cmp(&delivered(*b)));
         self.gnss = Some(GnssInput {
             ephs,
             frame: cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]),
+            order,
             next: 0,
+            on_time,
         });
         self
+    }
+
+    /// The first epoch after `t_s` (index, world origin, measurements),
+    /// for tests that fuse it by hand.
+    pub fn gnss_epoch_after(
+        &self,
+        t_s: f64,
+    ) -> Option<(usize, cmsckf_models::geodesy::NedFrame, Vec<cmsckf_models::gnss::SatMeas>)> {
+        let g = self.gnss.as_ref()?;
+        let i = self.ds.gnss.iter().position(|e| e.t_s > t_s)?;
+        Some((i, g.frame, epoch_measurements(self.ds, &g.ephs, i)))
+    }
+
+    /// Delivers the epochs that reach the host by `t_s`, and brings the
+    /// filter to `t_s` (so two runs can be compared at one time).
+    pub fn finish_gnss(&mut self, t_s: f64) {
+        self.step_gnss(t_s);
+        self.feed_imu(t_s);
+        self.est.propagate_to(t_s);
     }
 
     /// Feeds IMU up to just past `t_s`.
@@ -170,53 +260,31 @@ impl<'a> Runner<'a> {
         }
     }
 
-    /// GNSS epochs up to `t_s`.
+    /// The GNSS epochs that reach the host by `t_s`, in delivery order.
     fn step_gnss(&mut self, t_s: f64) {
         let Some(mut g) = self.gnss.take() else { return };
         let ds = self.ds;
-        while let Some(ep) = ds.gnss.get(g.next) {
-            if ep.t_s > t_s {
+        while let Some(&i) = g.order.get(g.next) {
+            let ep = &ds.gnss[i];
+            let delivered = if g.on_time { ep.t_s } else { ep.t_delivered_s };
+            if delivered > t_s {
                 break;
             }
             g.next += 1;
-            // The simulated receiver is single-frequency; its ionosphere is
-            // off by default, and `sim.gnss.ionosphere` makes it modelled as
-            // unknown (variance inflated).
-            let iono = if ds.cfg.gnss.ionosphere {
-                crate::gnss::IonoMode::Auto
-            } else {
-                crate::gnss::IonoMode::Off
-            };
-            let sats = crate::gnss::sat_measurements(
-                &g.ephs,
-                ep.week,
-                ep.tow_s,
-                crate::gnss::IonoPolicy {
-                    mode: iono,
-                    klobuchar: None,
-                    rx_ecef_m: None,
-                },
-                ep.sats.iter().map(|s| crate::gnss::RawSat {
-                    system: s.system,
-                    prn: s.prn,
-                    l1_pseudorange_m: Some(s.pseudorange_m),
-                    l2_pseudorange: None,
-                    l1_range_rate_mps: Some(s.pseudorange_rate_mps),
-                }),
-            );
+            let sats = epoch_measurements(ds, &g.ephs, i);
             let frame = g.frame;
-            // Feed the IMU up to the epoch first.
-            let t = ep.t_s;
-            let (clock_truth, isb_truth) = (ep.clock_bias_m, ep.isb_galileo_m);
-            self.feed_imu(t);
-            if self.est.process_gnss(t, &frame, &sats).is_ok() {
+            // The IMU has arrived up to the delivery.
+            self.feed_imu(delivered);
+            if self.est.process_gnss(ep.t_s, &frame, &sats).is_ok() {
+                // The clock is the filter's now, after the epoch.
                 let (c, _) = self.est.clock();
+                let clock_truth = ep.clock_bias_m + ep.clock_drift_mps * (self.est.time_s() - ep.t_s);
                 let isb_err = if self.est.isb_initialised() {
-                    c.z - isb_truth
+                    c.z - ep.isb_galileo_m
                 } else {
                     f64::NAN
                 };
-                self.clock_errors.push((t, c.x - clock_truth, isb_err));
+                self.clock_errors.push((ep.t_s, c.x - clock_truth, isb_err));
             }
         }
         self.gnss = Some(g);
@@ -241,10 +309,12 @@ impl<'a> Runner<'a> {
     /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
     /// time spent in the estimator (µs) and the frame's report.
     pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {
-        let t_f = self.ds.frames[k].t_s;
+        // The frame reaches the host late; by then the IMU and any GNSS
+        // epoch delivered before it are in.
+        let t_f = self.ds.frames[k].t_delivered_s;
         self.step_gnss(t_f);
-        // Everything up to the frame, plus the first sample after it so the
-        // estimator can interpolate at the frame time.
+        // Everything up to the delivery, plus the first sample after it so
+        // the estimator can interpolate at the frame time.
         self.feed_imu(t_f);
         let f = &self.ds.frames[k];
         let start = Instant::now();
@@ -261,15 +331,21 @@ impl<'a> Runner<'a> {
     }
 }
 
-fn record(r: &mut FlightResult, ds: &Dataset, est: &Estimator, t_s: f64) {
+/// The estimate after a frame, with the truth at the filter's own time (the
+/// frame's stamp plus the estimated time offset).
+fn record(r: &mut FlightResult, ds: &Dataset, est: &Estimator) {
+    let t_s = est.time_s();
     let x = est.imu_state();
     let tr = ds.trajectory.sample(t_s);
     r.t_s.push(t_s);
     r.p_est.push(x.p_B_in_W);
     r.q_est.push(x.q_W_B);
+    r.v_est.push(x.v_B_in_W);
     r.cov_pose.push(est.pose_covariance());
+    r.cov_vel.push(est.imu_covariance().fixed_view::<3, 3>(3, 3).into_owned());
     r.p_true.push(tr.p_B_in_W);
     r.q_true.push(tr.q_W_B);
+    r.v_true.push(tr.v_B_in_W);
 }
 
 fn empty(mode: Mode) -> FlightResult {
@@ -281,6 +357,11 @@ fn empty(mode: Mode) -> FlightResult {
         cov_pose: vec![],
         p_true: vec![],
         q_true: vec![],
+        v_est: vec![],
+        v_true: vec![],
+        cov_vel: vec![],
+        time_offset_s: 0.0,
+        time_offset_true_s: 0.0,
         frame_us: vec![],
         rebase_us: vec![],
         stats: Stats::default(),
@@ -288,6 +369,16 @@ fn empty(mode: Mode) -> FlightResult {
         max_rel_diff_vs_full: None,
         clock_errors: Vec::new(),
     }
+}
+
+/// What a run's filter ends with.
+fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
+    r.stats = run.est.stats.clone();
+    r.keyframes = run.est.keyframes().count();
+    r.clock_errors = run.clock_errors.clone();
+    r.rebase_us = run.rebase_us.clone();
+    r.time_offset_s = run.est.time_offset().0;
+    r.time_offset_true_s = ds.cfg.camera_time_offset_s;
 }
 
 fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) -> Runner<'a> {
@@ -306,12 +397,9 @@ pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -
     for k in 0..ds.frames.len() {
         let (us, _) = runner.step_frame(k);
         r.frame_us.push(us);
-        record(&mut r, ds, &runner.est, ds.frames[k].t_s);
+        record(&mut r, ds, &runner.est);
     }
-    r.stats = runner.est.stats.clone();
-    r.keyframes = runner.est.keyframes().count();
-    r.clock_errors = runner.clock_errors;
-    r.rebase_us = runner.rebase_us;
+    finish(&mut r, ds, &runner);
     r
 }
 
@@ -327,8 +415,8 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: 
         let (us_f, _) = rf.step_frame(k);
         c.frame_us.push(us_c);
         f.frame_us.push(us_f);
-        record(&mut c, ds, &rc.est, ds.frames[k].t_s);
-        record(&mut f, ds, &rf.est, ds.frames[k].t_s);
+        record(&mut c, ds, &rc.est);
+        record(&mut f, ds, &rf.est);
         if rep.global_updates > 0 {
             worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
         }
@@ -336,10 +424,7 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: 
     rc.est.force_global_update();
     worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
     for (r, run) in [(&mut c, &rc), (&mut f, &rf)] {
-        r.stats = run.est.stats.clone();
-        r.keyframes = run.est.keyframes().count();
-        r.clock_errors = run.clock_errors.clone();
-        r.rebase_us = run.rebase_us.clone();
+        finish(r, ds, run);
     }
     c.max_rel_diff_vs_full = Some(worst);
     (c, f)

@@ -43,6 +43,55 @@ pub struct ModeSummary {
     /// RMS of the Galileo inter-system-bias error, likewise (m).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub isb_galileo_rmse_m: Option<f64>,
+    /// Mean NEES of each part of the state over the flight, and over its
+    /// second half: tilt (roll and pitch, 2 dof), yaw (1), position (3) and
+    /// velocity (3). A consistent filter gives the degrees of freedom.
+    pub nees_tilt_mean: f64,
+    pub nees_yaw_mean: f64,
+    pub nees_position_mean: f64,
+    pub nees_velocity_mean: f64,
+    pub nees_tilt_mean_second_half: f64,
+    pub nees_yaw_mean_second_half: f64,
+    pub nees_position_mean_second_half: f64,
+    pub nees_velocity_mean_second_half: f64,
+    /// The time offset's final |estimate − truth| (ms), mean over seeds.
+    pub time_offset_error_ms: f64,
+    /// GNSS epochs fused, and refused as late, per flight.
+    pub gnss_epochs_fused: f64,
+    pub gnss_epochs_late: f64,
+    /// Frames taken as zero-velocity updates, per flight.
+    pub zupt_updates: f64,
+}
+
+/// Mean NEES of each part of the state over the samples `from..`:
+/// `[tilt, yaw, position, velocity]`. The attitude error is the world-frame
+/// `Log(R_true R̂ᵀ)` of the filter's perturbation, so yaw is its down
+/// component.
+pub fn component_nees(r: &FlightResult, from: usize) -> [f64; 4] {
+    let mut sum = [0.0; 4];
+    let mut n = 0usize;
+    for i in from..r.t_s.len() {
+        let e_th = (r.q_true[i] * r.q_est[i].inverse()).scaled_axis();
+        let c = &r.cov_pose[i];
+        let tilt_cov = c.fixed_view::<2, 2>(0, 0).into_owned();
+        let pos_cov = c.fixed_view::<3, 3>(3, 3).into_owned();
+        let (Some(ti), Some(pi), Some(vi)) = (
+            tilt_cov.try_inverse(),
+            pos_cov.try_inverse(),
+            r.cov_vel[i].try_inverse(),
+        ) else {
+            continue;
+        };
+        let e_tilt = e_th.xy();
+        let e_p = r.p_true[i] - r.p_est[i];
+        let e_v = r.v_true[i] - r.v_est[i];
+        sum[0] += e_tilt.dot(&(ti * e_tilt));
+        sum[1] += e_th.z * e_th.z / c[(2, 2)];
+        sum[2] += e_p.dot(&(pi * e_p));
+        sum[3] += e_v.dot(&(vi * e_v));
+        n += 1;
+    }
+    sum.map(|s| s / n.max(1) as f64)
 }
 
 /// Scores of one flight.
@@ -86,6 +135,18 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
     let mut times: Vec<f64> = runs.iter().flat_map(|r| r.frame_us.iter().copied()).collect();
     let tmean = times.iter().sum::<f64>() / times.len().max(1) as f64;
     let p99 = percentile(&mut times, 0.99).unwrap_or(0.0);
+    let comp = |half: bool| {
+        let mut acc = [0.0; 4];
+        for r in runs {
+            let from = if half { r.t_s.len() / 2 } else { 0 };
+            let c = component_nees(r, from);
+            for k in 0..4 {
+                acc[k] += c[k] / n;
+            }
+        }
+        acc
+    };
+    let (nees_all, nees_half) = (comp(false), comp(true));
     let diff = runs
         .iter()
         .filter_map(|r| r.max_rel_diff_vs_full)
@@ -125,6 +186,22 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         // not estimated yet).
         clock_bias_rmse_m: clock_rmse(runs, |c| c.1),
         isb_galileo_rmse_m: clock_rmse(runs, |c| c.2),
+        nees_tilt_mean: nees_all[0],
+        nees_yaw_mean: nees_all[1],
+        nees_position_mean: nees_all[2],
+        nees_velocity_mean: nees_all[3],
+        nees_tilt_mean_second_half: nees_half[0],
+        nees_yaw_mean_second_half: nees_half[1],
+        nees_position_mean_second_half: nees_half[2],
+        nees_velocity_mean_second_half: nees_half[3],
+        time_offset_error_ms: runs
+            .iter()
+            .map(|r| (r.time_offset_s - r.time_offset_true_s).abs() * 1e3)
+            .sum::<f64>()
+            / n,
+        gnss_epochs_fused: runs.iter().map(|r| r.stats.gnss_epochs_fused as f64).sum::<f64>() / n,
+        gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
+        zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
     }
 }
 
@@ -170,6 +247,30 @@ impl Evaluation {
                 "compressed  frame p50 {:.0} µs, max {:.0} µs · {:.0} promotions · rebase jobs mean {:.2} ms, max {:.2} ms (timed apart: the daemon runs them on a worker thread)\n",
                 r.frame_us_p50, r.frame_us_max, r.promotions, r.rebase_ms_mean, r.rebase_ms_max
             );
+        }
+        s += &format!(
+            "{:<11} {:>21} {:>21} {:>21} {:>21} {:>9} {:>6} {:>6} {:>6}\n",
+            "NEES", "tilt (2) all/2nd", "yaw (1) all/2nd", "pos (3) all/2nd", "vel (3) all/2nd", "t_d[ms]", "gnss", "late", "zupt"
+        );
+        for m in Mode::ALL {
+            if let Some(r) = self.modes.get(m.name()) {
+                s += &format!(
+                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6.0} {:>6.0} {:>6.0}\n",
+                    m.name(),
+                    r.nees_tilt_mean,
+                    r.nees_tilt_mean_second_half,
+                    r.nees_yaw_mean,
+                    r.nees_yaw_mean_second_half,
+                    r.nees_position_mean,
+                    r.nees_position_mean_second_half,
+                    r.nees_velocity_mean,
+                    r.nees_velocity_mean_second_half,
+                    r.time_offset_error_ms,
+                    r.gnss_epochs_fused,
+                    r.gnss_epochs_late,
+                    r.zupt_updates
+                );
+            }
         }
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {

@@ -9,6 +9,12 @@
 //! `speedup`. Times on the wire are the autopilot's boot clock, which starts
 //! `BOOT0_S` before the flight.
 //!
+//! Like a real camera and receiver, the simulated ones are late: each frame
+//! reaches the feature socket at its delivery time, stamped with the camera
+//! clock's time of its exposure (off the IMU's by the true, unknown offset),
+//! and each epoch's RTCM goes out at its delivery time, its MSM7 carrying the
+//! epoch's own time.
+//!
 //! - `stream`: the time-ordered, wall-clock-paced sending loop
 //! - `sensors`: the autopilot's own MAVLink streams (IMU, attitude, time)
 //! - `rtcm`: GNSS observations and ephemerides as `GPS_RTCM_DATA`

@@ -34,10 +34,12 @@ pub fn rtcm_fragments(msg: &[u8], seq: u8) -> Vec<apm::GPS_RTCM_DATA_DATA> {
 }
 
 impl Streamer<'_> {
-    /// Sends the next GNSS epoch: the receiver's MSM7 epoch, as it would
-    /// relay it, with the faults in force applied.
+    /// Delivers the next GNSS epoch (in delivery order, at its
+    /// `t_delivered_s`): the receiver's MSM7 epoch, as it would relay it,
+    /// with the faults in force at delivery applied.
     pub(super) async fn send_gnss_epoch(&mut self, active: &Active<'_>) {
-        let mut ep = self.ds.gnss[self.k_gnss].clone();
+        let Some(ep) = self.next_epoch() else { return };
+        let mut ep = ep.clone();
         if active.has(FaultKind::PrOutlier) {
             add_pr_outliers(&mut ep);
         }

@@ -2,6 +2,13 @@
 //! frame, GNSS epoch and slow telemetry message in time order, paced by the
 //! wall clock, and the state it keeps while doing so. What each kind of
 //! message looks like lives in the sibling modules.
+//!
+//! Camera frames and GNSS epochs go out when a real camera and receiver
+//! would deliver them, at their `t_delivered_s`, not at their exposure or
+//! epoch: a frame carries its camera-clock stamp `t_s` and arrives 30–60 ms
+//! after its exposure, an epoch's RTCM 0.2–0.6 s after its instant (by the
+//! default simulator settings). Each stream goes out in delivery order;
+//! anything due after the end of the flight is not sent.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -14,6 +21,8 @@ use super::fault::{Active, FaultKind};
 use super::feature_socket::{feature_line, FeatureSocket};
 use super::{Link, ServeOptions, HEADER};
 use crate::dataset::Dataset;
+use crate::features::CameraFrame;
+use crate::gnss::GnssEpoch;
 
 /// The sending side of a served flight.
 pub(super) struct Streamer<'a> {
@@ -27,9 +36,13 @@ pub(super) struct Streamer<'a> {
     pub(super) sent_wall: Vec<Option<Instant>>,
     /// The connection to the daemon's feature socket.
     pub(super) feat: FeatureSocket<'a>,
-    /// Next IMU sample, camera frame and GNSS epoch to send.
+    /// Next IMU sample to send.
     pub(super) k_imu: usize,
+    /// Camera frames and GNSS epochs (indices into the dataset's) in
+    /// delivery order, and the next of each to send.
+    pub(super) cam_order: Vec<usize>,
     pub(super) k_cam: usize,
+    pub(super) gnss_order: Vec<usize>,
     pub(super) k_gnss: usize,
     /// Flight time of the next 10 Hz attitude / position.
     pub(super) next_slow: f64,
@@ -51,7 +64,9 @@ impl<'a> Streamer<'a> {
             sent_wall: vec![None; ds.imu.len()],
             feat: FeatureSocket::new(&opts.feature_socket),
             k_imu: 0,
+            cam_order: delivery_order(ds.frames.iter().map(|f| f.t_delivered_s)),
             k_cam: 0,
+            gnss_order: delivery_order(ds.gnss.iter().map(|e| e.t_delivered_s)),
             k_gnss: 0,
             next_slow: 0.0,
             next_1hz: 0.0,
@@ -70,15 +85,26 @@ impl<'a> Streamer<'a> {
         boot_us(t, self.reboot_s)
     }
 
+    /// The next camera frame to deliver.
+    pub(super) fn next_frame(&self) -> Option<&'a CameraFrame> {
+        self.cam_order.get(self.k_cam).map(|&i| &self.ds.frames[i])
+    }
+
+    /// The next GNSS epoch to deliver.
+    pub(super) fn next_epoch(&self) -> Option<&'a GnssEpoch> {
+        self.gnss_order.get(self.k_gnss).map(|&i| &self.ds.gnss[i])
+    }
+
     /// Streams the whole flight, flight time 0 being `t_start` on the wall
-    /// clock divided by the speed-up. At equal times, GNSS goes first, then
-    /// the 1 Hz, the 10 Hz, the IMU and last the camera.
+    /// clock divided by the speed-up. Frames and epochs go out at their
+    /// delivery times. At equal times, GNSS goes first, then the 1 Hz, the
+    /// 10 Hz, the IMU and last the camera.
     pub(super) async fn run(&mut self, t_start: Instant) {
         let ds = self.ds;
         loop {
             let t_imu = ds.imu.get(self.k_imu).map_or(f64::INFINITY, |m| m.t_s);
-            let t_cam = ds.frames.get(self.k_cam).map_or(f64::INFINITY, |f| f.t_s);
-            let t_gnss = ds.gnss.get(self.k_gnss).map_or(f64::INFINITY, |e| e.t_s.max(0.0));
+            let t_cam = self.next_frame().map_or(f64::INFINITY, |f| f.t_delivered_s);
+            let t_gnss = self.next_epoch().map_or(f64::INFINITY, |e| e.t_delivered_s.max(0.0));
             let t = t_imu.min(t_cam).min(self.next_slow).min(self.next_1hz).min(t_gnss);
             if !t.is_finite() || t > ds.duration_s + 1e-9 {
                 break;
@@ -116,11 +142,18 @@ impl<'a> Streamer<'a> {
     }
 }
 
+/// Indices of `times` in increasing time order (ties in index order).
+fn delivery_order(times: impl Iterator<Item = f64>) -> Vec<usize> {
+    let mut v: Vec<(f64, usize)> = times.enumerate().map(|(i, t)| (t, i)).collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    v.into_iter().map(|(_, i)| i).collect()
+}
+
 impl Streamer<'_> {
-    /// Sends the next camera frame, unless the front end is down or the
-    /// camera out.
+    /// Delivers the next camera frame, stamped with its camera-clock time
+    /// `t_s`, unless the front end is down or the camera out.
     pub(super) async fn send_frame(&mut self, active: &Active<'_>) {
-        let f = &self.ds.frames[self.k_cam];
+        let Some(f) = self.next_frame() else { return };
         self.k_cam += 1;
         if active.has(FaultKind::FrontendRestart) {
             // The front end has crashed: no connection, no frames.
@@ -134,5 +167,16 @@ impl Streamer<'_> {
         if self.feat.write(line.repeat(active.copies()).as_bytes()).await {
             self.frames_sent += 1;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn delivery_order_sorts_by_time_then_index() {
+        assert_eq!(delivery_order([0.3, 0.1, 0.2, 0.1].into_iter()), vec![1, 3, 2, 0]);
+        assert!(delivery_order(std::iter::empty()).is_empty());
     }
 }

@@ -1,7 +1,7 @@
 //! Blocked lower-triangular kernels (README §3, U1): the Cholesky factor
 //! with its diagonal blocks inverted once ([`LowerSolver`]), the solves
 //! with it, `T M` for an upper-triangular `T`, and the symmetric rank-k
-//! update `P += α AᵀB`.
+//! update `P += α AᵀB` (and `P += α AᵀA` outside a diagonal block, §6).
 //!
 //! Why it exists: the EKF update and the rebase spend their time in these
 //! solves and products; written as matrix products over blocks of
@@ -186,17 +186,25 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
 }
 
 /// Copies the strict lower triangle of the leading `g × g` block onto its
-/// upper one, in place, in square tiles so that both sides stay in cache on
-/// large matrices.
+/// upper one, in place.
 fn mirror_lower_leading(p: &mut nalgebra::DMatrix<f64>, g: usize) {
+    mirror_lower(p, 0..g, 0, g);
+}
+
+/// `P[j, i] = P[i, j]` for the columns `j ∈ cols` and the rows
+/// `i ∈ [max(j + 1, r_min), r_end)`: part of the strict lower triangle copied
+/// onto the upper one, in place, in square tiles so that both sides stay in
+/// cache on large matrices.
+fn mirror_lower(p: &mut nalgebra::DMatrix<f64>, cols: std::ops::Range<usize>, r_min: usize, r_end: usize) {
     const TILE: usize = 64;
     let ld = p.nrows();
     let data = p.as_mut_slice();
-    for j0 in (0..g).step_by(TILE) {
-        for i0 in (j0..g).step_by(TILE) {
+    for j0 in cols.clone().step_by(TILE) {
+        let j1 = (j0 + TILE).min(cols.end);
+        for i0 in (j0.max(r_min)..r_end).step_by(TILE) {
             // Tile rows i0.., columns j0..: P[j, i] = P[i, j] for i > j.
-            for j in j0..(j0 + TILE).min(g) {
-                for i in i0.max(j + 1)..(i0 + TILE).min(g) {
+            for j in j0..j1 {
+                for i in i0.max(j + 1)..(i0 + TILE).min(r_end) {
                     data[i * ld + j] = data[j * ld + i];
                 }
             }
@@ -238,6 +246,45 @@ pub fn add_symmetric_product_t(
         j0 += jb;
     }
     mirror_lower_leading(p, g);
+}
+
+/// `P += α AᵀA` (`A` k × n, given as `Aᵀ` and `A` views, `P` n × n) on
+/// every entry outside the diagonal block `[s0, s1)²`, which is left as it
+/// is: the Schmidt update (README §6) with `[s0, s1)` the nuisance states.
+/// Only the lower triangle outside that block is computed (the columns
+/// before `s0` and from `s1` on from their diagonal down, by column blocks;
+/// the columns of `[s0, s1)` on the rows from `s1` on, one product), then
+/// mirrored, so `P` leaves exactly symmetric if it came so. With
+/// `n_A = n − (s1 − s0)` the cost is at most `k · n_A · n` multiply–adds,
+/// and nothing of size n × n is allocated.
+pub fn add_gram_outside_block(
+    p: &mut nalgebra::DMatrix<f64>,
+    alpha: f64,
+    at: nalgebra::DMatrixView<'_, f64>,
+    a: nalgebra::DMatrixView<'_, f64>,
+    s0: usize,
+    s1: usize,
+) {
+    let n = p.nrows();
+    assert!(s0 <= s1 && s1 <= n, "nuisance block [{s0}, {s1}) outside 0..{n}");
+    debug_assert!(p.ncols() == n && at.nrows() == n && a.ncols() == n && at.ncols() == a.nrows());
+    let block = TRI_BLOCK.max(n / 16);
+    for (c0, c1) in [(0, s0), (s1, n)] {
+        let mut j0 = c0;
+        while j0 < c1 {
+            let jb = block.min(c1 - j0);
+            p.view_mut((j0, j0), (n - j0, jb))
+                .gemm(alpha, &at.rows(j0, n - j0), &a.columns(j0, jb), 1.0);
+            j0 += jb;
+        }
+    }
+    if s1 > s0 && n > s1 {
+        p.view_mut((s1, s0), (n - s1, s1 - s0))
+            .gemm(alpha, &at.rows(s1, n - s1), &a.columns(s0, s1 - s0), 1.0);
+    }
+    mirror_lower(p, 0..s0, 0, n);
+    mirror_lower(p, s0..s1, s1, n);
+    mirror_lower(p, s1..n, 0, n);
 }
 
 #[cfg(test)]

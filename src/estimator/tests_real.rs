@@ -1,0 +1,307 @@
+//! Tests of what real sensors add to the model: the camera–IMU time offset,
+//! the GNSS antenna lever arm and the Sagnac rate, late GNSS epochs fused
+//! through their clones, and zero-velocity updates.
+
+use nalgebra::{DMatrix, UnitQuaternion, Vector3};
+
+use super::gnss_update::{predict_sat, range_rate, GnssNominal, GNSS_COLS};
+use super::propagate::{integrate, ImuMeas, ImuState};
+use super::*;
+use cmsckf_models::geodesy::NedFrame;
+use cmsckf_models::gnss::{SatMeas, System};
+
+fn state() -> ImuState {
+    ImuState {
+        q_W_B: UnitQuaternion::from_euler_angles(0.2, -0.3, 1.1),
+        v_B_in_W: Vector3::new(12.0, -3.0, 0.5),
+        p_B_in_W: Vector3::new(100.0, 20.0, -5.0),
+        b_g: Vector3::new(0.01, -0.02, 0.005),
+        b_a: Vector3::new(0.1, -0.05, 0.2),
+    }
+}
+
+fn meas(t_s: f64) -> ImuMeas {
+    ImuMeas {
+        t_s,
+        accel_mps2: Vector3::new(1.0, 2.5, -9.0),
+        gyro_radps: Vector3::new(0.3, -0.4, 0.8),
+    }
+}
+
+/// §3b, eq. T3: the body pose at `t + δt_d` moves by `[R ω_B; v] δt_d`.
+/// Finite differences of the integrated pose against that column.
+#[test]
+fn time_offset_column_matches_finite_differences() {
+    let x = state();
+    let g = Vector3::new(0.0, 0.0, 9.81);
+    let m0 = meas(0.0);
+    let h = 1e-5;
+    let fwd = integrate(&x, &m0, &meas(h), &g);
+    let bwd = integrate(&x, &m0, &meas(-h), &g);
+    let d_th = (fwd.q_W_B * bwd.q_W_B.inverse()).scaled_axis() / (2.0 * h);
+    let d_p = (fwd.p_B_in_W - bwd.p_B_in_W) / (2.0 * h);
+    let w_W = x.q_W_B * (m0.gyro_radps - x.b_g);
+    assert!((d_th - w_W).amax() < 1e-8, "rotation: fd {d_th:?} vs {w_W:?}");
+    assert!((d_p - x.v_B_in_W).amax() < 1e-8, "position: fd {d_p:?} vs {:?}", x.v_B_in_W);
+}
+
+fn sat(system: System) -> (NedFrame, SatMeas) {
+    let frame = NedFrame::from_llh_deg(-33.88, 151.2, 40.0);
+    let up = frame.origin_ecef.normalize();
+    let east = frame.R_ecef_ned.column(1).into_owned();
+    let r_sat = frame.origin_ecef + up * 2.0e7 + east * 8.0e6;
+    (
+        frame,
+        SatMeas {
+            system,
+            prn: 5,
+            r_sat_ecef_m: r_sat,
+            v_sat_ecef_mps: Vector3::new(1200.0, -2500.0, 1800.0),
+            dts_m: 30.0,
+            ddts_mps: 0.01,
+            pseudorange_m: None,
+            range_rate_mps: None,
+            noise_scale: 1.0,
+            extra_var_m2: 0.0,
+        },
+    )
+}
+
+/// §8, eqs. L1–L2: the pseudorange and range-rate rows over
+/// `[δθ, δv, δp, δb_g, δb, δḃ, δisb]`, with a 0.3 m lever arm turning at
+/// 1 rad/s, against central differences of the prediction.
+#[test]
+fn lever_arm_rows_match_finite_differences() {
+    for system in [System::Gps, System::Galileo] {
+        let (frame, s) = sat(system);
+        let nom = GnssNominal {
+            imu: state(),
+            gyro_radps: Vector3::new(0.6, -0.5, 0.7),
+            clock: Vector3::new(120.0, 3.0, 6.0),
+        };
+        let lever = Vector3::new(0.2, -0.1, -0.2);
+        let p = predict_sat(&frame, &nom, &lever, &s);
+        for k in 0..GNSS_CLONE_DIM {
+            // Steps of 1e-3 (rad, rad/s, m, m/s): the pseudorange is 2e7 m,
+            // so smaller ones drown in round-off.
+            let h = 1e-3;
+            let mut d = [0.0; GNSS_CLONE_DIM];
+            d[k] = h;
+            let mut plus = nom;
+            plus.correct(&d);
+            d[k] = -h;
+            let mut minus = nom;
+            minus.correct(&d);
+            let pp = predict_sat(&frame, &plus, &lever, &s);
+            let pm = predict_sat(&frame, &minus, &lever, &s);
+            let fd_pr = (pp.pseudorange_m - pm.pseudorange_m) / (2.0 * h);
+            let fd_rate = (pp.range_rate_mps - pm.range_rate_mps) / (2.0 * h);
+            assert!(
+                (fd_pr - p.h_pseudorange[k]).abs() < 2e-5,
+                "{system:?} pseudorange column {k}: fd {fd_pr} vs {}",
+                p.h_pseudorange[k]
+            );
+            assert!(
+                (fd_rate - p.h_range_rate[k]).abs() < 2e-5,
+                "{system:?} range-rate column {k}: fd {fd_rate} vs {}",
+                p.h_range_rate[k]
+            );
+        }
+        // The lever arm matters: the antenna is not the body origin.
+        let at_origin = predict_sat(&frame, &nom, &Vector3::zeros(), &s);
+        assert!((at_origin.pseudorange_m - p.pseudorange_m).abs() > 0.01);
+        assert!((at_origin.range_rate_mps - p.range_rate_mps).abs() > 0.01);
+    }
+}
+
+/// The range rate is the time derivative of the pseudorange, Sagnac term
+/// included (§8, K3): move the receiver along its velocity and the
+/// satellite along its own, and difference the predicted pseudoranges.
+#[test]
+fn range_rate_is_the_pseudoranges_derivative() {
+    let (frame, s) = sat(System::Gps);
+    let p = Vector3::new(120.0, -40.0, -8.0);
+    let v = Vector3::new(14.0, 3.0, -0.5);
+    let (rate, _, _) = range_rate(&frame, &p, &v, 0.0, &s);
+    let h = 1e-3;
+    let at = |dt: f64| {
+        let mut sd = s;
+        sd.r_sat_ecef_m += s.v_sat_ecef_mps * dt;
+        // The satellite clock's own drift is in the rate only.
+        gnss_update::pseudorange(&frame, &(p + v * dt), 0.0, &sd).0
+    };
+    let fd = (at(h) - at(-h)) / (2.0 * h) - s.ddts_mps;
+    // The troposphere's change with elevation is not in the rate model
+    // (below 1 mm/s at this geometry).
+    assert!((fd - rate).abs() < 1e-3, "fd {fd} vs model {rate}");
+}
+
+/// `augment` with the time-offset column equals the dense `J P Jᵀ`.
+#[test]
+fn augmenting_a_view_equals_the_dense_product() {
+    let (ds, cfg) = super::tests::racetrack_for_tests(3, 2.0);
+    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Full, 3);
+    for k in 0..10 {
+        run.step_frame(k);
+    }
+    let mut est = run.est.clone();
+    est.sync();
+    let n = est.P.nrows();
+    let w_W = est.imu.q_W_B * (est.last_meas.unwrap().gyro_radps - est.imu.b_g);
+    let v = est.imu.v_B_in_W;
+    let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
+    let mut j = DMatrix::zeros(6, n);
+    for (i, &r) in POSE_IDX.iter().enumerate() {
+        j[(i, r)] = 1.0;
+        j[(i, TD)] = c[i];
+    }
+    let cross = &est.P * j.transpose();
+    let block = &j * &cross;
+    let at = est.gnss_clones_offset();
+    est.augment_view(at);
+    let got_cross = est.P.view((0, at), (n, 6)).into_owned();
+    let got_block = est.P.view((at, at), (6, 6)).into_owned();
+    assert!((got_cross - cross).amax() < 1e-12 * est.P.amax());
+    assert!((got_block - block).amax() < 1e-12 * est.P.amax());
+}
+
+/// A late epoch fused through its clone (§8b) is the same epoch fused on
+/// time: from one filter state, (a) propagate to the epoch, fuse it, then
+/// propagate 0.5 s; (b) propagate 0.5 s, then fuse the epoch late. They
+/// differ only by the propagation's relinearisation at the corrected state.
+#[test]
+fn a_late_gnss_epoch_is_fused_at_its_own_time() {
+    let (ds, cfg) = super::tests::racetrack_for_tests(5, 20.0);
+    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Full, 5).with_gnss_on_time();
+    // Through take-off, to 15.3 s, GNSS on time.
+    let k_stop = ds.frames.iter().position(|f| f.t_s > 15.3).unwrap();
+    for k in 0..k_stop {
+        run.step_frame(k);
+    }
+    let (e, frame, sats) = run.gnss_epoch_after(run.est.time_s()).expect("an epoch ahead");
+    let t_e = ds.gnss[e].t_s;
+    let mut a = run.est.clone();
+    let mut b = run.est.clone();
+    // The rest of the IMU to 0.6 s past the epoch (samples the runner has
+    // already buffered are refused by both alike).
+    let t0 = a.time_s();
+    for m in ds.imu.iter().filter(|m| m.t_s > t0 && m.t_s <= t_e + 0.6) {
+        let m = ImuMeas {
+            t_s: m.t_s,
+            accel_mps2: m.accel_mps2,
+            gyro_radps: m.gyro_radps,
+        };
+        let _ = a.add_imu(m);
+        let _ = b.add_imu(m);
+    }
+    a.propagate_to(t_e);
+    let rep_a = a.process_gnss(t_e, &frame, &sats).unwrap();
+    a.propagate_to(t_e + 0.5);
+    b.propagate_to(t_e + 0.5);
+    assert_eq!(b.n_gnss_clones(), 1, "a clone waits at the epoch's instant");
+    let rep_b = b.process_gnss(t_e, &frame, &sats).unwrap();
+    assert!((rep_b.late_s - 0.5).abs() < 1e-9);
+    assert_eq!(rep_a.pseudoranges_used, rep_b.pseudoranges_used);
+    assert!(rep_b.pseudoranges_used >= 8);
+    assert_eq!((a.n_gnss_clones(), b.n_gnss_clones()), (0, 0));
+    a.sync();
+    b.sync();
+    let (sa, sb) = (a.snapshot(), b.snapshot());
+    // Every state within 1e-3 of its own σ, every covariance entry within
+    // 1e-3 of √(P_ii P_jj).
+    for i in 0..sa.P.nrows() {
+        let sig = sa.P[(i, i)].sqrt();
+        for j in 0..sa.P.ncols() {
+            let d = (sa.P[(i, j)] - sb.P[(i, j)]).abs() / (sig * sa.P[(j, j)].sqrt());
+            assert!(d < 1e-3, "P[{i},{j}] differs by {d:e} of its scale");
+        }
+    }
+    let dp = (a.imu.p_B_in_W - b.imu.p_B_in_W).norm();
+    let dv = (a.imu.v_B_in_W - b.imu.v_B_in_W).norm();
+    let sp = a.P[(6, 6)].sqrt();
+    let sv = a.P[(3, 3)].sqrt();
+    assert!(dp < 1e-3 * sp && dv < 1e-3 * sv, "dp {dp} (σ {sp}), dv {dv} (σ {sv})");
+    // Fused against the current state instead (what dropping the clone
+    // would do), the same epoch would pull the position by decimetres.
+    let mut wrong = b.clone();
+    let mut c = run.est.clone();
+    for m in ds.imu.iter().filter(|m| m.t_s > t0 && m.t_s <= t_e + 0.6) {
+        let _ = c.add_imu(ImuMeas {
+            t_s: m.t_s,
+            accel_mps2: m.accel_mps2,
+            gyro_radps: m.gyro_radps,
+        });
+    }
+    c.gnss_grid = None;
+    c.propagate_to(t_e + 0.5);
+    let _ = c.process_gnss(t_e + 0.5, &frame, &sats);
+    wrong.imu = c.imu;
+    assert!((wrong.imu.p_B_in_W - a.imu.p_B_in_W).norm() > 10.0 * dp.max(1e-4));
+}
+
+/// A whole flight with every epoch 0.2–0.6 s late: all fused through their
+/// clones, none refused, no clone left behind, and the filter close to one
+/// fed the same epochs on time. One past the bound is refused and counted.
+#[test]
+fn late_gnss_over_a_flight_is_fused_not_dropped() {
+    let (ds, cfg) = super::tests::racetrack_for_tests(5, 14.0);
+    let mut on_time = crate::eval::Runner::new(&ds, &cfg, Mode::Full, 5).with_gnss_on_time();
+    let mut late = crate::eval::Runner::new(&ds, &cfg, Mode::Full, 5).with_gnss();
+    for k in 0..ds.frames.len() {
+        on_time.step_frame(k);
+        late.step_frame(k);
+    }
+    let t_end = ds.frames.last().unwrap().t_s + 0.7;
+    on_time.finish_gnss(t_end);
+    late.finish_gnss(t_end);
+    let (a, b) = (&on_time.est, &late.est);
+    // The first epoch only sets the clock (no grid yet); every later one
+    // is fused at its own time, late (the last may find the filter not yet
+    // past it).
+    assert_eq!(b.stats.gnss_epochs_fused as usize, ds.gnss.len() - 1, "{:?}", b.stats);
+    assert!(b.stats.gnss_epochs_fused_late as usize >= ds.gnss.len() - 2, "{:?}", b.stats);
+    assert_eq!(b.stats.gnss_epochs_late, 0);
+    assert_eq!(b.n_gnss_clones(), 0, "every clone served its epoch or was dropped");
+    let dp = (a.imu.p_B_in_W - b.imu.p_B_in_W).norm();
+    let sigma = a.pose_covariance().fixed_view::<3, 3>(3, 3).trace().sqrt();
+    assert!(dp < 0.5 * sigma, "late vs on time: {dp} m apart, σ {sigma} m");
+
+    // Past the bound: refused, counted, nothing changed.
+    let mut est = late.est.clone();
+    let before = est.snapshot();
+    let frame = NedFrame::from_llh_deg(-33.88, 151.2, 40.0);
+    let (_, s) = sat(System::Gps);
+    let err = est.process_gnss(est.time_s() - 1.5, &frame, &[s]).unwrap_err();
+    assert!(matches!(err, InputError::GnssLate { .. }), "{err}");
+    assert_eq!(est.stats.gnss_epochs_late, 1);
+    assert_eq!(est.stats.rejected.get("gnss_late"), Some(&1));
+    assert_eq!(est.snapshot().max_rel_diff(&before), 0.0);
+}
+
+/// A still vehicle: the frames become zero-velocity updates, the window
+/// takes no clones, no track counts against health, and the position
+/// stays put.
+#[test]
+fn standstill_is_held_by_zero_velocity_updates() {
+    let (ds, cfg) = super::tests::scenario_for_tests("hover", 2, 5.0);
+    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Compressed, 2);
+    let mut p0 = None;
+    let mut inconsistent = 0;
+    for k in 0..ds.frames.len() {
+        let (_, rep) = run.step_frame(k);
+        inconsistent += ["chi2", "bad_depth", "not_converged"]
+            .iter()
+            .filter_map(|r| rep.rejected.get(*r))
+            .sum::<u64>();
+        if k == 2 {
+            p0 = Some(run.est.imu_state().p_B_in_W);
+        }
+    }
+    let st = &run.est.stats;
+    assert!(st.zupt_updates as usize > ds.frames.len() * 8 / 10, "{st:?}");
+    assert_eq!(inconsistent, 0);
+    let moved = (run.est.imu_state().p_B_in_W - p0.unwrap()).norm();
+    assert!(moved < 0.05, "moved {moved} m while standing");
+    assert!(run.est.check_health().is_ok());
+    let _ = GNSS_COLS;
+}
