@@ -18,8 +18,9 @@
 //!   worker thread (they are `global_update`).
 //!   Schmidt's downdate touches the keyframes only through their
 //!   cross-covariances (`O(m·n_A·n)` against full's `O(m·n²)`, README §6),
-//!   so from about 100 keyframes on a Schmidt frame costs less than a full
-//!   one; both share the rest of the update (`H P`, the factor, the solve).
+//!   so with many keyframes a Schmidt frame costs less than a full one; both
+//!   share the rest of the update (`H P`, the factor, the solve) and the
+//!   clone bookkeeping.
 //!   Before timing, each filter runs the window once and prints its workload
 //!   (tracks, loop-closure tracks, promotions, local dimension), so that
 //!   runs and binaries can be compared on the same work.

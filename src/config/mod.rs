@@ -343,7 +343,8 @@ pub struct ZuptConfig {
     pub enabled: bool,
     /// Largest body rate of any IMU sample since the last frame (rad/s).
     pub max_gyro_radps: f64,
-    /// Largest deviation of the specific force's norm from gravity (m/s²).
+    /// Largest `|a_m − b_a + R_W_Bᵀ g|` of any IMU sample: the specific
+    /// force's departure from gravity's, in any direction (m/s²).
     pub max_accel_deviation_mps2: f64,
     /// Largest median feature displacement since the last clone (px). Pixel
     /// noise alone moves a still feature by a median of 1.7 σ_px between two
@@ -360,7 +361,7 @@ impl Default for ZuptConfig {
         Self {
             enabled: true,
             max_gyro_radps: 0.02,
-            max_accel_deviation_mps2: 0.3,
+            max_accel_deviation_mps2: 0.1,
             max_disparity_px: 3.0,
             max_speed_mps: 0.5,
             sigma_mps: 0.01,

@@ -227,7 +227,8 @@ impl Estimator {
         }
         let go = self.gnss_clones_offset();
         for (i, g) in self.gnss_clones.iter_mut().enumerate() {
-            g.nom.correct(&dx.as_slice()[go + GNSS_CLONE_DIM * i..go + GNSS_CLONE_DIM * (i + 1)]);
+            g.nom
+                .correct(&dx.as_slice()[go + GNSS_CLONE_DIM * i..go + GNSS_CLONE_DIM * (i + 1)]);
         }
     }
 

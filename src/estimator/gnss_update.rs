@@ -175,7 +175,12 @@ fn gated<const N: usize>(h: &[f64; N], r: f64, sigma: f64, p: &DMatrix<f64>, gat
 /// clone, with `F` the step's transition in the GNSS row order (the
 /// accelerometer bias's effect over milliseconds is below a micrometre and
 /// left out, as is the step's process noise).
-fn shift_clone(c: &GnssClone, dt_s: f64, g_W: &Vector3<f64>, imu: &cmsckf_models::sensors::ImuConfig) -> (GnssNominal, ShiftF) {
+fn shift_clone(
+    c: &GnssClone,
+    dt_s: f64,
+    g_W: &Vector3<f64>,
+    imu: &cmsckf_models::sensors::ImuConfig,
+) -> (GnssNominal, ShiftF) {
     let mut f = SMatrix::<f64, GNSS_CLONE_DIM, GNSS_CLONE_DIM>::identity();
     if dt_s == 0.0 {
         return (c.nom, f);
@@ -187,7 +192,8 @@ fn shift_clone(c: &GnssClone, dt_s: f64, g_W: &Vector3<f64>, imu: &cmsckf_models
     let x = integrate(&c.nom.imu, &c.meas, &m1, g_W);
     let (f15, _) = transition(&c.nom.imu, &c.meas, &m1, imu);
     // [θ, v, p, b_g] are the IMU error state's first twelve, in order.
-    f.fixed_view_mut::<12, 12>(0, 0).copy_from(&f15.fixed_view::<12, 12>(0, 0));
+    f.fixed_view_mut::<12, 12>(0, 0)
+        .copy_from(&f15.fixed_view::<12, 12>(0, 0));
     f[(G_B, G_D)] = dt_s;
     let mut nom = c.nom;
     nom.imu = x;
@@ -421,7 +427,13 @@ impl Estimator {
     /// bias and the drift from the median residuals of the first epoch with
     /// GPS codes, Galileo's inter-system bias from the first with Galileo
     /// ones. `false`: no GPS code yet, the epoch waits.
-    fn init_clock_states(&mut self, frame: &NedFrame, sats: &[SatMeas], nom: &GnssNominal, rep: &mut GnssReport) -> bool {
+    fn init_clock_states(
+        &mut self,
+        frame: &NedFrame,
+        sats: &[SatMeas],
+        nom: &GnssNominal,
+        rep: &mut GnssReport,
+    ) -> bool {
         let lever = self.s.p_A_in_B_m;
         let residuals = |sys: Option<System>, bias: f64| -> Vec<f64> {
             sats.iter()

@@ -143,6 +143,10 @@ struct Stillness {
     samples: u32,
     max_gyro_radps: f64,
     max_accel_dev_mps2: f64,
+    /// `∫ ω_m dt` and the time it spans (s): the mean rate, which at rest
+    /// is the gyro bias.
+    gyro_integral_rad: Vector3<f64>,
+    span_s: f64,
 }
 
 /// A keyframe observation of a landmark.

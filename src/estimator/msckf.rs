@@ -17,6 +17,10 @@ use super::{
     MAX_KEYFRAMES_PER_TRACK, PENDING_PROMOTIONS_PER_FRAME,
 };
 
+/// A track's bearings must spread over this many angular sigmas of one
+/// observation to be triangulated (§3c).
+const PARALLAX_NOISE_SIGMAS: f64 = 5.0;
+
 /// One gated track's rows: its projected Jacobian over the columns `idx` of
 /// `P`, and its projected residual.
 type TrackRows = (DMatrix<f64>, DVector<f64>, Vec<usize>);
@@ -329,8 +333,12 @@ impl Estimator {
             return None;
         }
         // Too little parallax to triangulate (a hover, a standstill, a far
-        // landmark): skipped, and not a sign of inconsistency (§3c).
-        if feature::parallax_rad(&views, &self.s.ext, &obs) < self.s.min_parallax_rad {
+        // landmark): skipped, and not a sign of inconsistency (§3c). Pixel
+        // noise alone spreads the rays of a still camera: the bound is at
+        // least five times an observation's angular sigma (1/W).
+        let noise_rad = obs.iter().map(|o| 1.0 / o.W[(0, 0)].abs()).fold(0.0, f64::max);
+        let min_parallax = self.s.min_parallax_rad.max(PARALLAX_NOISE_SIGMAS * noise_rad);
+        if !(feature::parallax_rad(&views, &self.s.ext, &obs) >= min_parallax) {
             reject(report, &mut self.stats, Reject::PoorParallax);
             return None;
         }

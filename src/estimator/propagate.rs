@@ -249,8 +249,7 @@ impl Estimator {
         q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_D)] = qd * dt;
         q[(CLK_E, CLK_E)] = self.s.isb_rw.powi(2) * dt;
-        let (b_g, b_a) = (self.imu.b_g, self.imu.b_a);
-        self.still.push(&m, &b_g, &b_a, self.g_W.z);
+        self.still.push(&m, dt, &self.imu, &self.g_W);
         self.imu = integrate(&self.imu, &m0, &m, &self.g_W);
         self.clock.x += self.clock.y * dt;
         self.propagate_covariance(&f, &q);

@@ -101,7 +101,9 @@ pub struct ZuptSettings {
     pub enabled: bool,
     /// Largest body rate of any IMU sample since the last frame (rad/s).
     pub max_gyro_radps: f64,
-    /// Largest `| |a_m − b_a| − g |` of any IMU sample (m/s²).
+    /// Largest `|a_m − b_a + R_W_Bᵀ g_W|` of any IMU sample (m/s²): the
+    /// specific force's departure from gravity's, in any direction (a norm
+    /// test alone misses a gentle horizontal acceleration).
     pub max_accel_dev_mps2: f64,
     /// Largest median feature displacement since the last clone
     /// (normalised image units: pixels / focal length).
@@ -117,7 +119,7 @@ impl Default for ZuptSettings {
         Self {
             enabled: true,
             max_gyro_radps: 0.02,
-            max_accel_dev_mps2: 0.3,
+            max_accel_dev_mps2: 0.1,
             max_disparity: 3.0 / 450.0,
             max_speed_mps: 0.5,
             sigma_mps: 0.01,

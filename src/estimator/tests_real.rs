@@ -42,7 +42,11 @@ fn time_offset_column_matches_finite_differences() {
     let d_p = (fwd.p_B_in_W - bwd.p_B_in_W) / (2.0 * h);
     let w_W = x.q_W_B * (m0.gyro_radps - x.b_g);
     assert!((d_th - w_W).amax() < 1e-8, "rotation: fd {d_th:?} vs {w_W:?}");
-    assert!((d_p - x.v_B_in_W).amax() < 1e-8, "position: fd {d_p:?} vs {:?}", x.v_B_in_W);
+    assert!(
+        (d_p - x.v_B_in_W).amax() < 1e-8,
+        "position: fd {d_p:?} vs {:?}",
+        x.v_B_in_W
+    );
 }
 
 fn sat(system: System) -> (NedFrame, SatMeas) {
@@ -259,7 +263,11 @@ fn late_gnss_over_a_flight_is_fused_not_dropped() {
     // is fused at its own time, late (the last may find the filter not yet
     // past it).
     assert_eq!(b.stats.gnss_epochs_fused as usize, ds.gnss.len() - 1, "{:?}", b.stats);
-    assert!(b.stats.gnss_epochs_fused_late as usize >= ds.gnss.len() - 2, "{:?}", b.stats);
+    assert!(
+        b.stats.gnss_epochs_fused_late as usize >= ds.gnss.len() - 2,
+        "{:?}",
+        b.stats
+    );
     assert_eq!(b.stats.gnss_epochs_late, 0);
     assert_eq!(b.n_gnss_clones(), 0, "every clone served its epoch or was dropped");
     let dp = (a.imu.p_B_in_W - b.imu.p_B_in_W).norm();

@@ -7,27 +7,33 @@
 //! parallax (OpenVINS does the same).
 //!
 //! Still means all of: every IMU sample since the last frame with a small
-//! body rate and a specific force of gravity's size, the features not
+//! body rate and a specific force equal to gravity's (in size and
+//! direction), the features not
 //! moving in the image since the last clone, the estimated speed small, and
 //! the update itself passing its χ² gate.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
 
-use super::propagate::V;
-use super::{Estimator, ImuMeas, NormObs, Stillness};
+use super::propagate::{BG, V};
+use super::{math, Estimator, ImuMeas, ImuState, NormObs, Stillness};
 
 /// Fewest features seen both now and at the last clone to judge disparity.
 const MIN_COMMON_FEATURES: usize = 5;
 
-/// Probability of the zero-velocity update's χ² gate (3 degrees of freedom).
+/// Probability of the zero-velocity update's χ² gate (6 degrees of freedom).
 const ZUPT_GATE_PROB: f64 = 0.99;
 
 impl Stillness {
-    /// Adds one IMU sample, its biases removed with the current estimate.
-    pub(super) fn push(&mut self, m: &ImuMeas, b_g: &nalgebra::Vector3<f64>, b_a: &nalgebra::Vector3<f64>, g: f64) {
+    /// Adds one IMU sample, its biases removed with the current estimate:
+    /// at rest `a_m − b_a = −R_W_Bᵀ g_W`, so the deviation is
+    /// `|a_m − b_a + R_W_Bᵀ g_W|`.
+    pub(super) fn push(&mut self, m: &ImuMeas, dt_s: f64, x: &ImuState, g_W: &Vector3<f64>) {
         self.samples += 1;
-        self.max_gyro_radps = self.max_gyro_radps.max((m.gyro_radps - b_g).norm());
-        self.max_accel_dev_mps2 = self.max_accel_dev_mps2.max(((m.accel_mps2 - b_a).norm() - g).abs());
+        self.gyro_integral_rad += m.gyro_radps * dt_s;
+        self.span_s += dt_s;
+        self.max_gyro_radps = self.max_gyro_radps.max((m.gyro_radps - x.b_g).norm());
+        let dev = (m.accel_mps2 - x.b_a + x.q_W_B.inverse() * g_W).norm();
+        self.max_accel_dev_mps2 = self.max_accel_dev_mps2.max(dev);
     }
 }
 
@@ -49,14 +55,21 @@ impl Estimator {
     }
 
     /// Takes the frame as a zero-velocity update when the vehicle is still
-    /// (§3c, eq. Z1): `z = 0 = v + n`, `n ~ N(0, σ² I)`, so `H = [0 I 0 …]`
-    /// on the velocity and `r = −v̂`. Returns whether it did.
+    /// (§3c, eqs. Z1, Z2): `0 = v + n`, `n ~ N(0, σ_z² I)` (`H = I` on the
+    /// velocity, `r = −v̂`), and the mean gyro rate `ω̄_m = b_g + n̄`,
+    /// `n̄ ~ N(0, σ_g²/T)` (`H = I` on the gyro bias, `r = ω̄_m − b̂_g`): at
+    /// rest the gyro measures its bias, which holds the attitude still.
+    /// Returns whether it did.
     pub(super) fn zero_velocity_update(&mut self, still: &Stillness, obs: &[NormObs]) -> bool {
         let z = self.s.zupt;
+        // A tilt error θ alone makes gravity seem off by g·θ: allow three
+        // sigmas of the filter's own tilt on top of the threshold.
+        let tilt_sigma = self.P[(0, 0)].max(self.P[(1, 1)]).max(0.0).sqrt();
+        let accel_bound = z.max_accel_dev_mps2 + 3.0 * self.g_W.norm() * tilt_sigma;
         if !z.enabled
             || still.samples == 0
             || still.max_gyro_radps > z.max_gyro_radps
-            || still.max_accel_dev_mps2 > z.max_accel_dev_mps2
+            || still.max_accel_dev_mps2 > accel_bound
             || self.imu.v_B_in_W.norm() > z.max_speed_mps
         {
             return false;
@@ -64,20 +77,36 @@ impl Estimator {
         if !self.median_disparity(obs).is_some_and(|d| d <= z.max_disparity) {
             return false;
         }
+        // Z1: 0 = v + n_v, σ_z; Z2: ω̄_m = b_g + n̄_g, the mean rate over the
+        // interval, with the white gyro noise averaged: σ_g / √T.
         let v = self.imu.v_B_in_W;
-        let s = self.P.fixed_view::<3, 3>(V, V).into_owned() + nalgebra::Matrix3::identity() * z.sigma_mps.powi(2);
+        let w_mean = still.gyro_integral_rad / still.span_s;
+        let sigma_w = self.s.imu.gyro_noise_density / still.span_s.sqrt();
+        let cols = [V, V + 1, V + 2, BG, BG + 1, BG + 2];
+        let mut h = DMatrix::zeros(6, 6);
+        let mut r = DVector::zeros(6);
+        for k in 0..3 {
+            h[(k, k)] = 1.0 / z.sigma_mps;
+            r[k] = -v[k] / z.sigma_mps;
+            h[(3 + k, 3 + k)] = 1.0 / sigma_w;
+            r[3 + k] = (w_mean[k] - self.imu.b_g[k]) / sigma_w;
+        }
+        if !(still.span_s > 0.0 && math::all_finite(r.as_slice())) {
+            return false;
+        }
+        // The gate: rᵀ (H P Hᵀ + I)⁻¹ r on the whitened rows.
+        let mut p_sub = DMatrix::zeros(6, 6);
+        math::gather_block(&self.P, &cols, &mut p_sub);
+        let s = &h * p_sub * h.transpose() + DMatrix::identity(6, 6);
         let Some(ch) = s.cholesky() else {
             return false;
         };
-        let nis = v.dot(&ch.solve(&v));
-        if !(nis <= cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 3)) {
+        let nis = r.dot(&ch.solve(&r));
+        if !(nis <= cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6)) {
             *self.stats.rejected.entry("zupt_chi2").or_default() += 1;
             return false;
         }
-        // Whitened: H = I/σ on the velocity columns, r = −v̂/σ.
-        let h = DMatrix::identity(3, 3) / z.sigma_mps;
-        let r = DVector::from_iterator(3, v.iter().map(|x| -x / z.sigma_mps));
-        self.ekf_update(&h, &[V, V + 1, V + 2], &r, false);
+        self.ekf_update(&h, &cols, &r, false);
         self.stats.zupt_updates += 1;
         true
     }

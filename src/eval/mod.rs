@@ -103,11 +103,7 @@ struct GnssInput {
 }
 
 /// The satellites' measurements of epoch `i`, as the daemon would make them.
-fn epoch_measurements(
-    ds: &Dataset,
-    ephs: &crate::gnss::spp::EphStore,
-    i: usize,
-) -> Vec<cmsckf_models::gnss::SatMeas> {
+fn epoch_measurements(ds: &Dataset, ephs: &crate::gnss::spp::EphStore, i: usize) -> Vec<cmsckf_models::gnss::SatMeas> {
     let ep = &ds.gnss[i];
     // The simulated receiver is single-frequency; its ionosphere is off by
     // default, and `sim.gnss.ionosphere` makes it modelled as unknown
@@ -230,7 +226,11 @@ impl<'a> Runner<'a> {
     pub fn gnss_epoch_after(
         &self,
         t_s: f64,
-    ) -> Option<(usize, cmsckf_models::geodesy::NedFrame, Vec<cmsckf_models::gnss::SatMeas>)> {
+    ) -> Option<(
+        usize,
+        cmsckf_models::geodesy::NedFrame,
+        Vec<cmsckf_models::gnss::SatMeas>,
+    )> {
         let g = self.gnss.as_ref()?;
         let i = self.ds.gnss.iter().position(|e| e.t_s > t_s)?;
         Some((i, g.frame, epoch_measurements(self.ds, &g.ephs, i)))
@@ -342,7 +342,8 @@ fn record(r: &mut FlightResult, ds: &Dataset, est: &Estimator) {
     r.q_est.push(x.q_W_B);
     r.v_est.push(x.v_B_in_W);
     r.cov_pose.push(est.pose_covariance());
-    r.cov_vel.push(est.imu_covariance().fixed_view::<3, 3>(3, 3).into_owned());
+    r.cov_vel
+        .push(est.imu_covariance().fixed_view::<3, 3>(3, 3).into_owned());
     r.p_true.push(tr.p_B_in_W);
     r.q_true.push(tr.q_W_B);
     r.v_true.push(tr.v_B_in_W);

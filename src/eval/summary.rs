@@ -250,7 +250,15 @@ impl Evaluation {
         }
         s += &format!(
             "{:<11} {:>21} {:>21} {:>21} {:>21} {:>9} {:>6} {:>6} {:>6}\n",
-            "NEES", "tilt (2) all/2nd", "yaw (1) all/2nd", "pos (3) all/2nd", "vel (3) all/2nd", "t_d[ms]", "gnss", "late", "zupt"
+            "NEES",
+            "tilt (2) all/2nd",
+            "yaw (1) all/2nd",
+            "pos (3) all/2nd",
+            "vel (3) all/2nd",
+            "t_d[ms]",
+            "gnss",
+            "late",
+            "zupt"
         );
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
