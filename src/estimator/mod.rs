@@ -323,8 +323,16 @@ pub struct Estimator {
     pub monitor: health::NisMonitor,
 }
 
-/// The full state in a fixed order (IMU, clones, keyframes by id), for
-/// comparing modes: the nominal values and the covariance.
+/// Differences within this many ulps of a nominal value's magnitude are its
+/// rounding ([`Snapshot::max_rel_diff`]): a keyframe 200 m from the origin
+/// has an ulp of 3e-14 m, and its corrections are summed in another order
+/// in compressed mode (G3) than in full mode.
+const STATE_ULPS: f64 = 64.0;
+
+/// The full state in a fixed order (IMU, clock, time offset, clones,
+/// keyframes by id, GNSS clones), for comparing modes: the nominal values
+/// (rotations as rotation vectors, one number per error state) and the
+/// covariance.
 #[derive(Clone, Debug)]
 pub struct Snapshot {
     pub x: DVector<f64>,
@@ -332,24 +340,39 @@ pub struct Snapshot {
 }
 
 impl Snapshot {
-    /// Largest element-wise difference relative to the largest magnitude,
-    /// over state and covariance separately; returns the worse.
+    /// The largest difference from `other` (the reference), each entry
+    /// normalised by its own scale: a covariance entry by `√(P_ii P_jj)` (so
+    /// an unobserved state's large variance cannot hide an error
+    /// elsewhere), a state by its sigma `√P_ii` once the difference exceeds
+    /// the value's own rounding. Infinite if the layouts differ.
     pub fn max_rel_diff(&self, other: &Snapshot) -> f64 {
-        if self.x.len() != other.x.len() || self.P.shape() != other.P.shape() {
-            return f64::INFINITY;
+        let (cov, state) = self.max_rel_diff_parts(other);
+        cov.max(state)
+    }
+
+    /// [`Self::max_rel_diff`] of the covariance and of the nominal state,
+    /// apart.
+    pub fn max_rel_diff_parts(&self, other: &Snapshot) -> (f64, f64) {
+        let n = self.P.nrows();
+        if self.x.len() != other.x.len() || self.P.shape() != other.P.shape() || self.x.len() != n {
+            return (f64::INFINITY, f64::INFINITY);
         }
-        let rel = |a: &[f64], b: &[f64]| {
-            let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
-            a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs())) / scale
-        };
-        // Covariance relative to its largest entry; state per element,
-        // relative to max(|x|, 1).
-        let xs = self
-            .x
-            .iter()
-            .zip(other.x.iter())
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs() / b.abs().max(1.0)));
-        xs.max(rel(self.P.as_slice(), other.P.as_slice()))
+        let sig: Vec<f64> = (0..n).map(|i| other.P[(i, i)].abs().sqrt().max(1e-300)).collect();
+        let mut cov = 0.0f64;
+        for j in 0..n {
+            for i in 0..n {
+                cov = cov.max((self.P[(i, j)] - other.P[(i, j)]).abs() / (sig[i] * sig[j]));
+            }
+        }
+        let mut state = 0.0f64;
+        for ((a, b), s) in self.x.iter().zip(other.x.iter()).zip(&sig) {
+            // A nominal value is summed from its corrections in another
+            // order in each mode: differences within its last bits
+            // (`STATE_ULPS` of its magnitude) are rounding, not error.
+            let d = ((a - b).abs() - STATE_ULPS * f64::EPSILON * a.abs().max(b.abs())).max(0.0) / s;
+            state = state.max(d);
+        }
+        (cov, state)
     }
 }
 
@@ -492,10 +515,10 @@ impl Estimator {
         idx.extend(go..go + GNSS_CLONE_DIM * est.gnss_clones.len());
         let P = est.P.select_rows(&idx).select_columns(&idx);
         let mut x = Vec::new();
+        // Rotations as rotation vectors, so `x` lines up one to one with
+        // the error states of `P`.
         let push_q = |x: &mut Vec<f64>, q: &UnitQuaternion<f64>| {
-            let c = q.coords;
-            let s = if c.w < 0.0 { -1.0 } else { 1.0 };
-            x.extend([c.w * s, c.x * s, c.y * s, c.z * s]);
+            x.extend(q.scaled_axis().iter());
         };
         let i = &est.imu;
         push_q(&mut x, &i.q_W_B);

@@ -6,6 +6,12 @@ use crate::estimator::Mode;
 use crate::eval;
 use cmsckf_sitl::dataset::Dataset;
 
+/// Largest drift of compressed from full over a 75 s flight, normalised
+/// ([`Snapshot::max_rel_diff`]; the covariance alone stays within 1e-9, the
+/// nominal state within a few 1e-9 of its σ: see
+/// `compressed_equals_full_after_every_global_update`).
+const STATE_DRIFT: f64 = 5e-9;
+
 fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
     scenario_for_tests("racetrack", seed, duration_s)
 }
@@ -52,11 +58,58 @@ fn demoted_by(rep: &FrameReport, ids_before: &BTreeSet<u64>) -> Option<BTreeSet<
 fn compressed_equals_full_after_every_global_update() {
     let (ds, cfg) = racetrack(1, 75.0);
     let (c, f) = eval::run_compressed_vs_full(&ds, &cfg, 1, false);
-    let d = c.max_rel_diff_vs_full.unwrap();
+    // The drift of two nonlinear filters fed the same data: round-off
+    // relinearised at slightly different states grows with the flight
+    // (the identity itself holds to 1e-12 at each global update:
+    // `each_global_update_is_exact_from_a_common_state`).
+    eprintln!("drift (t, covariance, state): {:?}", c.diff_vs_full);
+    let cov = c.diff_vs_full.iter().map(|d| d.1).fold(0.0, f64::max);
+    let d = c.diff_vs_full.iter().map(|d| d.2).fold(0.0, f64::max);
+    assert!(cov <= 1e-9, "compressed's covariance differs from full by {cov:e}");
     assert!(c.stats.global_updates > 10, "global updates {}", c.stats.global_updates);
     assert!(c.stats.loop_closure_updates > 0, "no loop closures");
-    assert!(d <= 1e-9, "compressed differs from full by {d:e}");
+    assert!(d <= STATE_DRIFT, "compressed's state differs from full by {d:e} σ");
     assert_eq!(c.stats.tracks_used, f.stats.tracks_used);
+}
+
+/// The identity itself (§5): from one common state, a frame with a global
+/// update in compressed mode gives what the same frame gives in full mode
+/// (the compressed state merged into a full filter just before it), to
+/// round-off. The drift of two filters over a whole flight is apart from
+/// this (`compressed_equals_full_after_every_global_update`).
+#[test]
+fn each_global_update_is_exact_from_a_common_state() {
+    let (ds, cfg) = racetrack(1, 75.0);
+    let mut c = eval::Runner::new(&ds, &cfg, Mode::Compressed, 1);
+    let (mut n, mut cov, mut state) = (0, 0.0f64, 0.0f64);
+    for k in 0..ds.frames.len() {
+        let before = c.clone();
+        let (_, rep) = c.step_frame(k);
+        if rep.global_updates > 0 {
+            let mut f = before;
+            f.est.merge_global();
+            f.est.s.mode = Mode::Full;
+            f.step_frame(k);
+            let (dc, ds_) = c.est.snapshot().max_rel_diff_parts(&f.est.snapshot());
+            cov = cov.max(dc);
+            state = state.max(ds_);
+            n += 1;
+        }
+    }
+    eprintln!("{n} global updates from a common state: covariance {cov:e}, state {state:e} (normalised)");
+    assert!(n > 10, "global updates {n}");
+    // Each covariance entry within 1e-12 of √(P_ii P_jj). The nominal
+    // corrections go through the whitened global part (§5 W): their
+    // rounding is the correction's times its conditioning, about 1e-12 of
+    // the keyframes' posterior σ.
+    assert!(
+        cov <= 1e-12,
+        "a global update's covariance differs from full by {cov:e}"
+    );
+    assert!(
+        state <= 2e-12,
+        "a global update's state differs from full by {state:e} σ"
+    );
 }
 
 /// A measurement that involves a keyframe of the global part is applied
@@ -101,7 +154,7 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
     }
     assert!(checked > 0, "the flight had no measurement on a global keyframe");
     assert!(
-        worst <= 1e-9,
+        worst <= STATE_DRIFT,
         "compressed differs from full by {worst:e} after promotions"
     );
     assert_eq!(run.est.stats.loop_closure_deferred, 0);
@@ -137,7 +190,7 @@ fn marginalising_global_keyframes_equals_full() {
     }
     let d1 = run.est.snapshot().max_rel_diff(&full.est.snapshot());
     assert!(
-        d0 <= 1e-9 && d1 <= 1e-9,
+        d0 <= STATE_DRIFT && d1 <= STATE_DRIFT,
         "compressed differs from full by {d0:e}, then {d1:e}"
     );
     assert!(run.est.keyframes().all(|kf| !dropped.contains(&kf.id)));
@@ -220,7 +273,10 @@ fn asynchronous_rebase_equals_full_after_every_install() {
         deferred < c.est.stats.promotions_while_pending as usize,
         "{deferred} observations waited"
     );
-    assert!(worst <= 1e-9, "asynchronous compressed differs from full by {worst:e}");
+    assert!(
+        worst <= STATE_DRIFT,
+        "asynchronous compressed differs from full by {worst:e}"
+    );
     // A job is handed out once, and its result installed once.
     c.est.force_global_update();
     assert!(c.est.begin_rebase(GlobalReason::Forced).is_some());

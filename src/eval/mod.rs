@@ -74,6 +74,13 @@ pub struct FlightResult {
     /// truth (s).
     pub time_offset_s: f64,
     pub time_offset_true_s: f64,
+    /// Health-check failures (each a reset in the daemon).
+    pub resets: u64,
+    /// `(t, covariance, state)` normalised differences of compressed from
+    /// full at each global update (lockstep runs only,
+    /// [`crate::estimator::Snapshot::max_rel_diff_parts`]): the drift of two
+    /// filters fed the same data.
+    pub diff_vs_full: Vec<(f64, f64, f64)>,
     /// Estimator time per frame (µs), without the compressed rebases, which
     /// the daemon computes on its worker thread.
     pub frame_us: Vec<f64>,
@@ -146,6 +153,10 @@ pub struct Runner<'a> {
     pub clock_errors: Vec<(f64, f64, f64)>,
     /// `(global keyframes after, µs)` of each rebase job, timed apart.
     pub rebase_us: Vec<(usize, f64)>,
+    /// Times the health check failed after passing: each would have reset
+    /// the daemon's filter.
+    pub resets: u64,
+    healthy: bool,
 }
 
 thread_local! {
@@ -179,6 +190,8 @@ impl<'a> Runner<'a> {
             buf: Vec::with_capacity(c.features.max_features),
             gnss: None,
             clock_errors: Vec::new(),
+            resets: 0,
+            healthy: true,
         }
     }
 
@@ -324,6 +337,13 @@ impl<'a> Runner<'a> {
         );
         let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();
         let frame_us = start.elapsed().as_secs_f64() * 1e6;
+        // What the daemon would do: a failed health check resets the filter.
+        // Counted at each onset (the evaluation lets the filter run on).
+        let healthy = self.est.check_health().is_ok();
+        if !healthy && self.healthy {
+            self.resets += 1;
+        }
+        self.healthy = healthy;
         // The frame time without the rebase jobs it ran (which the daemon
         // runs on its worker thread), and those apart.
         let job_us = self.collect_rebase_jobs();
@@ -363,6 +383,8 @@ fn empty(mode: Mode) -> FlightResult {
         cov_vel: vec![],
         time_offset_s: 0.0,
         time_offset_true_s: 0.0,
+        resets: 0,
+        diff_vs_full: Vec::new(),
         frame_us: vec![],
         rebase_us: vec![],
         stats: Stats::default(),
@@ -380,6 +402,7 @@ fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
     r.rebase_us = run.rebase_us.clone();
     r.time_offset_s = run.est.time_offset().0;
     r.time_offset_true_s = ds.cfg.camera_time_offset_s;
+    r.resets = run.resets;
 }
 
 fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) -> Runner<'a> {
@@ -419,11 +442,15 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: 
         record(&mut c, ds, &rc.est);
         record(&mut f, ds, &rf.est);
         if rep.global_updates > 0 {
-            worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
+            let d = rc.est.snapshot().max_rel_diff_parts(&rf.est.snapshot());
+            c.diff_vs_full.push((rc.est.time_s(), d.0, d.1));
+            worst = worst.max(d.0).max(d.1);
         }
     }
     rc.est.force_global_update();
-    worst = worst.max(rc.est.snapshot().max_rel_diff(&rf.est.snapshot()));
+    let d = rc.est.snapshot().max_rel_diff_parts(&rf.est.snapshot());
+    c.diff_vs_full.push((rc.est.time_s(), d.0, d.1));
+    worst = worst.max(d.0).max(d.1);
     for (r, run) in [(&mut c, &rc), (&mut f, &rf)] {
         finish(r, ds, run);
     }

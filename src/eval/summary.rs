@@ -61,6 +61,13 @@ pub struct ModeSummary {
     pub gnss_epochs_late: f64,
     /// Frames taken as zero-velocity updates, per flight.
     pub zupt_updates: f64,
+    /// Health-check failures over all seeds: each would reset the daemon's
+    /// filter.
+    pub resets: u64,
+    /// Compressed only: the largest normalised difference from full in
+    /// each quarter of the flight (the drift's growth).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub diff_vs_full_by_quarter: Vec<f64>,
 }
 
 /// Mean NEES of each part of the state over the samples `from..`:
@@ -202,7 +209,26 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         gnss_epochs_fused: runs.iter().map(|r| r.stats.gnss_epochs_fused as f64).sum::<f64>() / n,
         gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
+        resets: runs.iter().map(|r| r.resets).sum(),
+        diff_vs_full_by_quarter: diff_by_quarter(runs),
     }
+}
+
+/// The largest difference from full in each quarter of the flights.
+fn diff_by_quarter(runs: &[FlightResult]) -> Vec<f64> {
+    let Some(t_end) = runs
+        .iter()
+        .flat_map(|r| r.diff_vs_full.iter().map(|d| d.0))
+        .reduce(f64::max)
+    else {
+        return Vec::new();
+    };
+    let mut q = vec![0.0f64; 4];
+    for (t, dc, dx) in runs.iter().flat_map(|r| r.diff_vs_full.iter()) {
+        let i = ((t / t_end * 4.0) as usize).min(3);
+        q[i] = q[i].max(dc.max(*dx));
+    }
+    q
 }
 
 /// RMS of `pick` of the clock errors at the GNSS epochs after the first 5 s,
@@ -263,7 +289,7 @@ impl Evaluation {
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 s += &format!(
-                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6.0} {:>6.0} {:>6.0}\n",
+                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6.0} {:>6.0} {:>6.0} {:>6}\n",
                     m.name(),
                     r.nees_tilt_mean,
                     r.nees_tilt_mean_second_half,
@@ -276,7 +302,8 @@ impl Evaluation {
                     r.time_offset_error_ms,
                     r.gnss_epochs_fused,
                     r.gnss_epochs_late,
-                    r.zupt_updates
+                    r.zupt_updates,
+                    r.resets
                 );
             }
         }
