@@ -62,6 +62,9 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
     // The feature socket lives in this directory: keep it to the end.
     let (mut cfg, _socket_dir, port) = loopback_config(&config, &mode, &log)?;
     let sim = eval::sim_config_for(&cfg);
+    // The antenna's place on the airframe is measured and configured; the
+    // camera's time offset is not (the filter estimates it).
+    cfg.gnss.p_A_in_B_m = sim.gnss.p_A_in_B_m;
     if !sim.gnss.ionosphere {
         // The simulated sky has no ionosphere: do not inflate for one.
         cfg.gnss.iono = cmsckf::gnss::IonoMode::Off;

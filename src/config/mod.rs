@@ -184,10 +184,19 @@ pub struct InitConfig {
     pub yaw_deg: f64,
     /// Initial attitude sigma, roll and pitch (deg).
     pub sigma_tilt_deg: f64,
-    /// Initial yaw sigma (deg).
+    /// Initial yaw sigma when the yaw is given here (`yaw_deg`) or by a
+    /// simulation's truth (deg).
     pub sigma_yaw_deg: f64,
-    /// Initial position sigma (m).
+    /// Initial yaw sigma when the yaw comes from the autopilot: its compass
+    /// (deg). Magnetometers beside motors and wiring are off by degrees.
+    pub sigma_yaw_autopilot_deg: f64,
+    /// Initial position sigma when the filter starts the world frame where
+    /// it stands (m): the frame is defined there, so this is small.
     pub sigma_position_m: f64,
+    /// Initial position sigma when the start position is the autopilot's
+    /// local position and it reports no GNSS accuracy (m); with
+    /// `GPS_RAW_INT`'s `h_acc`/`v_acc` those are used.
+    pub sigma_position_autopilot_m: f64,
     /// Initial velocity sigma (m/s).
     pub sigma_velocity_mps: f64,
     /// Initial accelerometer bias sigma (m/s²).
@@ -203,7 +212,9 @@ impl Default for InitConfig {
             yaw_deg: 0.0,
             sigma_tilt_deg: 0.5,
             sigma_yaw_deg: 1.0,
+            sigma_yaw_autopilot_deg: 5.0,
             sigma_position_m: 0.05,
+            sigma_position_autopilot_m: 3.0,
             sigma_velocity_mps: 0.05,
             sigma_accel_bias_mps2: 0.05,
             sigma_gyro_bias_radps: 0.005,

@@ -128,6 +128,8 @@ impl Config {
         c.positive("sigma_tilt_deg", i.sigma_tilt_deg, 90.0)?;
         c.positive("sigma_yaw_deg", i.sigma_yaw_deg, 180.0)?;
         c.positive("sigma_position_m", i.sigma_position_m, 1e4)?;
+        c.positive("sigma_yaw_autopilot_deg", i.sigma_yaw_autopilot_deg, 180.0)?;
+        c.positive("sigma_position_autopilot_m", i.sigma_position_autopilot_m, 1e4)?;
         c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
         c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;
         c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)

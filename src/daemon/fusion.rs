@@ -50,6 +50,9 @@ pub struct Fusion {
     pub(super) attitude: Option<(f64, f64, f64)>,
     /// The autopilot's local position and velocity (NED) and their time (s).
     pub(super) local: Option<(Vector3<f64>, Vector3<f64>, f64)>,
+    /// The autopilot's GNSS accuracy `(horizontal, vertical)` (m, one
+    /// sigma), when it reports one.
+    pub(super) gps_accuracy: Option<(f64, f64)>,
     pub(super) pending: VecDeque<(f64, Pending)>,
     pub(super) gnss: GnssIn,
     origin_sent: bool,
@@ -146,6 +149,7 @@ impl Fusion {
             static_buf: VecDeque::with_capacity(4096),
             attitude: None,
             local: None,
+            gps_accuracy: None,
             pending: VecDeque::with_capacity(PENDING_FRAMES),
             origin_sent: false,
             gnss: GnssIn::new(&cfg),
@@ -222,6 +226,13 @@ impl Fusion {
         for (t, sats) in epochs {
             self.enqueue(t, Pending::Gnss(sats), counters);
         }
+        // The world origin was just placed at a single-point fix: every
+        // position in the filter is now off by that fix's error (§7).
+        if let (Some(sigma_m), Some(est)) = (self.gnss.origin_fix_sigma_m.take(), self.est.as_mut()) {
+            if est.add_world_offset_variance(sigma_m * sigma_m) {
+                counters.add("prior_from_fix", 1);
+            }
+        }
     }
 
     /// The autopilot's attitude, local position, clock and origin: kept for
@@ -247,6 +258,11 @@ impl Fusion {
                     &json!({"local_position": {"t_s": t_s, "p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
                 );
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
+            }
+            FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
+                if h_acc_m.is_finite() && v_acc_m.is_finite() {
+                    self.gps_accuracy = Some((h_acc_m, v_acc_m));
+                }
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
                 self.log(
@@ -434,6 +450,7 @@ impl Fusion {
         if kind != Restart::Unhealthy {
             self.attitude = None;
             self.local = None;
+            self.gps_accuracy = None;
         }
         if kind == Restart::Reboot {
             self.tracker.restart_clock();

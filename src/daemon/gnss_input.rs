@@ -67,6 +67,10 @@ pub(super) struct GnssIn {
     klobuchar: Option<Klobuchar>,
     /// `gnss.iono`: how the measurements handle the ionosphere.
     iono: IonoMode,
+    /// Set when the world origin was just placed at a single-point fix:
+    /// that fix's position sigma (m), `PDOP · σ_pseudorange`.
+    pub(super) origin_fix_sigma_m: Option<f64>,
+    pseudorange_sigma_m: f64,
 }
 
 impl GnssIn {
@@ -92,6 +96,8 @@ impl GnssIn {
                 NedFrame::from_llh_deg(o[0], o[1], o[2])
             }),
             unix_minus_boot_s: None,
+            origin_fix_sigma_m: None,
+            pseudorange_sigma_m: cfg.gnss.pseudorange_sigma_m,
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -159,13 +165,15 @@ impl GnssIn {
     }
 
     /// No configured or autopilot origin: anchor the world frame so that the
-    /// current estimate sits at the first fix.
+    /// current estimate sits at the first fix, whose error (its sigma,
+    /// `PDOP · σ_pseudorange`) every position then shares.
     fn origin_from_fix(&mut self, ep: &Epoch, est: Option<&Estimator>, counters: &Counters) {
         if let (Ok(fix), Some(est)) = (&ep.fix, est) {
             let (lat, lon, _) = ecef_to_llh(&fix.r_ecef_m);
             let r = R_ecef_ned(lat, lon);
             let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
             self.frame = Some(NedFrame::from_ecef(&origin));
+            self.origin_fix_sigma_m = Some(fix.pdop.max(1.0) * self.pseudorange_sigma_m);
             counters.add("gnss_origin_from_fix", 1);
         }
     }

@@ -72,7 +72,22 @@ impl Fusion {
             Some((p, v, _)) => (p, v),
             None => (Vector3::zeros(), Vector3::zeros()),
         };
+        // Priors from their sources (§7, eq. I1): the yaw is the
+        // autopilot's (its compass), the position the autopilot's local
+        // position with its reported accuracy, or, without one, the world
+        // frame's own origin.
         let mut p0 = self.cfg.initial_covariance();
+        let yaw_var = self.cfg.init.sigma_yaw_autopilot_deg.to_radians().powi(2);
+        p0[(2, 2)] = yaw_var;
+        if self.local.is_some() {
+            let (h, v) = self.gps_accuracy.unwrap_or((
+                self.cfg.init.sigma_position_autopilot_m,
+                self.cfg.init.sigma_position_autopilot_m,
+            ));
+            for (k, s) in [h, h, v].iter().enumerate() {
+                p0[(6 + k, 6 + k)] = s * s;
+            }
+        }
         let (q, b_g, v) = if is_static {
             (attitude_from_static(&w.acc, yaw)?, w.gyr, Vector3::zeros())
         } else {

@@ -157,6 +157,10 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
                 v_ned_mps,
             })
         }
+        Inbound::GpsAccuracy { h_acc_m, v_acc_m } => {
+            counters.add("gps_accuracy", 1);
+            Some(FusionMsg::GpsAccuracy { h_acc_m, v_acc_m })
+        }
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);
             None

@@ -96,6 +96,11 @@ pub enum FusionMsg {
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
+    /// The autopilot's GNSS accuracy (m, one sigma).
+    GpsAccuracy {
+        h_acc_m: f64,
+        v_acc_m: f64,
+    },
     /// A camera frame as received (logged as such) and its features
     /// normalised where it arrived, off the fusion thread.
     Frame(FeatureFrame, NormFrame),

@@ -121,6 +121,34 @@ impl Estimator {
         self.augment(at, &POSE_IDX, Some(&c));
     }
 
+    /// The world frame's origin became uncertain by `var_m2` per axis (it
+    /// was placed at a single-point fix, §7 eq. I2): every position in the
+    /// state, the body's, the clones', the keyframes' and the GNSS clones',
+    /// shares that one offset, so each pair of same-axis position entries
+    /// gains `var_m2`: `P ← P + σ² Σ_a e_a e_aᵀ` with `e_a` the indicator of
+    /// axis `a`'s positions. Refused (`false`) once keyframes are in a
+    /// compressed global part, whose frozen covariance it cannot reach.
+    pub fn add_world_offset_variance(&mut self, var_m2: f64) -> bool {
+        if !(var_m2.is_finite() && var_m2 >= 0.0) || self.global.as_ref().is_some_and(|g| !g.live.is_empty()) {
+            return false;
+        }
+        self.sync();
+        let mut starts: Vec<usize> = vec![POSE_IDX[3]];
+        starts.extend((0..self.local_kfs.len()).map(|j| self.kf_offset(j) + 3));
+        let co = self.clones_offset();
+        starts.extend((0..self.clones.len()).map(|i| co + 6 * i + 3));
+        let go = self.gnss_clones_offset();
+        starts.extend((0..self.gnss_clones.len()).map(|i| go + GNSS_CLONE_DIM * i + 6));
+        for a in 0..3 {
+            for &i in &starts {
+                for &j in &starts {
+                    self.P[(i + a, j + a)] += var_m2;
+                }
+            }
+        }
+        true
+    }
+
     /// Marginalises `width` error states at `at` (§2, eq. A2).
     pub(super) fn remove_block(&mut self, at: usize, width: usize) {
         let p = std::mem::replace(&mut self.P, DMatrix::zeros(0, 0));

@@ -364,3 +364,36 @@ fn time_offset_converges_in_flight() {
     assert!(var.sqrt() < 1.5e-3, "σ {}", var.sqrt());
     let _ = GNSS_COLS;
 }
+
+/// Placing the world origin at a single-point fix (§7, I2) makes every
+/// position uncertain by the fix's sigma, all together: absolute position
+/// variances grow by σ², relative ones (clone to clone, body to keyframe)
+/// do not change.
+#[test]
+fn a_world_offset_moves_every_position_together() {
+    let (ds, cfg) = super::tests::racetrack_for_tests(7, 12.0);
+    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Full, 7);
+    for k in 0..ds.frames.len() {
+        run.step_frame(k);
+    }
+    let mut est = run.est.clone();
+    est.sync();
+    let before = est.P.clone();
+    assert!(est.add_world_offset_variance(4.0));
+    let p = &est.P;
+    let body = 6;
+    let kf = est.kf_offset(0) + 3;
+    let clone = est.clones_offset() + 3;
+    for a in 0..3 {
+        let (b, k, c) = (body + a, kf + a, clone + a);
+        assert!((p[(b, b)] - before[(b, b)] - 4.0).abs() < 1e-9);
+        assert!((p[(k, k)] - before[(k, k)] - 4.0).abs() < 1e-9);
+        let rel = |m: &DMatrix<f64>, i: usize, j: usize| m[(i, i)] + m[(j, j)] - 2.0 * m[(i, j)];
+        assert!((rel(p, b, k) - rel(&before, b, k)).abs() < 1e-9);
+        assert!((rel(p, b, c) - rel(&before, b, c)).abs() < 1e-9);
+        // Other axes and other states are untouched.
+        assert_eq!(p[(b, (b + 1) % 3 + body)], before[(b, (b + 1) % 3 + body)]);
+        assert_eq!(p[(0, b)], before[(0, b)]);
+    }
+    assert!(est.check_health().is_ok());
+}

@@ -177,6 +177,9 @@ impl<'a> Runner<'a> {
     pub fn new(ds: &'a Dataset, cfg: &Config, mode: Mode, init_seed: u64) -> Self {
         let mut c = cfg.clone();
         c.estimator.mode = mode;
+        // The antenna's place on the airframe is measured and configured;
+        // the camera's time offset is not (the filter estimates it).
+        c.gnss.p_A_in_B_m = ds.cfg.gnss.p_A_in_B_m;
         let p0 = c.initial_covariance();
         let x0 = init_from_truth(ds, &p0, init_seed);
         let mut est = Estimator::new(c.estimator_settings(), ds.truth[0].truth.t_s, x0, &p0);

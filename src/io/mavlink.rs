@@ -276,6 +276,12 @@ fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             p_ned_m: finite3(Vector3::new(d.x as f64, d.y as f64, d.z as f64))?,
             v_ned_mps: finite3(Vector3::new(d.vx as f64, d.vy as f64, d.vz as f64))?,
         },
+        // h_acc and v_acc (mm) are MAVLink 2 extensions: 0 = not reported.
+        M::GPS_RAW_INT(d) if d.h_acc > 0 && d.v_acc > 0 => Inbound::GpsAccuracy {
+            h_acc_m: d.h_acc as f64 * 1e-3,
+            v_acc_m: d.v_acc as f64 * 1e-3,
+        },
+        M::GPS_RAW_INT(_) => Inbound::Other("GPS_RAW_INT"),
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
             unix_us: d.time_unix_usec,
             boot_ms: d.time_boot_ms,

@@ -36,6 +36,13 @@ pub enum Inbound {
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
+    /// The autopilot's GNSS accuracy (`GPS_RAW_INT`'s `h_acc`, `v_acc`; m,
+    /// one sigma), when it reports one: the uncertainty of its local
+    /// position, which an in-flight start takes as its own.
+    GpsAccuracy {
+        h_acc_m: f64,
+        v_acc_m: f64,
+    },
     SystemTime {
         unix_us: u64,
         boot_ms: u32,
