@@ -7,6 +7,11 @@ use cmsckf::estimator::Mode;
 use cmsckf::eval;
 use cmsckf_sitl::metrics::nees_bounds_95;
 
+/// Least fraction of frames at which the seed-averaged pose NEES must lie
+/// inside its per-time 95% bounds (0.95 for a perfectly consistent filter;
+/// the samples of one flight are correlated, so the fraction scatters).
+const PER_TIME_MIN: f64 = 0.8;
+
 #[test]
 fn nees_is_consistent_over_ten_seeds() {
     let cfg = Config::default();
@@ -38,6 +43,20 @@ fn nees_is_consistent_over_ten_seeds() {
             r.per_seed_nees_mean
         );
     }
+    // Per time, not only on average: at each frame the seed-averaged pose
+    // NEES is χ²(6·seeds)/seeds, inside its 95% bounds at most frames.
+    for m in ["msckf", "full", "compressed"] {
+        let r = &ev.modes[m];
+        eprintln!(
+            "{m}: per-time fraction in bounds: pose {:.2}, yaw {:.2}, position {:.2}",
+            r.nees_pose_in_bounds_per_time, r.nees_yaw_in_bounds_per_time, r.nees_position_in_bounds_per_time
+        );
+        assert!(
+            r.nees_pose_in_bounds_per_time >= PER_TIME_MIN,
+            "{m}: the pose NEES is inside its per-time bounds at only {:.2} of the frames",
+            r.nees_pose_in_bounds_per_time
+        );
+    }
     let s = &ev.modes["schmidt"];
     assert!(
         s.nees_mean <= hi,
@@ -46,7 +65,11 @@ fn nees_is_consistent_over_ten_seeds() {
     );
     let c = &ev.modes["compressed"];
     let d = c.max_rel_diff_vs_full.expect("lockstep ran");
-    assert!(d <= 1e-9, "compressed vs full {d:e}");
+    // Normalised entry by entry (covariance by √(P_ii P_jj), state by σ):
+    // the drift of two nonlinear filters over a flight, a few 1e-9 (the
+    // identity itself holds to 1e-12 at each global update; see the
+    // estimator's tests).
+    assert!(d <= 5e-9, "compressed vs full {d:e}");
     for (a, b) in c
         .per_seed_ate_unaligned_m
         .iter()

@@ -87,23 +87,46 @@ pub fn measure(
     (Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), h_pose, jp * r_cw)
 }
 
-/// The widest angle between two of a track's bearing rays in the world
-/// frame (rad): the parallax a triangulation has to work with.
+/// The parallax a triangulation has to work with (rad): the widest angle
+/// between two of a track's bearing rays in the world frame, once the one
+/// observation that widens it most is left out. A single outlier (a wrong
+/// id, a gross pixel error) sits at one end of the widest pair and would
+/// otherwise make a still camera's track look wide.
 pub fn parallax_rad(views: &[View], e: &Extrinsic, obs: &[Obs]) -> f64 {
     let dirs: Vec<Vector3<f64>> = obs
         .iter()
         .map(|o| (views[o.view].R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize())
         .collect();
-    let mut min_cos = 1.0f64;
-    for (i, a) in dirs.iter().enumerate() {
-        for b in &dirs[i + 1..] {
-            min_cos = min_cos.min(a.dot(b));
+    // The widest pair, by the smallest cosine.
+    let widest_without = |skip: Option<usize>| {
+        let mut best = (1.0f64, 0, 0);
+        for (i, a) in dirs.iter().enumerate() {
+            for (j, b) in dirs.iter().enumerate().skip(i + 1) {
+                if Some(i) == skip || Some(j) == skip {
+                    continue;
+                }
+                let c = a.dot(b);
+                if c < best.0 || c.is_nan() {
+                    best = (c, i, j);
+                }
+            }
         }
-    }
-    if min_cos.is_nan() {
+        best
+    };
+    let (c, a, b) = widest_without(None);
+    if c.is_nan() {
         return f64::NAN;
     }
-    min_cos.clamp(-1.0, 1.0).acos()
+    if dirs.len() < 3 {
+        return c.clamp(-1.0, 1.0).acos();
+    }
+    // Leave out either end of the widest pair; the narrower result is
+    // the parallax without that end.
+    let c = widest_without(Some(a)).0.max(widest_without(Some(b)).0);
+    if c.is_nan() {
+        return f64::NAN;
+    }
+    c.clamp(-1.0, 1.0).acos()
 }
 
 /// Triangulation limits.

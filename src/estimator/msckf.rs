@@ -21,6 +21,10 @@ use super::{
 /// observation to be triangulated (§3c).
 const PARALLAX_NOISE_SIGMAS: f64 = 5.0;
 
+/// A track that fails to triangulate with less than this many times the
+/// parallax bound counts as poor parallax, not as inconsistent (§3c).
+const WEAK_PARALLAX_FACTOR: f64 = 4.0;
+
 /// One gated track's rows: its projected Jacobian over the columns `idx` of
 /// `P`, and its projected residual.
 type TrackRows = (DMatrix<f64>, DVector<f64>, Vec<usize>);
@@ -338,12 +342,20 @@ impl Estimator {
         // least five times an observation's angular sigma (1/W).
         let noise_rad = obs.iter().map(|o| 1.0 / o.W[(0, 0)].abs()).fold(0.0, f64::max);
         let min_parallax = self.s.min_parallax_rad.max(PARALLAX_NOISE_SIGMAS * noise_rad);
-        if !(feature::parallax_rad(&views, &self.s.ext, &obs) >= min_parallax) {
+        let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
+        if !(parallax >= min_parallax) {
             reject(report, &mut self.stats, Reject::PoorParallax);
             return None;
         }
         let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
             Ok(p) => p,
+            // With little more parallax than the bound, a depth out of range
+            // or a fit that does not settle is the geometry's weakness, not
+            // the poses' inconsistency: counted as poor parallax.
+            Err(Reject::BadDepth | Reject::NotConverged) if parallax < WEAK_PARALLAX_FACTOR * min_parallax => {
+                reject(report, &mut self.stats, Reject::PoorParallax);
+                return None;
+            }
             Err(r) => {
                 reject(report, &mut self.stats, r);
                 return None;

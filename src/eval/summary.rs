@@ -64,10 +64,57 @@ pub struct ModeSummary {
     /// Health-check failures over all seeds: each would reset the daemon's
     /// filter.
     pub resets: u64,
+    /// Per time: the fraction of frames at which the NEES averaged over the
+    /// seeds lies inside its 95% bounds (`χ²(k·seeds)/seeds`), for the pose
+    /// (6 dof), yaw (1) and position (3). A consistent filter gives about
+    /// 0.95.
+    pub nees_pose_in_bounds_per_time: f64,
+    pub nees_yaw_in_bounds_per_time: f64,
+    pub nees_position_in_bounds_per_time: f64,
     /// Compressed only: the largest normalised difference from full in
     /// each quarter of the flight (the drift's growth).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub diff_vs_full_by_quarter: Vec<f64>,
+}
+
+/// The NEES of one sample, by part: `[tilt, yaw, position, velocity]`
+/// (`None` where a covariance block does not invert).
+fn component_sample(r: &FlightResult, i: usize) -> Option<[f64; 4]> {
+    let e_th = (r.q_true[i] * r.q_est[i].inverse()).scaled_axis();
+    let c = &r.cov_pose[i];
+    let ti = c.fixed_view::<2, 2>(0, 0).into_owned().try_inverse()?;
+    let pi = c.fixed_view::<3, 3>(3, 3).into_owned().try_inverse()?;
+    let vi = r.cov_vel[i].try_inverse()?;
+    let e_tilt = e_th.xy();
+    let e_p = r.p_true[i] - r.p_est[i];
+    let e_v = r.v_true[i] - r.v_est[i];
+    Some([
+        e_tilt.dot(&(ti * e_tilt)),
+        e_th.z * e_th.z / c[(2, 2)],
+        e_p.dot(&(pi * e_p)),
+        e_v.dot(&(vi * e_v)),
+    ])
+}
+
+/// The fraction of frame indices at which `nees` averaged over the runs
+/// lies inside the 95% bounds of `dof` degrees of freedom and as many runs.
+fn in_bounds_per_time(runs: &[FlightResult], dof: usize, nees: impl Fn(&FlightResult, usize) -> Option<f64>) -> f64 {
+    let n = runs.iter().map(|r| r.t_s.len()).min().unwrap_or(0);
+    let (lo, hi) = cmsckf_sitl::metrics::nees_bounds_95(dof, runs.len());
+    let mut inside = 0usize;
+    let mut counted = 0usize;
+    for i in 0..n {
+        let v: Vec<f64> = runs.iter().filter_map(|r| nees(r, i)).collect();
+        if v.len() != runs.len() {
+            continue;
+        }
+        counted += 1;
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        if (lo..=hi).contains(&m) {
+            inside += 1;
+        }
+    }
+    inside as f64 / counted.max(1) as f64
 }
 
 /// Mean NEES of each part of the state over the samples `from..`:
@@ -78,25 +125,12 @@ pub fn component_nees(r: &FlightResult, from: usize) -> [f64; 4] {
     let mut sum = [0.0; 4];
     let mut n = 0usize;
     for i in from..r.t_s.len() {
-        let e_th = (r.q_true[i] * r.q_est[i].inverse()).scaled_axis();
-        let c = &r.cov_pose[i];
-        let tilt_cov = c.fixed_view::<2, 2>(0, 0).into_owned();
-        let pos_cov = c.fixed_view::<3, 3>(3, 3).into_owned();
-        let (Some(ti), Some(pi), Some(vi)) = (
-            tilt_cov.try_inverse(),
-            pos_cov.try_inverse(),
-            r.cov_vel[i].try_inverse(),
-        ) else {
-            continue;
-        };
-        let e_tilt = e_th.xy();
-        let e_p = r.p_true[i] - r.p_est[i];
-        let e_v = r.v_true[i] - r.v_est[i];
-        sum[0] += e_tilt.dot(&(ti * e_tilt));
-        sum[1] += e_th.z * e_th.z / c[(2, 2)];
-        sum[2] += e_p.dot(&(pi * e_p));
-        sum[3] += e_v.dot(&(vi * e_v));
-        n += 1;
+        if let Some(c) = component_sample(r, i) {
+            for k in 0..4 {
+                sum[k] += c[k];
+            }
+            n += 1;
+        }
     }
     sum.map(|s| s / n.max(1) as f64)
 }
@@ -210,6 +244,11 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
         resets: runs.iter().map(|r| r.resets).sum(),
+        nees_pose_in_bounds_per_time: in_bounds_per_time(runs, 6, |r, i| {
+            metrics::nees_pose(&r.q_est[i], &r.p_est[i], &r.q_true[i], &r.p_true[i], &r.cov_pose[i])
+        }),
+        nees_yaw_in_bounds_per_time: in_bounds_per_time(runs, 1, |r, i| component_sample(r, i).map(|c| c[1])),
+        nees_position_in_bounds_per_time: in_bounds_per_time(runs, 3, |r, i| component_sample(r, i).map(|c| c[2])),
         diff_vs_full_by_quarter: diff_by_quarter(runs),
     }
 }
