@@ -239,6 +239,8 @@ impl Estimator {
     /// Applies a correction to the local nominal state.
     pub(super) fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
+        self.fej_dv += dx.fixed_rows::<3>(propagate::V);
+        self.fej_dp += dx.fixed_rows::<3>(propagate::P);
         self.clock += dx.fixed_rows::<3>(CLK_B);
         self.t_d_s += dx[TD];
         for (j, id) in self.local_kfs.clone().iter().enumerate() {

@@ -18,6 +18,10 @@ pub struct Extrinsic {
 pub struct View {
     pub R_W_B: Matrix3<f64>,
     pub p_B_in_W: Vector3<f64>,
+    /// The position the rotation's Jacobian is taken at: the view's first
+    /// estimate (its value when it entered the state, README §3d), so the
+    /// unobservable yaw and position stay unobservable.
+    pub p_lin_in_W: Vector3<f64>,
     /// Maps the state's rotation error to the world-frame perturbation:
     /// identity for clones, `J_l(δ̂)` for keyframes (README §4).
     pub chart: Matrix3<f64>,
@@ -70,7 +74,8 @@ fn proj_jacobian(p_c: &Vector3<f64>) -> Matrix2x3<f64> {
 
 /// Predicted normalised coordinates and the Jacobians with respect to the
 /// view's pose error `[δθ, δp]` (2×6) and the landmark (2×3) (README §3,
-/// eqs. C2–C4): `∂p_C/∂δθ = R_B_Cᵀ R_W_Bᵀ [p_f − p_B]× · chart`,
+/// eqs. C2–C4): `∂p_C/∂δθ = R_B_Cᵀ R_W_Bᵀ [p_f − p_B^FE]× · chart` (with the
+/// view's first-estimate position, §3d),
 /// `∂p_C/∂δp = −R_B_Cᵀ R_W_Bᵀ`, `∂p_C/∂p_f = R_B_Cᵀ R_W_Bᵀ`.
 pub fn measure(
     v: &View,
@@ -80,7 +85,7 @@ pub fn measure(
     let p_c = point_in_camera(v, e, p_f);
     let jp = proj_jacobian(&p_c);
     let r_cw = e.R_B_C.transpose() * v.R_W_B.transpose();
-    let d_th = r_cw * skew(&(p_f - v.p_B_in_W)) * v.chart;
+    let d_th = r_cw * skew(&(p_f - v.p_lin_in_W)) * v.chart;
     let mut h_pose = nalgebra::Matrix2x6::zeros();
     h_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jp * d_th));
     h_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-jp * r_cw));
@@ -309,6 +314,7 @@ mod tests {
                 .to_rotation_matrix()
                 .into_inner(),
             p_B_in_W: p,
+            p_lin_in_W: p,
             chart,
         }
     }

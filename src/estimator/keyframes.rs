@@ -44,6 +44,7 @@ impl Estimator {
                 q0_W_B: self.imu.q_W_B,
                 delta: Vector3::zeros(),
                 p_B_in_W: self.imu.p_B_in_W,
+                p_fej_in_W: self.imu.p_B_in_W,
                 obs: kobs,
                 last_used_s: t_s,
             },

@@ -111,6 +111,9 @@ struct CloneState {
     seq: u64,
     q_W_B: UnitQuaternion<f64>,
     p_B_in_W: Vector3<f64>,
+    /// First estimate of the position (§3d): its value when cloned, before
+    /// any update; the camera Jacobians are taken there.
+    p_fej_in_W: Vector3<f64>,
 }
 
 /// A stochastic clone for a GNSS epoch (§8b): the states its measurements
@@ -167,6 +170,8 @@ pub struct Keyframe {
     q0_W_B: UnitQuaternion<f64>,
     delta: Vector3<f64>,
     pub p_B_in_W: Vector3<f64>,
+    /// First estimate of the position (§3d), as for clones.
+    p_fej_in_W: Vector3<f64>,
     obs: BTreeMap<u64, KfObs>,
     /// When a measurement last involved it (its creation at first): the
     /// least recently used leave the local part first.
@@ -311,6 +316,11 @@ pub struct Estimator {
     last_kf_t_s: f64,
     /// Camera–IMU time offset `t_d` (s), the nominal of state [`TD`].
     t_d_s: f64,
+    /// Corrections to the velocity and position since the last IMU step:
+    /// the next step's transition is taken from the first estimates, the
+    /// values before them (§3d, eq. F5).
+    fej_dv: Vector3<f64>,
+    fej_dp: Vector3<f64>,
     /// GNSS clones waiting for their epochs, oldest first; their blocks
     /// sit after the camera clones, `GNSS_CLONE_DIM` each.
     gnss_clones: VecDeque<GnssClone>,
@@ -388,6 +398,8 @@ impl Estimator {
         P[(TD, TD)] = s.time_offset_sigma_s.powi(2).max(1e-12);
         Self {
             t_d_s: s.time_offset_s,
+            fej_dv: Vector3::zeros(),
+            fej_dp: Vector3::zeros(),
             gnss_clones: VecDeque::new(),
             gnss_grid: None,
             still: Stillness::default(),

@@ -141,6 +141,7 @@ impl Estimator {
                 seq,
                 q_W_B: self.imu.q_W_B,
                 p_B_in_W: self.imu.p_B_in_W,
+                p_fej_in_W: self.imu.p_B_in_W,
             });
             for o in obs {
                 self.tracks.entry(o.landmark_id).or_default().obs.push((seq, *o));
@@ -295,6 +296,7 @@ impl Estimator {
             views.push(View {
                 R_W_B: c.q_W_B.to_rotation_matrix().into_inner(),
                 p_B_in_W: c.p_B_in_W,
+                p_lin_in_W: c.p_fej_in_W,
                 chart: Matrix3::identity(),
             });
             cols.push(off);
@@ -312,6 +314,7 @@ impl Estimator {
             views.push(View {
                 R_W_B: kf.q_W_B().to_rotation_matrix().into_inner(),
                 p_B_in_W: kf.p_B_in_W,
+                p_lin_in_W: kf.p_fej_in_W,
                 chart: left_jacobian(&kf.delta),
             });
             // A keyframe in the state (local), or a Schmidt/full keyframe.

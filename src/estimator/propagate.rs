@@ -235,9 +235,24 @@ impl Estimator {
         if m.t_s <= m0.t_s {
             return;
         }
-        let (f15, q15) = transition(&self.imu, &m0, &m, &self.s.imu);
+        let (mut f15, q15) = transition(&self.imu, &m0, &m, &self.s.imu);
         // The clock: bias integrates drift, both random walks (§8, eq. K1).
         let dt = m.t_s - m0.t_s;
+        // First-estimate Jacobians (§3d, eq. F5): the step's velocity and
+        // position increments measured from the values before the last
+        // updates, `F_vθ = −[v₁ − v₀^FE − g Δt]×`,
+        // `F_pθ = −[p₁ − p₀^FE − v₀^FE Δt − ½ g Δt²]×`: the updates'
+        // corrections `δv`, `δp` join the brackets.
+        if self.fej_dv != Vector3::zeros() || self.fej_dp != Vector3::zeros() {
+            let dv = self.fej_dv;
+            let dp = self.fej_dp + self.fej_dv * dt;
+            let fv = f15.fixed_view::<3, 3>(V, TH) - skew(&dv);
+            let fp = f15.fixed_view::<3, 3>(P, TH) - skew(&dp);
+            f15.fixed_view_mut::<3, 3>(V, TH).copy_from(&fv);
+            f15.fixed_view_mut::<3, 3>(P, TH).copy_from(&fp);
+            self.fej_dv = Vector3::zeros();
+            self.fej_dp = Vector3::zeros();
+        }
         let mut f = MatActive::identity();
         f.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
         f[(CLK_B, CLK_D)] = dt;

@@ -212,12 +212,15 @@ fn a_late_gnss_epoch_is_fused_at_its_own_time() {
     b.sync();
     let (sa, sb) = (a.snapshot(), b.snapshot());
     // Every state within 1e-3 of its own σ, every covariance entry within
-    // 1e-3 of √(P_ii P_jj).
+    // 1e-2 of √(P_ii P_jj): what is left is the propagation over 0.5 s
+    // linearised at the corrected state in (a) and at the uncorrected one
+    // in (b) (a tilt correction of a milliradian changes `F_vb_a`, and so
+    // the velocity's variance, by about as much).
     for i in 0..sa.P.nrows() {
         let sig = sa.P[(i, i)].sqrt();
         for j in 0..sa.P.ncols() {
             let d = (sa.P[(i, j)] - sb.P[(i, j)]).abs() / (sig * sa.P[(j, j)].sqrt());
-            assert!(d < 1e-3, "P[{i},{j}] differs by {d:e} of its scale");
+            assert!(d < 1e-2, "P[{i},{j}] differs by {d:e} of its scale");
         }
     }
     let dp = (a.imu.p_B_in_W - b.imu.p_B_in_W).norm();
