@@ -10,20 +10,24 @@ use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::serve::{serve, ServeOptions};
 
-#[test]
-fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
-    let dir = tempfile::tempdir().unwrap();
-    let (mut cfg, port) = common::loopback_config(dir.path());
-    cfg.output.odometry = true;
-    let log_path = dir.path().join("flight.mcap");
-    cfg.log.path = log_path.display().to_string();
-    // The simulated sky has no ionosphere.
+/// Runs the daemon binary against the SITL autopilot flying `scenario`
+/// (10× real time), then stops it with SIGTERM. The simulated sky has no
+/// ionosphere, and the antenna's lever arm is configured as it is
+/// measured on the airframe.
+fn fly(
+    dir: &std::path::Path,
+    scenario: &str,
+    seed: u64,
+    duration: f64,
+    tweak: impl FnOnce(&mut cmsckf::config::Config),
+) -> (cmsckf_sitl::serve::Report, Dataset, cmsckf::config::Config) {
+    let (mut cfg, port) = common::loopback_config(dir);
     cfg.gnss.iono = cmsckf::gnss::IonoMode::Off;
-    cfg.output.set_gps_origin = true;
-    let mut daemon = common::spawn_daemon_binary(&cfg, dir.path());
-    let seed = 4;
-    let duration = 40.0;
-    let ds = Dataset::generate("racetrack", seed, Some(duration), &eval::sim_config_for(&cfg)).unwrap();
+    let sim = eval::sim_config_for(&cfg);
+    cfg.gnss.p_A_in_B_m = sim.gnss.p_A_in_B_m;
+    tweak(&mut cfg);
+    let mut daemon = common::spawn_daemon_binary(&cfg, dir);
+    let ds = Dataset::generate(scenario, seed, Some(duration), &sim).unwrap();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let report = rt
         .block_on(serve(
@@ -36,13 +40,45 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
             &ds,
         ))
         .unwrap();
-    // SIGTERM: the daemon stops cleanly and removes its socket.
     unsafe {
         libc::kill(daemon.id() as i32, libc::SIGTERM);
     }
     let status = daemon.wait().unwrap();
     assert!(status.success(), "daemon exit {status:?}");
     assert!(!std::path::Path::new(&cfg.features.socket).exists());
+    (report, ds, cfg)
+}
+
+/// A drone that waits on the ground, climbs, and hovers between legs: its
+/// standstills are zero-velocity updates, never a reset.
+#[test]
+fn daemon_hovers_without_resets() {
+    let dir = tempfile::tempdir().unwrap();
+    let (report, ds, cfg) = fly(dir.path(), "hover", 3, 40.0, |_| {});
+    let offline = eval::score(&eval::run(&ds, &cfg, cfg.estimator.mode, 3, true));
+    eprintln!("{report:?}\noffline ATE {:.3} m", offline.ate.unaligned_m);
+    assert_eq!(report.reset_count, 0, "resets in a hover");
+    assert!(report.covariance_ok);
+    assert!(report.estimates_received as f64 > 0.9 * 30.0 * (40.0 - 2.0));
+    assert!(
+        report.ate_m <= 2.0 * offline.ate.unaligned_m + 0.5,
+        "daemon ATE {} vs offline {}",
+        report.ate_m,
+        offline.ate.unaligned_m
+    );
+}
+
+#[test]
+fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
+    let dir = tempfile::tempdir().unwrap();
+    let log_path = dir.path().join("flight.mcap");
+    let seed = 4;
+    let duration = 40.0;
+    let (report, ds, cfg) = fly(dir.path(), "racetrack", seed, duration, |cfg| {
+        cfg.output.odometry = true;
+        cfg.log.path = log_path.display().to_string();
+        cfg.output.set_gps_origin = true;
+    });
 
     // The SITL relays the simulated receiver's RTCM3, so compare with GNSS on.
     let offline = eval::score(&eval::run(&ds, &cfg, cfg.estimator.mode, seed, true));
@@ -53,8 +89,9 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         report.output_rate_hz
     );
     assert!(report.estimates_received as f64 > 0.9 * 30.0 * (duration - 1.0));
-    // The daemon starts in flight from the autopilot's attitude (looser than
-    // evaluate's truth start), so allow twice the offline error plus 0.5 m.
+    // The daemon starts from its own static initialisation and the
+    // autopilot's yaw (looser than evaluate's truth start), so allow twice
+    // the offline error plus 0.5 m.
     assert!(
         report.ate_m <= 2.0 * offline.ate.unaligned_m + 0.5,
         "daemon ATE {} vs offline {}",
