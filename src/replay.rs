@@ -126,6 +126,12 @@ fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> 
                     pitch: a.y,
                     yaw: a.z,
                 }
+            } else if let Some(g) = v.get("gps_accuracy_m") {
+                let g = g.as_array()?;
+                FusionMsg::GpsAccuracy {
+                    h_acc_m: g.first()?.as_f64()?,
+                    v_acc_m: g.get(1)?.as_f64()?,
+                }
             } else if let Some(l) = v.get("local_position") {
                 FusionMsg::LocalPosition {
                     // Logs before the time was recorded: no carrying forward.

@@ -260,9 +260,13 @@ impl Fusion {
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
-                if h_acc_m.is_finite() && v_acc_m.is_finite() {
-                    self.gps_accuracy = Some((h_acc_m, v_acc_m));
-                }
+                // Logged for replay, kept as the prior of an in-flight start.
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"gps_accuracy_m": [h_acc_m, v_acc_m]}),
+                );
+                self.gps_accuracy = (h_acc_m.is_finite() && v_acc_m.is_finite()).then_some((h_acc_m, v_acc_m));
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
                 self.log(

@@ -437,7 +437,7 @@ impl Estimator {
         let lever = self.s.p_A_in_B_m;
         let residuals = |sys: Option<System>, bias: f64| -> Vec<f64> {
             sats.iter()
-                .filter(|s| sys.map_or(true, |y| s.system == y))
+                .filter(|s| sys.is_none_or(|y| s.system == y))
                 .filter_map(|s| {
                     let mut n = *nom;
                     n.clock = Vector3::new(bias, 0.0, 0.0);
@@ -582,10 +582,10 @@ pub fn pseudorange(
     (rho + sagnac + clock_bias_m - s.dts_m + trop, h_p, el)
 }
 
-/// Predicted range rate (K3): `(v_s − v)·u + ω_e (ẋ_s y + x_s ẏ − ẏ_s x − y_s ẋ)/c
-/// + ḃ − c·δṫ_s`, the time derivative of K2 (the second term is the Sagnac
-/// term's rate, a few mm/s), with Jacobians with respect to the world-frame
-/// velocity and position.
+/// Predicted range rate (K3), the time derivative of K2:
+/// `(v_s − v)·u + ω_e (ẋ_s y + x_s ẏ − ẏ_s x − y_s ẋ)/c + ḃ − c·δṫ_s` (the
+/// second term is the Sagnac term's rate, a few mm/s), with Jacobians with
+/// respect to the world-frame velocity and position.
 pub fn range_rate(
     frame: &NedFrame,
     p_B_in_W: &Vector3<f64>,

@@ -346,7 +346,8 @@ impl Estimator {
         let noise_rad = obs.iter().map(|o| 1.0 / o.W[(0, 0)].abs()).fold(0.0, f64::max);
         let min_parallax = self.s.min_parallax_rad.max(PARALLAX_NOISE_SIGMAS * noise_rad);
         let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
-        if !(parallax >= min_parallax) {
+        // NaN (a non-finite bearing) is not enough parallax either.
+        if parallax.is_nan() || parallax < min_parallax {
             reject(report, &mut self.stats, Reject::PoorParallax);
             return None;
         }

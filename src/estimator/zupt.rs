@@ -102,7 +102,7 @@ impl Estimator {
             return false;
         };
         let nis = r.dot(&ch.solve(&r));
-        if !(nis <= cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6)) {
+        if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6) {
             *self.stats.rejected.entry("zupt_chi2").or_default() += 1;
             return false;
         }
