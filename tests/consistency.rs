@@ -78,3 +78,47 @@ fn nees_is_consistent_over_ten_seeds() {
         assert!((a - b).abs() <= 1e-6, "compressed ATE {a} vs full {b}");
     }
 }
+
+/// Schmidt over the three-lap flight, where its uncorrected keyframes used
+/// to make it over-confident (6-DoF NEES 11.6 before first-estimate
+/// Jacobians): its pose NEES averaged over the seeds stays below the top of
+/// its 95% interval, in the flight's second half too.
+#[test]
+fn schmidt_is_not_over_confident_over_three_laps() {
+    let cfg = Config::default();
+    let sim = eval::sim_config_for(&cfg);
+    let seeds = 3;
+    let ev = eval::evaluate(
+        &eval::EvalSpec {
+            scenario: "racetrack".into(),
+            modes: vec![Mode::Schmidt],
+            seeds,
+            duration_s: Some(200.0),
+            gnss: false,
+        },
+        &cfg,
+        &sim,
+        |_| {},
+    )
+    .unwrap();
+    let s = &ev.modes["schmidt"];
+    let (_, hi6) = nees_bounds_95(6, seeds as usize);
+    let (_, hi1) = nees_bounds_95(1, seeds as usize);
+    let (_, hi3) = nees_bounds_95(3, seeds as usize);
+    eprintln!(
+        "schmidt, 3 laps: NEES {:.2} (≤ {hi6:.2}); yaw {:.2} / {:.2}; position {:.2} / {:.2}; {} loop-closure tracks",
+        s.nees_mean,
+        s.nees_yaw_mean,
+        s.nees_yaw_mean_second_half,
+        s.nees_position_mean,
+        s.nees_position_mean_second_half,
+        s.loop_closure_updates
+    );
+    assert!(s.loop_closure_updates > 1000.0, "three laps close loops");
+    assert!(
+        s.nees_mean <= hi6,
+        "schmidt over-confident over three laps: {}",
+        s.nees_mean
+    );
+    assert!(s.nees_yaw_mean_second_half <= hi1 && s.nees_position_mean_second_half <= hi3);
+}
