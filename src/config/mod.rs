@@ -520,6 +520,25 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("output.rate_hz"), "{e}");
+        // The real-sensor fields: each error names its field.
+        for (toml, field) in [
+            ("[zupt]\nsigma_mps = 0.0\n", "zupt.sigma_mps"),
+            ("[zupt]\nmax_disparity_px = nan\n", "zupt.max_disparity_px"),
+            ("[gnss]\nmax_delay_s = -1.0\n", "gnss.max_delay_s"),
+            ("[gnss]\np_A_in_B_m = [0.0, 20.0, 0.0]\n", "gnss.p_A_in_B_m[1]"),
+            ("[gnss]\nepoch_rate_hz = 0.0\n", "gnss.epoch_rate_hz"),
+            (
+                "[estimator]\ntime_offset_sigma_s = 0.0\n",
+                "estimator.time_offset_sigma_s",
+            ),
+            (
+                "[init]\nsigma_yaw_autopilot_deg = -5.0\n",
+                "init.sigma_yaw_autopilot_deg",
+            ),
+        ] {
+            let e = Config::from_toml(toml, "x").unwrap_err().to_string();
+            assert!(e.contains(field), "{toml}: {e}");
+        }
         let e = Config::load(Path::new("/nonexistent/cmsckf.toml"))
             .unwrap_err()
             .to_string();

@@ -400,3 +400,51 @@ fn a_world_offset_moves_every_position_together() {
     }
     assert!(est.check_health().is_ok());
 }
+
+/// A 5 Hz receiver with the filter told 1 Hz (`gnss.epoch_rate_hz`): the
+/// grid learns the period from the epochs' spacing, and from then on every
+/// epoch, 0.3 s late, is fused through its clone. A non-finite epoch time is
+/// refused and counted.
+#[test]
+fn the_epoch_grid_is_learnt_from_the_epochs() {
+    let (ds, cfg) = super::tests::racetrack_for_tests(6, 14.0);
+    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Msckf, 6).with_gnss_on_time();
+    let k0 = ds.frames.iter().position(|f| f.t_s > 6.0).unwrap();
+    for k in 0..k0 {
+        run.step_frame(k);
+    }
+    // The epoch at 7 s, its measurements re-stamped every 0.2 s: a 5 Hz
+    // receiver over a second (the satellites barely move in 0.8 s, and the
+    // test is about when the epochs are fused).
+    let (_, frame, sats) = run.gnss_epoch_after(6.5).unwrap();
+    let mut est = run.est.clone();
+    est.stats = Stats::default();
+    let imu: Vec<ImuMeas> = ds
+        .imu
+        .iter()
+        .filter(|m| m.t_s > est.time_s() && m.t_s <= 10.0)
+        .map(|m| ImuMeas {
+            t_s: m.t_s,
+            accel_mps2: m.accel_mps2,
+            gyro_radps: m.gyro_radps,
+        })
+        .collect();
+    for m in &imu {
+        let _ = est.add_imu(*m);
+    }
+    let mut fused_late = Vec::new();
+    for i in 0..12 {
+        let t_e = 7.0 + 0.2 * i as f64;
+        est.propagate_to(t_e + 0.3);
+        let late_before = est.stats.gnss_epochs_fused_late;
+        let _ = est.process_gnss(t_e, &frame, &sats);
+        fused_late.push(est.stats.gnss_epochs_fused_late > late_before);
+    }
+    // The first epochs find the 1 s grid (or none); once two 0.2 s apart
+    // are seen, every later one has its clone.
+    assert!(fused_late[4..].iter().all(|f| *f), "{fused_late:?}");
+    assert!(est.n_gnss_clones() <= 6, "clones {}", est.n_gnss_clones());
+    // A NaN epoch time: refused, counted, no panic.
+    assert!(est.process_gnss(f64::NAN, &frame, &sats).is_err());
+    assert_eq!(est.stats.rejected.get("gnss_time_invalid"), Some(&1));
+}
