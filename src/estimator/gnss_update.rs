@@ -51,6 +51,8 @@ pub(super) const GNSS_COLS: [usize; GNSS_CLONE_DIM] = [0, 1, 2, 3, 4, 5, 6, 7, 8
 /// Shortest epoch period the grid takes (s): 20 Hz, beyond any receiver's
 /// raw-measurement rate on a drone.
 const MIN_GNSS_PERIOD_S: f64 = 0.05;
+/// Farthest ahead of the filter an epoch may be and still set the grid (s).
+const MAX_GNSS_LEAD_S: f64 = 2.0;
 /// Row offsets of the blocks within a GNSS row.
 const G_TH: usize = 0;
 const G_V: usize = 3;
@@ -246,9 +248,10 @@ impl Estimator {
     /// with Galileo ones sets the inter-system bias the same way.
     pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
         let mut rep = GnssReport::default();
-        if t_s.is_finite() {
-            // Before propagating: an on-time epoch needs no clone at its own
-            // instant.
+        // Before propagating: an on-time epoch needs no clone at its own
+        // instant. An epoch far ahead of the filter (a bad tag) would move
+        // the grid past every real epoch to come: it teaches nothing.
+        if t_s.is_finite() && t_s <= self.t_s + MAX_GNSS_LEAD_S {
             self.learn_gnss_grid(t_s);
         }
         // A clone at the epoch's instant is its state, however late the

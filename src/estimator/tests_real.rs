@@ -447,6 +447,12 @@ fn the_epoch_grid_is_learnt_from_the_epochs() {
     // A NaN epoch time: refused, counted, no panic.
     assert!(est.process_gnss(f64::NAN, &frame, &sats).is_err());
     assert_eq!(est.stats.rejected.get("gnss_time_invalid"), Some(&1));
+    // A tag a day ahead teaches the grid nothing (its period and last
+    // epoch stay), and the filter survives the day of dead reckoning.
+    let grid = est.gnss_grid.map(|g| (g.period_s, g.last_epoch_s));
+    let mut far = est.clone();
+    let _ = far.process_gnss(est.time_s() + 86_400.0, &frame, &sats);
+    assert_eq!(far.gnss_grid.map(|g| (g.period_s, g.last_epoch_s)), grid);
 }
 
 /// With motion that excites it, the time offset converges within 1 ms of
