@@ -4,11 +4,8 @@
 //! and χ² gate of each measurement, and their Jacobians; the update itself
 //! goes through [`Estimator::ekf_update`].
 //!
-//! The antenna sits at `p_A_in_B_m` in the body, so it is at
-//! `r = o + R_en (p_B_in_W + R_W_B p_A_in_B)` in ECEF, with `o` the world
-//! origin and `R_en` the NED→ECEF rotation, and moves with
-//! `v_B_in_W + R_W_B (ω_B × p_A_in_B)`: the rows have attitude and gyro-bias
-//! columns as well as velocity, position and clock ones.
+//! What a satellite measures, and its Jacobians with the antenna's lever
+//! arm, is `gnss_model.rs`'s.
 //!
 //! Epochs arrive late (0.1–0.6 s on real hardware, §8b). The filter clones
 //! the states a GNSS row involves at each instant an epoch is expected (a
@@ -20,13 +17,14 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::{DMatrix, DVector, Matrix3, RowVector3, SMatrix, Vector3};
+use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
 
-use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, OMEGA_E_RADPS};
-use cmsckf_models::gnss::{saastamoinen_m, SatMeas, System};
+use cmsckf_models::geodesy::NedFrame;
+use cmsckf_models::gnss::{SatMeas, System};
 
-use super::math::{exp_so3, skew};
-use super::propagate::{integrate, transition, ImuMeas, ImuState};
+pub use super::gnss_model::{predict_sat, pseudorange, range_rate, GnssNominal, SatPrediction, GNSS_CLONE_DIM};
+use super::gnss_model::{GNSS_COLS, G_B, G_D};
+use super::propagate::{integrate, transition, ImuMeas};
 use super::{math, Estimator, GnssClone, GnssGrid, InputError, Stats, CLK_B, CLK_D, CLK_E, OUTLIER_SIGMAS};
 
 /// What one GNSS epoch did.
@@ -42,106 +40,17 @@ pub struct GnssReport {
     pub late_s: f64,
 }
 
-/// Error-state size of a GNSS clone, and the column order of every GNSS
-/// row: `[δθ, δv, δp, δb_g, δb, δḃ, δisb]`.
-pub const GNSS_CLONE_DIM: usize = 15;
-
-/// The active states a GNSS row involves, in the row's column order.
-pub(super) const GNSS_COLS: [usize; GNSS_CLONE_DIM] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, CLK_B, CLK_D, CLK_E];
 /// Shortest epoch period the grid takes (s): 20 Hz, beyond any receiver's
 /// raw-measurement rate on a drone.
 const MIN_GNSS_PERIOD_S: f64 = 0.05;
 /// Farthest ahead of the filter an epoch may be and still set the grid (s).
 const MAX_GNSS_LEAD_S: f64 = 2.0;
-/// Row offsets of the blocks within a GNSS row.
-const G_TH: usize = 0;
-const G_V: usize = 3;
-const G_P: usize = 6;
-const G_BG: usize = 9;
-const G_B: usize = 12;
-const G_D: usize = 13;
-const G_E: usize = 14;
 
 /// The transition of a clone's states to its epoch's time.
 type ShiftF = SMatrix<f64, GNSS_CLONE_DIM, GNSS_CLONE_DIM>;
 
 /// One whitened measurement row and its residual.
 type GnssRow = ([f64; GNSS_CLONE_DIM], f64);
-
-/// The states a GNSS epoch is predicted from: the live ones, or a clone's.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GnssNominal {
-    /// Attitude, velocity, position and gyro bias (the accelerometer bias
-    /// is not used).
-    pub imu: ImuState,
-    /// The measured body rate at the instant (rad/s).
-    pub gyro_radps: Vector3<f64>,
-    /// `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]`.
-    pub clock: Vector3<f64>,
-}
-
-impl GnssNominal {
-    /// `x ⊕ δx` in the GNSS row order.
-    pub fn correct(&mut self, d: &[f64]) {
-        let v3 = |o: usize| Vector3::new(d[o], d[o + 1], d[o + 2]);
-        self.imu.q_W_B = exp_so3(&v3(G_TH)) * self.imu.q_W_B;
-        self.imu.v_B_in_W += v3(G_V);
-        self.imu.p_B_in_W += v3(G_P);
-        self.imu.b_g += v3(G_BG);
-        self.clock += v3(G_B);
-    }
-}
-
-/// A satellite's predicted measurements and their Jacobians over the GNSS
-/// row order.
-#[derive(Clone, Copy, Debug)]
-pub struct SatPrediction {
-    pub pseudorange_m: f64,
-    pub h_pseudorange: [f64; GNSS_CLONE_DIM],
-    pub range_rate_mps: f64,
-    pub h_range_rate: [f64; GNSS_CLONE_DIM],
-    pub elevation_rad: f64,
-}
-
-/// The pseudorange and range rate of `s` seen by the antenna at
-/// `p_A_in_B_m` (§8, eqs. K2, K3, L1, L2). With `R = Exp(δθ) R̂`:
-/// `∂p_A/∂δθ = −[R p_A_in_B]×`, `∂v_A/∂δθ = −[R (ω × p_A_in_B)]×` and
-/// `∂v_A/∂δb_g = R [p_A_in_B]×` (as `ω = ω_m − b_g`).
-pub fn predict_sat(frame: &NedFrame, nom: &GnssNominal, p_A_in_B_m: &Vector3<f64>, s: &SatMeas) -> SatPrediction {
-    let r_wb = nom.imu.q_W_B.to_rotation_matrix().into_inner();
-    let lever_W = r_wb * p_A_in_B_m;
-    let w_B = nom.gyro_radps - nom.imu.b_g;
-    let spin_W = r_wb * w_B.cross(p_A_in_B_m);
-    let p_A = nom.imu.p_B_in_W + lever_W;
-    let v_A = nom.imu.v_B_in_W + spin_W;
-    let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
-    let (pr, hp, el) = pseudorange(frame, &p_A, nom.clock.x + isb * nom.clock.z, s);
-    let (rate, hv, hpr) = range_rate(frame, &p_A, &v_A, nom.clock.y, s);
-    let dpa_dth = -skew(&lever_W);
-    let dva_dth = -skew(&spin_W);
-    let dva_dbg = r_wb * skew(p_A_in_B_m);
-    let mut h_pr = [0.0; GNSS_CLONE_DIM];
-    let mut h_rate = [0.0; GNSS_CLONE_DIM];
-    let put = |h: &mut [f64; GNSS_CLONE_DIM], o: usize, v: RowVector3<f64>| {
-        h[o..o + 3].copy_from_slice(v.as_slice());
-    };
-    put(&mut h_pr, G_TH, hp * dpa_dth);
-    put(&mut h_pr, G_P, hp);
-    h_pr[G_B] = 1.0;
-    h_pr[G_E] = isb;
-    put(&mut h_rate, G_TH, hv * dva_dth + hpr * dpa_dth);
-    put(&mut h_rate, G_V, hv);
-    put(&mut h_rate, G_P, hpr);
-    put(&mut h_rate, G_BG, hv * dva_dbg);
-    h_rate[G_D] = 1.0;
-    SatPrediction {
-        pseudorange_m: pr,
-        h_pseudorange: h_pr,
-        range_rate_mps: rate,
-        h_range_rate: h_rate,
-        elevation_rad: el,
-    }
-}
 
 /// The median of the finite values (upper median), if any.
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -556,116 +465,5 @@ impl Estimator {
             }
         }
         rep.residuals.push(res);
-    }
-}
-
-/// Predicted pseudorange (K2): `|r_s − r| + ω_e (x_s y − y_s x)/c + b − c·δt_s + T`,
-/// with its Jacobians with respect to the position in the world frame and
-/// the clock bias (1). Also returns the elevation.
-pub fn pseudorange(
-    frame: &NedFrame,
-    p_B_in_W: &Vector3<f64>,
-    clock_bias_m: f64,
-    s: &SatMeas,
-) -> (f64, RowVector3<f64>, f64) {
-    let r = frame.to_ecef(p_B_in_W);
-    let d = s.r_sat_ecef_m - r;
-    let rho = d.norm();
-    let u = d / rho;
-    let sagnac = OMEGA_E_RADPS * (s.r_sat_ecef_m.x * r.y - s.r_sat_ecef_m.y * r.x) / C_MPS;
-    let (el, _) = elevation_azimuth(&r, &s.r_sat_ecef_m);
-    let (lat, _, h) = ecef_to_llh(&r);
-    let trop = saastamoinen_m(lat, h, el);
-    // ∂ρ/∂r = −uᵀ + (ω_e/c)(−y_s, x_s, 0); the troposphere varies with height
-    // (down = −height), its slope taken by a ±1 m difference of the model; its
-    // variation with elevation is below 1e-6 m/m and neglected.
-    let drho = -u.transpose() + RowVector3::new(-s.r_sat_ecef_m.y, s.r_sat_ecef_m.x, 0.0) * (OMEGA_E_RADPS / C_MPS);
-    let dtrop_dh = (saastamoinen_m(lat, h + 1.0, el) - saastamoinen_m(lat, h - 1.0, el)) / 2.0;
-    let h_p = drho * frame.R_ecef_ned + RowVector3::new(0.0, 0.0, -dtrop_dh);
-    (rho + sagnac + clock_bias_m - s.dts_m + trop, h_p, el)
-}
-
-/// Predicted range rate (K3), the time derivative of K2:
-/// `(v_s − v)·u + ω_e (ẋ_s y + x_s ẏ − ẏ_s x − y_s ẋ)/c + ḃ − c·δṫ_s` (the
-/// second term is the Sagnac term's rate, a few mm/s), with Jacobians with
-/// respect to the world-frame velocity and position.
-pub fn range_rate(
-    frame: &NedFrame,
-    p_B_in_W: &Vector3<f64>,
-    v_B_in_W: &Vector3<f64>,
-    clock_drift_mps: f64,
-    s: &SatMeas,
-) -> (f64, RowVector3<f64>, RowVector3<f64>) {
-    let r = frame.to_ecef(p_B_in_W);
-    let v = frame.R_ecef_ned * v_B_in_W;
-    let d = s.r_sat_ecef_m - r;
-    let rho = d.norm();
-    let u = d / rho;
-    let dv = s.v_sat_ecef_mps - v;
-    let (rs, vs) = (&s.r_sat_ecef_m, &s.v_sat_ecef_mps);
-    let k = OMEGA_E_RADPS / C_MPS;
-    let sagnac_rate = k * (vs.x * r.y + rs.x * v.y - vs.y * r.x - rs.y * v.x);
-    // ∂u/∂r = −(I − uuᵀ)/ρ.
-    let du_dr: Matrix3<f64> = -(Matrix3::identity() - u * u.transpose()) / rho;
-    let h_v = (-u.transpose() + RowVector3::new(-rs.y, rs.x, 0.0) * k) * frame.R_ecef_ned;
-    let h_p = (dv.transpose() * du_dr + RowVector3::new(-vs.y, vs.x, 0.0) * k) * frame.R_ecef_ned;
-    (dv.dot(&u) + sagnac_rate + clock_drift_mps - s.ddts_mps, h_v, h_p)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn sat() -> (NedFrame, SatMeas) {
-        let frame = NedFrame::from_llh_deg(-33.88, 151.2, 40.0);
-        let up = frame.origin_ecef.normalize();
-        let east = frame.R_ecef_ned.column(1).into_owned();
-        let r_sat = frame.origin_ecef + up * 2.0e7 + east * 8.0e6;
-        (
-            frame,
-            SatMeas {
-                system: cmsckf_models::gnss::System::Gps,
-                prn: 5,
-                r_sat_ecef_m: r_sat,
-                v_sat_ecef_mps: Vector3::new(1200.0, -2500.0, 1800.0),
-                dts_m: 30.0,
-                ddts_mps: 0.01,
-                pseudorange_m: None,
-                range_rate_mps: None,
-                noise_scale: 1.0,
-                extra_var_m2: 0.0,
-            },
-        )
-    }
-
-    /// Jacobians of the pseudorange and range rate against central
-    /// differences.
-    #[test]
-    fn gnss_jacobians_match_finite_differences() {
-        let (frame, s) = sat();
-        let p = Vector3::new(120.0, -40.0, -8.0);
-        let v = Vector3::new(14.0, 3.0, -0.5);
-        let (_, hp, _) = pseudorange(&frame, &p, 100.0, &s);
-        let (_, hv, hp_rate) = range_rate(&frame, &p, &v, 2.0, &s);
-        let h = 1e-3;
-        for k in 0..3 {
-            let mut d = Vector3::zeros();
-            d[k] = h;
-            let fd =
-                (pseudorange(&frame, &(p + d), 100.0, &s).0 - pseudorange(&frame, &(p - d), 100.0, &s).0) / (2.0 * h);
-            assert!((fd - hp[k]).abs() < 1e-5, "pr/p{k}: {fd} vs {}", hp[k]);
-            let fd =
-                (range_rate(&frame, &p, &(v + d), 2.0, &s).0 - range_rate(&frame, &p, &(v - d), 2.0, &s).0) / (2.0 * h);
-            assert!((fd - hv[k]).abs() < 1e-9, "rate/v{k}");
-            let hh = 1.0;
-            let mut dp = Vector3::zeros();
-            dp[k] = hh;
-            let fd = (range_rate(&frame, &(p + dp), &v, 2.0, &s).0 - range_rate(&frame, &(p - dp), &v, 2.0, &s).0)
-                / (2.0 * hh);
-            assert!((fd - hp_rate[k]).abs() < 1e-9, "rate/p{k}: {fd} vs {}", hp_rate[k]);
-        }
-        // Clock terms enter with unit slope.
-        assert!((pseudorange(&frame, &p, 101.0, &s).0 - pseudorange(&frame, &p, 100.0, &s).0 - 1.0).abs() < 1e-9);
-        assert!((range_rate(&frame, &p, &v, 3.0, &s).0 - range_rate(&frame, &p, &v, 2.0, &s).0 - 1.0).abs() < 1e-12);
     }
 }

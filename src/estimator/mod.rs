@@ -11,7 +11,9 @@
 //! - `msckf.rs`: the track update of each camera frame;
 //! - `keyframes.rs`: the keyframe life cycle;
 //! - `compressed/`: the local/global split, rebases and promotions;
-//! - `gnss_update.rs`: the GNSS update, whole;
+//! - `gnss_model.rs`, `gnss_update.rs`: what a satellite measures (with the
+//!   antenna's lever arm), and the GNSS update that fuses an epoch, late ones
+//!   through their clones;
 //! - `health.rs`: divergence detection and state checks;
 //! - `feature.rs`, `math/`, `frontend.rs`, `settings.rs`: triangulation and
 //!   the track Jacobians, dense kernels, pixel normalisation, settings.
@@ -26,6 +28,7 @@ pub mod compressed;
 mod covariance;
 pub mod feature;
 pub mod frontend;
+pub mod gnss_model;
 pub mod gnss_update;
 pub mod health;
 mod keyframes;
@@ -123,7 +126,7 @@ struct CloneState {
 #[derive(Clone, Copy, Debug)]
 struct GnssClone {
     t_s: f64,
-    nom: gnss_update::GnssNominal,
+    nom: gnss_model::GnssNominal,
     /// The IMU measurement at the instant (to shift to the epoch's own time).
     meas: ImuMeas,
 }

@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 
-use super::gnss_update::{predict_sat, range_rate, GnssNominal, GNSS_COLS};
+use super::gnss_model::{predict_sat, range_rate, GnssNominal, GNSS_COLS};
 use super::propagate::{integrate, ImuMeas, ImuState};
 use super::*;
 use cmsckf_models::geodesy::NedFrame;
@@ -50,25 +50,7 @@ fn time_offset_column_matches_finite_differences() {
 }
 
 fn sat(system: System) -> (NedFrame, SatMeas) {
-    let frame = NedFrame::from_llh_deg(-33.88, 151.2, 40.0);
-    let up = frame.origin_ecef.normalize();
-    let east = frame.R_ecef_ned.column(1).into_owned();
-    let r_sat = frame.origin_ecef + up * 2.0e7 + east * 8.0e6;
-    (
-        frame,
-        SatMeas {
-            system,
-            prn: 5,
-            r_sat_ecef_m: r_sat,
-            v_sat_ecef_mps: Vector3::new(1200.0, -2500.0, 1800.0),
-            dts_m: 30.0,
-            ddts_mps: 0.01,
-            pseudorange_m: None,
-            range_rate_mps: None,
-            noise_scale: 1.0,
-            extra_var_m2: 0.0,
-        },
-    )
+    super::gnss_model::tests::sat_of(system)
 }
 
 /// §8, eqs. L1–L2: the pseudorange and range-rate rows over
@@ -132,7 +114,7 @@ fn range_rate_is_the_pseudoranges_derivative() {
         let mut sd = s;
         sd.r_sat_ecef_m += s.v_sat_ecef_mps * dt;
         // The satellite clock's own drift is in the rate only.
-        gnss_update::pseudorange(&frame, &(p + v * dt), 0.0, &sd).0
+        super::gnss_model::pseudorange(&frame, &(p + v * dt), 0.0, &sd).0
     };
     let fd = (at(h) - at(-h)) / (2.0 * h) - s.ddts_mps;
     // The troposphere's change with elevation is not in the rate model
