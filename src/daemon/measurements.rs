@@ -18,19 +18,23 @@ impl Fusion {
     /// its clone or refuses it as late (§8b).
     pub(super) fn fuse_covered(&mut self, t_imu_s: f64, counters: &Counters) {
         while let Some((t, item)) = self.pending.front() {
-            // A frame is fused at its stamp plus the time offset (§3b).
-            let t_d = match (item, self.est.as_ref()) {
-                (Pending::Frame(_), Some(est)) => est.time_offset().0,
-                _ => 0.0,
-            };
-            if *t + t_d > t_imu_s {
+            // A frame is fused at its stamp plus the time offset (§3b): that
+            // is the time IMU must cover, and the filter must not be past.
+            let is_frame = matches!(item, Pending::Frame(_));
+            let t_fused = *t
+                + self
+                    .est
+                    .as_ref()
+                    .filter(|_| is_frame)
+                    .map_or(0.0, |e| e.time_offset().0);
+            if t_fused > t_imu_s {
                 break;
             }
             let Some((t, item)) = self.pending.pop_front() else {
                 break;
             };
             let Some(est) = self.est.as_ref() else { return };
-            if matches!(item, Pending::Frame(_)) && t + est.time_offset().0 < est.time_s() {
+            if is_frame && t_fused < est.time_s() {
                 counters.add("feature_late", 1);
                 continue;
             }

@@ -172,7 +172,7 @@ pub(super) mod tests {
         (
             frame,
             SatMeas {
-                system: cmsckf_models::gnss::System::Gps,
+                system,
                 prn: 5,
                 r_sat_ecef_m: r_sat,
                 v_sat_ecef_mps: Vector3::new(1200.0, -2500.0, 1800.0),

@@ -95,16 +95,10 @@ fn the_drift_is_round_off_amplified_not_a_missed_term() {
             ulp_drift.push((a.est.time_s(), dc.max(dx)));
         }
     }
-    let quarter = |v: &[(f64, f64)], q: usize| {
-        let t_end = 75.0;
-        v.iter()
-            .filter(|(t, _)| ((t / t_end * 4.0) as usize).min(3) == q)
-            .map(|d| d.1)
-            .fold(0.0, f64::max)
-    };
-    let drift: Vec<(f64, f64)> = c.diff_vs_full.iter().map(|d| (d.0, d.1.max(d.2))).collect();
+    let drift = eval::max_by_quarter(c.diff_vs_full.iter().map(|d| (d.0, d.1.max(d.2))), 75.0);
+    let ulp = eval::max_by_quarter(ulp_drift.iter().copied(), 75.0);
     for q in 1..4 {
-        let (cq, uq) = (quarter(&drift, q), quarter(&ulp_drift, q));
+        let (cq, uq) = (drift[q], ulp[q]);
         eprintln!("quarter {q}: compressed vs full {cq:.1e}, full vs full moved by 1e-15: {uq:.1e}");
         // Same order of magnitude: within a factor 30 either way.
         assert!(

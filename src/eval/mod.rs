@@ -24,7 +24,7 @@ use crate::estimator::{Estimator, ImuMeas, ImuState, Stats};
 
 mod summary;
 
-pub use summary::{score, summarise, FlightScore, ModeSummary};
+pub use summary::{max_by_quarter, score, summarise, FlightScore, ModeSummary};
 
 /// The simulator settings that match a daemon config (same camera and IMU).
 pub fn sim_config_for(cfg: &Config) -> SimConfig {

@@ -255,17 +255,23 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
 
 /// The largest difference from full in each quarter of the flights.
 fn diff_by_quarter(runs: &[FlightResult]) -> Vec<f64> {
-    let Some(t_end) = runs
-        .iter()
-        .flat_map(|r| r.diff_vs_full.iter().map(|d| d.0))
-        .reduce(f64::max)
-    else {
-        return Vec::new();
+    let points = || {
+        runs.iter()
+            .flat_map(|r| r.diff_vs_full.iter().map(|d| (d.0, d.1.max(d.2))))
     };
+    match points().map(|p| p.0).reduce(f64::max) {
+        Some(t_end) => max_by_quarter(points(), t_end),
+        None => Vec::new(),
+    }
+}
+
+/// The largest value in each quarter of `[0, t_end]` of `(t, value)`
+/// points (a point at or past `t_end` counts in the last).
+pub fn max_by_quarter(points: impl IntoIterator<Item = (f64, f64)>, t_end: f64) -> Vec<f64> {
     let mut q = vec![0.0f64; 4];
-    for (t, dc, dx) in runs.iter().flat_map(|r| r.diff_vs_full.iter()) {
+    for (t, v) in points {
         let i = ((t / t_end * 4.0) as usize).min(3);
-        q[i] = q[i].max(dc.max(*dx));
+        q[i] = q[i].max(v);
     }
     q
 }
