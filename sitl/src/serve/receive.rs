@@ -26,13 +26,30 @@ pub(super) struct Received {
     pub(super) reset_counter: u8,
 }
 
+/// One HEARTBEAT from the daemon.
+///
+/// Its wall-clock arrival alone does not say which part of the flight the
+/// daemon was in: on a loaded machine the daemon may run a few hundred
+/// milliseconds behind the stream, seconds of flight at a 10× speed-up. The
+/// estimates that came before it do: the last one is the daemon's own clock.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Heartbeat {
+    pub(super) state: apm::MavState,
+    /// Flight time by the wall clock at arrival.
+    pub(super) t_arrival_s: f64,
+    /// Estimates received before it (an index into the received estimates).
+    pub(super) estimates_before: usize,
+}
+
 /// What the daemon sent, shared with the receiving task.
 #[derive(Clone, Default)]
 pub(super) struct Inbox {
     /// VISION_POSITION_ESTIMATEs, in arrival order.
     pub(super) received: Arc<Mutex<Vec<Received>>>,
-    /// HEARTBEAT states, with flight times.
-    pub(super) heartbeats: Arc<Mutex<Vec<(f64, apm::MavState)>>>,
+    /// HEARTBEATs: the state, the flight time of arrival, and how many
+    /// estimates had arrived before it (the daemon's own clock: see
+    /// [`Heartbeat`]).
+    pub(super) heartbeats: Arc<Mutex<Vec<Heartbeat>>>,
     /// STATUSTEXTs, with flight times.
     pub(super) status_texts: Arc<Mutex<Vec<(f64, String)>>>,
     /// Counts of (ODOMETRY, SET_GPS_GLOBAL_ORIGIN).
@@ -110,8 +127,13 @@ impl Inbox {
                 }
             }
             apm::MavMessage::HEARTBEAT(hb) => {
+                let estimates_before = self.received.lock().map_or(0, |v| v.len());
                 if let Ok(mut v) = self.heartbeats.lock() {
-                    v.push((flight_t(), hb.system_status));
+                    v.push(Heartbeat {
+                        state: hb.system_status,
+                        t_arrival_s: flight_t(),
+                        estimates_before,
+                    });
                 }
             }
             apm::MavMessage::STATUSTEXT(st) => {

@@ -9,7 +9,7 @@ use mavlink::dialects::ardupilotmega as apm;
 use serde::Serialize;
 
 use super::fault::Fault;
-use super::receive::{Inbox, Received};
+use super::receive::{Heartbeat, Inbox, Received};
 use super::{ServeOptions, BOOT0_S};
 use crate::dataset::Dataset;
 use crate::metrics;
@@ -25,8 +25,9 @@ pub struct FaultReport {
     pub recovery_s: f64,
     pub peak_error_m: f64,
     pub resets: u32,
-    /// A daemon `HEARTBEAT` showed a state other than active between the
-    /// fault's start and 3 s after its end.
+    /// A daemon `HEARTBEAT` showed a state other than active after the
+    /// fault's start and before the daemon's estimates had passed 3 s after
+    /// its end.
     pub degraded_reported: bool,
 }
 
@@ -172,11 +173,21 @@ fn score(
 }
 
 /// Error, peak and recovery around one fault (see [`FaultReport`]).
-fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[(f64, apm::MavState)], f: &Fault) -> FaultReport {
+fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[Heartbeat], f: &Fault) -> FaultReport {
     let end = f.start_s + f.duration_s;
-    let degraded_reported = heartbeats
-        .iter()
-        .any(|(t, s)| *t >= f.start_s && *t <= end + 3.0 && *s != apm::MavState::MAV_STATE_ACTIVE);
+    // Sent after the fault began, while the daemon's own clock (its last
+    // estimate) was between just before the fault (a silent link stops the
+    // estimates) and 3 s after its end.
+    let degraded_reported = heartbeats.iter().any(|h| {
+        let t_daemon_s = h
+            .estimates_before
+            .checked_sub(1)
+            .and_then(|i| rec.get(i))
+            .map_or(f64::NEG_INFINITY, |r| r.t_s);
+        h.state != apm::MavState::MAV_STATE_ACTIVE
+            && h.t_arrival_s >= f.start_s
+            && (f.start_s - 0.5..=end + 3.0).contains(&t_daemon_s)
+    });
     let err: Vec<(f64, f64, u8)> = rec
         .iter()
         .map(|r| {
