@@ -32,16 +32,24 @@ pub enum Degraded {
     GnssOutliers = 4,
     /// The filter was reset (divergence or an autopilot reboot; held 2 s).
     FilterReset = 5,
+    /// Nothing heard from the autopilot for `mavlink.link_timeout_s`'s
+    /// warning part (set by the link task, in wall time).
+    LinkDown = 6,
+    /// The flight log cannot be written (disk full or an I/O error; set by
+    /// the log writer, in wall time, until a write succeeds again).
+    LogDiskFull = 7,
 }
 
 impl Degraded {
-    pub const ALL: [Degraded; 6] = [
+    pub const ALL: [Degraded; 8] = [
         Degraded::ImuGap,
         Degraded::CameraStale,
         Degraded::GnssStale,
         Degraded::InputRejected,
         Degraded::GnssOutliers,
         Degraded::FilterReset,
+        Degraded::LinkDown,
+        Degraded::LogDiskFull,
     ];
 
     pub fn name(self) -> &'static str {
@@ -52,6 +60,8 @@ impl Degraded {
             Degraded::InputRejected => "input_rejected",
             Degraded::GnssOutliers => "gnss_outliers",
             Degraded::FilterReset => "filter_reset",
+            Degraded::LinkDown => "link_down",
+            Degraded::LogDiskFull => "log_disk_full",
         }
     }
 
@@ -75,15 +85,29 @@ pub fn describe(bits: u32) -> String {
 pub struct Status {
     /// A filter is running (an unhealthy one is restarted at once).
     pub initialised: AtomicBool,
-    /// Bits of [`Degraded`].
+    /// Bits of [`Degraded`] judged by the fusion thread in autopilot time
+    /// (rewritten whole by [`Tracker::update`]).
     pub degraded: AtomicU32,
+    /// Bits of [`Degraded`] set and cleared by the I/O tasks in wall time
+    /// (the link, the log writer): see [`Status::set_io`].
+    pub io_degraded: AtomicU32,
     /// Wall time of the last IMU sample, ms since the daemon started.
     pub last_imu_wall_ms: AtomicU64,
 }
 
 impl Status {
+    /// Every reason in force: the fusion thread's and the I/O tasks'.
     pub fn degraded(&self) -> u32 {
-        self.degraded.load(Ordering::Relaxed)
+        self.degraded.load(Ordering::Relaxed) | self.io_degraded.load(Ordering::Relaxed)
+    }
+
+    /// Sets (`on`) or clears a reason owned by an I/O task.
+    pub fn set_io(&self, why: Degraded, on: bool) {
+        if on {
+            self.io_degraded.fetch_or(why.bit(), Ordering::Relaxed);
+        } else {
+            self.io_degraded.fetch_and(!why.bit(), Ordering::Relaxed);
+        }
     }
 }
 
@@ -109,7 +133,7 @@ fn is_input_rejection(name: &str) -> bool {
 /// autopilot time.
 #[derive(Clone, Debug)]
 pub struct Tracker {
-    held_until: [f64; 6],
+    held_until: [f64; Degraded::ALL.len()],
     last_frame_t: f64,
     last_gnss_t: f64,
     rejections: u64,
@@ -121,7 +145,7 @@ pub struct Tracker {
 impl Default for Tracker {
     fn default() -> Self {
         Self {
-            held_until: [f64::NEG_INFINITY; 6],
+            held_until: [f64::NEG_INFINITY; Degraded::ALL.len()],
             last_frame_t: f64::NEG_INFINITY,
             last_gnss_t: f64::NEG_INFINITY,
             rejections: 0,

@@ -73,6 +73,13 @@ pub struct MavlinkConfig {
     pub signing_key_file: String,
     /// The signing link id we stamp on our messages (0..=255).
     pub signing_link_id: u8,
+    /// Silence from the autopilot after which the link counts as down (s):
+    /// HEARTBEAT shows `link_down`, the log records the outage, and a UDP
+    /// link forgets the autopilot's address to learn it again.
+    pub link_down_after_s: f64,
+    /// Silence after which the daemon exits non-zero so that its service
+    /// manager restarts it (s; 0 = never).
+    pub link_exit_after_s: f64,
 }
 
 impl Default for MavlinkConfig {
@@ -85,6 +92,8 @@ impl Default for MavlinkConfig {
             imu_rate_hz: 100.0,
             signing_key_file: String::new(),
             signing_link_id: 0,
+            link_down_after_s: 2.0,
+            link_exit_after_s: 60.0,
         }
     }
 }
@@ -111,6 +120,9 @@ pub struct FeaturesConfig {
     pub max_line_bytes: usize,
     /// Most features accepted in one frame (count).
     pub max_features: usize,
+    /// A connected front end silent this long is dropped, so that another
+    /// can connect (s; one writer is served at a time).
+    pub idle_timeout_s: f64,
 }
 
 impl Default for FeaturesConfig {
@@ -120,6 +132,7 @@ impl Default for FeaturesConfig {
             clock: FeatureClock::Autopilot,
             max_line_bytes: 65_536,
             max_features: 1000,
+            idle_timeout_s: 5.0,
         }
     }
 }

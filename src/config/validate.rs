@@ -49,6 +49,18 @@ impl Config {
             ));
         }
         c.positive("imu_rate_hz", m.imu_rate_hz, 2000.0)?;
+        c.range("link_down_after_s", m.link_down_after_s, 0.1, 3600.0)?;
+        c.range("link_exit_after_s", m.link_exit_after_s, 0.0, 86_400.0)?;
+        if m.link_exit_after_s > 0.0 && m.link_exit_after_s < m.link_down_after_s {
+            return Err(c.fail(
+                "link_exit_after_s",
+                format!(
+                    "{} s is shorter than link_down_after_s ({} s)",
+                    m.link_exit_after_s, m.link_down_after_s
+                ),
+                "set it above link_down_after_s, or 0 to never exit",
+            ));
+        }
         if !m.signing_key_file.is_empty() {
             load_signing_key(std::path::Path::new(&m.signing_key_file))
                 .map_err(|(problem, fix)| c.fail("signing_key_file", problem, fix))?;
@@ -76,6 +88,7 @@ impl Config {
             100_000,
             "set 1..100000",
         )?;
+        c.range("idle_timeout_s", self.features.idle_timeout_s, 0.1, 3600.0)?;
         Ok(())
     }
 
