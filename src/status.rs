@@ -19,7 +19,8 @@ pub enum Degraded {
     /// IMU samples stopped for more than 0.2 s (held 2 s after they resume),
     /// or for 0.5 s of wall time right now.
     ImuGap = 0,
-    /// No camera frame processed for 1 s.
+    /// No camera frame processed for 1 s, or none in the 1 s since the
+    /// filter started.
     CameraStale = 1,
     /// GNSS was being fused, and no epoch for 3 s.
     GnssStale = 2,
@@ -121,6 +122,9 @@ fn is_input_rejection(name: &str) -> bool {
         || matches!(
             name,
             "imu_time_backwards"
+                | "imu_time_outlier"
+                | "system_time_outlier"
+                | "feature_time_implausible"
                 | "imu_rejected"
                 | "feature_time_backwards"
                 | "feature_non_finite"
@@ -134,6 +138,8 @@ fn is_input_rejection(name: &str) -> bool {
 #[derive(Clone, Debug)]
 pub struct Tracker {
     held_until: [f64; Degraded::ALL.len()],
+    /// When the running filter started (`-inf`: none has yet).
+    filter_started_t: f64,
     last_frame_t: f64,
     last_gnss_t: f64,
     rejections: u64,
@@ -146,6 +152,7 @@ impl Default for Tracker {
     fn default() -> Self {
         Self {
             held_until: [f64::NEG_INFINITY; Degraded::ALL.len()],
+            filter_started_t: f64::NEG_INFINITY,
             last_frame_t: f64::NEG_INFINITY,
             last_gnss_t: f64::NEG_INFINITY,
             rejections: 0,
@@ -159,6 +166,12 @@ impl Tracker {
     /// Sets a transient reason for [`HOLD_S`] from `t_s`.
     pub fn hold(&mut self, why: Degraded, t_s: f64) {
         self.held_until[why as usize] = t_s + HOLD_S;
+    }
+
+    /// A filter was (re)initialised at `t_s`: from then on, no camera frame
+    /// for 1 s is `camera_stale` even if none has ever arrived.
+    pub fn filter_started(&mut self, t_s: f64) {
+        self.filter_started_t = t_s;
     }
 
     pub fn frame_processed(&mut self, t_s: f64) {
@@ -205,7 +218,14 @@ impl Tracker {
                 bits |= d.bit();
             }
         }
-        if initialised && self.last_frame_t.is_finite() && t_s - self.last_frame_t > 1.0 {
+        // The last frame, or the filter's start if no frame has come since
+        // the clock began (a front end that never wrote is stale too).
+        let frame_ref_t = if self.last_frame_t.is_finite() {
+            self.last_frame_t
+        } else {
+            self.filter_started_t
+        };
+        if initialised && frame_ref_t.is_finite() && t_s - frame_ref_t > 1.0 {
             bits |= Degraded::CameraStale.bit();
         }
         if self.last_gnss_t.is_finite() && t_s - self.last_gnss_t > 3.0 {
@@ -251,5 +271,38 @@ mod tests {
         t.frame_processed(7.0);
         t.update(7.05, true, &c, &s);
         assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");
+    }
+
+    #[test]
+    fn no_frame_ever_is_camera_stale_a_second_after_the_filter_starts() {
+        let (c, s) = (Counters::default(), Status::default());
+        let mut t = Tracker::default();
+        // No filter yet, no frame: standby, not stale.
+        t.update(0.5, false, &c, &s);
+        t.update(5.0, false, &c, &s);
+        assert_eq!(s.degraded(), 0);
+        t.filter_started(5.0);
+        t.update(5.9, true, &c, &s);
+        assert_eq!(s.degraded(), 0, "within 1 s of the start");
+        t.update(6.1, true, &c, &s);
+        assert_eq!(
+            describe(s.degraded()),
+            "camera_stale",
+            "no frame at all since the start"
+        );
+        t.frame_processed(6.15);
+        t.update(6.2, true, &c, &s);
+        assert_eq!(s.degraded(), 0, "a frame clears it");
+        t.update(7.3, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "camera_stale");
+        // A reboot forgets every time: the new filter's start counts again.
+        t.restart_clock();
+        t.update(1.0, false, &c, &s);
+        assert_eq!(s.degraded(), 0, "no filter, no clock: nothing stale");
+        t.filter_started(1.0);
+        t.update(1.5, true, &c, &s);
+        assert_eq!(s.degraded(), 0);
+        t.update(2.2, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "camera_stale");
     }
 }

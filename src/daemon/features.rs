@@ -1,36 +1,48 @@
 //! The feature socket: the front-end's camera frames, read by
 //! `io::feature_pipe`, normalised here beside the socket (not on the fusion
 //! thread) and forwarded to the fusion loop, at most `FRAMES_IN_FLIGHT` at
-//! once (`fusion_frames_full` beyond).
+//! once (`fusion_frames_full` beyond). One front end is served at a time;
+//! one silent for `features.idle_timeout_s` is dropped (`feature_idle_dropped`)
+//! so that the next can connect.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
-use tokio::net::UnixListener;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::{FusionMsg, FRAMES_IN_FLIGHT};
 use crate::config::Config;
 use crate::estimator::frontend::Normaliser;
-use crate::io::feature_pipe::{self, FeatureFrame};
+use crate::io::feature_pipe::{self, FeatureFrame, FeatureSocket};
 use crate::io::Counters;
 
-/// The socket's serving task and the forwarder, until `stop`. `queued`
-/// counts the frames in the fusion queue (the fusion loop takes them off).
+/// `features.idle_timeout_s`'s default, for a config that skipped validation.
+const DEFAULT_IDLE_TIMEOUT_S: u64 = 5;
+
+/// The socket's serving task and the forwarder, until `stop` (the serving
+/// task then removes the socket file, if it still is ours). `queued` counts
+/// the frames in the fusion queue (the fusion loop takes them off).
 pub(super) fn spawn(
     cfg: &Config,
-    listener: UnixListener,
+    socket: FeatureSocket,
     fusion_tx: &mpsc::Sender<FusionMsg>,
     counters: &Counters,
     stop_rx: &watch::Receiver<bool>,
     queued: Arc<AtomicUsize>,
 ) -> (JoinHandle<()>, JoinHandle<()>) {
     let (frame_tx, mut frame_rx) = mpsc::channel::<FeatureFrame>(64);
+    let limits = feature_pipe::Limits {
+        max_line_bytes: cfg.features.max_line_bytes,
+        max_features: cfg.features.max_features,
+        // Validated with the config (0.1 s to an hour); the default if not.
+        idle_timeout: Duration::try_from_secs_f64(cfg.features.idle_timeout_s)
+            .unwrap_or(Duration::from_secs(DEFAULT_IDLE_TIMEOUT_S)),
+    };
     let serve = tokio::spawn(feature_pipe::serve(
-        listener,
-        cfg.features.max_line_bytes,
-        cfg.features.max_features,
+        socket,
+        limits,
         frame_tx,
         counters.clone(),
         stop_rx.clone(),

@@ -116,6 +116,7 @@ impl Fusion {
         self.est_gen += 1;
         let _ = est.add_imu(m);
         self.est = Some(est);
+        self.tracker.filter_started(m.t_s);
         self.static_buf.clear();
         self.pending.retain(|(t, _)| *t >= m.t_s);
         counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
