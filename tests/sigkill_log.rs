@@ -1,5 +1,7 @@
 //! A SIGKILL mid-flight leaves an MCAP log that `review` reads up to about a
-//! second before the kill: chunks are closed every second of sensor time.
+//! second before the kill: chunks are closed every second of wall time, and
+//! sooner when their records span a second of sensor time (this flight runs
+//! at 10×). After a jump of the sensor clock: `log_time_jumps.rs`.
 
 mod common;
 

@@ -14,9 +14,15 @@
 //!
 //! [`review`] reads the log (`reader.rs`), derives the NIS and timing
 //! statistics, and writes the TUM file and the plots (`plots.rs`).
+//!
+//! Log time is the autopilot's clock, which a reboot restarts and a bad
+//! stamp can put anywhere: the duration is the time the log's clock
+//! segments cover, and the time series keep plausible times only
+//! (`timeline.rs`), so one far-future or backwards record changes neither.
 
 mod plots;
 mod reader;
+mod timeline;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -43,6 +49,9 @@ pub enum ReviewError {
 /// The summary `review --json` prints.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ReviewSummary {
+    /// The time the records cover (s): the sum over the runs of the log's
+    /// clock (a reboot starts a new one), ignoring stray stamps and gaps of
+    /// more than 10 s without records.
     pub duration_s: f64,
     pub messages: u64,
     /// The log ended early (no summary): read up to the last whole chunk.

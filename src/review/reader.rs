@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use serde_json::Value;
 
+use super::timeline::{plausible, Timeline};
 use super::ReviewSummary;
 
 /// The series kept from the log (times in s of log time).
@@ -29,9 +30,8 @@ pub(super) struct LogReader {
     pub d: Data,
     /// Messages per topic.
     counts: BTreeMap<String, u64>,
-    /// First and last positive log time (s).
-    t0: f64,
-    t1: f64,
+    /// The log times' segments: the duration, and which times are plausible.
+    timeline: Timeline,
 }
 
 impl LogReader {
@@ -40,8 +40,7 @@ impl LogReader {
             s: ReviewSummary::default(),
             d: Data::default(),
             counts: BTreeMap::new(),
-            t0: f64::INFINITY,
-            t1: f64::NEG_INFINITY,
+            timeline: Timeline::default(),
         }
     }
 
@@ -49,10 +48,7 @@ impl LogReader {
     pub fn on_message(&mut self, m: &mcap::Message) {
         self.s.messages += 1;
         let t = m.log_time as f64 * 1e-9;
-        if t > 0.0 {
-            self.t0 = self.t0.min(t);
-            self.t1 = self.t1.max(t);
-        }
+        self.timeline.push(m.log_time);
         *self.counts.entry(m.channel.topic.clone()).or_default() += 1;
         let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
             return;
@@ -85,16 +81,16 @@ impl LogReader {
     }
 
     /// The summary so far with the log's duration and input rates, and the
-    /// series.
+    /// series at plausible times (see `timeline.rs`).
     pub fn finish(self) -> (ReviewSummary, Data) {
         let Self {
             mut s,
-            d,
+            mut d,
             counts,
-            t0,
-            t1,
+            timeline,
         } = self;
-        s.duration_s = if t1 > t0 { t1 - t0 } else { 0.0 };
+        s.duration_s = timeline.duration_s();
+        d.keep_plausible(timeline.plausible_spans_s().as_deref());
         for (k, n) in &counts {
             if k.starts_with("/input/") && s.duration_s > 0.0 {
                 s.input_rates_hz.insert(k.clone(), *n as f64 / s.duration_s);
@@ -130,6 +126,25 @@ fn on_vision_update(s: &mut ReviewSummary, d: &mut Data, t: f64, v: &Value) {
 }
 
 impl Data {
+    /// Drops the points whose time is not plausible (a far-future or stray
+    /// stamp), so that they neither stretch a plot's time axis nor reach the
+    /// TUM file. The counts are not changed.
+    fn keep_plausible(&mut self, spans: Option<&[(f64, f64)]>) {
+        if spans.is_none() {
+            return;
+        }
+        let ok = |t: f64| plausible(spans, t);
+        self.track.retain(|p| ok(p.0));
+        for v in self.kf_sigma.values_mut() {
+            v.retain(|p| ok(p.0));
+        }
+        self.kf_sigma.retain(|_, v| !v.is_empty());
+        self.vision_t.retain(|t| ok(*t));
+        self.gnss_t.retain(|t| ok(*t));
+        self.global_t.retain(|t| ok(*t));
+        self.nis.retain(|p| ok(p.0));
+    }
+
     /// A `/filter/state` record: the pose (NaN where a value is missing).
     fn push_state(&mut self, t: f64, v: &Value) {
         let p = &v["p_B_in_W"];

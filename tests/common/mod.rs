@@ -53,3 +53,69 @@ pub fn spawn_daemon_binary(cfg: &Config, dir: &std::path::Path) -> std::process:
     }
     child
 }
+
+/// Writes `cfg` to `dir` and runs the `cmsckf run` binary on it, expecting
+/// it to refuse to start: its exit status and its standard error, or `None`
+/// (after killing it) if it is still running after `timeout`.
+pub fn run_daemon_binary_expecting_exit(
+    cfg: &Config,
+    dir: &std::path::Path,
+    timeout: std::time::Duration,
+) -> Option<(std::process::ExitStatus, String)> {
+    use std::io::Read;
+    let cfg_path = dir.join("cmsckf.toml");
+    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["run", "--config"])
+        .arg(&cfg_path)
+        .env("RUST_LOG", "error")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if started.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = e.read_to_string(&mut stderr);
+    }
+    Some((status, stderr))
+}
+
+/// As [`spawn_daemon_binary`], with the daemon's journal (`RUST_LOG`
+/// `filter`) written to `stderr_path`.
+pub fn spawn_daemon_binary_journal(
+    cfg: &Config,
+    dir: &std::path::Path,
+    filter: &str,
+    stderr_path: &std::path::Path,
+) -> std::process::Child {
+    let cfg_path = dir.join("cmsckf.toml");
+    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["run", "--config"])
+        .arg(&cfg_path)
+        .env("RUST_LOG", filter)
+        .env("NO_COLOR", "1")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(stderr_path).unwrap())
+        .spawn()
+        .unwrap();
+    for _ in 0..100 {
+        if std::path::Path::new(&cfg.features.socket).exists() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child
+}
