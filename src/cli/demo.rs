@@ -27,7 +27,7 @@ pub struct DemoArgs {
     mode: String,
     #[arg(long)]
     config: Option<PathBuf>,
-    /// MCAP log path (logging arrives with the logging issue; accepted now).
+    /// MCAP log path.
     #[arg(long)]
     log: Option<PathBuf>,
     /// Print the SITL report as JSON.
@@ -35,7 +35,8 @@ pub struct DemoArgs {
     json: bool,
     /// Inject a fault in the SITL: NAME@START+DURATION (s), repeatable.
     /// Names: link_drop, gnss_outage, camera_outage, imu_gap, nan_imu,
-    /// frontend_restart, rtcm_bad_crc, pr_outlier.
+    /// frontend_restart, rtcm_bad_crc, pr_outlier, clock_jump,
+    /// dup_reorder, imu_spike (docs/reliability.md says what each does).
     #[arg(long = "fault")]
     faults: Vec<cmsckf_sitl::serve::Fault>,
 }

@@ -56,7 +56,9 @@ pub struct Config {
 #[serde(deny_unknown_fields, default)]
 pub struct MavlinkConfig {
     /// Address in the `mavlink` crate's syntax: `udpin:`, `udpout:`,
-    /// `tcpout:`, `serial:<dev>:<baud>`.
+    /// `tcpout:`, `serial:<dev>:<baud>`. Loopback by default: on an open
+    /// network, set `signing_key_file` (anyone there could otherwise speak
+    /// as the autopilot before it does).
     pub address: String,
     /// The vehicle's MAVLink system id (1..=255).
     pub system_id: u8,
@@ -85,7 +87,7 @@ pub struct MavlinkConfig {
 impl Default for MavlinkConfig {
     fn default() -> Self {
         Self {
-            address: "udpin:0.0.0.0:14550".into(),
+            address: "udpin:127.0.0.1:14550".into(),
             system_id: 1,
             component_id: 197,
             autopilot_component_id: 1,

@@ -17,6 +17,7 @@ use tokio::sync::mpsc;
 
 use super::gnss_input::GnssIn;
 use super::rebase::{InstallSite, RebaseExec};
+use super::time_guard::{SteadyValue, TimeGuard, Verdict};
 use super::{records, FusionMsg, Restart, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
 use crate::config::{Config, FeatureClock};
 use crate::estimator::frontend::NormFrame;
@@ -26,6 +27,23 @@ use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::Outbound;
 use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
+
+/// IMU samples in a row that must agree on a jump of their clock (a reboot,
+/// or a link that was down) before it is believed.
+const IMU_JUMP_CONFIRM: u32 = 5;
+/// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
+/// believed once this many messages agree on it.
+const SYSTEM_TIME_TOL_S: f64 = 1.0;
+const SYSTEM_TIME_CONFIRM: u32 = 3;
+/// A camera frame is believed only within this much of the IMU clock:
+/// ahead of it (s), and behind it (s; latency and a short IMU stall).
+const FRAME_MAX_LEAD_S: f64 = 1.0;
+const FRAME_MAX_LAG_S: f64 = 5.0;
+
+/// How far the filter may stay behind the IMU while no measurement moves it
+/// on (s): later than this, a frame is late anyway (they arrive within
+/// 0.1 s), and GNSS epochs reach back through their clones.
+const MAX_FILTER_LAG_S: f64 = 1.0;
 
 /// A measurement waiting for IMU to cover its time.
 #[derive(Debug)]
@@ -57,6 +75,11 @@ pub struct Fusion {
     pub(super) gnss: GnssIn,
     origin_sent: bool,
     pub(super) last_imu_t: f64,
+    /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
+    imu_clock: TimeGuard,
+    /// The autopilot's Unix − boot offset (s), from SYSTEM_TIME, changed
+    /// only when several messages agree.
+    unix_minus_boot: SteadyValue,
     last_frame_t: f64,
     pub(super) next_output_t: f64,
     pub(super) reset_counter: u8,
@@ -154,6 +177,8 @@ impl Fusion {
             origin_sent: false,
             gnss: GnssIn::new(&cfg),
             last_imu_t: f64::NEG_INFINITY,
+            imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM),
+            unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
             last_frame_t: f64::NEG_INFINITY,
             next_output_t: f64::NEG_INFINITY,
             reset_counter: 0,
@@ -274,7 +299,16 @@ impl Fusion {
                     boot_ms as f64 * 1e-3,
                     &json!({"unix_us": unix_us, "boot_ms": boot_ms}),
                 );
-                self.gnss.unix_minus_boot_s = Some(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3);
+                match self
+                    .unix_minus_boot
+                    .offer(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3)
+                {
+                    Some(offset_s) => self.gnss.unix_minus_boot_s = Some(offset_s),
+                    None => {
+                        counters.add("system_time_outlier", 1);
+                        tracing::warn!(reason = "system_time_outlier", unix_us, boot_ms, "SYSTEM_TIME rejected");
+                    }
+                }
             }
             FusionMsg::Origin {
                 lat_deg,
@@ -294,6 +328,14 @@ impl Fusion {
                     self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
                     counters.add("gnss_origin_from_autopilot", 1);
                 }
+            }
+            FusionMsg::LinkState { up, silent_s } => {
+                let text = if up {
+                    format!("link up: the autopilot is heard again after {silent_s:.1} s")
+                } else {
+                    format!("link down: the autopilot has been silent for {silent_s:.1} s")
+                };
+                self.log_text(if up { 3 } else { 4 }, self.last_imu_t, &text);
             }
             _ => {}
         }
@@ -324,6 +366,23 @@ impl Fusion {
                 features: &fr.features,
             },
         );
+        // Judged against the autopilot's clock (the IMU's), so that one
+        // far-off stamp is rejected and never becomes the reference.
+        if !self.last_imu_t.is_finite() {
+            // Nothing to judge it by, and nothing to fuse it with yet.
+            ctx.counters.add("feature_before_imu", 1);
+            return;
+        }
+        if !(t <= self.last_imu_t + FRAME_MAX_LEAD_S && t >= self.last_imu_t - FRAME_MAX_LAG_S) {
+            ctx.counters.add("feature_time_implausible", 1);
+            tracing::warn!(
+                reason = "feature_time_implausible",
+                t_s = t,
+                imu_t_s = self.last_imu_t,
+                "frame rejected: its time is not near the autopilot's"
+            );
+            return;
+        }
         if t <= self.last_frame_t {
             ctx.counters.add("feature_time_backwards", 1);
             tracing::warn!(
@@ -338,21 +397,53 @@ impl Fusion {
         self.enqueue(t, Pending::Frame(norm), &ctx.counters);
     }
 
-    /// An IMU sample: a clock that went back (a reboot) or a long gap
-    /// restarts the filter; then the sample is logged and fused, and the
-    /// status and diagnostics follow it.
+    /// An IMU sample: logged as it came (so that replay judges it the same
+    /// way), then its time judged by [`TimeGuard`]. A confirmed jump back
+    /// is a reboot and one forward past `MAX_IMU_GAP_S` a gap: either
+    /// restarts the filter. Then the sample is fused, and the status and
+    /// diagnostics follow it.
     fn on_imu_msg(&mut self, m: ImuMeas, ctx: &Ctx) {
-        if m.t_s < self.last_imu_t - REBOOT_JUMP_S {
-            // The autopilot's boot clock restarted (a reboot): start
-            // over rather than reject its samples forever.
-            ctx.counters.add("autopilot_clock_reset", 1);
-            tracing::error!(
-                from_s = self.last_imu_t,
-                to_s = m.t_s,
-                "autopilot clock jumped back: resetting the filter"
-            );
-            self.restart(m.t_s, "autopilot reboot seen", Restart::Reboot, &ctx.out);
-        } else if self.est.is_some() && m.t_s - self.last_imu_t > MAX_IMU_GAP_S {
+        self.log(
+            Topic::InputImu,
+            m.t_s,
+            &records::Imu {
+                t_us: (m.t_s * 1e6).round() as u64,
+                accel_mps2: m.accel_mps2.as_slice(),
+                gyro_radps: m.gyro_radps.as_slice(),
+            },
+        );
+        match self.imu_clock.check(m.t_s) {
+            Verdict::Next => {}
+            Verdict::Stale => {
+                ctx.counters.add("imu_time_backwards", 1);
+                return;
+            }
+            Verdict::Outlier => {
+                // One sample off the autopilot's clock (or the first of a
+                // jump not yet confirmed): never the new reference.
+                ctx.counters.add("imu_time_outlier", 1);
+                tracing::warn!(
+                    reason = "imu_time_outlier",
+                    t_s = m.t_s,
+                    last_s = self.last_imu_t,
+                    "IMU sample rejected"
+                );
+                return;
+            }
+            Verdict::Jump { from_s } if m.t_s < from_s => {
+                // The autopilot's boot clock restarted (a reboot), as
+                // several samples in a row agree: start over.
+                ctx.counters.add("autopilot_clock_reset", 1);
+                tracing::error!(
+                    from_s,
+                    to_s = m.t_s,
+                    "autopilot clock jumped back: resetting the filter"
+                );
+                self.restart(m.t_s, "autopilot reboot seen", Restart::Reboot, &ctx.out);
+            }
+            Verdict::Jump { .. } => {}
+        }
+        if self.est.is_some() && m.t_s - self.last_imu_t > MAX_IMU_GAP_S {
             // Seconds without IMU: the motion in between is unknown.
             ctx.counters.add("imu_gap_restart", 1);
             tracing::error!(
@@ -360,10 +451,6 @@ impl Fusion {
                 "IMU gap too long: resetting the filter"
             );
             self.restart(m.t_s, "IMU gap", Restart::Gap, &ctx.out);
-        }
-        if m.t_s <= self.last_imu_t {
-            ctx.counters.add("imu_time_backwards", 1);
-            return;
         }
         if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.2 {
             self.tracker.hold(Degraded::ImuGap, m.t_s);
@@ -374,15 +461,6 @@ impl Fusion {
         }
         self.last_imu_t = m.t_s;
         ctx.counters.add("imu_samples", 1);
-        self.log(
-            Topic::InputImu,
-            m.t_s,
-            &records::Imu {
-                t_us: (m.t_s * 1e6).round() as u64,
-                accel_mps2: m.accel_mps2.as_slice(),
-                gyro_radps: m.gyro_radps.as_slice(),
-            },
-        );
         self.on_imu(m, &ctx.counters, &ctx.out);
         let st = &ctx.status;
         // An unhealthy filter was restarted in `on_imu`: a running
@@ -459,6 +537,7 @@ impl Fusion {
         if kind == Restart::Reboot {
             self.tracker.restart_clock();
             self.gnss.unix_minus_boot_s = None;
+            self.unix_minus_boot.reset();
             self.pending.clear();
             self.last_frame_t = f64::NEG_INFINITY;
             self.next_output_t = f64::NEG_INFINITY;
@@ -485,6 +564,14 @@ impl Fusion {
             return;
         }
         self.fuse_covered(m.t_s, counters);
+        // Without measurements (camera and GNSS both out) nothing moved the
+        // filter on: carry it behind the IMU, so that the covariance in the
+        // outputs grows as the error does and the IMU buffer never fills.
+        if let Some(est) = self.est.as_mut() {
+            if est.time_s() < m.t_s - MAX_FILTER_LAG_S {
+                est.propagate_to(m.t_s - MAX_FILTER_LAG_S);
+            }
+        }
         // Once per IMU sample, after this sample's measurements (a GNSS-only
         // divergence is caught as soon as a vision one).
         let Some(est) = self.est.as_ref() else { return };

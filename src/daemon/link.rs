@@ -3,6 +3,7 @@
 //! the TIMESYNC clock offset), and the send task writes every outbound
 //! message. Rejections are counted by reason and the link goes on.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -17,9 +18,18 @@ use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::mavlink::{self as mav, Link};
 use crate::io::messages::{Inbound, Outbound, Source};
 use crate::io::Counters;
+use crate::status::{Degraded, Status};
 
-/// Opens the link to the autopilot.
+/// Opens the link to the autopilot (warning when it listens on an open
+/// network without signing).
 pub(super) async fn connect(cfg: &Config) -> Result<Arc<Link>, DaemonError> {
+    if open_network_unsigned(cfg) {
+        tracing::warn!(
+            address = %cfg.mavlink.address,
+            "listening beyond loopback without MAVLink signing: anyone on this network can speak as the \
+             autopilot before it does; set mavlink.signing_key_file, or use a loopback or serial link"
+        );
+    }
     let link = Link::connect(
         &cfg.mavlink.address,
         cfg.mavlink.system_id,
@@ -36,6 +46,18 @@ pub(super) async fn connect(cfg: &Config) -> Result<Arc<Link>, DaemonError> {
     Ok(Arc::new(link))
 }
 
+/// `udpin:`/`tcpin:` on an address other than loopback, without a signing
+/// key.
+fn open_network_unsigned(cfg: &Config) -> bool {
+    let a = &cfg.mavlink.address;
+    let host = a
+        .strip_prefix("udpin:")
+        .or_else(|| a.strip_prefix("tcpin:"))
+        .and_then(|rest| rest.rsplit_once(':').map(|(h, _)| h));
+    let loopback = |h: &str| h == "localhost" || h.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback());
+    cfg.mavlink.signing_key_file.is_empty() && host.is_some_and(|h| !loopback(h.trim_matches(['[', ']'])))
+}
+
 /// What the receive task needs besides the link.
 pub(super) struct Receive {
     pub counters: Counters,
@@ -46,32 +68,59 @@ pub(super) struct Receive {
     pub stop: watch::Receiver<bool>,
 }
 
+/// Most RTCM sources (MAVLink system and component) reassembled at once;
+/// fragments from more are dropped and counted (`rtcm_sources_full`).
+const MAX_RTCM_SOURCES: usize = 8;
+
 /// Per-link state of the receive task.
 struct RxState {
-    reasm: Reassembler,
+    /// One reassembler per sender: a ground station's corrections and the
+    /// rover's own stream interleave their fragments on one link.
+    reasm: BTreeMap<Source, Reassembler>,
     rtcm_from_mavlink: bool,
     /// Without a rover station id, RTCM counts as the rover's only when it
     /// comes from the configured vehicle.
     rover_id: u16,
     vehicle: u32,
+    /// The autopilot: sensor and time messages are taken from it alone.
+    autopilot: Source,
 }
 
 /// The receive task: every message from the link, until `stop`.
 pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> JoinHandle<()> {
     let mut st = RxState {
-        reasm: Reassembler::new(),
+        reasm: BTreeMap::new(),
         rtcm_from_mavlink: cfg.gnss.source == GnssSource::Mavlink,
         rover_id: cfg.gnss.rover_station_id,
         vehicle: cfg.mavlink.system_id as u32,
+        autopilot: Source {
+            system: cfg.mavlink.system_id as u32,
+            component: cfg.mavlink.autopilot_component_id,
+        },
     };
     tokio::spawn(async move {
+        let mut warn = WarnLimit::default();
         loop {
             let got = tokio::select! {
                 got = link.recv() => got,
                 _ = r.stop.changed() => return,
             };
             let (src, msg, gap) = match got {
-                Ok(v) => v,
+                Ok(mav::Received::Message { src, msg, lost }) => (src, msg, lost),
+                Ok(mav::Received::Ignored(why)) => {
+                    r.counters.add(why, 1);
+                    continue;
+                }
+                Ok(mav::Received::Reconnected) => {
+                    r.counters.add("mavlink_reconnected", 1);
+                    tracing::warn!("MAVLink link opened again");
+                    continue;
+                }
+                Ok(mav::Received::PeerLearned(addr)) => {
+                    r.counters.add("mavlink_autopilot_address_learned", 1);
+                    tracing::info!(%addr, "autopilot's address learned from its HEARTBEAT");
+                    continue;
+                }
                 Err(mav::LinkError::Io(e)) => {
                     r.counters.add("mavlink_io_error", 1);
                     tracing::warn!(error = %e, "MAVLink link error");
@@ -80,12 +129,16 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
                 }
                 Err(mav::LinkError::Parse(e)) => {
                     r.counters.add("mavlink_undecodable", 1);
-                    tracing::warn!(reason = "mavlink_undecodable", "{e}");
+                    if warn.allow() {
+                        tracing::warn!(reason = "mavlink_undecodable", "{e}");
+                    }
                     continue;
                 }
                 Err(mav::LinkError::Rejected(why)) => {
-                    r.counters.add(&format!("mavlink_rejected_{why}"), 1);
-                    tracing::warn!(reason = why, "MAVLink message rejected");
+                    r.counters.add(rejected_counter(why), 1);
+                    if warn.allow() {
+                        tracing::warn!(reason = why, "MAVLink message rejected");
+                    }
                     continue;
                 }
             };
@@ -98,12 +151,96 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
                 );
             }
             r.counters.add("mavlink_messages", 1);
+            if src != st.autopilot {
+                if let Some(why) = foreign_rejection(&msg) {
+                    // Sensor and time messages from anyone but the autopilot
+                    // are never acted on.
+                    r.counters.add(why, 1);
+                    tracing::warn!(
+                        reason = why,
+                        system = src.system,
+                        component = src.component,
+                        "MAVLink message rejected"
+                    );
+                    continue;
+                }
+            }
             if let Some(m) = to_fusion(msg, src, &mut st, &r) {
                 if r.fusion_tx.try_send(m).is_err() {
                     r.counters.add("fusion_queue_full", 1);
                 }
             }
         }
+    })
+}
+
+/// The counter of a link rejection (static names: a flood of rejected
+/// frames allocates nothing).
+fn rejected_counter(why: &'static str) -> &'static str {
+    match why {
+        "non_finite" => "mavlink_rejected_non_finite",
+        "imu_out_of_range" => "mavlink_rejected_imu_out_of_range",
+        "unsigned" => "mavlink_rejected_unsigned",
+        "bad_signature" => "mavlink_rejected_bad_signature",
+        "garbage_datagram" => "mavlink_rejected_garbage_datagram",
+        "autopilot_id_from_other_address" => "mavlink_rejected_autopilot_id_from_other_address",
+        _ => "mavlink_rejected_other",
+    }
+}
+
+/// At most `WARN_PER_S` rejection warnings a second in the journal (a flood
+/// is counted whole, but not written out line by line); how many were held
+/// back is said with the next one let through.
+#[derive(Default)]
+struct WarnLimit {
+    window: Option<Instant>,
+    in_window: u32,
+    held_back: u64,
+}
+
+const WARN_PER_S: u32 = 10;
+
+impl WarnLimit {
+    fn allow(&mut self) -> bool {
+        let now = Instant::now();
+        if self
+            .window
+            .is_none_or(|w| now.duration_since(w) >= Duration::from_secs(1))
+        {
+            if self.held_back > 0 {
+                tracing::warn!(
+                    held_back = self.held_back,
+                    "MAVLink rejections not written out (all counted)"
+                );
+            }
+            self.window = Some(now);
+            self.in_window = 0;
+            self.held_back = 0;
+        }
+        self.in_window += 1;
+        if self.in_window > WARN_PER_S {
+            self.held_back += 1;
+            false
+        } else {
+            true
+        }
+    }
+}
+
+/// Why a message from someone other than the autopilot is not taken: the
+/// sensor and time messages only the autopilot may send (`None`: anyone may
+/// send it, such as a ground station's RTCM corrections or HEARTBEAT).
+fn foreign_rejection(msg: &Inbound) -> Option<&'static str> {
+    Some(match msg {
+        Inbound::Imu { .. } => "mavlink_rejected_foreign_imu",
+        Inbound::Attitude { .. } => "mavlink_rejected_foreign_attitude",
+        Inbound::LocalPosition { .. } => "mavlink_rejected_foreign_local_position",
+        Inbound::GpsAccuracy { .. } => "mavlink_rejected_foreign_gps",
+        Inbound::SystemTime { .. } => "mavlink_rejected_foreign_system_time",
+        Inbound::Timesync { .. } => "mavlink_rejected_foreign_timesync",
+        Inbound::GpsGlobalOrigin { .. } => "mavlink_rejected_foreign_origin",
+        Inbound::Heartbeat => "mavlink_heartbeat_other",
+        Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
 
@@ -208,11 +345,16 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
     }
 }
 
-/// Reassembles `GPS_RTCM_DATA` fragments (MAVLink spec) and forwards each
-/// whole RTCM3 message from the rover.
+/// Reassembles `GPS_RTCM_DATA` fragments (MAVLink spec), one reassembler
+/// per sender, and forwards each whole RTCM3 message from the rover (the
+/// station id inside tells rover from base further on).
 fn on_rtcm_fragment(flags: u8, data: &[u8], src: Source, st: &mut RxState, r: &Receive) {
     let counters = &r.counters;
-    let mut got = st.reasm.push(flags, data);
+    if !st.reasm.contains_key(&src) && st.reasm.len() >= MAX_RTCM_SOURCES {
+        counters.add("rtcm_sources_full", 1);
+        return;
+    }
+    let mut got = st.reasm.entry(src).or_default().push(flags, data);
     loop {
         match got {
             Reassembled::Message(m) => {
@@ -249,11 +391,12 @@ pub(super) fn spawn_sender(
     tokio::spawn(async move {
         while let Some(m) = out_rx.recv().await {
             match link.send(&m).await {
-                Ok(()) => {
+                Ok(true) => {
                     if matches!(m, Outbound::VisionPositionEstimate { .. }) {
                         counters.add("vpe_sent", 1);
                     }
                 }
+                Ok(false) => counters.add("mavlink_send_no_autopilot", 1),
                 Err(e) => {
                     counters.add("mavlink_send_error", 1);
                     tracing::debug!(error = %e, "send failed");
@@ -261,4 +404,97 @@ pub(super) fn spawn_sender(
             }
         }
     })
+}
+
+/// What the link watchdog needs.
+pub(super) struct Watch {
+    pub counters: Counters,
+    pub status: Arc<Status>,
+    pub fusion_tx: mpsc::Sender<FusionMsg>,
+    /// Set, once, to why the daemon must exit.
+    pub fatal: watch::Sender<Option<String>>,
+    pub start: Instant,
+    pub stop: watch::Receiver<bool>,
+}
+
+/// The link watchdog, every 100 ms of wall time: an autopilot silent for
+/// `mavlink.link_down_after_s` puts `link_down` in the HEARTBEAT, the
+/// outage in the log, and makes a UDP link forget its address (to learn it
+/// again: the autopilot may come back from another port); silent for
+/// `mavlink.link_exit_after_s` (also never heard since the start), the
+/// daemon exits non-zero so that its service manager restarts it.
+pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> JoinHandle<()> {
+    let down_after = Duration::from_secs_f64(cfg.mavlink.link_down_after_s);
+    let exit_after =
+        (cfg.mavlink.link_exit_after_s > 0.0).then(|| Duration::from_secs_f64(cfg.mavlink.link_exit_after_s));
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        let mut down_since: Option<Duration> = None;
+        loop {
+            tokio::select! { _ = tick.tick() => {}, _ = w.stop.changed() => return }
+            let silent = link.silent_for().unwrap_or_else(|| w.start.elapsed());
+            if silent >= down_after && down_since.is_none() {
+                down_since = Some(silent);
+                w.status.set_io(Degraded::LinkDown, true);
+                w.counters.add("link_down", 1);
+                if link.forget_peer() {
+                    w.counters.add("mavlink_autopilot_address_stale", 1);
+                }
+                tracing::error!(
+                    silent_s = silent.as_secs_f64(),
+                    "MAVLink link down: the autopilot is silent"
+                );
+                let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
+                    up: false,
+                    silent_s: silent.as_secs_f64(),
+                });
+            } else if silent < down_after && down_since.is_some() {
+                down_since = None;
+                w.status.set_io(Degraded::LinkDown, false);
+                w.counters.add("link_up", 1);
+                tracing::warn!("MAVLink link up again");
+                let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
+                    up: true,
+                    silent_s: silent.as_secs_f64(),
+                });
+            }
+            if let Some(limit) = exit_after {
+                if silent >= limit {
+                    let why = format!(
+                        "the autopilot has been silent for {:.1} s (mavlink.link_exit_after_s = {:.1})",
+                        silent.as_secs_f64(),
+                        limit.as_secs_f64()
+                    );
+                    tracing::error!("{why}: exiting so that the service manager restarts us");
+                    let _ = w.fatal.send(Some(why));
+                    return;
+                }
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_open_unsigned_listener_is_recognised() {
+        let mut cfg = Config::default();
+        for (address, open) in [
+            ("udpin:127.0.0.1:14550", false),
+            ("udpin:localhost:14550", false),
+            ("udpin:[::1]:14550", false),
+            ("udpin:0.0.0.0:14550", true),
+            ("tcpin:192.168.1.5:5760", true),
+            ("udpout:10.0.0.1:14550", false),
+            ("serial:/dev/ttyAMA0:921600", false),
+        ] {
+            cfg.mavlink.address = address.into();
+            assert_eq!(open_network_unsigned(&cfg), open, "{address}");
+        }
+        cfg.mavlink.address = "udpin:0.0.0.0:14550".into();
+        cfg.mavlink.signing_key_file = "/etc/cmsckf/key".into();
+        assert!(!open_network_unsigned(&cfg));
+    }
 }

@@ -10,7 +10,8 @@
 //! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
 //! - `init.rs`: starting the filter; `output.rs`: the estimates sent;
 //! - `rebase.rs`: compressed mode's global updates on a worker thread;
-//! - `records.rs`: the log records written at IMU and camera rate.
+//! - `records.rs`: the log records written at IMU and camera rate;
+//! - `time_guard.rs`: time sanity, one bad stamp rejected, jumps confirmed.
 //!
 //! The estimator is CPU work and must never stall the I/O tasks, so it runs
 //! on its own OS thread. Every channel is bounded; when one is full the
@@ -27,6 +28,7 @@ mod measurements;
 mod output;
 mod rebase;
 mod records;
+mod time_guard;
 
 use std::future::Future;
 use std::path::PathBuf;
@@ -42,7 +44,7 @@ use crate::estimator::frontend::NormFrame;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink as mav;
-use crate::io::mcap_log::McapLogger;
+use crate::io::mcap_log::{LogAlarm, McapLogger};
 use crate::io::messages::Outbound;
 use crate::io::Counters;
 use crate::status::Status;
@@ -63,6 +65,8 @@ pub enum DaemonError {
     Log(#[from] crate::io::mcap_log::LogError),
     #[error("cannot start the fusion thread: {0}")]
     Thread(std::io::Error),
+    #[error("MAVLink link lost: {0}")]
+    LinkLost(String),
 }
 
 /// Handles the fusion thread shares with the I/O tasks.
@@ -114,6 +118,12 @@ pub enum FusionMsg {
         lat_deg: f64,
         lon_deg: f64,
         alt_m: f64,
+    },
+    /// The link to the autopilot went down (`up` false, after `silent_s`
+    /// of silence) or came back: a line in the log.
+    LinkState {
+        up: bool,
+        silent_s: f64,
     },
     /// Replay only: the daemon installed rebase `seq` at this point.
     RebaseInstalled {
@@ -183,6 +193,19 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         stop: stop_rx.clone(),
     };
     let rx_task = link::spawn_receiver(&cfg, link.clone(), receive);
+    let (fatal_tx, mut fatal_rx) = watch::channel::<Option<String>>(None);
+    let watchdog = link::spawn_watchdog(
+        &cfg,
+        link.clone(),
+        link::Watch {
+            counters: counters.clone(),
+            status: status.clone(),
+            fusion_tx: fusion_tx.clone(),
+            fatal: fatal_tx,
+            start,
+            stop: stop_rx.clone(),
+        },
+    );
     let stream_task = gnss_input::spawn_stream(&cfg, &fusion_tx, &counters, &stop_rx)?;
     drop(fusion_tx);
     let tx_task = link::spawn_sender(link, out_rx, counters.clone());
@@ -202,12 +225,24 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         start,
         frames_queued,
     };
-    let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, open_log(&cfg)?).map_err(DaemonError::Thread)?;
+    // The log's writer raises a write failure (a full disk) at once: status
+    // bit, counters and a STATUSTEXT of its own.
+    let log_alarm = LogAlarm {
+        status: shared.status.clone(),
+        counters: counters.clone(),
+        out: out_tx.clone(),
+    };
+    let log = open_log(&cfg, log_alarm)?;
+    let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, log).map_err(DaemonError::Thread)?;
 
-    shutdown.await;
+    // Until asked to stop, or until the link is lost for good.
+    let fatal = tokio::select! {
+        _ = shutdown => None,
+        f = fatal_rx.wait_for(|f| f.is_some()) => f.ok().and_then(|f| f.clone()),
+    };
     tracing::info!("cmsckf shutting down");
     let _ = stop_tx.send(true);
-    for t in [rx_task, fwd, periodic, status_task, feat_task] {
+    for t in [rx_task, fwd, periodic, status_task, feat_task, watchdog] {
         let _ = t.await;
     }
     if let Some((a, b)) = stream_task {
@@ -217,19 +252,23 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     // The fusion thread ends when its input channel closes (all senders gone).
     let _ = tokio::task::spawn_blocking(move || fusion.join()).await;
     let _ = tx_task.await;
-    let _ = std::fs::remove_file(&cfg.features.socket);
+    // The feature socket removed itself as its task ended, if the path was
+    // still our socket.
+    if let Some(why) = fatal {
+        return Err(DaemonError::LinkLost(why));
+    }
     Ok(RunSummary {
         counters: counters.snapshot(),
     })
 }
 
 /// The MCAP flight log, if `log.path` is set.
-fn open_log(cfg: &Config) -> Result<Option<McapLogger>, DaemonError> {
+fn open_log(cfg: &Config, alarm: LogAlarm) -> Result<Option<McapLogger>, DaemonError> {
     if cfg.log.path.is_empty() {
         return Ok(None);
     }
     let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
-    let l = McapLogger::create(&path, &cfg.log_header())?;
+    let l = McapLogger::create_with_alarm(&path, &cfg.log_header(), alarm)?;
     tracing::info!(path = %path.display(), "logging to MCAP");
     Ok(Some(l))
 }

@@ -7,6 +7,7 @@ pub mod gnss_stream;
 pub mod mavlink;
 pub mod mcap_log;
 pub mod messages;
+pub mod udp_peer;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
