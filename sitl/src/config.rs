@@ -196,6 +196,126 @@ impl Validate for GnssSimConfig {
     }
 }
 
+/// The mock autopilot's own EKF, as it shows in its `LOCAL_POSITION_NED` and
+/// `ATTITUDE`: never the truth, because a real autopilot only knows its own
+/// estimate, and the daemon starts (and restarts) its filter from it.
+///
+/// The model (`serve::autopilot`), per axis:
+/// - position error `e`: a first-order Gauss–Markov process (stationary
+///   sigma `position_drift_sigma_m`, correlation time
+///   `position_drift_time_s`), the slow wander of a GNSS-aided EKF; while
+///   the GNSS is out it is a random walk at the same rate (no absolute aid
+///   pulls it back);
+/// - with `follow_vpe`, each `VISION_POSITION_ESTIMATE` that passes EK3's
+///   5σ-style innovation gate pulls `e` toward the daemon's own error with
+///   time constant `follow_time_s`, as ArduPilot's EK3 does with external
+///   navigation as its position source; a change of the estimate's
+///   `reset_counter`, or `vpe_retry_s` of rejected estimates, resets `e` to
+///   the daemon's error, as EK3 resets to external navigation;
+/// - on top, white noise `position_noise_m` on each message, and
+///   `velocity_noise_mps` on its velocity;
+/// - attitude: Gauss–Markov tilt (roll/pitch) and yaw biases plus white
+///   noise; the yaw is a compass's, a few degrees off, and does not follow
+///   the daemon.
+///
+/// Nothing ever sets `e` to zero: after a link drop or a reboot the
+/// autopilot reports where it last believed it was, drifting on. All
+/// magnitudes 0 and `follow_vpe = false` give back the truth.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct AutopilotSimConfig {
+    /// Stationary one-sigma of the position error's slow drift, per axis (m).
+    pub position_drift_sigma_m: f64,
+    /// Correlation time of that drift (s): minutes, as a GNSS-aided EKF
+    /// wanders.
+    pub position_drift_time_s: f64,
+    /// White noise on each reported position, one sigma per axis (m).
+    pub position_noise_m: f64,
+    /// White noise on each reported velocity, one sigma per axis (m/s).
+    pub velocity_noise_mps: f64,
+    /// Stationary one-sigma of the roll and pitch biases (deg).
+    pub tilt_bias_sigma_deg: f64,
+    /// Correlation time of the roll and pitch biases (s).
+    pub tilt_bias_time_s: f64,
+    /// White noise on the reported roll and pitch, one sigma (deg).
+    pub tilt_noise_deg: f64,
+    /// Stationary one-sigma of the yaw bias (deg): a compass beside motors
+    /// and wiring is degrees off.
+    pub yaw_bias_sigma_deg: f64,
+    /// Correlation time of the yaw bias (s).
+    pub yaw_bias_time_s: f64,
+    /// White noise on the reported yaw, one sigma (deg).
+    pub yaw_noise_deg: f64,
+    /// Whether the position follows the daemon's estimates (EK3 with
+    /// external navigation as its position source).
+    pub follow_vpe: bool,
+    /// Time constant with which the position error follows the daemon's (s).
+    pub follow_time_s: f64,
+    /// Innovation gate on the daemon's estimates, in sigmas of the
+    /// innovation (EK3_POS_I_GATE's 5σ).
+    pub vpe_gate_sigma: f64,
+    /// After this long with every estimate rejected, the autopilot resets
+    /// to the daemon's (s; EK3's position retry time without velocity aid).
+    pub vpe_retry_s: f64,
+}
+
+impl Default for AutopilotSimConfig {
+    fn default() -> Self {
+        Self {
+            position_drift_sigma_m: 0.5,
+            position_drift_time_s: 120.0,
+            position_noise_m: 0.05,
+            velocity_noise_mps: 0.05,
+            tilt_bias_sigma_deg: 0.3,
+            tilt_bias_time_s: 60.0,
+            tilt_noise_deg: 0.1,
+            yaw_bias_sigma_deg: 2.0,
+            yaw_bias_time_s: 600.0,
+            yaw_noise_deg: 0.2,
+            follow_vpe: true,
+            follow_time_s: 1.0,
+            vpe_gate_sigma: 5.0,
+            vpe_retry_s: 7.0,
+        }
+    }
+}
+
+impl AutopilotSimConfig {
+    /// An autopilot that reports the truth (the historical mock).
+    pub fn truth() -> Self {
+        Self {
+            position_drift_sigma_m: 0.0,
+            position_noise_m: 0.0,
+            velocity_noise_mps: 0.0,
+            tilt_bias_sigma_deg: 0.0,
+            tilt_noise_deg: 0.0,
+            yaw_bias_sigma_deg: 0.0,
+            yaw_noise_deg: 0.0,
+            follow_vpe: false,
+            ..Self::default()
+        }
+    }
+}
+
+impl Validate for AutopilotSimConfig {
+    fn validate(&self, prefix: &str) -> Result<(), FieldError> {
+        let c = Check::new(prefix);
+        c.range("position_drift_sigma_m", self.position_drift_sigma_m, 0.0, 1e3)?;
+        c.positive("position_drift_time_s", self.position_drift_time_s, 1e6)?;
+        c.range("position_noise_m", self.position_noise_m, 0.0, 1e3)?;
+        c.range("velocity_noise_mps", self.velocity_noise_mps, 0.0, 1e2)?;
+        c.range("tilt_bias_sigma_deg", self.tilt_bias_sigma_deg, 0.0, 30.0)?;
+        c.positive("tilt_bias_time_s", self.tilt_bias_time_s, 1e6)?;
+        c.range("tilt_noise_deg", self.tilt_noise_deg, 0.0, 30.0)?;
+        c.range("yaw_bias_sigma_deg", self.yaw_bias_sigma_deg, 0.0, 180.0)?;
+        c.positive("yaw_bias_time_s", self.yaw_bias_time_s, 1e6)?;
+        c.range("yaw_noise_deg", self.yaw_noise_deg, 0.0, 180.0)?;
+        c.positive("follow_time_s", self.follow_time_s, 1e3)?;
+        c.positive("vpe_gate_sigma", self.vpe_gate_sigma, 1e3)?;
+        c.positive("vpe_retry_s", self.vpe_retry_s, 1e3)
+    }
+}
+
 /// A delivery-latency range `[min, max]` (s): both in `[0, hi]`, min ≤ max.
 fn latency_range(c: &Check, field: &str, v: &[f64; 2], hi: f64) -> Result<(), FieldError> {
     c.all_finite(field, v, 0.0, hi)?;
@@ -237,6 +357,8 @@ pub struct SimConfig {
     /// historical scenarios exactly (racetrack and figure8 airborne from
     /// t = 0, hover with its 4 s wait). TUM trajectories ignore it.
     pub standstill_s: f64,
+    /// The mock autopilot's own estimate (`serve`): its errors.
+    pub autopilot: AutopilotSimConfig,
 }
 
 impl SimConfig {
@@ -298,7 +420,8 @@ impl Validate for SimConfig {
         c.range("camera_time_offset_s", self.camera_time_offset_s, -0.1, 0.1)?;
         c.range("standstill_s", self.standstill_s, 0.0, 600.0)?;
         self.features.validate(&p("features"))?;
-        self.gnss.validate(&p("gnss"))
+        self.gnss.validate(&p("gnss"))?;
+        self.autopilot.validate(&p("autopilot"))
     }
 }
 
@@ -322,6 +445,21 @@ mod tests {
         assert!(e.contains("bogus"), "{e}");
         let e = SimConfig::from_toml("imu_rate_hz = inf\n").unwrap_err();
         assert!(e.contains("imu_rate_hz"), "{e}");
+        let e = SimConfig::from_toml("[autopilot]\nposition_drift_time_s = 0.0\n").unwrap_err();
+        assert!(e.contains("autopilot.position_drift_time_s"), "{e}");
+        let e = SimConfig::from_toml("[autopilot]\nyaw_bias_sigma_deg = -1.0\n").unwrap_err();
+        assert!(e.contains("autopilot.yaw_bias_sigma_deg"), "{e}");
+    }
+
+    #[test]
+    fn the_autopilot_is_honest_by_default_and_truthful_on_request() {
+        let d = SimConfig::new().autopilot;
+        assert!(d.position_drift_sigma_m > 0.0 && d.yaw_bias_sigma_deg > 0.0 && d.follow_vpe);
+        AutopilotSimConfig::truth().validate("autopilot").unwrap();
+        let c = SimConfig::from_toml("[autopilot]\nyaw_bias_sigma_deg = 0.0\nfollow_vpe = false\n").unwrap();
+        assert_eq!(c.autopilot.yaw_bias_sigma_deg, 0.0);
+        assert!(!c.autopilot.follow_vpe);
+        assert_eq!(c.autopilot.position_drift_sigma_m, d.position_drift_sigma_m);
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! scores what the daemon sends back against the truth.
 //!
 //! Over MAVLink it sends HEARTBEAT (quadrotor), SYSTEM_TIME, HIGHRES_IMU,
-//! ATTITUDE and LOCAL_POSITION_NED (its own EKF's view: here, the truth),
+//! ATTITUDE and LOCAL_POSITION_NED (its own EKF's view, with a real EKF's
+//! errors, following the daemon's estimates as EK3 does: see `autopilot`),
 //! answers SET_MESSAGE_INTERVAL and TIMESYNC, and receives
 //! VISION_POSITION_ESTIMATE. The flight is replayed at real time or at
 //! `speedup`. Times on the wire are the autopilot's boot clock, which starts
@@ -17,6 +18,8 @@
 //!
 //! - `stream`: the time-ordered, wall-clock-paced sending loop
 //! - `sensors`: the autopilot's own MAVLink streams (IMU, attitude, time)
+//! - `autopilot`: the autopilot's own EKF, its errors and how it follows
+//!   the daemon
 //! - `rtcm`: GNSS observations and ephemerides as `GPS_RTCM_DATA`
 //! - `feature_socket`: the camera front end's JSON lines
 //! - `fault`: the injectable faults and what each one does
@@ -24,6 +27,7 @@
 //! - `clock`: the boot clock on the wire and back to flight time
 //! - `report`: the scoring
 
+mod autopilot;
 mod clock;
 mod fault;
 mod feature_socket;
@@ -42,6 +46,7 @@ use mavlink::{AsyncMavConnection, MavHeader};
 
 use crate::dataset::Dataset;
 
+pub use autopilot::AutopilotReport;
 pub use fault::{Fault, FaultKind};
 pub use report::{FaultReport, Report};
 pub use rtcm::rtcm_fragments;
@@ -92,21 +97,15 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     // Receive: answer commands and time sync, collect estimates.
     let rx = receive::spawn_receiver(conn.clone(), inbox.clone(), started, t_start, opts.speedup, stop_rx);
     // Stream the flight in time order, paced by the wall clock.
-    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s);
+    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s, inbox.clone());
     out.run(t_start).await;
     // Let the last estimates arrive.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let _ = stop_tx.send(true);
     let _ = rx.await;
-    Ok(report::report(
-        opts,
-        ds,
-        &inbox,
-        reboot_s,
-        &out.sent_wall,
-        out.k_imu,
-        out.frames_sent,
-    ))
+    let mut report = report::report(opts, ds, &inbox, reboot_s, &out.sent_wall, out.k_imu, out.frames_sent);
+    report.autopilot = out.ekf.report.clone();
+    Ok(report)
 }
 
 /// Opens the MAVLink link at `address`: MAVLink 2 out, any version in.

@@ -8,9 +8,11 @@ use cmsckf_models::stats::percentile;
 use mavlink::dialects::ardupilotmega as apm;
 use serde::Serialize;
 
+use super::autopilot::AutopilotReport;
+use super::clock::FlightClock;
 use super::fault::Fault;
 use super::receive::{Heartbeat, Inbox, Received};
-use super::{ServeOptions, BOOT0_S};
+use super::ServeOptions;
 use crate::dataset::Dataset;
 use crate::metrics;
 
@@ -29,6 +31,16 @@ pub struct FaultReport {
     /// fault's start and before the daemon's estimates had passed 3 s after
     /// its end.
     pub degraded_reported: bool,
+    /// Longest interval between consecutive estimates (flight time) that
+    /// overlaps `[start_s, end_s + 5 s]`, whole (s; NaN without estimates).
+    pub output_gap_max_s: f64,
+    /// End of the last fault that overlaps this one, directly or through
+    /// others (`end_s` when none does): a camera outage inside a GNSS outage
+    /// cannot be undone before the GNSS is back.
+    pub overlap_end_s: f64,
+    /// As `recovery_s`, counted from `overlap_end_s` (and with the peak
+    /// searched up to 5 s after it).
+    pub recovery_after_overlap_s: f64,
 }
 
 /// The score of a served flight.
@@ -53,6 +65,18 @@ pub struct Report {
     pub speedup: f64,
     pub odometry_received: usize,
     pub gps_origin_set: bool,
+    /// Longest interval between consecutive estimates, in flight time, after
+    /// the first (s; NaN with fewer than two). Faults are not excluded: a
+    /// silent daemon is a blind autopilot whatever the cause. A daemon that
+    /// stops for good shows in `estimates_received`, not here.
+    pub output_gap_max_s: f64,
+    /// Time without estimates beyond the nominal rate: the sum over the
+    /// intervals between consecutive estimates of what each lasts beyond
+    /// twice the median interval (s).
+    pub output_gap_total_s: f64,
+    /// The mock autopilot's own EKF: how far it was off, how it took the
+    /// daemon's estimates.
+    pub autopilot: AutopilotReport,
     pub faults: Vec<FaultReport>,
     /// The daemon's `STATUSTEXT`s: `(flight time s, text)`.
     pub status_texts: Vec<(f64, String)>,
@@ -98,7 +122,11 @@ pub(super) fn report(
     flight_times(&mut rec, reboot_s);
     let hbs = inbox.heartbeats.lock().map(|v| v.clone()).unwrap_or_default();
     let mut report = score(ds, &rec, sent_wall, rate_imu, imu_sent, frames_sent, opts.speedup);
-    report.faults = opts.faults.iter().map(|f| fault_report(ds, &rec, &hbs, f)).collect();
+    report.faults = opts
+        .faults
+        .iter()
+        .map(|f| fault_report(ds, &rec, &hbs, f, overlap_end(&opts.faults, f)))
+        .collect();
     report.status_texts = inbox.status_texts.lock().map(|v| v.clone()).unwrap_or_default();
     if let Ok(e) = inbox.extras.lock() {
         report.odometry_received = e.0;
@@ -146,6 +174,7 @@ fn score(
     };
     let t_first = rec.first().map_or(f64::NAN, |r| r.t_s);
     let t_last = rec.last().map_or(f64::NAN, |r| r.t_s);
+    let (output_gap_max_s, output_gap_total_s) = output_gaps(&output_times(rec));
     Report {
         duration_s: ds.duration_s,
         estimates_received: rec.len(),
@@ -167,13 +196,22 @@ fn score(
         speedup,
         odometry_received: 0,
         gps_origin_set: false,
+        output_gap_max_s,
+        output_gap_total_s,
+        autopilot: AutopilotReport::default(),
         faults: Vec::new(),
         status_texts: Vec::new(),
     }
 }
 
 /// Error, peak and recovery around one fault (see [`FaultReport`]).
-fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[Heartbeat], f: &Fault) -> FaultReport {
+fn fault_report(
+    ds: &Dataset,
+    rec: &[Received],
+    heartbeats: &[Heartbeat],
+    f: &Fault,
+    overlap_end_s: f64,
+) -> FaultReport {
     let end = f.start_s + f.duration_s;
     // Sent after the fault began, while the daemon's own clock (its last
     // estimate) was between just before the fault (a silent link stops the
@@ -209,50 +247,159 @@ fn fault_report(ds: &Dataset, rec: &[Received], heartbeats: &[Heartbeat], f: &Fa
     let before_start = err.iter().rev().find(|e| e.0 < f.start_s).map(|e| e.2);
     let counters: Vec<u8> = before_start.into_iter().chain(window.iter().map(|e| e.2)).collect();
     let resets = counters.windows(2).filter(|w| w[0] != w[1]).count() as u32;
-    // Recovered at the first time after the end from which every estimate
-    // for a second stays under the threshold.
-    let after: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= end).collect();
-    let exceeded = window.iter().any(|e| e.1 > threshold);
-    let recovery_s = if !exceeded {
-        0.0
-    } else {
-        after
-            .iter()
-            .enumerate()
-            .find(|(i, e)| {
-                after[*i..]
-                    .iter()
-                    .take_while(|x| x.0 <= e.0 + 1.0)
-                    .all(|x| x.1 <= threshold)
-            })
-            .map_or(f64::NAN, |(_, e)| (e.0 - end).max(0.0))
-    };
     FaultReport {
         name: f.kind.name().to_string(),
         start_s: f.start_s,
         end_s: end,
-        recovery_s,
+        recovery_s: recovery(&err, f.start_s, end, threshold),
         peak_error_m: peak,
         resets,
         degraded_reported,
+        output_gap_max_s: window_gap_max(&output_times(rec), f.start_s, end + 5.0),
+        overlap_end_s,
+        recovery_after_overlap_s: recovery(&err, f.start_s, overlap_end_s, threshold),
     }
 }
 
-/// Flight times of the estimates, in arrival order: their boot-clock stamps
-/// mapped back through [`super::clock::boot_us`], switching to the post-reboot clock at
-/// the first stamp that falls back by more than 2 s.
-pub(super) fn flight_times(rec: &mut [Received], reboot_s: Option<f64>) {
-    let mut after = false;
-    let mut max_boot_s = f64::NEG_INFINITY;
-    for r in rec {
-        let boot_s = r.t_us as f64 * 1e-6;
-        if reboot_s.is_some() && boot_s < max_boot_s - 2.0 {
-            after = true;
+/// Seconds after `end` until the error (`(t, error, _)` in time order) is
+/// back under `threshold`: the first estimate from `end` on from which
+/// every estimate for a second stays under it. 0 if no estimate in
+/// `[start, end + 5 s]` exceeded it; NaN if it never came back.
+fn recovery(err: &[(f64, f64, u8)], start: f64, end: f64, threshold: f64) -> f64 {
+    let exceeded = err.iter().any(|e| e.0 >= start && e.0 <= end + 5.0 && e.1 > threshold);
+    if !exceeded {
+        return 0.0;
+    }
+    let after: Vec<&(f64, f64, u8)> = err.iter().filter(|e| e.0 >= end).collect();
+    after
+        .iter()
+        .enumerate()
+        .find(|(i, e)| {
+            after[*i..]
+                .iter()
+                .take_while(|x| x.0 <= e.0 + 1.0)
+                .all(|x| x.1 <= threshold)
+        })
+        .map_or(f64::NAN, |(_, e)| (e.0 - end).max(0.0))
+}
+
+/// End of the last of `faults` that overlaps `f`, directly or through a
+/// chain of overlapping faults.
+fn overlap_end(faults: &[Fault], f: &Fault) -> f64 {
+    let (mut lo, mut hi) = (f.start_s, f.start_s + f.duration_s);
+    loop {
+        let (lo0, hi0) = (lo, hi);
+        for g in faults {
+            let g_end = g.start_s + g.duration_s;
+            if g.start_s < hi && g_end > lo {
+                lo = lo.min(g.start_s);
+                hi = hi.max(g_end);
+            }
         }
-        max_boot_s = max_boot_s.max(boot_s);
-        r.t_s = match reboot_s {
-            Some(rb) if after => boot_s + rb - 1.0,
-            _ => boot_s - BOOT0_S,
-        };
+        if (lo, hi) == (lo0, hi0) {
+            return hi;
+        }
+    }
+}
+
+/// Flight times of the estimates, in time order (the non-finite dropped).
+fn output_times(rec: &[Received]) -> Vec<f64> {
+    let mut t: Vec<f64> = rec.iter().map(|r| r.t_s).filter(|t| t.is_finite()).collect();
+    t.sort_by(f64::total_cmp);
+    t
+}
+
+/// The longest interval between consecutive times `t` (sorted), and the
+/// sum of what each interval lasts beyond twice the median one (s; NaN and
+/// 0 with fewer than two).
+fn output_gaps(t: &[f64]) -> (f64, f64) {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    let Some(median) = percentile(&mut d.clone(), 0.5) else {
+        return (f64::NAN, 0.0);
+    };
+    let max = d.iter().copied().fold(0.0, f64::max);
+    d.retain(|x| *x > 2.0 * median);
+    (max, d.iter().fold(0.0, |sum, x| sum + x - 2.0 * median))
+}
+
+/// The longest interval between consecutive times `t` (sorted) that
+/// overlaps `[from, to]`, whole (NaN with no estimates; 0 with a single one).
+fn window_gap_max(t: &[f64], from: f64, to: f64) -> f64 {
+    if t.is_empty() {
+        return f64::NAN;
+    }
+    t.windows(2)
+        .filter(|w| w[1] > from && w[0] < to)
+        .map(|w| w[1] - w[0])
+        .fold(0.0, f64::max)
+}
+
+/// Flight times of the estimates, in arrival order: their boot-clock stamps
+/// mapped back through [`super::clock::FlightClock`].
+pub(super) fn flight_times(rec: &mut [Received], reboot_s: Option<f64>) {
+    let mut clock = FlightClock::new(reboot_s);
+    for r in rec {
+        r.t_s = clock.flight_s(r.t_us);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::serve::FaultKind;
+
+    fn fault(kind: FaultKind, start_s: f64, duration_s: f64) -> Fault {
+        Fault {
+            kind,
+            start_s,
+            duration_s,
+        }
+    }
+
+    #[test]
+    fn output_gaps_measure_silence_beyond_the_rate() {
+        // 30 Hz, a 2 s silence from 1.0 s, then 30 Hz again.
+        let mut t: Vec<f64> = (0..=30).map(|k| k as f64 / 30.0).collect();
+        t.extend((0..=30).map(|k| 3.0 + k as f64 / 30.0));
+        let (max, total) = output_gaps(&t);
+        assert!((max - 2.0).abs() < 1e-9, "{max}");
+        assert!((total - (2.0 - 2.0 / 30.0)).abs() < 1e-9, "{total}");
+        // A steady stream has no gap beyond the rate; too few estimates, none.
+        let steady: Vec<f64> = (0..90).map(|k| k as f64 / 30.0).collect();
+        assert_eq!(output_gaps(&steady).1, 0.0);
+        assert!(output_gaps(&[1.0]).0.is_nan());
+        // The whole silence counts in any window it overlaps.
+        assert!((window_gap_max(&t, 2.5, 4.0) - 2.0).abs() < 1e-9);
+        assert!(window_gap_max(&t, 3.5, 4.0) < 0.04);
+        assert!(window_gap_max(&[], 0.0, 1.0).is_nan());
+    }
+
+    #[test]
+    fn overlap_end_follows_a_chain_of_faults() {
+        let faults = [
+            fault(FaultKind::GnssOutage, 20.0, 40.0),
+            fault(FaultKind::CameraOutage, 30.0, 10.0),
+            fault(FaultKind::PrOutlier, 58.0, 5.0),
+            fault(FaultKind::LinkDrop, 70.0, 5.0),
+        ];
+        assert_eq!(overlap_end(&faults, &faults[1]), 63.0);
+        assert_eq!(overlap_end(&faults, &faults[0]), 63.0);
+        assert_eq!(overlap_end(&faults, &faults[3]), 75.0);
+    }
+
+    #[test]
+    fn recovery_counts_from_the_given_end() {
+        // Error 3 m from 30 s to 61 s, 0.2 m otherwise, at 10 Hz.
+        let err: Vec<(f64, f64, u8)> = (0..900)
+            .map(|k| {
+                let t = k as f64 / 10.0;
+                (t, if (30.0..61.0).contains(&t) { 3.0 } else { 0.2 }, 0)
+            })
+            .collect();
+        assert!((recovery(&err, 30.0, 40.0, 0.9) - 21.0).abs() < 1e-9);
+        assert!((recovery(&err, 30.0, 60.0, 0.9) - 1.0).abs() < 1e-9);
+        assert_eq!(recovery(&err, 70.0, 75.0, 0.9), 0.0);
+        let never: Vec<(f64, f64, u8)> = err.iter().map(|e| (e.0, 3.0, 0)).collect();
+        assert!(recovery(&never, 30.0, 40.0, 0.9).is_nan());
     }
 }

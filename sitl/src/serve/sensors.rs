@@ -1,12 +1,16 @@
 //! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME and
 //! GPS_GLOBAL_ORIGIN at 1 Hz, ATTITUDE and LOCAL_POSITION_NED (its EKF's
-//! view: here, the truth) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
-//! the IMU faults applied.
+//! view, with that EKF's errors: see [`super::autopilot`]) at 10 Hz, and
+//! HIGHRES_IMU at the IMU rate, with the IMU faults applied. It sends no
+//! GPS_RAW_INT, so the daemon takes its configured prior for the
+//! autopilot's position (`init.sigma_position_autopilot_m`, 3 m, above the
+//! EKF's errors here).
 
 use std::time::Instant;
 
 use mavlink::dialects::ardupilotmega as apm;
 
+use super::autopilot::VpeSample;
 use super::fault::{imu_order, Active, FaultKind};
 use super::stream::Streamer;
 use crate::config::GnssSimConfig;
@@ -28,11 +32,13 @@ impl Streamer<'_> {
         }
     }
 
-    /// The 10 Hz attitude and position at flight time `t`.
-    pub(super) async fn send_10hz(&mut self, t: f64) {
+    /// The 10 Hz attitude and position at flight time `t`: the EKF's.
+    pub(super) async fn send_10hz(&mut self, t: f64, active: &Active<'_>) {
         self.next_slow += 0.1;
+        self.step_ekf(t, active);
         let s = self.ds.trajectory.sample(t);
-        let (r, p, y) = s.q_W_B.euler_angles();
+        let (r, p, y) = self.ekf.attitude(&s.q_W_B);
+        let (p_B_in_W, v_B_in_W) = self.ekf.local_position(&s);
         let ms = (self.boot(t) / 1000) as u32;
         self.send(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
             time_boot_ms: ms,
@@ -46,14 +52,48 @@ impl Streamer<'_> {
         .await;
         self.send(apm::MavMessage::LOCAL_POSITION_NED(apm::LOCAL_POSITION_NED_DATA {
             time_boot_ms: ms,
-            x: s.p_B_in_W.x as f32,
-            y: s.p_B_in_W.y as f32,
-            z: s.p_B_in_W.z as f32,
-            vx: s.v_B_in_W.x as f32,
-            vy: s.v_B_in_W.y as f32,
-            vz: s.v_B_in_W.z as f32,
+            x: p_B_in_W.x as f32,
+            y: p_B_in_W.y as f32,
+            z: p_B_in_W.z as f32,
+            vx: v_B_in_W.x as f32,
+            vy: v_B_in_W.y as f32,
+            vz: v_B_in_W.z as f32,
         }))
         .await;
+    }
+
+    /// One step of the autopilot's EKF at flight time `t`: its errors move
+    /// on (walking freely while the GNSS is out), then it fuses the daemon's
+    /// estimates received since the last step, each against the truth at
+    /// its own time.
+    pub(super) fn step_ekf(&mut self, t: f64, active: &Active<'_>) {
+        self.ekf.advance(t, active.has(FaultKind::GnssOutage));
+        let new: Vec<(u64, VpeSample)> = match self.inbox.received.lock() {
+            Ok(v) => v
+                .iter()
+                .skip(self.estimates_seen)
+                .map(|r| {
+                    // Diagonal of the upper-triangular layout: x 0, y 6, z 11.
+                    let var_m2 = nalgebra::Vector3::new(r.cov[0] as f64, r.cov[6] as f64, r.cov[11] as f64);
+                    (
+                        r.t_us,
+                        VpeSample {
+                            t_s: f64::NAN,
+                            p_B_in_W: r.p,
+                            var_m2,
+                            reset_counter: r.reset_counter,
+                        },
+                    )
+                })
+                .collect(),
+            Err(_) => Vec::new(),
+        };
+        self.estimates_seen += new.len();
+        for (t_us, mut v) in new {
+            v.t_s = self.vpe_clock.flight_s(t_us);
+            let p_true = self.ds.trajectory.sample(v.t_s).p_B_in_W;
+            self.ekf.fuse(&v, &p_true);
+        }
     }
 
     /// The next IMU sample (or, duplicated and reordered, the next two),

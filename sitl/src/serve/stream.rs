@@ -16,11 +16,13 @@ use std::time::{Duration, Instant};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::AsyncMavConnection;
 
-use super::clock::boot_us;
+use super::autopilot::AutopilotEkf;
+use super::clock::{boot_us, FlightClock};
 use super::fault::{Active, FaultKind};
 use super::feature_socket::{feature_line, FeatureSocket};
+use super::receive::Inbox;
 use super::{Link, ServeOptions, HEADER};
-use crate::dataset::Dataset;
+use crate::dataset::{rng_for, Dataset};
 use crate::features::CameraFrame;
 use crate::gnss::GnssEpoch;
 
@@ -52,10 +54,23 @@ pub(super) struct Streamer<'a> {
     pub(super) rtcm_seq: u8,
     /// Frames written to the feature socket.
     pub(super) frames_sent: usize,
+    /// The autopilot's own EKF, what its attitude and position report.
+    pub(super) ekf: AutopilotEkf,
+    /// What the daemon sent, and how many of its estimates the EKF has seen.
+    pub(super) inbox: Inbox,
+    pub(super) estimates_seen: usize,
+    /// The daemon's stamps back to flight time.
+    pub(super) vpe_clock: FlightClock,
 }
 
 impl<'a> Streamer<'a> {
-    pub(super) fn new(conn: Arc<Link>, opts: &'a ServeOptions, ds: &'a Dataset, reboot_s: Option<f64>) -> Self {
+    pub(super) fn new(
+        conn: Arc<Link>,
+        opts: &'a ServeOptions,
+        ds: &'a Dataset,
+        reboot_s: Option<f64>,
+        inbox: Inbox,
+    ) -> Self {
         Self {
             conn,
             opts,
@@ -72,6 +87,10 @@ impl<'a> Streamer<'a> {
             next_1hz: 0.0,
             rtcm_seq: 0,
             frames_sent: 0,
+            ekf: AutopilotEkf::new(&ds.cfg.autopilot, rng_for(ds.seed, 7)),
+            inbox,
+            estimates_seen: 0,
+            vpe_clock: FlightClock::new(reboot_s),
         }
     }
 
@@ -116,12 +135,12 @@ impl<'a> Streamer<'a> {
                 self.send_gnss_epoch(&active).await;
             } else if active.link_down() && (t == t_imu || t == self.next_1hz || t == self.next_slow) {
                 // Nothing from the autopilot gets through (the camera, on its
-                // own socket, still does).
-                self.skip(t, t_imu);
+                // own socket, still does); its EKF runs on, unheard.
+                self.skip(t, t_imu, &active);
             } else if t == self.next_1hz {
                 self.send_1hz(t).await;
             } else if t == self.next_slow {
-                self.send_10hz(t).await;
+                self.send_10hz(t, &active).await;
             } else if t == t_imu {
                 self.send_imu(&active).await;
             } else {
@@ -130,14 +149,16 @@ impl<'a> Streamer<'a> {
         }
     }
 
-    /// Drops the autopilot's message due at `t` while the link is down.
-    fn skip(&mut self, t: f64, t_imu: f64) {
+    /// Drops the autopilot's message due at `t` while the link is down (its
+    /// EKF still steps at the 10 Hz ticks).
+    fn skip(&mut self, t: f64, t_imu: f64, active: &Active<'_>) {
         if t == t_imu {
             self.k_imu += 1;
         } else if t == self.next_1hz {
             self.next_1hz += 1.0;
         } else {
             self.next_slow += 0.1;
+            self.step_ekf(t, active);
         }
     }
 }
