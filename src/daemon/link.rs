@@ -66,6 +66,8 @@ pub(super) struct Receive {
     pub mono_offset_us: Arc<AtomicI64>,
     pub start: Instant,
     pub stop: watch::Receiver<bool>,
+    /// For the replies to the autopilot's TIMESYNC requests.
+    pub out_tx: mpsc::Sender<Outbound>,
 }
 
 /// Most RTCM sources (MAVLink system and component) reassembled at once;
@@ -332,16 +334,41 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
     }
 }
 
-/// Our TIMESYNC request came back: offset = tc1 − midpoint of our clock.
+/// TIMESYNC, both ways (MAVLink's time synchronisation protocol v2).
+///
+/// - Our request came back (`tc1` ≠ 0): offset = tc1 − the midpoint of our
+///   clock around the round trip.
+/// - The autopilot asks (`tc1` = 0): we answer with `tc1` = our time in the
+///   clock our outputs are stamped in, the autopilot's boot clock as our own
+///   requests measured it. PX4 maps the stamps of external vision through the
+///   offset it learns from these replies (`sync_stamp`), so it learns ≈ 0 and
+///   leaves our stamps as they are. Until our own offset is known there is
+///   no answer (`timesync_request_unanswered`): a reply in another clock
+///   would teach it an offset that moves every estimate.
 fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
+    let now_ns = r.start.elapsed().as_nanos() as i64;
     if tc1_ns != 0 {
-        let now_ns = r.start.elapsed().as_nanos() as i64;
         let rtt = now_ns - ts1_ns;
         if (0..1_000_000_000).contains(&rtt) {
             let offset_us = (tc1_ns - (ts1_ns + now_ns) / 2) / 1000;
             r.mono_offset_us.store(offset_us, Ordering::Relaxed);
             r.counters.add("timesync", 1);
         }
+        return;
+    }
+    let offset_us = r.mono_offset_us.load(Ordering::Relaxed);
+    if offset_us == i64::MIN {
+        r.counters.add("timesync_request_unanswered", 1);
+        return;
+    }
+    let reply = Outbound::TimesyncReply {
+        tc1_ns: now_ns.saturating_add(offset_us.saturating_mul(1000)),
+        ts1_ns,
+    };
+    if r.out_tx.try_send(reply).is_ok() {
+        r.counters.add("timesync_reply", 1);
+    } else {
+        r.counters.add("output_queue_full", 1);
     }
 }
 

@@ -191,6 +191,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         mono_offset_us: mono_offset_us.clone(),
         start,
         stop: stop_rx.clone(),
+        out_tx: out_tx.clone(),
     };
     let rx_task = link::spawn_receiver(&cfg, link.clone(), receive);
     let (fatal_tx, mut fatal_rx) = watch::channel::<Option<String>>(None);

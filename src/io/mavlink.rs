@@ -613,6 +613,12 @@ fn encode(out: &Outbound, target_system: u8, target_component: u8) -> apm::MavMe
             interval_us,
         } => set_message_interval(*message_id, *interval_us, target_system, target_component),
         Outbound::TimesyncRequest { ts1_ns } => timesync_request(*ts1_ns, target_system, target_component),
+        Outbound::TimesyncReply { tc1_ns, ts1_ns } => apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+            tc1: *tc1_ns,
+            ts1: *ts1_ns,
+            target_system,
+            target_component,
+        }),
         Outbound::VisionPositionEstimate {
             t_us,
             p_ned_m,

@@ -91,6 +91,13 @@ pub enum Outbound {
     TimesyncRequest {
         ts1_ns: i64,
     },
+    /// TIMESYNC reply to the autopilot's request `ts1_ns`, with our time
+    /// `tc1_ns`: the autopilot's boot clock as we estimate it, the clock our
+    /// outputs are stamped in (ns).
+    TimesyncReply {
+        tc1_ns: i64,
+        ts1_ns: i64,
+    },
     VisionPositionEstimate {
         t_us: u64,
         p_ned_m: Vector3<f64>,
