@@ -1,7 +1,7 @@
 //! The `cmsckf` command line: `run` (the daemon), `replay` and `review` (a
-//! flight log), `gnss` (an RTCM3 file) and, with the `sim` feature, `demo`
-//! (the daemon and the SITL autopilot over loopback) and `evaluate` (offline
-//! accuracy table).
+//! flight log), `gnss` (an RTCM3 file), `calib` (calibration import) and,
+//! with the `sim` feature, `demo` (the daemon and the SITL autopilot over
+//! loopback) and `evaluate` (offline accuracy table).
 //!
 //! This file only declares the subcommands and dispatches to them: each one's
 //! arguments and work live in a module of [`cli`].
@@ -22,6 +22,8 @@ enum Cmd {
     /// Run simulated flights through every mode and print the accuracy table.
     #[cfg(feature = "sim")]
     Evaluate(cli::evaluate::EvaluateArgs),
+    /// Import a calibration: `import-kalibr` prints config sections from Kalibr's files.
+    Calib(cli::calib::CalibArgs),
     /// Decode a recorded RTCM3 file and print one single-point solution per epoch.
     Gnss(cli::gnss::GnssArgs),
     /// Re-run the filter on a flight log's inputs and write a new log.
@@ -41,6 +43,7 @@ fn main() -> anyhow::Result<()> {
     match cli.cmd {
         #[cfg(feature = "sim")]
         Cmd::Evaluate(args) => cli::evaluate::evaluate(args)?,
+        Cmd::Calib(args) => cli::calib::calib(&args)?,
         Cmd::Gnss(args) => cli::gnss::gnss(&args)?,
         Cmd::Replay(args) => cli::replay::replay(args)?,
         Cmd::Review(args) => cli::review::review(args)?,

@@ -5,6 +5,7 @@
 //! `evaluate` and `demo` drive the simulator, so they exist only with the
 //! `sim` feature.
 
+pub mod calib;
 #[cfg(feature = "sim")]
 pub mod demo;
 #[cfg(feature = "sim")]
