@@ -272,7 +272,7 @@ impl Tally {
         self.n_in += 1;
         fusion.handle(msg, ctx);
         while let Ok(o) = out_rx.try_recv() {
-            if matches!(o, Outbound::VisionPositionEstimate { .. }) {
+            if o.is_estimate() {
                 self.n_out += 1;
             }
         }

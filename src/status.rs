@@ -146,6 +146,8 @@ pub struct Tracker {
     next_check_t: f64,
     /// Consecutive GNSS epochs with two or more codes rejected.
     bad_epochs: u32,
+    /// The reasons last published.
+    bits: u32,
 }
 
 impl Default for Tracker {
@@ -158,6 +160,7 @@ impl Default for Tracker {
             rejections: 0,
             next_check_t: f64::NEG_INFINITY,
             bad_epochs: 0,
+            bits: 0,
         }
     }
 }
@@ -172,6 +175,17 @@ impl Tracker {
     /// for 1 s is `camera_stale` even if none has ever arrived.
     pub fn filter_started(&mut self, t_s: f64) {
         self.filter_started_t = t_s;
+    }
+
+    /// The reasons last published (the fusion thread's own).
+    pub fn bits(&self) -> u32 {
+        self.bits
+    }
+
+    /// Autopilot time of the last frame processed or GNSS epoch fused
+    /// (−∞ before the first).
+    pub fn last_aided_s(&self) -> f64 {
+        self.last_frame_t.max(self.last_gnss_t)
     }
 
     pub fn frame_processed(&mut self, t_s: f64) {
@@ -231,6 +245,7 @@ impl Tracker {
         if self.last_gnss_t.is_finite() && t_s - self.last_gnss_t > 3.0 {
             bits |= Degraded::GnssStale.bit();
         }
+        self.bits = bits;
         status.degraded.store(bits, Ordering::Relaxed);
     }
 }

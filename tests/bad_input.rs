@@ -42,14 +42,18 @@ impl Peer {
         }))
         .await;
     }
-    /// Drains what the daemon sent; returns how many VISION_POSITION_ESTIMATEs.
+    /// Drains what the daemon sent; returns how many estimates (ODOMETRY,
+    /// the default, or VISION_POSITION_ESTIMATE).
     async fn count_vpe(&self) -> usize {
         let mut n = 0;
         let mut buf = [0u8; 2048];
         while let Ok(Ok(len)) = tokio::time::timeout(Duration::from_millis(20), self.sock.recv(&mut buf)).await {
             let mut r = mavlink::MavlinkReader::new(&buf[..len]);
             while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                if matches!(m, apm::MavMessage::VISION_POSITION_ESTIMATE(_)) {
+                if matches!(
+                    m,
+                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_)
+                ) {
                     n += 1;
                 }
             }

@@ -75,7 +75,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     let seed = 4;
     let duration = 40.0;
     let (report, ds, cfg) = fly(dir.path(), "racetrack", seed, duration, |cfg| {
-        cfg.output.odometry = true;
+        cfg.output.message = cmsckf::config::OutputMessage::Odometry;
         cfg.log.path = log_path.display().to_string();
         cfg.output.set_gps_origin = true;
     });
@@ -101,7 +101,12 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert_eq!(report.reset_count, 0);
     assert!(report.covariance_ok);
     assert!(report.time_to_first_estimate_s < 2.0);
-    assert!(report.odometry_received as f64 > 0.9 * report.estimates_received as f64);
+    assert!(
+        report.odometry_received == report.estimates_received
+            && report.vpe_received == 0
+            && report.odometry_malformed == 0,
+        "{report:?}"
+    );
     assert!(report.gps_origin_set, "SET_GPS_GLOBAL_ORIGIN not sent");
 
     // The log: finished on SIGTERM, every channel with its schema, inputs complete.

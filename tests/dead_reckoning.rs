@@ -49,7 +49,14 @@ fn seventy_seconds_blind_grow_the_covariance_and_lose_no_imu() {
             &ctx,
         );
         while let Ok(m) = out_rx.try_recv() {
-            if let Outbound::VisionPositionEstimate { t_us, covariance, .. } = m {
+            // ODOMETRY (the default) or VPE: the same [x y z r p y] layout.
+            if let Outbound::Odometry {
+                t_us,
+                pose_covariance: covariance,
+                ..
+            }
+            | Outbound::VisionPositionEstimate { t_us, covariance, .. } = m
+            {
                 var_x.push((t_us as f64 * 1e-6, covariance[0] as f64));
             }
         }

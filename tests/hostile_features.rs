@@ -146,8 +146,8 @@ impl Peer {
         }))
         .await;
     }
-    /// Drains what the daemon sent: its STATUSTEXTs, and how many
-    /// VISION_POSITION_ESTIMATEs.
+    /// Drains what the daemon sent: its STATUSTEXTs, and how many estimates
+    /// (ODOMETRY, the default, or VISION_POSITION_ESTIMATE).
     async fn drain(&self) -> (Vec<String>, usize) {
         let (mut texts, mut vpe) = (Vec::new(), 0);
         let mut buf = [0u8; 2048];
@@ -162,7 +162,7 @@ impl Peer {
                             .trim_end_matches('\0')
                             .to_string(),
                     ),
-                    apm::MavMessage::VISION_POSITION_ESTIMATE(_) => vpe += 1,
+                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_) => vpe += 1,
                     _ => {}
                 }
             }

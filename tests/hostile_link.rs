@@ -66,7 +66,7 @@ impl Sender {
             let mut r = mavlink::MavlinkReader::new(&buf[..len]);
             while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
                 match m {
-                    apm::MavMessage::VISION_POSITION_ESTIMATE(_) => inbox.vpe += 1,
+                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_) => inbox.vpe += 1,
                     apm::MavMessage::HEARTBEAT(h) => inbox.states.push(h.system_status),
                     apm::MavMessage::STATUSTEXT(t) => inbox
                         .texts

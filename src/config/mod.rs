@@ -17,6 +17,7 @@ use crate::estimator::Mode;
 use crate::gnss::IonoMode;
 use crate::io::mcap_log::LogHeader;
 
+pub mod kalibr;
 mod settings;
 mod validate;
 
@@ -39,7 +40,14 @@ pub enum ConfigError {
 pub struct Config {
     pub mavlink: MavlinkConfig,
     pub features: FeaturesConfig,
+    /// Defaults (`CameraConfig::default`): EuRoC MAV cam0's resolution,
+    /// intrinsics and radtan distortion; the mounting, `rate_hz` and
+    /// `pixel_noise_px` are not EuRoC's (config/default.toml says what they
+    /// are). From Kalibr: [`kalibr`].
     pub camera: CameraConfig,
+    /// Defaults (`ImuConfig::default`): EuRoC MAV imu0's noise densities (its
+    /// ADIS16448; also OpenVINS's defaults), not Kalibr's example imu.yaml.
+    /// From Kalibr: [`kalibr`].
     pub imu: ImuConfig,
     pub estimator: EstimatorConfig,
     pub init: InitConfig,
@@ -395,24 +403,47 @@ impl Default for ZuptConfig {
     }
 }
 
+/// Which message carries the estimate to the autopilot: one of them, never
+/// both (the same pose fused twice would count as two measurements).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputMessage {
+    /// `ODOMETRY` (331): pose, body velocity and rates, both covariances,
+    /// `reset_counter` and a `quality`. The default: ArduPilot 4.1+
+    /// (`VISO_TYPE = 1`) reads velocity and `quality` (`VISO_QUAL_MIN`) from
+    /// this message only, and PX4 maps it to `vehicle_visual_odometry`
+    /// (`EKF2_EV_CTRL`); both prefer it.
+    #[default]
+    Odometry,
+    /// `VISION_POSITION_ESTIMATE` (102) with `VISION_SPEED_ESTIMATE` (103)
+    /// at the same instant, for autopilots older than ArduPilot 4.1.
+    VisionPositionEstimate,
+}
+
 /// Messages sent to the autopilot.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
-    /// VISION_POSITION_ESTIMATE rate (Hz); ArduPilot needs at least 4.
+    /// Estimate rate (Hz, autopilot time); ArduPilot needs at least 4.
     pub rate_hz: f64,
-    /// Also send ODOMETRY (331) with velocity.
-    pub odometry: bool,
+    /// `odometry` (default) or `vision_position_estimate` (with
+    /// `VISION_SPEED_ESTIMATE`): see [`OutputMessage`].
+    pub message: OutputMessage,
     /// Send SET_GPS_GLOBAL_ORIGIN once the GNSS origin is known.
     pub set_gps_origin: bool,
+    /// The removed `odometry = true|false`, read only so that an old config
+    /// is refused with what replaces it (never written).
+    #[serde(skip_serializing)]
+    pub odometry: Option<bool>,
 }
 
 impl Default for OutputConfig {
     fn default() -> Self {
         Self {
             rate_hz: 30.0,
-            odometry: false,
+            message: OutputMessage::Odometry,
             set_gps_origin: false,
+            odometry: None,
         }
     }
 }

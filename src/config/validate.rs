@@ -19,7 +19,24 @@ impl Config {
         self.validate_keyframe()?;
         self.validate_compressed()?;
         self.validate_gnss()?;
-        Check::new("output").range("rate_hz", self.output.rate_hz, 1.0, 500.0)
+        self.validate_output()
+    }
+
+    /// `[output]`: the rate, and the removed `odometry` switch. (`message`
+    /// is checked when parsed: an unknown name is refused with the names
+    /// allowed.)
+    fn validate_output(&self) -> Result<(), FieldError> {
+        let c = Check::new("output");
+        c.range("rate_hz", self.output.rate_hz, 1.0, 500.0)?;
+        if self.output.odometry.is_some() {
+            return Err(c.fail(
+                "odometry",
+                "was removed: output.message chooses the one message sent",
+                "delete it and set message = \"odometry\" (the default; ArduPilot 4.1+, PX4) \
+                 or \"vision_position_estimate\" (sent with VISION_SPEED_ESTIMATE)",
+            ));
+        }
+        Ok(())
     }
 
     /// `[mavlink]`: the address, the ids, the IMU rate and the signing key.
@@ -294,4 +311,41 @@ pub fn load_signing_key(path: &std::path::Path) -> Result<[u8; 32], (String, Str
         *b = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
     }
     Ok(key)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::OutputMessage;
+    use super::*;
+
+    /// `[output]`: one message by name, the default ODOMETRY, and the
+    /// removed `odometry` switch refused with what replaces it.
+    #[test]
+    fn output_message_is_named_and_the_old_switch_says_what_replaced_it() {
+        assert_eq!(Config::default().output.message, OutputMessage::Odometry);
+        let c = Config::from_toml("[output]\nmessage = \"vision_position_estimate\"\n", "x").unwrap();
+        assert_eq!(c.output.message, OutputMessage::VisionPositionEstimate);
+        let c = Config::from_toml("[output]\nmessage = \"odometry\"\n", "x").unwrap();
+        assert_eq!(c.output.message, OutputMessage::Odometry);
+        // A written config never has the old key.
+        assert!(!toml::to_string(&c).unwrap().contains("odometry ="));
+        let e = Config::from_toml("[output]\nmessage = \"vpe\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("message") && e.contains("`odometry`") && e.contains("`vision_position_estimate`"),
+            "{e}"
+        );
+        for old in ["true", "false"] {
+            let e = Config::from_toml(&format!("[output]\nodometry = {old}\n"), "x")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("output.odometry")
+                    && e.contains("message = \"odometry\"")
+                    && e.contains("vision_position_estimate"),
+                "{e}"
+            );
+        }
+    }
 }

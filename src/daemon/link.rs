@@ -419,8 +419,8 @@ pub(super) fn spawn_sender(
         while let Some(m) = out_rx.recv().await {
             match link.send(&m).await {
                 Ok(true) => {
-                    if matches!(m, Outbound::VisionPositionEstimate { .. }) {
-                        counters.add("vpe_sent", 1);
+                    if m.is_estimate() {
+                        counters.add("estimates_sent", 1);
                     }
                 }
                 Ok(false) => counters.add("mavlink_send_no_autopilot", 1),
@@ -432,6 +432,10 @@ pub(super) fn spawn_sender(
         }
     })
 }
+
+/// An autopilot heard but without IMU this long after the start is warned
+/// about.
+const IMU_EXPECTED_WITHIN: Duration = Duration::from_secs(5);
 
 /// What the link watchdog needs.
 pub(super) struct Watch {
@@ -454,12 +458,15 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
     let down_after = Duration::from_secs_f64(cfg.mavlink.link_down_after_s);
     let exit_after =
         (cfg.mavlink.link_exit_after_s > 0.0).then(|| Duration::from_secs_f64(cfg.mavlink.link_exit_after_s));
+    let address = cfg.mavlink.address.clone();
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(Duration::from_millis(100));
         let mut down_since: Option<Duration> = None;
+        let mut imu_warned = false;
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = w.stop.changed() => return }
-            let silent = link.silent_for().unwrap_or_else(|| w.start.elapsed());
+            let heard = link.silent_for();
+            let silent = heard.unwrap_or_else(|| w.start.elapsed());
             if silent >= down_after && down_since.is_none() {
                 down_since = Some(silent);
                 w.status.set_io(Degraded::LinkDown, true);
@@ -467,10 +474,16 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
                 if link.forget_peer() {
                     w.counters.add("mavlink_autopilot_address_stale", 1);
                 }
-                tracing::error!(
-                    silent_s = silent.as_secs_f64(),
-                    "MAVLink link down: the autopilot is silent"
-                );
+                if heard.is_none() {
+                    tracing::error!(
+                        %address,
+                        silent_s = silent.as_secs_f64(),
+                        "no autopilot heard on {address}: check mavlink.address, the wiring, and that the autopilot \
+                         sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2; or a router's endpoint)"
+                    );
+                } else {
+                    tracing::error!(%address, silent_s = silent.as_secs_f64(), "MAVLink link down: the autopilot is silent");
+                }
                 let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
                     up: false,
                     silent_s: silent.as_secs_f64(),
@@ -484,6 +497,17 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
                     up: true,
                     silent_s: silent.as_secs_f64(),
                 });
+            }
+            // Heard, but no IMU: the stream requests go unanswered.
+            let imu = w.counters.get("imu_highres") + w.counters.get("imu_scaled") + w.counters.get("imu_raw");
+            if !imu_warned && heard.is_some() && imu == 0 && w.start.elapsed() > IMU_EXPECTED_WITHIN {
+                imu_warned = true;
+                w.counters.add("autopilot_sends_no_imu", 1);
+                tracing::error!(
+                    %address,
+                    "the autopilot on {address} sends no IMU (HIGHRES_IMU, SCALED_IMU or RAW_IMU) although asked: \
+                     check its stream rates and that it accepts MAV_CMD_SET_MESSAGE_INTERVAL"
+                );
             }
             if let Some(limit) = exit_after {
                 if silent >= limit {

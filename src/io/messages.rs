@@ -78,8 +78,9 @@ pub enum Outbound {
         initialised: bool,
         degraded: bool,
     },
-    /// A `STATUSTEXT` (RFC-5424 severity: 2 critical, 4 warning, 6 info);
-    /// the text is cut to MAVLink's 50 bytes.
+    /// A `STATUSTEXT` (RFC-5424 severity: 2 critical, 4 warning, 6 info).
+    /// A text over MAVLink's 50 bytes goes out as MAVLink 2 chunks (at most
+    /// four; longer texts are cut with "…"): see `io::mavlink`.
     StatusText {
         severity: u8,
         text: String,
@@ -106,21 +107,49 @@ pub enum Outbound {
         covariance: [f32; 21],
         reset_counter: u8,
     },
+    /// `VISION_SPEED_ESTIMATE`, sent with each `VisionPositionEstimate`:
+    /// velocity (NED, m/s) and its 3×3 covariance, row-major.
+    VisionSpeedEstimate {
+        t_us: u64,
+        v_ned_mps: Vector3<f64>,
+        covariance: [f32; 9],
+        reset_counter: u8,
+    },
+    /// `ODOMETRY` of a VIO estimator: position (NED, m) and attitude
+    /// (`q_wxyz`, body FRD to NED), velocity (m/s) and rate (rad/s) in the
+    /// body FRD frame.
     Odometry {
         t_us: u64,
         p_ned_m: Vector3<f64>,
         q_wxyz: [f32; 4],
         v_body_mps: Vector3<f64>,
         w_body_radps: Vector3<f64>,
+        /// Upper triangle of the 6×6 covariance of `[x y z roll pitch yaw]`.
         pose_covariance: [f32; 21],
+        /// Upper triangle of the 6×6 covariance of `[vx vy vz p q r]`
+        /// (body velocity and rate).
         velocity_covariance: [f32; 21],
         reset_counter: u8,
+        /// −1 failed, 1 worst … 100 best (MAVLink's `ODOMETRY.quality`).
+        quality: i8,
     },
     SetGpsGlobalOrigin {
         lat_deg: f64,
         lon_deg: f64,
         alt_m: f64,
     },
+}
+
+impl Outbound {
+    /// An estimate of the pose: `ODOMETRY` or `VISION_POSITION_ESTIMATE`,
+    /// one per output instant whichever `output.message` chooses (a
+    /// `VISION_SPEED_ESTIMATE` goes with the latter and is not counted).
+    pub fn is_estimate(&self) -> bool {
+        matches!(
+            self,
+            Outbound::Odometry { .. } | Outbound::VisionPositionEstimate { .. }
+        )
+    }
 }
 
 /// Message ids the daemon asks streams for.

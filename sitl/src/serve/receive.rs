@@ -14,7 +14,11 @@ use tokio::task::JoinHandle;
 use super::clock::boot_ns;
 use super::{Link, HEADER};
 
-/// One estimate received from the daemon.
+/// One estimate received from the daemon: a `VISION_POSITION_ESTIMATE` or
+/// an `ODOMETRY`, whichever it sends (`output.message`): both carry the
+/// position in our NED frame (ODOMETRY's `MAV_FRAME_LOCAL_FRD` is the
+/// daemon's NED, as it sends it), the covariance of `[x y z roll pitch yaw]`
+/// as an upper triangle, and `reset_counter`.
 #[derive(Clone, Debug)]
 pub(super) struct Received {
     pub(super) wall: Instant,
@@ -44,7 +48,7 @@ pub(super) struct Heartbeat {
 /// What the daemon sent, shared with the receiving task.
 #[derive(Clone, Default)]
 pub(super) struct Inbox {
-    /// VISION_POSITION_ESTIMATEs, in arrival order.
+    /// Estimates (VISION_POSITION_ESTIMATE or ODOMETRY), in arrival order.
     pub(super) received: Arc<Mutex<Vec<Received>>>,
     /// HEARTBEATs: the state, the flight time of arrival, and how many
     /// estimates had arrived before it (the daemon's own clock: see
@@ -52,8 +56,20 @@ pub(super) struct Inbox {
     pub(super) heartbeats: Arc<Mutex<Vec<Heartbeat>>>,
     /// STATUSTEXTs, with flight times.
     pub(super) status_texts: Arc<Mutex<Vec<(f64, String)>>>,
-    /// Counts of (ODOMETRY, SET_GPS_GLOBAL_ORIGIN).
-    pub(super) extras: Arc<Mutex<(usize, usize)>>,
+    /// Counts per message.
+    pub(super) counts: Arc<Mutex<Counts>>,
+}
+
+/// How many of each message the daemon sent.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Counts {
+    pub(super) vision_position_estimate: usize,
+    pub(super) vision_speed_estimate: usize,
+    pub(super) odometry: usize,
+    /// ODOMETRYs with a `quality` outside −1..=100 or a non-finite
+    /// velocity covariance.
+    pub(super) odometry_malformed: usize,
+    pub(super) set_gps_global_origin: usize,
 }
 
 /// Spawns the task that receives until `stop_rx` changes: it answers
@@ -110,22 +126,48 @@ fn timesync_reply(h: &MavHeader, t: &apm::TIMESYNC_DATA, started: Instant) -> ap
 }
 
 impl Inbox {
-    /// Records an estimate, heartbeat, status text, odometry or origin;
-    /// ignores anything else.
+    /// Counts a message.
+    fn count(&self, f: impl FnOnce(&mut Counts)) {
+        if let Ok(mut c) = self.counts.lock() {
+            f(&mut c);
+        }
+    }
+
+    /// Records an estimate.
+    fn estimate(&self, t_us: u64, p: Vector3<f64>, cov: [f32; 21], reset_counter: u8) {
+        if let Ok(mut v) = self.received.lock() {
+            v.push(Received {
+                wall: Instant::now(),
+                t_us,
+                t_s: f64::NAN,
+                p,
+                cov,
+                reset_counter,
+            });
+        }
+    }
+
+    /// Records an estimate (VISION_POSITION_ESTIMATE or ODOMETRY),
+    /// heartbeat, status text or origin, and counts each message; ignores
+    /// anything else.
     fn record(&self, msg: apm::MavMessage, flight_t: &impl Fn() -> f64) {
         match msg {
             apm::MavMessage::VISION_POSITION_ESTIMATE(d) => {
-                if let Ok(mut v) = self.received.lock() {
-                    v.push(Received {
-                        wall: Instant::now(),
-                        t_us: d.usec,
-                        t_s: f64::NAN,
-                        p: Vector3::new(d.x as f64, d.y as f64, d.z as f64),
-                        cov: d.covariance,
-                        reset_counter: d.reset_counter,
-                    });
-                }
+                self.count(|c| c.vision_position_estimate += 1);
+                let p = Vector3::new(d.x as f64, d.y as f64, d.z as f64);
+                self.estimate(d.usec, p, d.covariance, d.reset_counter);
             }
+            apm::MavMessage::ODOMETRY(d) => {
+                let malformed =
+                    !(-1..=100).contains(&d.quality) || !d.velocity_covariance.iter().all(|c| c.is_finite());
+                self.count(|c| {
+                    c.odometry += 1;
+                    c.odometry_malformed += malformed as usize;
+                });
+                let p = Vector3::new(d.x as f64, d.y as f64, d.z as f64);
+                self.estimate(d.time_usec, p, d.pose_covariance, d.reset_counter);
+            }
+            apm::MavMessage::VISION_SPEED_ESTIMATE(_) => self.count(|c| c.vision_speed_estimate += 1),
             apm::MavMessage::HEARTBEAT(hb) => {
                 let estimates_before = self.received.lock().map_or(0, |v| v.len());
                 if let Ok(mut v) = self.heartbeats.lock() {
@@ -147,17 +189,8 @@ impl Inbox {
                     v.push((flight_t(), text));
                 }
             }
-            apm::MavMessage::ODOMETRY(_) => {
-                if let Ok(mut e) = self.extras.lock() {
-                    e.0 += 1;
-                }
-            }
             #[allow(deprecated)]
-            apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(_) => {
-                if let Ok(mut e) = self.extras.lock() {
-                    e.1 += 1;
-                }
-            }
+            apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(_) => self.count(|c| c.set_gps_global_origin += 1),
             _ => {}
         }
     }

@@ -63,7 +63,15 @@ pub struct Report {
     pub imu_sent: usize,
     pub frames_sent: usize,
     pub speedup: f64,
+    /// Messages received per kind: the estimates are whichever the daemon
+    /// sends (`output.message`), ODOMETRY or VISION_POSITION_ESTIMATE (with
+    /// VISION_SPEED_ESTIMATE), never both.
     pub odometry_received: usize,
+    pub vpe_received: usize,
+    pub speed_estimates_received: usize,
+    /// ODOMETRYs with a `quality` outside −1..=100 or a non-finite velocity
+    /// covariance.
+    pub odometry_malformed: usize,
     pub gps_origin_set: bool,
     /// Longest interval between consecutive estimates, in flight time, after
     /// the first (s; NaN with fewer than two). Faults are not excluded: a
@@ -128,9 +136,12 @@ pub(super) fn report(
         .map(|f| fault_report(ds, &rec, &hbs, f, overlap_end(&opts.faults, f)))
         .collect();
     report.status_texts = inbox.status_texts.lock().map(|v| v.clone()).unwrap_or_default();
-    if let Ok(e) = inbox.extras.lock() {
-        report.odometry_received = e.0;
-        report.gps_origin_set = e.1 > 0;
+    if let Ok(c) = inbox.counts.lock() {
+        report.odometry_received = c.odometry;
+        report.vpe_received = c.vision_position_estimate;
+        report.speed_estimates_received = c.vision_speed_estimate;
+        report.odometry_malformed = c.odometry_malformed;
+        report.gps_origin_set = c.set_gps_global_origin > 0;
     }
     report
 }
@@ -195,6 +206,9 @@ fn score(
         frames_sent,
         speedup,
         odometry_received: 0,
+        vpe_received: 0,
+        speed_estimates_received: 0,
+        odometry_malformed: 0,
         gps_origin_set: false,
         output_gap_max_s,
         output_gap_total_s,
