@@ -140,6 +140,7 @@ fn fusion_loop(
         mono_offset_us,
         start,
         frames_queued,
+        fusion_progress,
     } = shared;
     let mut f = Fusion::new(cfg, log);
     let ctx = Ctx {
@@ -154,6 +155,7 @@ fn fusion_loop(
             let _ = frames_queued.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| Some(n.saturating_sub(1)));
         }
         f.handle(msg, &ctx);
+        fusion_progress.fetch_add(1, Ordering::Relaxed);
     }
     let counters = ctx.counters;
     f.finish_log(&counters);

@@ -11,7 +11,8 @@
 //! - `init.rs`: starting the filter; `output.rs`: the estimates sent;
 //! - `rebase.rs`: compressed mode's global updates on a worker thread;
 //! - `records.rs`: the log records written at IMU and camera rate;
-//! - `time_guard.rs`: time sanity, one bad stamp rejected, jumps confirmed.
+//! - `time_guard.rs`: time sanity, one bad stamp rejected, jumps confirmed;
+//! - `service.rs`: systemd's READY and watchdog.
 //!
 //! The estimator is CPU work and must never stall the I/O tasks, so it runs
 //! on its own OS thread. Every channel is bounded; when one is full the
@@ -28,11 +29,12 @@ mod measurements;
 mod output;
 mod rebase;
 mod records;
+mod service;
 mod time_guard;
 
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicI64, AtomicUsize};
+use std::sync::atomic::{AtomicI64, AtomicU64, AtomicUsize};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -77,6 +79,8 @@ pub(super) struct Shared {
     pub(super) start: Instant,
     /// Camera frames in the fusion queue (`FRAMES_IN_FLIGHT`).
     pub(super) frames_queued: Arc<AtomicUsize>,
+    /// Inputs the fusion thread has taken (for the service watchdog).
+    pub(super) fusion_progress: Arc<AtomicU64>,
 }
 
 /// What the daemon did, returned at shutdown.
@@ -208,6 +212,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         },
     );
     let stream_task = gnss_input::spawn_stream(&cfg, &fusion_tx, &counters, &stop_rx)?;
+    let fusion_weak = fusion_tx.downgrade();
     drop(fusion_tx);
     let tx_task = link::spawn_sender(link, out_rx, counters.clone());
     let status_task = heartbeat::spawn_status(out_tx.clone(), status.clone(), start, stop_rx.clone());
@@ -216,8 +221,9 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         counters.clone(),
         cfg.mavlink.imu_rate_hz,
         start,
-        stop_rx,
+        stop_rx.clone(),
     );
+    let fusion_progress = Arc::new(AtomicU64::new(0));
 
     let shared = Shared {
         counters: counters.clone(),
@@ -225,6 +231,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         mono_offset_us,
         start,
         frames_queued,
+        fusion_progress: fusion_progress.clone(),
     };
     // The log's writer raises a write failure (a full disk) at once: status
     // bit, counters and a STATUSTEXT of its own.
@@ -235,6 +242,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     };
     let log = open_log(&cfg, log_alarm)?;
     let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, log).map_err(DaemonError::Thread)?;
+    let notifier = service::spawn_notifier(fusion_progress, fusion_weak, counters.clone(), stop_rx);
 
     // Until asked to stop, or until the link is lost for good.
     let fatal = tokio::select! {
@@ -243,7 +251,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     };
     tracing::info!("cmsckf shutting down");
     let _ = stop_tx.send(true);
-    for t in [rx_task, fwd, periodic, status_task, feat_task, watchdog] {
+    for t in [rx_task, fwd, periodic, status_task, feat_task, watchdog, notifier] {
         let _ = t.await;
     }
     if let Some((a, b)) = stream_task {
