@@ -1,7 +1,7 @@
 //! What the autopilot hears from us besides estimates: `HEARTBEAT` at 1 Hz
 //! and at once on a change of state, the reasons for a degraded state as
-//! `STATUSTEXT`; and, every second, the stream requests (until the streams
-//! arrive), a TIMESYNC request and, every 10 s, the counters to the journal.
+//! `STATUSTEXT`; and, every second, the stream requests (while a stream
+//! does not flow), a TIMESYNC request and, every 10 s, the counters to the journal.
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -64,7 +64,10 @@ fn send_status_text(out_tx: &mpsc::Sender<Outbound>, degraded: u32) {
     let _ = out_tx.try_send(Outbound::StatusText { severity, text });
 }
 
-/// The periodic task: stream requests until the streams arrive, TIMESYNC,
+/// A stream silent for this many ticks (s) is asked for again.
+const STREAM_STALE_TICKS: u32 = 3;
+
+/// The periodic task: stream requests while the streams do not flow, TIMESYNC,
 /// and the counters to the journal every 10 s.
 pub(super) fn spawn_periodic(
     out_tx: mpsc::Sender<Outbound>,
@@ -77,18 +80,32 @@ pub(super) fn spawn_periodic(
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         let mut n: u64 = 0;
+        // Per stream: its count at the last tick, and ticks since it moved.
+        let mut seen = [(0u64, 0u32); 4];
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
             n += 1;
-            // Ask for the streams until they arrive.
+            // Ask for each stream while it does not flow: until it arrives,
+            // and again when it stops for STREAM_STALE_TICKS seconds (a
+            // rebooted autopilot forgets the rates it was asked for).
             let wanted = [
                 ("imu_highres", mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
                 ("attitude", mav::MSG_ID_ATTITUDE, 100_000.0),
                 ("system_time", mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
                 ("local_position", mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
             ];
-            for (counter, id, interval) in wanted {
-                if counters.get(counter) == 0 {
+            for (k, (counter, id, interval)) in wanted.into_iter().enumerate() {
+                let count = counters.get(counter);
+                if count != seen[k].0 {
+                    seen[k] = (count, 0);
+                } else {
+                    seen[k].1 += 1;
+                }
+                if count == 0 || seen[k].1 >= STREAM_STALE_TICKS {
+                    if count > 0 && seen[k].1 == STREAM_STALE_TICKS {
+                        counters.add("stream_requested_again", 1);
+                        tracing::warn!(stream = counter, "a stream stopped: asking for it again");
+                    }
                     let _ = out_tx.try_send(Outbound::SetMessageInterval {
                         message_id: id,
                         interval_us: interval,
