@@ -9,65 +9,8 @@ use std::io::Write;
 use std::os::unix::net::UnixStream;
 use std::time::Duration;
 
+use common::autopilot::{line, MavPeer};
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion};
-use tokio::net::UdpSocket;
-
-struct Peer {
-    sock: UdpSocket,
-    seq: u8,
-}
-
-impl Peer {
-    fn frame(&mut self, msg: &apm::MavMessage) -> Vec<u8> {
-        let mut buf = Vec::new();
-        let h = MavHeader {
-            system_id: 1,
-            component_id: 1,
-            sequence: self.seq,
-        };
-        self.seq = self.seq.wrapping_add(1);
-        mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, msg).unwrap();
-        buf
-    }
-    async fn send(&mut self, msg: &apm::MavMessage) {
-        let f = self.frame(msg);
-        self.sock.send(&f).await.unwrap();
-    }
-    async fn imu(&mut self, t_s: f64) {
-        self.send(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
-            time_usec: (t_s * 1e6) as u64,
-            zacc: -9.81,
-            ..Default::default()
-        }))
-        .await;
-    }
-    /// Drains what the daemon sent; returns how many estimates (ODOMETRY,
-    /// the default, or VISION_POSITION_ESTIMATE).
-    async fn count_vpe(&self) -> usize {
-        let mut n = 0;
-        let mut buf = [0u8; 2048];
-        while let Ok(Ok(len)) = tokio::time::timeout(Duration::from_millis(20), self.sock.recv(&mut buf)).await {
-            let mut r = mavlink::MavlinkReader::new(&buf[..len]);
-            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                if matches!(
-                    m,
-                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_)
-                ) {
-                    n += 1;
-                }
-            }
-        }
-        n
-    }
-}
-
-fn line(t_s: f64, features: &str) -> String {
-    format!(
-        "{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[{features}]}}\n",
-        (t_s * 1e6) as u64
-    )
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_input_is_rejected_counted_and_survived() {
@@ -77,9 +20,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
     let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
     tokio::time::sleep(Duration::from_millis(200)).await;
 
-    let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    sock.connect(("127.0.0.1", port)).await.unwrap();
-    let mut p = Peer { sock, seq: 0 };
+    let mut p = MavPeer::new(port, 1, 1).await;
     p.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
         .await;
     p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
@@ -94,7 +35,10 @@ async fn bad_input_is_rejected_counted_and_survived() {
         t += 0.01;
         tokio::time::sleep(Duration::from_micros(300)).await;
     }
-    assert!(p.count_vpe().await > 10, "no estimates after initialisation");
+    assert!(
+        p.drain_for(std::time::Duration::from_millis(20)).await.estimates > 10,
+        "no estimates after initialisation"
+    );
 
     // 1. A frame with a bad CRC, then a frame of an unknown message id.
     let mut bad = p.frame(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA::default()));
@@ -154,7 +98,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
         t += 0.01;
         tokio::time::sleep(Duration::from_micros(300)).await;
     }
-    let after = p.count_vpe().await;
+    let after = p.drain_for(std::time::Duration::from_millis(20)).await.estimates;
     assert!(
         after > 10,
         "the daemon stopped sending estimates after bad input ({after})"
@@ -173,7 +117,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
         tokio::time::sleep(Duration::from_micros(300)).await;
     }
     assert!(
-        p.count_vpe().await > 10,
+        p.drain_for(std::time::Duration::from_millis(20)).await.estimates > 10,
         "no estimates after the autopilot's clock reset"
     );
 

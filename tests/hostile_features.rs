@@ -12,16 +12,8 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use common::autopilot::{line, MavPeer};
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion};
-use tokio::net::UdpSocket;
-
-fn line(t_s: f64, features: &str) -> String {
-    format!(
-        "{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[{features}]}}\n",
-        (t_s * 1e6) as u64
-    )
-}
 
 /// Waits (up to 2 s) for the daemon's socket to appear.
 async fn wait_for_socket(path: &str) {
@@ -121,56 +113,6 @@ async fn a_writer_is_kept_while_it_writes_and_dropped_when_it_stops() {
     assert!(c("feature_line_syntax") >= 2, "its rejected lines are counted");
 }
 
-struct Peer {
-    sock: UdpSocket,
-    seq: u8,
-}
-
-impl Peer {
-    async fn send(&mut self, msg: &apm::MavMessage) {
-        let mut buf = Vec::new();
-        let h = MavHeader {
-            system_id: 1,
-            component_id: 1,
-            sequence: self.seq,
-        };
-        self.seq = self.seq.wrapping_add(1);
-        mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, msg).unwrap();
-        self.sock.send(&buf).await.unwrap();
-    }
-    async fn imu(&mut self, t_s: f64) {
-        self.send(&apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
-            time_usec: (t_s * 1e6) as u64,
-            zacc: -9.81,
-            ..Default::default()
-        }))
-        .await;
-    }
-    /// Drains what the daemon sent: its STATUSTEXTs, and how many estimates
-    /// (ODOMETRY, the default, or VISION_POSITION_ESTIMATE).
-    async fn drain(&self) -> (Vec<String>, usize) {
-        let (mut texts, mut vpe) = (Vec::new(), 0);
-        let mut buf = [0u8; 2048];
-        while let Ok(Ok(len)) = tokio::time::timeout(Duration::from_millis(50), self.sock.recv(&mut buf)).await {
-            let mut r = mavlink::MavlinkReader::new(&buf[..len]);
-            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                match m {
-                    apm::MavMessage::STATUSTEXT(st) => texts.push(
-                        st.text
-                            .to_str()
-                            .unwrap_or("(not UTF-8)")
-                            .trim_end_matches('\0')
-                            .to_string(),
-                    ),
-                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_) => vpe += 1,
-                    _ => {}
-                }
-            }
-        }
-        (texts, vpe)
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_filter_that_never_saw_a_frame_is_camera_stale() {
     let dir = tempfile::tempdir().unwrap();
@@ -180,9 +122,7 @@ async fn a_filter_that_never_saw_a_frame_is_camera_stale() {
     // A squatter holds the socket: no frame ever arrives.
     let _squatter = UnixStream::connect(&cfg.features.socket).unwrap();
 
-    let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    sock.connect(("127.0.0.1", port)).await.unwrap();
-    let mut p = Peer { sock, seq: 0 };
+    let mut p = MavPeer::new(port, 1, 1).await;
     p.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
         .await;
     p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
@@ -200,14 +140,14 @@ async fn a_filter_that_never_saw_a_frame_is_camera_stale() {
         t += 0.01;
         tokio::time::sleep(Duration::from_micros(300)).await;
         if i % 50 == 49 {
-            let (tx, n) = p.drain().await;
-            texts.extend(tx);
-            vpe += n;
+            let got = p.drain_for(Duration::from_millis(50)).await;
+            texts.extend(got.texts);
+            vpe += got.estimates;
         }
     }
-    let (tx, n) = p.drain().await;
-    texts.extend(tx);
-    vpe += n;
+    let got = p.drain_for(Duration::from_millis(50)).await;
+    texts.extend(got.texts);
+    vpe += got.estimates;
     let _ = stop_tx.send(());
     let summary = daemon.await.unwrap().unwrap();
     let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);

@@ -10,116 +10,9 @@ use std::io::Write;
 use std::os::unix::net::UnixStream;
 use std::time::Duration;
 
+use common::autopilot::{heartbeat, imu, line, MavPeer};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MavHeader, MavlinkVersion, SigningConfig, SigningData};
-use tokio::net::UdpSocket;
-
-/// A MAVLink sender on a UDP socket connected to the daemon.
-struct Sender {
-    sock: UdpSocket,
-    sys: u8,
-    comp: u8,
-    seq: u8,
-    signer: Option<SigningData>,
-}
-
-impl Sender {
-    async fn new(port: u16, sys: u8, comp: u8) -> Self {
-        let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-        sock.connect(("127.0.0.1", port)).await.unwrap();
-        Self {
-            sock,
-            sys,
-            comp,
-            seq: 0,
-            signer: None,
-        }
-    }
-    fn frame_as(&mut self, sys: u8, comp: u8, msg: &apm::MavMessage) -> Vec<u8> {
-        let h = MavHeader {
-            system_id: sys as u32,
-            component_id: comp,
-            sequence: self.seq,
-        };
-        self.seq = self.seq.wrapping_add(1);
-        let mut buf = Vec::new();
-        match &self.signer {
-            Some(sd) => mavlink::write_v2_msg_signed(&mut buf, h, msg, Some(sd)).unwrap(),
-            None => mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, msg).unwrap(),
-        };
-        buf
-    }
-    async fn send(&mut self, msg: &apm::MavMessage) {
-        let f = self.frame_as(self.sys, self.comp, msg);
-        self.sock.send(&f).await.unwrap();
-    }
-    async fn send_as(&mut self, sys: u8, comp: u8, msg: &apm::MavMessage) {
-        let f = self.frame_as(sys, comp, msg);
-        self.sock.send(&f).await.unwrap();
-    }
-    /// What the daemon sent us so far.
-    async fn drain(&self) -> Inbox {
-        let mut inbox = Inbox::default();
-        let mut buf = [0u8; 4096];
-        while let Ok(Ok(len)) = tokio::time::timeout(Duration::from_millis(30), self.sock.recv(&mut buf)).await {
-            inbox.bytes += len;
-            let mut r = mavlink::MavlinkReader::new(&buf[..len]);
-            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                match m {
-                    apm::MavMessage::ODOMETRY(_) | apm::MavMessage::VISION_POSITION_ESTIMATE(_) => inbox.vpe += 1,
-                    apm::MavMessage::HEARTBEAT(h) => inbox.states.push(h.system_status),
-                    apm::MavMessage::STATUSTEXT(t) => inbox
-                        .texts
-                        .push(t.text.to_str().unwrap_or("").trim_end_matches('\0').to_string()),
-                    _ => {}
-                }
-            }
-        }
-        inbox
-    }
-}
-
-#[derive(Default, Debug)]
-struct Inbox {
-    bytes: usize,
-    vpe: usize,
-    states: Vec<apm::MavState>,
-    texts: Vec<String>,
-}
-
-fn imu(t_s: f64, zacc: f32) -> apm::MavMessage {
-    apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
-        time_usec: (t_s * 1e6) as u64,
-        zacc,
-        ..Default::default()
-    })
-}
-
-fn heartbeat() -> apm::MavMessage {
-    apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
-        mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
-        autopilot: apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
-        mavlink_version: 3,
-        ..Default::default()
-    })
-}
-
-/// The autopilot's first words: where it is, its attitude and position.
-async fn autopilot_hello(ap: &mut Sender) {
-    ap.send(&heartbeat()).await;
-    ap.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
-    ap.send(&apm::MavMessage::LOCAL_POSITION_NED(
-        apm::LOCAL_POSITION_NED_DATA::default(),
-    ))
-    .await;
-}
-
-fn line(t_s: f64, features: &str) -> String {
-    format!(
-        "{{\"v\":1,\"t_us\":{},\"cam\":0,\"features\":[{features}]}}\n",
-        (t_s * 1e6) as u64
-    )
-}
 
 /// Reproducers 1, 2 and 11: a stranger (system 42, and one forging the
 /// autopilot's ids from its own port) and garbage datagrams. Nothing of
@@ -131,15 +24,15 @@ async fn only_the_autopilot_is_heard_and_answered() {
     let (cfg, port) = common::loopback_config(dir.path());
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut ap = Sender::new(port, 1, 1).await;
-    let mut stranger = Sender::new(port, 42, 1).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    let mut stranger = MavPeer::new(port, 42, 1).await;
     // The stranger speaks first, as itself: that locates no autopilot.
     // (Without signing, a stranger that forged the autopilot's ids before
     // the autopilot's first HEARTBEAT would be taken for it until it fell
     // silent; docs/reliability.md says which configs are safe.)
     stranger.send(&heartbeat()).await;
     tokio::time::sleep(Duration::from_millis(20)).await;
-    autopilot_hello(&mut ap).await;
+    ap.hello().await;
     tokio::time::sleep(Duration::from_millis(20)).await;
     // Once the autopilot is known, its ids from elsewhere are rejected.
     stranger.send_as(1, 1, &heartbeat()).await;
@@ -218,10 +111,10 @@ async fn only_the_autopilot_is_heard_and_answered() {
     let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
     eprintln!(
         "{:#?}\nto the autopilot: {} VPE, {:?}",
-        summary.counters, to_ap.vpe, to_ap.texts
+        summary.counters, to_ap.estimates, to_ap.texts
     );
     assert_eq!(to_stranger.bytes, 0, "the stranger got our outputs");
-    assert!(to_ap.vpe > 60, "the autopilot got {} estimates", to_ap.vpe);
+    assert!(to_ap.estimates > 60, "the autopilot got {} estimates", to_ap.estimates);
     assert!(!to_ap.texts.iter().any(|t| t.contains("reset")), "{:?}", to_ap.texts);
     assert_eq!(c("init_static"), 1, "the filter started once and was never reset");
     assert_eq!(c("autopilot_clock_reset"), 0);
@@ -267,9 +160,9 @@ async fn with_signing_unsigned_traffic_redirects_nothing() {
     cfg.mavlink.signing_key_file = key_path.display().to_string();
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut ap = Sender::new(port, 1, 1).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
     ap.signer = Some(SigningData::from_config(SigningConfig::new(KEY, 1, true, false)));
-    let mut stranger = Sender::new(port, 1, 1).await;
+    let mut stranger = MavPeer::new(port, 1, 1).await;
     let (mut unsigned, mut garbage) = (0u64, 0u64);
     for k in 0..300u32 {
         if k % 30 == 0 {
@@ -441,8 +334,8 @@ async fn one_bad_feature_stamp_never_blinds_vision() {
     let (cfg, port) = common::loopback_config(dir.path());
     let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut ap = Sender::new(port, 1, 1).await;
-    autopilot_hello(&mut ap).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    ap.hello().await;
     let mut front = UnixStream::connect(&cfg.features.socket).unwrap();
     let mut t = 10.0;
     let mut frames = 0;
@@ -487,9 +380,9 @@ async fn two_rtcm_sources_are_reassembled_apart() {
     let (cfg, port) = common::loopback_config(dir.path());
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut rover = Sender::new(port, 1, 1).await;
+    let mut rover = MavPeer::new(port, 1, 1).await;
     rover.send(&heartbeat()).await;
-    let mut gcs = Sender::new(port, 255, 190).await;
+    let mut gcs = MavPeer::new(port, 255, 190).await;
     let fragment = |seq: u8, id: u8, len: u8| {
         apm::MavMessage::GPS_RTCM_DATA(apm::GPS_RTCM_DATA_DATA {
             flags: 1 | (id << 1) | ((seq & 0x1f) << 3),
@@ -525,8 +418,8 @@ async fn a_udp_autopilot_that_comes_back_elsewhere_is_learned_again() {
     cfg.mavlink.link_down_after_s = 0.3;
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut before = Sender::new(port, 1, 1).await;
-    autopilot_hello(&mut before).await;
+    let mut before = MavPeer::new(port, 1, 1).await;
+    before.hello().await;
     for k in 0..50 {
         before.send(&imu(10.0 + 0.01 * k as f64, -9.81)).await;
     }
@@ -539,7 +432,7 @@ async fn a_udp_autopilot_that_comes_back_elsewhere_is_learned_again() {
         told.texts
     );
     // Back, from a new port (a restarted router, say).
-    let mut after = Sender::new(port, 1, 1).await;
+    let mut after = MavPeer::new(port, 1, 1).await;
     for _ in 0..12 {
         after.send(&heartbeat()).await;
         tokio::time::sleep(Duration::from_millis(100)).await;

@@ -6,9 +6,8 @@ mod common;
 
 use std::time::{Duration, Instant};
 
+use common::autopilot::{heartbeat, MavPeer};
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion};
-use tokio::net::UdpSocket;
 
 const HIGHRES_IMU: f32 = 105.0;
 
@@ -18,20 +17,7 @@ async fn a_stream_that_stops_is_asked_for_again() {
     let (cfg, port) = common::loopback_config(dir.path());
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    sock.connect(("127.0.0.1", port)).await.unwrap();
-    let mut seq = 0u8;
-    let mut frame = |m: &apm::MavMessage| {
-        seq = seq.wrapping_add(1);
-        let h = MavHeader {
-            system_id: 1,
-            component_id: 1,
-            sequence: seq,
-        };
-        let mut buf = Vec::new();
-        mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, m).unwrap();
-        buf
-    };
+    let mut ap = MavPeer::new(port, 1, 1).await;
     // Phases: 0–2.5 s IMU flows; 2.5–7 s it stops (heartbeats go on).
     let started = Instant::now();
     let (mut t, mut next_hb) = (10.0, 0.0);
@@ -40,21 +26,14 @@ async fn a_stream_that_stops_is_asked_for_again() {
     while started.elapsed() < Duration::from_secs(7) {
         let now = started.elapsed().as_secs_f64();
         if now >= next_hb {
-            sock.send(&frame(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default())))
-                .await
-                .unwrap();
+            ap.send(&heartbeat()).await;
             next_hb += 0.5;
         }
         if now < 2.5 {
-            let imu = apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
-                time_usec: (t * 1e6) as u64,
-                zacc: -9.81,
-                ..Default::default()
-            });
-            sock.send(&frame(&imu)).await.unwrap();
+            ap.imu(t).await;
             t += 0.01;
         }
-        if let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(10), sock.recv(&mut buf)).await {
+        if let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(10), ap.sock.recv(&mut buf)).await {
             let mut r = mavlink::MavlinkReader::new(&buf[..n]);
             while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
                 if let apm::MavMessage::COMMAND_LONG(c) = m {

@@ -8,20 +8,8 @@ mod common;
 
 use std::time::{Duration, Instant};
 
+use common::autopilot::MavPeer;
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion};
-use tokio::net::UdpSocket;
-
-fn frame(seq: u8, msg: &apm::MavMessage) -> Vec<u8> {
-    let h = MavHeader {
-        system_id: 1,
-        component_id: 1,
-        sequence: seq,
-    };
-    let mut buf = Vec::new();
-    mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, msg).unwrap();
-    buf
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_daemon_answers_timesync_in_the_autopilot_clock() {
@@ -29,32 +17,24 @@ async fn the_daemon_answers_timesync_in_the_autopilot_clock() {
     let (cfg, port) = common::loopback_config(dir.path());
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let sock = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    sock.connect(("127.0.0.1", port)).await.unwrap();
+    let mut ap = MavPeer::new(port, 1, 1).await;
     // The autopilot's boot clock: 100 s at our start.
     let booted = Instant::now() - Duration::from_secs(100);
     let boot_ns = || booted.elapsed().as_nanos() as i64;
-    let mut seq = 0u8;
-    let mut send = |m: apm::MavMessage| {
-        seq = seq.wrapping_add(1);
-        frame(seq, &m)
-    };
-    sock.send(&send(apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default())))
-        .await
-        .unwrap();
+    ap.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
+        .await;
     // Ask before the daemon has measured our clock: no answer yet.
-    sock.send(&send(apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+    ap.send(&apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
         tc1: 0,
         ts1: 7,
         ..Default::default()
-    })))
-    .await
-    .unwrap();
+    }))
+    .await;
     let mut buf = [0u8; 2048];
     let (mut answered_theirs, mut replies) = (0, Vec::new());
     let deadline = Instant::now() + Duration::from_secs(4);
     while Instant::now() < deadline && replies.len() < 3 {
-        let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(100), sock.recv(&mut buf)).await else {
+        let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(100), ap.sock.recv(&mut buf)).await else {
             continue;
         };
         let mut r = mavlink::MavlinkReader::new(&buf[..n]);
@@ -67,7 +47,7 @@ async fn the_daemon_answers_timesync_in_the_autopilot_clock() {
                     ts1: t.ts1,
                     ..Default::default()
                 });
-                sock.send(&send(reply)).await.unwrap();
+                ap.send(&reply).await;
                 answered_theirs += 1;
                 tokio::time::sleep(Duration::from_millis(20)).await;
                 let ask = apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
@@ -75,7 +55,7 @@ async fn the_daemon_answers_timesync_in_the_autopilot_clock() {
                     ts1: boot_ns(),
                     ..Default::default()
                 });
-                sock.send(&send(ask)).await.unwrap();
+                ap.send(&ask).await;
             } else {
                 // Its reply to our request: its time, in our clock.
                 replies.push((t.ts1, t.tc1, boot_ns()));

@@ -1,6 +1,8 @@
 //! Shared set-up of the integration tests that run the daemon in-process.
 #![allow(dead_code)]
 
+pub mod autopilot;
+
 use cmsckf::config::Config;
 
 /// A config on a free loopback UDP port, a socket in `dir`, and no log.
