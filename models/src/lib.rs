@@ -19,6 +19,7 @@
 pub mod camera;
 pub mod check;
 pub mod geodesy;
+pub mod geoid;
 pub mod gnss;
 pub mod sensors;
 pub mod stats;

@@ -327,8 +327,10 @@ pub struct GnssConfig {
     pub clock_drift_rw_mps_per_sqrt_s: f64,
     /// Random walk of the Galileo − GPS inter-system bias (m/√s).
     pub isb_rw_m_per_sqrt_s: f64,
-    /// Geodetic origin of the NED world frame `[lat_deg, lon_deg, h_m]`;
-    /// empty = the first single-point fix.
+    /// Geodetic origin of the NED world frame `[lat_deg, lon_deg, h_m]`,
+    /// `h_m` above the WGS84 ellipsoid; empty = the autopilot's
+    /// GPS_GLOBAL_ORIGIN (its altitude above mean sea level, converted
+    /// through EGM96), else the first single-point fix.
     pub origin_llh: Vec<f64>,
     /// Klobuchar ionosphere α0..α3 (s, s/semicircle, …); empty = unknown.
     pub klobuchar_alpha: Vec<f64>,
@@ -429,7 +431,9 @@ pub struct OutputConfig {
     /// `odometry` (default) or `vision_position_estimate` (with
     /// `VISION_SPEED_ESTIMATE`): see [`OutputMessage`].
     pub message: OutputMessage,
-    /// Send SET_GPS_GLOBAL_ORIGIN once the GNSS origin is known.
+    /// Send SET_GPS_GLOBAL_ORIGIN once the origin is known: `gnss.origin_llh`
+    /// (so a VIO-only vehicle gets an EKF origin), else the first fix; its
+    /// altitude above mean sea level, as MAVLink defines it (EGM96).
     pub set_gps_origin: bool,
     /// The removed `odometry = true|false`, read only so that an old config
     /// is refused with what replaces it (never written).

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
+use cmsckf_models::geoid;
 use cmsckf_models::gnss::SatMeas;
 use nalgebra::Vector3;
 use serde_json::json;
@@ -323,11 +324,10 @@ impl Fusion {
                     &json!({"origin": [lat_deg, lon_deg, alt_m]}),
                 );
                 if self.gnss.frame.is_none() {
-                    // MAVLink gives the origin's altitude above mean sea level;
-                    // the geoid separation (tens of metres) is a constant
-                    // height offset that the clock bias cannot absorb, so
-                    // `gnss.origin_llh` is the precise way to set it.
-                    self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, alt_m));
+                    // MAVLink gives the origin's altitude above mean sea
+                    // level; our frame is on the ellipsoid (EGM96, §geoid).
+                    let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
+                    self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
                     counters.add("gnss_origin_from_autopilot", 1);
                 }
             }
@@ -590,11 +590,14 @@ impl Fusion {
             return;
         }
         if let Some(frame) = self.gnss.frame {
+            // MAVLink's altitude is above mean sea level (EGM96), ours above
+            // the ellipsoid: tens of metres apart.
             let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
+            let (lat_deg, lon_deg) = (lat.to_degrees(), lon.to_degrees());
             let msg = Outbound::SetGpsGlobalOrigin {
-                lat_deg: lat.to_degrees(),
-                lon_deg: lon.to_degrees(),
-                alt_m: h,
+                lat_deg,
+                lon_deg,
+                alt_m: geoid::msl_from_ellipsoid(lat_deg, lon_deg, h),
             };
             if out.try_send(msg).is_ok() {
                 self.origin_sent = true;

@@ -146,14 +146,17 @@ fn system_time(g: &GnssSimConfig, t: f64, boot_us: u64) -> apm::MavMessage {
     })
 }
 
-/// The EKF origin: the simulation's geodetic origin.
+/// The EKF origin: the simulation's geodetic origin, its altitude above
+/// mean sea level as MAVLink defines it (the simulation's is above the
+/// ellipsoid; EGM96 between them).
 #[allow(deprecated)]
 fn gps_global_origin(g: &GnssSimConfig, boot_us: u64) -> apm::MavMessage {
     let o = g.origin_llh;
+    let alt_msl_m = cmsckf_models::geoid::msl_from_ellipsoid(o[0], o[1], o[2]);
     apm::MavMessage::GPS_GLOBAL_ORIGIN(apm::GPS_GLOBAL_ORIGIN_DATA {
         latitude: (o[0] * 1e7).round() as i32,
         longitude: (o[1] * 1e7).round() as i32,
-        altitude: (o[2] * 1e3).round() as i32,
+        altitude: (alt_msl_m * 1e3).round() as i32,
         time_usec: boot_us,
     })
 }
