@@ -1,5 +1,5 @@
 //! I/O adapters: they convert between the outside world and the pure
-//! estimator at the boundary. `mavlink.rs` is the only place that names
+//! estimator at the boundary. `mavlink/` is the only module that names
 //! `mavlink::` types; `messages.rs` holds what crosses that boundary.
 
 pub mod feature_pipe;

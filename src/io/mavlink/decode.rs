@@ -1,0 +1,167 @@
+//! Inbound: MAVLink messages and their scaled integers become [`Inbound`]
+//! values in SI units, checked (finite, within any sensor's range) here and
+//! only here.
+
+use mavlink::dialects::ardupilotmega as apm;
+use nalgebra::Vector3;
+
+use super::LinkError;
+use crate::io::messages::Inbound;
+
+/// Standard gravity used by MAVLink's milli-g units (m/s²).
+const G0: f64 = 9.80665;
+
+fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(v)
+    } else {
+        Err(LinkError::Rejected("non_finite"))
+    }
+}
+
+/// Largest believable IMU reading per axis: 1600 m/s² (163 g) and 70 rad/s,
+/// twice the widest MEMS ranges (±32 g is not even reached by ±16 g parts,
+/// ±4000 °/s ≈ 70 rad/s).
+const MAX_ACCEL_MPS2: f64 = 1600.0;
+const MAX_GYRO_RADPS: f64 = 70.0;
+
+/// An IMU sample's accelerometer and gyro, finite and within sensor range.
+fn imu_checked(accel: Vector3<f64>, gyro: Vector3<f64>) -> Result<(Vector3<f64>, Vector3<f64>), LinkError> {
+    let (a, g) = (finite3(accel)?, finite3(gyro)?);
+    if a.amax() > MAX_ACCEL_MPS2 || g.amax() > MAX_GYRO_RADPS {
+        return Err(LinkError::Rejected("imu_out_of_range"));
+    }
+    Ok((a, g))
+}
+
+/// Decodes every MAVLink frame in `bytes` as the link would (the crate's
+/// framing, then [`decode`]): the input to the adapter's fuzz tests.
+pub fn decode_bytes(bytes: &[u8]) -> Vec<Result<Inbound, LinkError>> {
+    let mut r = mavlink::MavlinkReader::new(bytes);
+    let mut out = Vec::new();
+    // Bounded: a frame takes at least 8 bytes.
+    for _ in 0..bytes.len() / 8 + 1 {
+        match r.read_any_message::<apm::MavMessage>() {
+            Ok((_, m)) => out.push(decode(m)),
+            Err(mavlink::error::MessageReadError::Io(_)) => break,
+            Err(mavlink::error::MessageReadError::Parse(e)) => out.push(Err(LinkError::Parse(e.to_string()))),
+        }
+    }
+    out
+}
+
+/// MAVLink message → [`Inbound`], with units converted here and only here.
+/// (`GPS_GLOBAL_ORIGIN` is deprecated but still what autopilots send.)
+#[allow(deprecated)]
+pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
+    use apm::MavMessage as M;
+    Ok(match msg {
+        M::HIGHRES_IMU(d) => {
+            let (accel_mps2, gyro_radps) = imu_checked(
+                Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64),
+                Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64),
+            )?;
+            Inbound::Imu {
+                t_us: d.time_usec,
+                accel_mps2,
+                gyro_radps,
+                kind: "highres",
+            }
+        }
+        // SCALED_IMU: mG and mrad/s.
+        M::SCALED_IMU(d) => Inbound::Imu {
+            t_us: d.time_boot_ms as u64 * 1000,
+            accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
+            gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
+            kind: "scaled",
+        },
+        // RAW_IMU: ArduPilot fills it with the same mG and mrad/s scaling.
+        M::RAW_IMU(d) => Inbound::Imu {
+            t_us: d.time_usec,
+            accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
+            gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
+            kind: "raw",
+        },
+        M::ATTITUDE(d) => {
+            let v = finite3(Vector3::new(d.roll as f64, d.pitch as f64, d.yaw as f64))?;
+            Inbound::Attitude {
+                t_boot_ms: d.time_boot_ms,
+                roll_rad: v.x,
+                pitch_rad: v.y,
+                yaw_rad: v.z,
+            }
+        }
+        M::LOCAL_POSITION_NED(d) => Inbound::LocalPosition {
+            t_boot_ms: d.time_boot_ms,
+            p_ned_m: finite3(Vector3::new(d.x as f64, d.y as f64, d.z as f64))?,
+            v_ned_mps: finite3(Vector3::new(d.vx as f64, d.vy as f64, d.vz as f64))?,
+        },
+        // h_acc and v_acc (mm) are MAVLink 2 extensions: 0 = not reported.
+        M::GPS_RAW_INT(d) if d.h_acc > 0 && d.v_acc > 0 => Inbound::GpsAccuracy {
+            h_acc_m: d.h_acc as f64 * 1e-3,
+            v_acc_m: d.v_acc as f64 * 1e-3,
+        },
+        M::GPS_RAW_INT(_) => Inbound::Other("GPS_RAW_INT"),
+        M::SYSTEM_TIME(d) => Inbound::SystemTime {
+            unix_us: d.time_unix_usec,
+            boot_ms: d.time_boot_ms,
+        },
+        M::TIMESYNC(d) => Inbound::Timesync {
+            tc1_ns: d.tc1,
+            ts1_ns: d.ts1,
+        },
+        M::GPS_RTCM_DATA(d) => {
+            let len = (d.len as usize).min(d.data.len());
+            Inbound::RtcmFragment {
+                flags: d.flags,
+                data: d.data[..len].to_vec(),
+            }
+        }
+        M::HEARTBEAT(_) => Inbound::Heartbeat,
+        M::GPS_GLOBAL_ORIGIN(d) => Inbound::GpsGlobalOrigin {
+            lat_deg: d.latitude as f64 * 1e-7,
+            lon_deg: d.longitude as f64 * 1e-7,
+            alt_m: d.altitude as f64 * 1e-3,
+        },
+        M::VISION_POSITION_ESTIMATE(_) => Inbound::Other("VISION_POSITION_ESTIMATE"),
+        M::COMMAND_LONG(_) => Inbound::Other("COMMAND_LONG"),
+        M::COMMAND_ACK(_) => Inbound::Other("COMMAND_ACK"),
+        _ => Inbound::Other("other"),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scaled_imu_units_are_converted_at_the_boundary() {
+        let m = apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+            time_boot_ms: 1500,
+            xacc: 0,
+            yacc: 0,
+            zacc: -1000,
+            xgyro: 100,
+            ygyro: 0,
+            zgyro: 0,
+            ..Default::default()
+        });
+        let Inbound::Imu {
+            t_us,
+            accel_mps2,
+            gyro_radps,
+            ..
+        } = decode(m).unwrap()
+        else {
+            panic!("not an IMU sample")
+        };
+        assert_eq!(t_us, 1_500_000);
+        assert!((accel_mps2.z + G0).abs() < 1e-12);
+        assert!((gyro_radps.x - 0.1).abs() < 1e-12);
+        let nan = apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+            xacc: f32::NAN,
+            ..Default::default()
+        });
+        assert!(matches!(decode(nan), Err(LinkError::Rejected("non_finite"))));
+    }
+}
