@@ -7,6 +7,7 @@
 //! - `gnss_input.rs`: a receiver's RTCM3 stream, and RTCM to GNSS epochs;
 //! - `heartbeat.rs`: HEARTBEAT and STATUSTEXT, stream requests, TIMESYNC;
 //! - `fusion.rs`: the fusion loop on its own thread, and the restart path;
+//! - `autopilot.rs`: what the autopilot tells of itself, and our origin;
 //! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
 //! - `init.rs`: starting the filter; `output.rs`: the estimates sent;
 //! - `rebase.rs`: compressed mode's global updates on a worker thread;
@@ -19,6 +20,7 @@
 //! newest item is dropped and counted. [`run`] returns when its `shutdown`
 //! future completes.
 
+mod autopilot;
 mod features;
 mod fusion;
 mod gnss_input;
