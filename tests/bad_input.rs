@@ -21,13 +21,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
     tokio::time::sleep(Duration::from_millis(200)).await;
 
     let mut p = MavPeer::new(port, 1, 1).await;
-    p.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
-        .await;
-    p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
-    p.send(&apm::MavMessage::LOCAL_POSITION_NED(
-        apm::LOCAL_POSITION_NED_DATA::default(),
-    ))
-    .await;
+    p.hello().await;
     // A static second of IMU initialises the filter.
     let mut t = 10.0;
     for _ in 0..150 {

@@ -13,7 +13,6 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use common::autopilot::{line, MavPeer};
-use mavlink::dialects::ardupilotmega as apm;
 
 /// Waits (up to 2 s) for the daemon's socket to appear.
 async fn wait_for_socket(path: &str) {
@@ -123,13 +122,7 @@ async fn a_filter_that_never_saw_a_frame_is_camera_stale() {
     let _squatter = UnixStream::connect(&cfg.features.socket).unwrap();
 
     let mut p = MavPeer::new(port, 1, 1).await;
-    p.send(&apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default()))
-        .await;
-    p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
-    p.send(&apm::MavMessage::LOCAL_POSITION_NED(
-        apm::LOCAL_POSITION_NED_DATA::default(),
-    ))
-    .await;
+    p.hello().await;
     // A static second initialises the filter; then 1.5 s more of IMU and
     // not one camera frame.
     let mut t = 10.0;

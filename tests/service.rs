@@ -14,11 +14,7 @@ fn the_binary_says_ready_and_pings_the_watchdog() {
     let notify_path = dir.path().join("notify.sock");
     let notify = UnixDatagram::bind(&notify_path).unwrap();
     notify.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
-    let cfg_path = dir.path().join("cmsckf.toml");
-    std::fs::write(&cfg_path, toml::to_string(&cfg).unwrap()).unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
+    let mut child = common::run_command(&cfg, dir.path())
         .env("NOTIFY_SOCKET", &notify_path)
         .env("WATCHDOG_USEC", "300000")
         .env("RUST_LOG", "error")

@@ -34,14 +34,20 @@ pub fn spawn_daemon(
     (stop_tx, h)
 }
 
+/// `cmsckf run` on `cfg`, written to `dir/cmsckf.toml`: the command, to
+/// spawn with its environment and output set.
+pub fn run_command(cfg: &Config, dir: &std::path::Path) -> std::process::Command {
+    let cfg_path = dir.join("cmsckf.toml");
+    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"));
+    c.args(["run", "--config"]).arg(&cfg_path);
+    c
+}
+
 /// Writes `cfg` to `dir` and starts the `cmsckf run` binary on it, waiting
 /// until its feature socket exists.
 pub fn spawn_daemon_binary(cfg: &Config, dir: &std::path::Path) -> std::process::Child {
-    let cfg_path = dir.join("cmsckf.toml");
-    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
+    let child = run_command(cfg, dir)
         .env("RUST_LOG", "error")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
@@ -65,11 +71,7 @@ pub fn run_daemon_binary_expecting_exit(
     timeout: std::time::Duration,
 ) -> Option<(std::process::ExitStatus, String)> {
     use std::io::Read;
-    let cfg_path = dir.join("cmsckf.toml");
-    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
+    let mut child = run_command(cfg, dir)
         .env("RUST_LOG", "error")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
@@ -102,11 +104,7 @@ pub fn spawn_daemon_binary_journal(
     filter: &str,
     stderr_path: &std::path::Path,
 ) -> std::process::Child {
-    let cfg_path = dir.join("cmsckf.toml");
-    std::fs::write(&cfg_path, toml::to_string(cfg).unwrap()).unwrap();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["run", "--config"])
-        .arg(&cfg_path)
+    let child = run_command(cfg, dir)
         .env("RUST_LOG", filter)
         .env("NO_COLOR", "1")
         .stdout(std::process::Stdio::null())
