@@ -93,20 +93,20 @@ impl UdpPeer {
 
     /// The peer, if known.
     pub fn peer(&self) -> Option<SocketAddr> {
-        self.peer.lock().unwrap_or_else(|p| p.into_inner()).0
+        self.state().0
     }
 
     /// Whether the peer may be learned again: none is known, or it went
     /// stale (`udpin` only).
     pub fn learning(&self) -> bool {
-        let p = self.peer.lock().unwrap_or_else(|p| p.into_inner());
+        let p = self.state();
         self.mode == UdpMode::Listen && (p.0.is_none() || p.1)
     }
 
     /// Takes `addr` as the peer if it may be learned ([`Self::learning`]).
     /// Returns whether it was learned now.
     pub fn learn(&self, addr: SocketAddr) -> bool {
-        let mut p = self.peer.lock().unwrap_or_else(|p| p.into_inner());
+        let mut p = self.state();
         if self.mode == UdpMode::Listen && (p.0.is_none() || p.1) {
             *p = (Some(addr), false);
             true
@@ -118,13 +118,19 @@ impl UdpPeer {
     /// Marks a learned peer stale (`udpin` only): still sent to, and
     /// replaced by the next one learned. Returns whether it was marked now.
     pub fn forget(&self) -> bool {
-        let mut p = self.peer.lock().unwrap_or_else(|p| p.into_inner());
+        let mut p = self.state();
         if self.mode == UdpMode::Listen && p.0.is_some() && !p.1 {
             p.1 = true;
             true
         } else {
             false
         }
+    }
+
+    /// The peer and its staleness, locked (a poisoned lock still holds
+    /// them: nothing here can leave them half-written).
+    fn state(&self) -> std::sync::MutexGuard<'_, (Option<SocketAddr>, bool)> {
+        self.peer.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// The local address (for tests and logs).
