@@ -4,28 +4,18 @@
 //! last update's), and the IMU buffer never overflows (after 41 s it did,
 //! and the output ran kilometres off).
 
-use std::sync::atomic::AtomicI64;
-use std::sync::Arc;
-use std::time::Instant;
+mod common;
 
 use cmsckf::config::Config;
-use cmsckf::daemon::{Ctx, Fusion, FusionMsg};
+use cmsckf::daemon::{Fusion, FusionMsg};
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::messages::Outbound;
-use cmsckf::io::Counters;
 use nalgebra::Vector3;
 
 #[test]
 fn seventy_seconds_blind_grow_the_covariance_and_lose_no_imu() {
     let cfg = Config::default();
-    let (out_tx, mut out_rx) = tokio::sync::mpsc::channel::<Outbound>(1 << 16);
-    let ctx = Ctx {
-        counters: Counters::default(),
-        out: out_tx,
-        status: Default::default(),
-        mono_offset_us: Arc::new(AtomicI64::new(i64::MIN)),
-        start: Instant::now(),
-    };
+    let (ctx, mut out_rx) = common::fusion_ctx();
     let mut f = Fusion::new(cfg, None);
     f.handle(
         FusionMsg::Attitude {

@@ -22,6 +22,10 @@ pub enum Inbound {
         gyro_radps: Vector3<f64>,
         /// `highres`, `scaled` or `raw`.
         kind: &'static str,
+        /// The magnetic field in the body frame, when the message carries
+        /// one: its direction only (units differ: ArduPilot's
+        /// `HIGHRES_IMU` sends µG where MAVLink says G; `RAW_IMU` mG).
+        mag_B: Option<Vector3<f64>>,
     },
     /// Attitude (rad) at boot time (ms).
     Attitude {
@@ -56,7 +60,16 @@ pub enum Inbound {
         flags: u8,
         data: Vec<u8>,
     },
-    Heartbeat,
+    /// A `HEARTBEAT`: whether its sender is armed, and which autopilot.
+    Heartbeat {
+        armed: bool,
+        kind: AutopilotKind,
+    },
+    /// `EXTENDED_SYS_STATE`'s landed state: on the ground, in the air
+    /// (taking off, flying, landing), or not known (`None`).
+    LandedState {
+        on_ground: Option<bool>,
+    },
     /// The autopilot's EKF origin (deg, deg, m above the ellipsoid... as
     /// MAVLink gives it: AMSL).
     GpsGlobalOrigin {
@@ -132,6 +145,10 @@ pub enum Outbound {
         reset_counter: u8,
         /// −1 failed, 1 worst … 100 best (MAVLink's `ODOMETRY.quality`).
         quality: i8,
+        /// `frame_id` `MAV_FRAME_LOCAL_NED` (PX4: our world frame is
+        /// north-referenced, so its yaw is a heading) instead of
+        /// `MAV_FRAME_LOCAL_FRD` (the only one ArduPilot accepts).
+        frame_ned: bool,
     },
     SetGpsGlobalOrigin {
         lat_deg: f64,
@@ -152,8 +169,20 @@ impl Outbound {
     }
 }
 
+/// Which autopilot a `HEARTBEAT` says it is (`MAV_AUTOPILOT_*`): the
+/// output's frame and covariance follow what each one reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AutopilotKind {
+    ArduPilot,
+    Px4,
+    Other,
+}
+
 /// Message ids the daemon asks streams for.
 pub const MSG_ID_HIGHRES_IMU: u32 = 105;
 pub const MSG_ID_ATTITUDE: u32 = 30;
 pub const MSG_ID_SYSTEM_TIME: u32 = 2;
 pub const MSG_ID_LOCAL_POSITION_NED: u32 = 32;
+/// `EXTENDED_SYS_STATE` (the landed state).
+pub const MSG_ID_EXTENDED_SYS_STATE: u32 = 245;

@@ -119,3 +119,20 @@ pub fn spawn_daemon_binary_journal(
     }
     child
 }
+
+/// A fusion loop's context for driving `cmsckf::daemon::Fusion` directly,
+/// and the receiver of what it sends to the autopilot.
+pub fn fusion_ctx() -> (
+    cmsckf::daemon::Ctx,
+    tokio::sync::mpsc::Receiver<cmsckf::io::messages::Outbound>,
+) {
+    let (out_tx, out_rx) = tokio::sync::mpsc::channel(1 << 16);
+    let ctx = cmsckf::daemon::Ctx {
+        counters: cmsckf::io::Counters::default(),
+        out: out_tx,
+        status: Default::default(),
+        mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),
+        start: std::time::Instant::now(),
+    };
+    (ctx, out_rx)
+}

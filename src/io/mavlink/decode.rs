@@ -6,7 +6,7 @@ use mavlink::dialects::ardupilotmega as apm;
 use nalgebra::Vector3;
 
 use super::LinkError;
-use crate::io::messages::Inbound;
+use crate::io::messages::{AutopilotKind, Inbound};
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
 const G0: f64 = 9.80665;
@@ -17,6 +17,13 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
     } else {
         Err(LinkError::Rejected("non_finite"))
     }
+}
+
+/// A magnetometer reading, or `None` when the autopilot has none to give
+/// (zeros before its compass is ready) or sends something non-finite: a
+/// missing field must not stop the IMU sample it came with.
+fn field(v: Vector3<f64>) -> Option<Vector3<f64>> {
+    (v.iter().all(|x| x.is_finite()) && v.norm() > 0.0).then_some(v)
 }
 
 /// Largest believable IMU reading per axis: 1600 m/s² (163 g) and 70 rad/s,
@@ -61,11 +68,16 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64),
                 Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64),
             )?;
+            // fields_updated bits 6–8: xmag, ymag, zmag.
+            let mag = Vector3::new(d.xmag as f64, d.ymag as f64, d.zmag as f64);
             Inbound::Imu {
                 t_us: d.time_usec,
                 accel_mps2,
                 gyro_radps,
                 kind: "highres",
+                mag_B: (d.fields_updated.bits() & 0x1C0 == 0x1C0)
+                    .then_some(mag)
+                    .and_then(field),
             }
         }
         // SCALED_IMU: mG and mrad/s.
@@ -74,6 +86,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
             gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
             kind: "scaled",
+            mag_B: field(Vector3::new(d.xmag as f64, d.ymag as f64, d.zmag as f64)),
         },
         // RAW_IMU: ArduPilot fills it with the same mG and mrad/s scaling.
         M::RAW_IMU(d) => Inbound::Imu {
@@ -81,6 +94,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
             gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
             kind: "raw",
+            mag_B: field(Vector3::new(d.xmag as f64, d.ymag as f64, d.zmag as f64)),
         },
         M::ATTITUDE(d) => {
             let v = finite3(Vector3::new(d.roll as f64, d.pitch as f64, d.yaw as f64))?;
@@ -97,9 +111,11 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             v_ned_mps: finite3(Vector3::new(d.vx as f64, d.vy as f64, d.vz as f64))?,
         },
         // h_acc and v_acc (mm) are MAVLink 2 extensions: 0 = not reported.
-        M::GPS_RAW_INT(d) if d.h_acc > 0 && d.v_acc > 0 => Inbound::GpsAccuracy {
-            h_acc_m: d.h_acc as f64 * 1e-3,
-            v_acc_m: d.v_acc as f64 * 1e-3,
+        // A 3D fix: the autopilot has a position of its own; its accuracy
+        // (0 = unknown: NaN), when given, is the prior of an in-flight start.
+        M::GPS_RAW_INT(d) if d.fix_type as u8 >= apm::GpsFixType::GPS_FIX_TYPE_3D_FIX as u8 => Inbound::GpsAccuracy {
+            h_acc_m: if d.h_acc > 0 { d.h_acc as f64 * 1e-3 } else { f64::NAN },
+            v_acc_m: if d.v_acc > 0 { d.v_acc as f64 * 1e-3 } else { f64::NAN },
         },
         M::GPS_RAW_INT(_) => Inbound::Other("GPS_RAW_INT"),
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
@@ -117,7 +133,21 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 data: d.data[..len].to_vec(),
             }
         }
-        M::HEARTBEAT(_) => Inbound::Heartbeat,
+        M::HEARTBEAT(d) => Inbound::Heartbeat {
+            armed: d.base_mode.contains(apm::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
+            kind: match d.autopilot {
+                apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA => AutopilotKind::ArduPilot,
+                apm::MavAutopilot::MAV_AUTOPILOT_PX4 => AutopilotKind::Px4,
+                _ => AutopilotKind::Other,
+            },
+        },
+        M::EXTENDED_SYS_STATE(d) => Inbound::LandedState {
+            on_ground: match d.landed_state {
+                apm::MavLandedState::MAV_LANDED_STATE_UNDEFINED => None,
+                apm::MavLandedState::MAV_LANDED_STATE_ON_GROUND => Some(true),
+                _ => Some(false),
+            },
+        },
         M::GPS_GLOBAL_ORIGIN(d) => Inbound::GpsGlobalOrigin {
             lat_deg: d.latitude as f64 * 1e-7,
             lon_deg: d.longitude as f64 * 1e-7,

@@ -25,9 +25,8 @@ pub fn encode_bytes(out: &Outbound, seq: u8) -> Vec<u8> {
     buf
 }
 
-/// [`Outbound`] → MAVLink messages: one, or a long STATUSTEXT's chunks.
-/// (`SET_GPS_GLOBAL_ORIGIN` is deprecated in favour of
-/// `MAV_CMD_DO_SET_GLOBAL_ORIGIN`, but it is what ArduPilot 4.x takes.)
+/// [`Outbound`] → MAVLink messages: one, a long STATUSTEXT's chunks, or
+/// the origin in both its forms with a request to read it back.
 pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) -> Vec<apm::MavMessage> {
     let one = match out {
         Outbound::StatusText { severity, text } => return status_text(*severity, text),
@@ -60,6 +59,7 @@ pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) ->
             velocity_covariance,
             reset_counter,
             quality,
+            frame_ned,
         } => odometry(
             *t_us,
             p_ned_m,
@@ -70,6 +70,7 @@ pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) ->
             velocity_covariance,
             *reset_counter,
             *quality,
+            *frame_ned,
         ),
         Outbound::VisionSpeedEstimate {
             t_us,
@@ -81,7 +82,7 @@ pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) ->
             lat_deg,
             lon_deg,
             alt_m,
-        } => set_gps_global_origin(*lat_deg, *lon_deg, *alt_m, target_system),
+        } => return set_origin(*lat_deg, *lon_deg, *alt_m, target_system, target_component),
     };
     vec![one]
 }
@@ -286,6 +287,7 @@ fn odometry(
     velocity_covariance: &[f32; 21],
     reset_counter: u8,
     quality: i8,
+    frame_ned: bool,
 ) -> apm::MavMessage {
     apm::MavMessage::ODOMETRY(apm::ODOMETRY_DATA {
         time_usec: t_us,
@@ -301,7 +303,11 @@ fn odometry(
         yawspeed: w_body_radps.z as f32,
         pose_covariance: *pose_covariance,
         velocity_covariance: *velocity_covariance,
-        frame_id: apm::MavFrame::MAV_FRAME_LOCAL_FRD,
+        frame_id: if frame_ned {
+            apm::MavFrame::MAV_FRAME_LOCAL_NED
+        } else {
+            apm::MavFrame::MAV_FRAME_LOCAL_FRD
+        },
         child_frame_id: apm::MavFrame::MAV_FRAME_BODY_FRD,
         reset_counter,
         estimator_type: apm::MavEstimatorType::MAV_ESTIMATOR_TYPE_VIO,
@@ -309,17 +315,43 @@ fn odometry(
     })
 }
 
-/// `SET_GPS_GLOBAL_ORIGIN` (deprecated, but what ArduPilot 4.x takes):
-/// degrees and metres to 1e-7 deg and mm.
+/// The EKF origin (altitude above mean sea level), in both forms an
+/// autopilot may know: `SET_GPS_GLOBAL_ORIGIN` (deprecated, what ArduPilot
+/// 4.x and PX4 take: 1e-7 deg and mm) and `MAV_CMD_DO_SET_GLOBAL_ORIGIN`
+/// as `COMMAND_INT` (ArduPilot 4.7 takes it; as `COMMAND_LONG` its float
+/// parameters would round the position by decimetres, and ArduPilot
+/// refuses it), then `MAV_CMD_REQUEST_MESSAGE` for `GPS_GLOBAL_ORIGIN`, so
+/// the origin the autopilot took comes back. An autopilot sets its origin
+/// once: the second form is refused (ACK FAILED) and changes nothing.
 #[allow(deprecated)]
-fn set_gps_global_origin(lat_deg: f64, lon_deg: f64, alt_m: f64, target_system: u8) -> apm::MavMessage {
-    apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(apm::SET_GPS_GLOBAL_ORIGIN_DATA {
-        latitude: (lat_deg * 1e7).round() as i32,
-        longitude: (lon_deg * 1e7).round() as i32,
-        altitude: (alt_m * 1000.0).round() as i32,
-        target_system,
-        time_usec: 0,
-    })
+fn set_origin(lat_deg: f64, lon_deg: f64, alt_m: f64, target_system: u8, target_component: u8) -> Vec<apm::MavMessage> {
+    let (lat_e7, lon_e7) = ((lat_deg * 1e7).round() as i32, (lon_deg * 1e7).round() as i32);
+    vec![
+        apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(apm::SET_GPS_GLOBAL_ORIGIN_DATA {
+            latitude: lat_e7,
+            longitude: lon_e7,
+            altitude: (alt_m * 1000.0).round() as i32,
+            target_system,
+            time_usec: 0,
+        }),
+        apm::MavMessage::COMMAND_INT(apm::COMMAND_INT_DATA {
+            target_system,
+            target_component,
+            frame: apm::MavFrame::MAV_FRAME_GLOBAL,
+            command: apm::MavCmd::MAV_CMD_DO_SET_GLOBAL_ORIGIN,
+            x: lat_e7,
+            y: lon_e7,
+            z: alt_m as f32,
+            ..Default::default()
+        }),
+        apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            target_system,
+            target_component,
+            command: apm::MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            param1: 49.0, // GPS_GLOBAL_ORIGIN
+            ..Default::default()
+        }),
+    ]
 }
 
 #[cfg(test)]
@@ -463,6 +495,7 @@ mod tests {
             velocity_covariance: [0.01; 21],
             reset_counter: 3,
             quality: -1,
+            frame_ned: false,
         };
         let [apm::MavMessage::ODOMETRY(d)] = &frames(&odo)[..] else {
             panic!("not one ODOMETRY")
@@ -485,5 +518,15 @@ mod tests {
         };
         assert_eq!((d.usec, d.x, d.y, d.z, d.reset_counter), (5, 1.0, -2.0, 0.5, 3));
         assert_eq!(d.covariance, [0.04; 9]);
+        // Towards PX4: LOCAL_NED (our world frame is north-referenced).
+        let Outbound::Odometry { .. } = odo else { unreachable!() };
+        let mut px4 = odo.clone();
+        if let Outbound::Odometry { frame_ned, .. } = &mut px4 {
+            *frame_ned = true;
+        }
+        let [apm::MavMessage::ODOMETRY(d)] = &frames(&px4)[..] else {
+            panic!("not one ODOMETRY")
+        };
+        assert_eq!(d.frame_id, apm::MavFrame::MAV_FRAME_LOCAL_NED);
     }
 }
