@@ -126,11 +126,34 @@ fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> 
                     pitch: a.y,
                     yaw: a.z,
                 }
+            } else if let Some(m) = v.get("mag_B") {
+                FusionMsg::Magnetometer { mag_B: v3(m)? }
+            } else if let Some(a) = v.get("armed") {
+                FusionMsg::VehicleState {
+                    armed: Some(a.as_bool()?),
+                    on_ground: None,
+                    kind: None,
+                }
+            } else if let Some(g) = v.get("on_ground") {
+                FusionMsg::VehicleState {
+                    armed: None,
+                    on_ground: Some(g.as_bool()?),
+                    kind: None,
+                }
+            } else if let Some(k) = v.get("autopilot") {
+                FusionMsg::VehicleState {
+                    armed: None,
+                    on_ground: None,
+                    kind: Some(serde_json::from_value(k.clone()).ok()?),
+                }
+            } else if let Some(d) = v.get("unix_days") {
+                FusionMsg::Date { unix_days: d.as_i64()? }
             } else if let Some(g) = v.get("gps_accuracy_m") {
                 let g = g.as_array()?;
+                // Unknown accuracies are logged as null (NaN).
                 FusionMsg::GpsAccuracy {
-                    h_acc_m: g.first()?.as_f64()?,
-                    v_acc_m: g.get(1)?.as_f64()?,
+                    h_acc_m: g.first()?.as_f64().unwrap_or(f64::NAN),
+                    v_acc_m: g.get(1)?.as_f64().unwrap_or(f64::NAN),
                 }
             } else if let Some(l) = v.get("local_position") {
                 FusionMsg::LocalPosition {

@@ -203,7 +203,10 @@ impl Default for EstimatorConfig {
 pub struct InitConfig {
     /// Length of the static IMU segment used for roll, pitch and gyro bias (s).
     pub static_window_s: f64,
-    /// Initial yaw when the autopilot does not give one (deg, from north).
+    /// Where the first yaw comes from (after a restart it is always our own
+    /// last estimate, never the autopilot's echo of it).
+    pub yaw_source: YawSource,
+    /// Initial yaw for `yaw_source = "config"` (deg, from north).
     pub yaw_deg: f64,
     /// Initial attitude sigma, roll and pitch (deg).
     pub sigma_tilt_deg: f64,
@@ -213,6 +216,16 @@ pub struct InitConfig {
     /// Initial yaw sigma when the yaw comes from the autopilot: its compass
     /// (deg). Magnetometers beside motors and wiring are off by degrees.
     pub sigma_yaw_autopilot_deg: f64,
+    /// Initial yaw sigma when the yaw is the compass's, from the autopilot's
+    /// magnetometer and the WMM declination (deg).
+    pub sigma_yaw_compass_deg: f64,
+    /// A restart keeps our own last estimate and adds this position sigma
+    /// (m): the filter was inconsistent, so its error is not known to be as
+    /// small as its covariance said.
+    pub restart_sigma_position_m: f64,
+    /// ... and this velocity sigma (m/s); the position sigma also grows by
+    /// it for the time the filter was out.
+    pub restart_sigma_velocity_mps: f64,
     /// Initial position sigma when the filter starts the world frame where
     /// it stands (m): the frame is defined there, so this is small.
     pub sigma_position_m: f64,
@@ -232,10 +245,14 @@ impl Default for InitConfig {
     fn default() -> Self {
         Self {
             static_window_s: 1.0,
+            yaw_source: YawSource::Auto,
             yaw_deg: 0.0,
             sigma_tilt_deg: 0.5,
             sigma_yaw_deg: 1.0,
             sigma_yaw_autopilot_deg: 5.0,
+            sigma_yaw_compass_deg: 3.0,
+            restart_sigma_position_m: 0.5,
+            restart_sigma_velocity_mps: 0.3,
             sigma_position_m: 0.05,
             sigma_position_autopilot_m: 3.0,
             sigma_velocity_mps: 0.05,
@@ -405,6 +422,45 @@ impl Default for ZuptConfig {
     }
 }
 
+/// How the pose covariance of the estimates is written.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseCovariance {
+    /// `ardupilot_cbrt` towards an autopilot whose HEARTBEAT says ArduPilot,
+    /// `variances` towards any other.
+    #[default]
+    Auto,
+    /// The covariance as MAVLink defines it, in variances (PX4 reads it
+    /// axis by axis; ArduPilot with PR #32084 takes √trace).
+    Variances,
+    /// Written so that ArduPilot's reduction, `cbrt(c₀² + c₆² + c₁₁²)` for
+    /// position and the same over the angles (`GCS_Common.cpp`, releases up
+    /// to 4.6 and master before PR #32084), gives back our 1σ: each
+    /// position variance entry σ_p^(3/2)/√3 with σ_p the largest axis's σ,
+    /// each angle entry σ_ψ^(3/2)/√3 with σ_ψ the yaw's σ (the only angle
+    /// EKF3 uses), every other entry 0. Then cbrt(3·c²) = σ.
+    ArdupilotCbrt,
+}
+
+/// Where the filter's first yaw comes from.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum YawSource {
+    /// The compass when the autopilot's `HIGHRES_IMU` carries a magnetic
+    /// field and the origin is known (for the declination), else the
+    /// autopilot's `ATTITUDE` yaw. With external navigation as the
+    /// autopilot's yaw source (ArduPilot `EK3_SRC1_YAW = 6`), its yaw is a
+    /// placeholder 0 until our first estimate, so it must not be taken.
+    #[default]
+    Auto,
+    /// The compass only: the filter waits for a magnetic field.
+    Compass,
+    /// The autopilot's `ATTITUDE` yaw (its own EKF with compass or GNSS).
+    Autopilot,
+    /// `init.yaw_deg`.
+    Config,
+}
+
 /// Which message carries the estimate to the autopilot: one of them, never
 /// both (the same pose fused twice would count as two measurements).
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
@@ -435,6 +491,8 @@ pub struct OutputConfig {
     /// (so a VIO-only vehicle gets an EKF origin), else the first fix; its
     /// altitude above mean sea level, as MAVLink defines it (EGM96).
     pub set_gps_origin: bool,
+    /// How the pose covariance is written: see [`PoseCovariance`].
+    pub covariance: PoseCovariance,
     /// The removed `odometry = true|false`, read only so that an old config
     /// is refused with what replaces it (never written).
     #[serde(skip_serializing)]
@@ -447,6 +505,7 @@ impl Default for OutputConfig {
             rate_hz: 30.0,
             message: OutputMessage::Odometry,
             set_gps_origin: false,
+            covariance: PoseCovariance::Auto,
             odometry: None,
         }
     }

@@ -159,6 +159,9 @@ impl Config {
         c.positive("sigma_yaw_deg", i.sigma_yaw_deg, 180.0)?;
         c.positive("sigma_position_m", i.sigma_position_m, 1e4)?;
         c.positive("sigma_yaw_autopilot_deg", i.sigma_yaw_autopilot_deg, 180.0)?;
+        c.positive("sigma_yaw_compass_deg", i.sigma_yaw_compass_deg, 180.0)?;
+        c.positive("restart_sigma_position_m", i.restart_sigma_position_m, 1e4)?;
+        c.positive("restart_sigma_velocity_mps", i.restart_sigma_velocity_mps, 100.0)?;
         c.positive("sigma_position_autopilot_m", i.sigma_position_autopilot_m, 1e4)?;
         c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
         c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;

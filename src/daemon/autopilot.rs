@@ -1,9 +1,10 @@
 //! What the autopilot tells us about itself (its attitude, local position,
-//! GNSS accuracy, clock, EKF origin) and the link's state, kept for the
-//! filter's start and GNSS time and logged for replay; and the one thing we
-//! tell it back besides estimates, our origin.
+//! magnetometer, GNSS accuracy, clock, EKF origin) and the link's state,
+//! kept for the filter's start and GNSS time and logged for replay; and the
+//! one thing we tell it back besides estimates, our origin, until it
+//! reports it back.
 
-use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
+use cmsckf_models::geodesy::{ecef_to_llh, llh_to_ecef, NedFrame};
 use cmsckf_models::geoid;
 use serde_json::json;
 use tokio::sync::mpsc;
@@ -13,6 +14,26 @@ use super::FusionMsg;
 use crate::io::mcap_log::Topic;
 use crate::io::messages::Outbound;
 use crate::io::Counters;
+
+/// Magnetometer readings kept for the compass yaw (10 Hz: about 1 s).
+pub(super) const MAG_READINGS: usize = 10;
+/// The origin is sent again this often until the autopilot reports it (s
+/// of autopilot time), at most [`ORIGIN_TRIES`] times.
+const ORIGIN_RESEND_S: f64 = 2.0;
+const ORIGIN_TRIES: u32 = 30;
+/// The autopilot's origin is ours when within this (m).
+const ORIGIN_MATCH_M: f64 = 1.0;
+
+/// Sending our origin: a UDP autopilot is only heard after its first
+/// HEARTBEAT, and a message can be lost, so it is sent until the
+/// autopilot's `GPS_GLOBAL_ORIGIN` comes back.
+#[derive(Debug, Default)]
+pub(super) struct OriginSend {
+    /// The autopilot reported an origin (ours, or its own).
+    pub(super) settled: bool,
+    next_t_s: f64,
+    tries: u32,
+}
 
 impl Fusion {
     /// The autopilot's attitude, local position, clock and origin: kept for
@@ -39,6 +60,36 @@ impl Fusion {
                 );
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
+            FusionMsg::Magnetometer { mag_B } => {
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"mag_B": mag_B.as_slice()}),
+                );
+                if self.mag_B.len() == MAG_READINGS {
+                    self.mag_B.pop_front();
+                }
+                self.mag_B.push_back(mag_B);
+            }
+            FusionMsg::VehicleState { armed, on_ground, kind } => {
+                if kind.is_some() && kind != self.autopilot_kind {
+                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"autopilot": kind}));
+                    self.autopilot_kind = kind;
+                }
+                // Logged on change only (the HEARTBEAT comes every second).
+                if armed.is_some() && armed != self.armed {
+                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"armed": armed}));
+                    self.armed = armed;
+                }
+                if on_ground.is_some() && on_ground != self.on_ground {
+                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"on_ground": on_ground}));
+                    self.on_ground = on_ground;
+                }
+            }
+            FusionMsg::Date { unix_days } => {
+                self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"unix_days": unix_days}));
+                self.unix_days = Some(unix_days);
+            }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
                 // Logged for replay, kept as the prior of an in-flight start.
                 self.log(
@@ -47,6 +98,7 @@ impl Fusion {
                     &json!({"gps_accuracy_m": [h_acc_m, v_acc_m]}),
                 );
                 self.gps_accuracy = (h_acc_m.is_finite() && v_acc_m.is_finite()).then_some((h_acc_m, v_acc_m));
+                self.autopilot_fix_t = Some(self.last_imu_t);
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
                 self.log(
@@ -75,13 +127,35 @@ impl Fusion {
                     self.last_imu_t,
                     &json!({"origin": [lat_deg, lon_deg, alt_m]}),
                 );
-                if self.gnss.frame.is_none() {
-                    // MAVLink gives the origin's altitude above mean sea
-                    // level; our frame is on the ellipsoid (EGM96, §geoid).
-                    let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
-                    self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
-                    counters.add("gnss_origin_from_autopilot", 1);
+                // MAVLink gives the origin's altitude above mean sea level;
+                // our frame is on the ellipsoid (EGM96, §geoid).
+                let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
+                match self.gnss.frame {
+                    None => {
+                        self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
+                        counters.add("gnss_origin_from_autopilot", 1);
+                    }
+                    Some(ours) if !self.origin.settled => {
+                        let theirs = llh_to_ecef(lat_deg.to_radians(), lon_deg.to_radians(), h_m);
+                        let off_m = (theirs - ours.origin_ecef).norm();
+                        if off_m <= ORIGIN_MATCH_M {
+                            counters.add("gps_origin_confirmed", 1);
+                            self.log_text(2, self.last_imu_t, "the autopilot took our origin");
+                        } else {
+                            // An autopilot sets its origin once: its GNSS
+                            // (or a ground station) came first.
+                            counters.add("gps_origin_mismatch", 1);
+                            let text = format!(
+                                "the autopilot's EKF origin is {off_m:.1} m from ours: its global positions \
+                                 of our estimates will be off by that"
+                            );
+                            tracing::warn!(reason = "gps_origin_mismatch", off_m, "{text}");
+                            self.log_text(3, self.last_imu_t, &text);
+                        }
+                    }
+                    Some(_) => {}
                 }
+                self.origin.settled = true;
             }
             FusionMsg::LinkState { up, silent_s } => {
                 let text = if up {
@@ -95,9 +169,30 @@ impl Fusion {
         }
     }
 
-    /// Tells the autopilot our origin once it is known (`output.set_gps_origin`).
-    pub(super) fn send_origin_once(&mut self, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        if !self.cfg.output.set_gps_origin || self.origin_sent {
+    /// Whether a zero-velocity update may be taken: on the ground, by the
+    /// autopilot's landed state, else by its being disarmed; with neither
+    /// known (an autopilot that says nothing), by the IMU and camera alone.
+    pub(super) fn zupt_allowed(&self) -> bool {
+        match (self.on_ground, self.armed) {
+            (Some(on_ground), _) => on_ground,
+            (None, Some(armed)) => !armed,
+            (None, None) => true,
+        }
+    }
+
+    /// Tells the autopilot our origin once it is known
+    /// (`output.set_gps_origin`), again every [`ORIGIN_RESEND_S`] until it
+    /// reports an origin back.
+    pub(super) fn send_origin(&mut self, t_s: f64, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if !self.cfg.output.set_gps_origin || self.origin.settled || t_s < self.origin.next_t_s {
+            return;
+        }
+        if self.origin.tries == ORIGIN_TRIES {
+            self.origin.settled = true;
+            counters.add("gps_origin_unconfirmed", 1);
+            let text = "the autopilot never reported our origin back (GPS_GLOBAL_ORIGIN)";
+            tracing::warn!(reason = "gps_origin_unconfirmed", "{text}");
+            self.log_text(3, t_s, text);
             return;
         }
         if let Some(frame) = self.gnss.frame {
@@ -111,7 +206,8 @@ impl Fusion {
                 alt_m: geoid::msl_from_ellipsoid(lat_deg, lon_deg, h),
             };
             if out.try_send(msg).is_ok() {
-                self.origin_sent = true;
+                self.origin.tries += 1;
+                self.origin.next_t_s = t_s + ORIGIN_RESEND_S;
                 counters.add("gps_origin_sent", 1);
             }
         }

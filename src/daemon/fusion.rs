@@ -14,7 +14,9 @@ use nalgebra::Vector3;
 use serde_json::json;
 use tokio::sync::mpsc;
 
+use super::autopilot::{OriginSend, MAG_READINGS};
 use super::gnss_input::GnssIn;
+use super::init::{Carried, GoodEstimates, RECENT_IMU_S};
 use super::rebase::{InstallSite, RebaseExec};
 use super::time_guard::{SteadyValue, TimeGuard, Verdict};
 use super::{records, FusionMsg, Restart, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
@@ -23,7 +25,7 @@ use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, ImuMeas};
 use crate::io::feature_pipe::FeatureFrame;
 use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::messages::Outbound;
+use crate::io::messages::{AutopilotKind, Outbound};
 use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
 
@@ -43,6 +45,19 @@ const FRAME_MAX_LAG_S: f64 = 5.0;
 /// on (s): later than this, a frame is late anyway (they arrive within
 /// 0.1 s), and GNSS epochs reach back through their clones.
 const MAX_FILTER_LAG_S: f64 = 1.0;
+
+/// The autopilot's GNSS fix counts as its own position source for this long
+/// after its last `GPS_RAW_INT` with a 3D fix (s).
+const AUTOPILOT_FIX_FRESH_S: f64 = 5.0;
+/// A restart from our own estimate that fails again within this (s) is not
+/// repeated: that estimate was wrong already (a runaway while blind).
+const IN_PLACE_RETRY_S: f64 = 10.0;
+
+/// Most IMU samples kept in `recent_imu` (2.5 s at 1.6 kHz): allocated once.
+const RECENT_IMU_CAPACITY: usize = 4096;
+
+/// An estimate counts as good only this soon after a measurement (s).
+const GOOD_AIDED_S: f64 = 0.5;
 
 /// A measurement waiting for IMU to cover its time.
 #[derive(Debug)]
@@ -72,7 +87,30 @@ pub struct Fusion {
     pub(super) gps_accuracy: Option<(f64, f64)>,
     pub(super) pending: VecDeque<(f64, Pending)>,
     pub(super) gnss: GnssIn,
-    pub(super) origin_sent: bool,
+    /// Our origin, sent to the autopilot until it reports it back.
+    pub(super) origin: OriginSend,
+    /// The autopilot's latest magnetometer readings (body frame, ~1 s).
+    pub(super) mag_B: VecDeque<Vector3<f64>>,
+    /// Today in Unix days (the companion's clock at start), for the
+    /// declination.
+    pub(super) unix_days: Option<i64>,
+    /// The autopilot's armed and landed states, when it reports them.
+    pub(super) armed: Option<bool>,
+    pub(super) on_ground: Option<bool>,
+    /// When (IMU time) the autopilot last reported a 3D GNSS fix of its own.
+    pub(super) autopilot_fix_t: Option<f64>,
+    /// When the filter was last restarted from our own estimate.
+    pub(super) in_place_t: Option<f64>,
+    /// Which autopilot its HEARTBEAT says it is.
+    pub(super) autopilot_kind: Option<AutopilotKind>,
+    /// Our own last estimate across a restart: the next filter starts from
+    /// it, never from the autopilot's echo of it.
+    pub(super) carried: Option<Carried>,
+    /// Our estimate while healthy, 1–2 s back: what `carried` is taken from.
+    pub(super) good: GoodEstimates,
+    /// The last [`RECENT_IMU_S`] of IMU samples, which a restart propagates
+    /// the carried estimate through.
+    pub(super) recent_imu: VecDeque<ImuMeas>,
     pub(super) last_imu_t: f64,
     /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
     imu_clock: TimeGuard,
@@ -175,7 +213,17 @@ impl Fusion {
             local: None,
             gps_accuracy: None,
             pending: VecDeque::with_capacity(PENDING_FRAMES),
-            origin_sent: false,
+            origin: OriginSend::default(),
+            mag_B: VecDeque::with_capacity(MAG_READINGS),
+            unix_days: None,
+            armed: None,
+            on_ground: None,
+            autopilot_kind: None,
+            autopilot_fix_t: None,
+            in_place_t: None,
+            carried: None,
+            good: GoodEstimates::default(),
+            recent_imu: VecDeque::with_capacity(RECENT_IMU_CAPACITY),
             gnss: GnssIn::new(&cfg),
             last_imu_t: f64::NEG_INFINITY,
             imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM),
@@ -381,6 +429,15 @@ impl Fusion {
         }
         self.last_imu_t = m.t_s;
         ctx.counters.add("imu_samples", 1);
+        while self
+            .recent_imu
+            .front()
+            .is_some_and(|f| m.t_s - f.t_s > RECENT_IMU_S || f.t_s >= m.t_s)
+            || self.recent_imu.len() == RECENT_IMU_CAPACITY
+        {
+            self.recent_imu.pop_front();
+        }
+        self.recent_imu.push_back(m);
         self.on_imu(m, &ctx.counters, &ctx.out);
         let st = &ctx.status;
         // An unhealthy filter was restarted in `on_imu`: a running
@@ -434,12 +491,14 @@ impl Fusion {
         self.pending.insert(at, (t, item));
     }
 
-    /// Drops the filter so that the next IMU samples start a fresh one (the
+    /// Drops the filter so that the next IMU sample starts a fresh one (the
     /// one reset path): `reset_counter` moves on, the autopilot gets a
     /// `STATUSTEXT`, the log a `/log` line, and the status shows
-    /// `filter_reset` for 2 s. After a reboot or a long IMU gap the
-    /// autopilot's attitude and position are stale, so the restart waits for
-    /// fresh ones (and, after a reboot, for SYSTEM_TIME to map GPS time).
+    /// `filter_reset` for 2 s. The next filter starts at once from the
+    /// estimate carried over (see below and `init.rs`); without one, as at
+    /// the first start. After a reboot or a long IMU gap the autopilot's
+    /// attitude and position are stale and are dropped (and, after a
+    /// reboot, SYSTEM_TIME must map GPS time again).
     fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
         self.log_text(4, t_s, &format!("filter reset: {why}"));
         let _ = out.try_send(Outbound::StatusText {
@@ -447,14 +506,38 @@ impl Fusion {
             text: format!("cmsckf reset: {why}"),
         });
         self.est = None;
-        self.reset_counter = self.reset_counter.wrapping_add(1);
-        self.static_buf.clear();
+        // Where the next filter starts, at once (eq. I3): from our own
+        // estimate when the autopilot has no position of its own (no GNSS
+        // fix: with external navigation as its only source, its position is
+        // the echo of ours; the best one kept, which ages out after
+        // CARRY_MAX_S); from the autopilot's state when it has one, unless
+        // a start from it failed again just now; and as at the first start
+        // (a static window, the compass) after a reboot (the autopilot's EKF
+        // starts afresh too, and the time out is unknown).
+        let own_fix = self
+            .autopilot_fix_t
+            .is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S);
+        let failed_again = self.in_place_t.is_some_and(|t| (t_s - t).abs() < IN_PLACE_RETRY_S);
+        let good = self.good.take_best();
         if kind != Restart::Unhealthy {
             self.attitude = None;
             self.local = None;
             self.gps_accuracy = None;
         }
+        self.carried = if kind == Restart::Reboot {
+            None
+        } else if own_fix {
+            (!failed_again)
+                .then(|| self.autopilot_start(t_s, good.as_ref()))
+                .flatten()
+        } else {
+            good.or(self.carried.take())
+        };
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.static_buf.clear();
         if kind == Restart::Reboot {
+            // A rebooted autopilot has lost the origin we gave it.
+            self.origin = OriginSend::default();
             self.tracker.restart_clock();
             self.gnss.unix_minus_boot_s = None;
             self.unix_minus_boot.reset();
@@ -471,18 +554,22 @@ impl Fusion {
     /// known, initialisation, the output, then the measurements it covers,
     /// and a health check.
     fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        self.send_origin_once(counters, out);
+        self.send_origin(m.t_s, counters, out);
         let Some(est) = self.est.as_mut() else {
-            self.try_init(m, counters);
+            if !self.restart_in_place(m, counters) {
+                self.try_init(m, counters);
+            }
             return;
         };
         if est.add_imu(m).is_err() {
             counters.add("imu_rejected", 1);
         }
         self.emit_output(m, counters, out);
-        if self.est.is_none() {
+        let zupt_allowed = self.zupt_allowed();
+        let Some(est) = self.est.as_mut() else {
             return;
-        }
+        };
+        est.set_zupt_allowed(zupt_allowed);
         self.fuse_covered(m.t_s, counters);
         // Without measurements (camera and GNSS both out) nothing moved the
         // filter on: carry it behind the IMU, so that the covariance in the
@@ -499,6 +586,10 @@ impl Fusion {
             counters.add("filter_reset", 1);
             tracing::error!(reason = %why, "filter unhealthy: resetting");
             self.restart(m.t_s, &why, Restart::Unhealthy, out);
+        } else if m.t_s - self.tracker.last_aided_s() < GOOD_AIDED_S {
+            // Only an estimate that measurements vouch for: a filter
+            // carried on the IMU alone passes its checks however wrong.
+            self.good.offer(est, m.t_s);
         }
     }
 }

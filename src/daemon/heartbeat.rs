@@ -81,7 +81,7 @@ pub(super) fn spawn_periodic(
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         let mut n: u64 = 0;
         // Per stream: its count at the last tick, and ticks since it moved.
-        let mut seen = [(0u64, 0u32); 4];
+        let mut seen = [(0u64, 0u32); 5];
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
             n += 1;
@@ -93,6 +93,7 @@ pub(super) fn spawn_periodic(
                 ("attitude", mav::MSG_ID_ATTITUDE, 100_000.0),
                 ("system_time", mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
                 ("local_position", mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
+                ("extended_sys_state", mav::MSG_ID_EXTENDED_SYS_STATE, 500_000.0),
             ];
             for (k, (counter, id, interval)) in wanted.into_iter().enumerate() {
                 let count = counters.get(counter);

@@ -1,13 +1,116 @@
-//! Starting the filter: static (roll, pitch and gyro bias from the IMU, yaw
-//! from the autopilot) when the vehicle is still, otherwise from the
-//! autopilot's attitude and local velocity (an in-flight start).
+//! Starting the filter.
+//!
+//! - The first start is static (roll, pitch and gyro bias from the IMU)
+//!   when the vehicle is still, otherwise from the autopilot's attitude and
+//!   local velocity (an in-flight start). Its yaw comes from a real source
+//!   (`init.yaw_source`): the compass (the autopilot's magnetometer and the
+//!   WMM declination, eq. M1 of `cmsckf_models::magnetic`) when there is
+//!   one, never ArduPilot's placeholder 0 under external-navigation yaw.
+//! - A restart never starts from the autopilot: once our estimates reach
+//!   it, its attitude and position may be only their echo (with external
+//!   navigation as its only source, they are). It starts from our own last
+//!   estimate, [`Carried`], at once (no static window, so no gap in the
+//!   outputs), with its covariance inflated for the failure and the time
+//!   out; or, when the autopilot has a GNSS fix of its own, from its state.
+//!   After an autopilot reboot, whose EKF starts afresh, or when a carried
+//!   start fails again, the filter starts as at the first start.
 
+use std::collections::VecDeque;
+
+use cmsckf_models::geodesy::ecef_to_llh;
+use cmsckf_models::magnetic;
 use nalgebra::{UnitQuaternion, Vector3};
 
 use super::fusion::Fusion;
 use super::rebase::RebaseExec;
+use crate::config::YawSource;
+use crate::estimator::propagate::{BA, BG, P as P_OFF, TH, V};
 use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Mat15};
 use crate::io::Counters;
+
+/// Our last estimate is carried into a restart for at most this long (s of
+/// IMU time): beyond it (a long IMU gap) the motion in between is unknown.
+const CARRY_MAX_S: f64 = 5.0;
+/// IMU samples kept for a restart to propagate the carried estimate through
+/// (s): more than the carried estimate's age at a divergence (1–2 s).
+pub(super) const RECENT_IMU_S: f64 = 2.5;
+/// A step between IMU samples up to this (s) is covered by them; beyond it,
+/// the gap is inflated for.
+const RECENT_IMU_MAX_STEP_S: f64 = 0.1;
+
+/// Snapshots of our estimate while the filter is healthy, taken every
+/// [`GOOD_PERIOD_S`]: a restart starts from the older one, 1–2 s before the
+/// failure, since a filter going wrong passes its checks for a while.
+#[derive(Debug, Default)]
+pub(crate) struct GoodEstimates {
+    recent: Option<Carried>,
+    older: Option<Carried>,
+}
+
+/// How often a healthy estimate is kept (s of IMU time).
+const GOOD_PERIOD_S: f64 = 1.0;
+
+impl GoodEstimates {
+    /// Keeps the estimate of `est` at `t_s` if the last one is a period old.
+    pub(super) fn offer(&mut self, est: &Estimator, t_s: f64) {
+        if self
+            .recent
+            .as_ref()
+            .is_some_and(|r| t_s - r.t_s < GOOD_PERIOD_S && t_s >= r.t_s)
+        {
+            return;
+        }
+        self.older = self.recent.take();
+        self.recent = Some(Carried::of(est, t_s));
+    }
+
+    /// The estimate to restart from (the older if there is one), leaving
+    /// none for the next filter, which keeps its own.
+    pub(super) fn take_best(&mut self) -> Option<Carried> {
+        let best = self.older.take().or(self.recent.take());
+        self.recent = None;
+        best
+    }
+}
+
+/// An estimate carried over a restart: the next filter's start.
+#[derive(Clone, Debug)]
+pub(crate) struct Carried {
+    pub(super) t_s: f64,
+    pub(super) x: ImuState,
+    pub(super) P: Mat15,
+}
+
+impl Carried {
+    /// The estimate of `est`, predicted to `t_s` (the IMU sample that
+    /// restarted it), with its IMU covariance.
+    pub(super) fn of(est: &Estimator, t_s: f64) -> Self {
+        let t_s = t_s.max(est.time_s());
+        Self {
+            t_s,
+            x: est.predict(t_s),
+            P: est.imu_covariance(),
+        }
+    }
+
+    /// The carried covariance inflated (eq. I3 of `src/estimator/README.md`):
+    /// the position by σ_r² + (σ_v·Δt)² and the velocity by σ_v², for the
+    /// restart sigmas σ_r, σ_v and the time Δt that no IMU sample covers;
+    /// the tilt by the initial tilt sigma; the biases raised to at least
+    /// their priors.
+    fn inflated(&self, dt: f64, prior: &Mat15, sigma_r_m: f64, sigma_v_mps: f64) -> Mat15 {
+        let mut p = self.P;
+        for k in 0..3 {
+            p[(P_OFF + k, P_OFF + k)] += sigma_r_m.powi(2) + (sigma_v_mps * dt).powi(2);
+            p[(V + k, V + k)] += sigma_v_mps.powi(2);
+            p[(TH + k, TH + k)] += prior[(TH, TH)];
+            for o in [BG, BA] {
+                p[(o + k, o + k)] = p[(o + k, o + k)].max(prior[(o + k, o + k)]);
+            }
+        }
+        p
+    }
+}
 
 /// Mean specific force and angular rate of the buffered samples, and the
 /// angular rate's variance.
@@ -28,6 +131,86 @@ impl StillWindow {
 }
 
 impl Fusion {
+    /// The autopilot's own state, when it has a position of its own (a GNSS
+    /// fix) and its attitude and local position are fresh: a restart's
+    /// start with the in-flight priors of eq. I1, keeping our bias
+    /// estimates from `good` (the autopilot reports none). `None` without
+    /// them (after an IMU gap or a reboot they are dropped as stale).
+    pub(super) fn autopilot_start(&self, t_s: f64, good: Option<&Carried>) -> Option<Carried> {
+        let (roll, pitch, yaw) = self.attitude?;
+        let (p, v, t) = self.local?;
+        // Fresh (and finite) only.
+        if (t_s - t).abs().partial_cmp(&1.0) != Some(std::cmp::Ordering::Less) {
+            return None;
+        }
+        let i = &self.cfg.init;
+        let mut P = self.cfg.initial_covariance();
+        let (h, vert) = self
+            .gps_accuracy
+            .unwrap_or((i.sigma_position_autopilot_m, i.sigma_position_autopilot_m));
+        for k in 0..3 {
+            P[(TH + k, TH + k)] *= 4.0;
+            P[(V + k, V + k)] = 0.2f64.powi(2);
+            P[(P_OFF + k, P_OFF + k)] = [h, h, vert][k].powi(2);
+        }
+        P[(TH + 2, TH + 2)] = i.sigma_yaw_autopilot_deg.to_radians().powi(2);
+        let mut x = ImuState {
+            q_W_B: UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+            v_B_in_W: v,
+            p_B_in_W: p + v * (t_s - t),
+            b_g: Vector3::zeros(),
+            b_a: Vector3::zeros(),
+        };
+        if let Some(g) = good {
+            (x.b_g, x.b_a) = (g.x.b_g, g.x.b_a);
+        }
+        Some(Carried { t_s, x, P })
+    }
+
+    /// Restarts the filter at once from the estimate carried over the
+    /// restart (ours, or the autopilot's own), if one is carried and recent
+    /// ([`CARRY_MAX_S`]); `false` if not.
+    pub(super) fn restart_in_place(&mut self, m: ImuMeas, counters: &Counters) -> bool {
+        let Some(c) = self.carried.as_ref() else {
+            return false;
+        };
+        if !(m.t_s - c.t_s).is_finite() || m.t_s - c.t_s > CARRY_MAX_S || m.t_s < c.t_s {
+            // Too old to carry (the motion since is unknown): a fresh start.
+            self.carried = None;
+            return false;
+        }
+        // The new filter starts at the carried estimate's own time and is
+        // propagated through the IMU samples since (kept in `recent_imu`,
+        // this one among them); the time that no sample covers (an IMU gap)
+        // is inflated for (eq. I3).
+        let t0 = c.t_s;
+        let mut uncovered_s = 0.0;
+        let mut prev = t0;
+        for s in self.recent_imu.iter().filter(|s| s.t_s > t0) {
+            if s.t_s - prev > RECENT_IMU_MAX_STEP_S {
+                uncovered_s += s.t_s - prev;
+            }
+            prev = s.t_s;
+        }
+        let i = &self.cfg.init;
+        let prior = self.cfg.initial_covariance();
+        let p0 = c.inflated(
+            uncovered_s,
+            &prior,
+            i.restart_sigma_position_m,
+            i.restart_sigma_velocity_mps,
+        );
+        let mut est = Estimator::new(self.cfg.estimator_settings(), t0, c.x, &p0);
+        for s in self.recent_imu.iter().filter(|s| s.t_s > t0) {
+            let _ = est.add_imu(*s);
+        }
+        est.start_health_grace(m.t_s);
+        counters.add("init_from_carried_estimate", 1);
+        self.in_place_t = Some(m.t_s);
+        self.install_filter(est, m.t_s, false, counters);
+        true
+    }
+
     /// Starts the filter once the static window is full and the autopilot's
     /// attitude is known: static when the IMU (and the autopilot's velocity,
     /// when it has one: constant velocity looks static to an IMU) says so,
@@ -38,20 +221,26 @@ impl Fusion {
         while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
             self.static_buf.pop_front();
         }
-        let Some((roll, pitch, yaw)) = self.attitude else {
+        let Some((roll, pitch, _)) = self.attitude else {
             return;
         };
         if self.static_buf.len() < 10 || m.t_s - self.static_buf[0].t_s < 0.9 * window {
             return;
         }
         let w = StillWindow::of(self.static_buf.iter());
+        let tilt =
+            attitude_from_static(&w.acc, 0.0).unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
+        let Some((yaw, yaw_sigma_deg)) = self.first_yaw(&tilt) else {
+            return;
+        };
         let is_static = w.gyr.norm() < 0.05
             && w.gyr_var < 1e-3
             && (w.acc.norm() - self.cfg.imu.gravity_mps2).abs() < 0.3
             && self.local.is_none_or(|(_, v, _)| v.norm() < 0.3);
-        let Some((x0, p0)) = self.initial_state(m.t_s, is_static, &w, [roll, pitch, yaw]) else {
+        let Some((x0, mut p0)) = self.initial_state(m.t_s, is_static, &w, [roll, pitch, yaw]) else {
             return;
         };
+        p0[(TH + 2, TH + 2)] = yaw_sigma_deg.to_radians().powi(2);
         self.start_filter(m, x0, &p0, is_static, counters);
     }
 
@@ -72,13 +261,11 @@ impl Fusion {
             Some((p, v, _)) => (p, v),
             None => (Vector3::zeros(), Vector3::zeros()),
         };
-        // Priors from their sources (§7, eq. I1): the yaw is the
-        // autopilot's (its compass), the position the autopilot's local
-        // position with its reported accuracy, or, without one, the world
-        // frame's own origin.
+        // Priors from their sources (§7, eq. I1): the yaw's is set by the
+        // caller (compass, autopilot or configured), the position the
+        // autopilot's local position with its reported accuracy, or,
+        // without one, the world frame's own origin.
         let mut p0 = self.cfg.initial_covariance();
-        let yaw_var = self.cfg.init.sigma_yaw_autopilot_deg.to_radians().powi(2);
-        p0[(2, 2)] = yaw_var;
         if self.local.is_some() {
             let (h, v) = self.gps_accuracy.unwrap_or((
                 self.cfg.init.sigma_position_autopilot_m,
@@ -109,26 +296,66 @@ impl Fusion {
         Some((x0, p0))
     }
 
+    /// The first yaw (rad) and its sigma (deg), from `init.yaw_source`, for
+    /// a body whose rotation without yaw is `tilt`; `None` while the source
+    /// has nothing to give.
+    fn first_yaw(&self, tilt: &UnitQuaternion<f64>) -> Option<(f64, f64)> {
+        let i = &self.cfg.init;
+        let autopilot = self.attitude.map(|(_, _, yaw)| (yaw, i.sigma_yaw_autopilot_deg));
+        match i.yaw_source {
+            YawSource::Config => Some((i.yaw_deg.to_radians(), i.sigma_yaw_deg)),
+            YawSource::Autopilot => autopilot,
+            YawSource::Compass => self.compass_yaw(tilt),
+            YawSource::Auto => self.compass_yaw(tilt).or(autopilot),
+        }
+    }
+
+    /// The compass's true heading (rad) and its sigma (deg): the mean of
+    /// the latest magnetometer readings (eq. M1) with the WMM declination
+    /// at our origin, today.
+    fn compass_yaw(&self, tilt: &UnitQuaternion<f64>) -> Option<(f64, f64)> {
+        let frame = self.gnss.frame?;
+        let mag_B = mean_direction(&self.mag_B)?;
+        let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
+        let (dec_deg, dec_sigma_deg) =
+            magnetic::declination_deg(lat.to_degrees(), lon.to_degrees(), h, self.unix_days?)?;
+        let yaw = magnetic::heading_rad(tilt, &mag_B, dec_deg.to_radians())?;
+        Some((yaw, self.cfg.init.sigma_yaw_compass_deg.hypot(dec_sigma_deg)))
+    }
+
     /// A new estimator from `x0` and `p0` at the sample `m`.
     fn start_filter(&mut self, m: ImuMeas, x0: ImuState, p0: &Mat15, is_static: bool, counters: &Counters) {
         let mut est = Estimator::new(self.cfg.estimator_settings(), m.t_s, x0, p0);
+        let _ = est.add_imu(m);
+        let (_, _, yaw) = x0.q_W_B.euler_angles();
+        tracing::info!(yaw_deg = yaw.to_degrees(), "initial yaw");
+        self.install_filter(est, m.t_s, is_static, counters);
+    }
+
+    /// `est` becomes the running filter at the IMU sample time `t_s`.
+    fn install_filter(&mut self, mut est: Estimator, t_s: f64, is_static: bool, counters: &Counters) {
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
         self.est_gen += 1;
-        let _ = est.add_imu(m);
         self.est = Some(est);
-        self.tracker.filter_started(m.t_s);
+        self.tracker.filter_started(t_s);
         self.static_buf.clear();
-        self.pending.retain(|(t, _)| *t >= m.t_s);
+        self.pending.retain(|(t, _)| *t >= t_s);
         counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
         self.log_text(
             2,
-            m.t_s,
+            t_s,
             if is_static {
                 "filter initialised (static start)"
             } else {
                 "filter initialised in flight"
             },
         );
-        tracing::info!(static_start = is_static, t_s = m.t_s, "filter initialised");
+        tracing::info!(static_start = is_static, t_s, "filter initialised");
     }
+}
+
+/// The mean direction of the readings (unit vector), or `None` without any.
+fn mean_direction(readings: &VecDeque<Vector3<f64>>) -> Option<Vector3<f64>> {
+    let sum: Vector3<f64> = readings.iter().filter_map(|m| m.try_normalize(0.0)).sum();
+    sum.try_normalize(1e-9)
 }

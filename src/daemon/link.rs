@@ -18,7 +18,6 @@ use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::mavlink::{self as mav, Link};
 use crate::io::messages::{Inbound, Outbound, Source};
 use crate::io::Counters;
-use crate::status::{Degraded, Status};
 
 /// Opens the link to the autopilot (warning when it listens on an open
 /// network without signing).
@@ -86,6 +85,30 @@ struct RxState {
     vehicle: u32,
     /// The autopilot: sensor and time messages are taken from it alone.
     autopilot: Source,
+    /// IMU time after which the next magnetometer reading is passed on (µs).
+    next_mag_us: u64,
+}
+
+/// Magnetometer readings reach the fusion loop at most this often (µs):
+/// they only give the first yaw, so 10 Hz is plenty.
+const MAG_PERIOD_US: u64 = 100_000;
+
+/// The magnetic field of an IMU message, at most every [`MAG_PERIOD_US`]
+/// (a reboot's earlier clock starts the period again).
+fn magnetometer(msg: &Inbound, st: &mut RxState) -> Option<FusionMsg> {
+    let Inbound::Imu {
+        t_us,
+        mag_B: Some(mag_B),
+        ..
+    } = msg
+    else {
+        return None;
+    };
+    if *t_us < st.next_mag_us && st.next_mag_us - t_us < 2 * MAG_PERIOD_US {
+        return None;
+    }
+    st.next_mag_us = t_us + MAG_PERIOD_US;
+    Some(FusionMsg::Magnetometer { mag_B: *mag_B })
 }
 
 /// The receive task: every message from the link, until `stop`.
@@ -99,6 +122,7 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
             system: cfg.mavlink.system_id as u32,
             component: cfg.mavlink.autopilot_component_id,
         },
+        next_mag_us: 0,
     };
     tokio::spawn(async move {
         let mut warn = WarnLimit::default();
@@ -165,6 +189,11 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
                         "MAVLink message rejected"
                     );
                     continue;
+                }
+            }
+            if let Some(m) = magnetometer(&msg, &mut st) {
+                if r.fusion_tx.try_send(m).is_err() {
+                    r.counters.add("fusion_queue_full", 1);
                 }
             }
             if let Some(m) = to_fusion(msg, src, &mut st, &r) {
@@ -241,7 +270,8 @@ fn foreign_rejection(msg: &Inbound) -> Option<&'static str> {
         Inbound::SystemTime { .. } => "mavlink_rejected_foreign_system_time",
         Inbound::Timesync { .. } => "mavlink_rejected_foreign_timesync",
         Inbound::GpsGlobalOrigin { .. } => "mavlink_rejected_foreign_origin",
-        Inbound::Heartbeat => "mavlink_heartbeat_other",
+        Inbound::Heartbeat { .. } => "mavlink_heartbeat_other",
+        Inbound::LandedState { .. } => "mavlink_rejected_foreign_landed_state",
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -256,6 +286,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             accel_mps2,
             gyro_radps,
             kind,
+            ..
         } => {
             counters.add(
                 match kind {
@@ -310,12 +341,30 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             }
             None
         }
-        Inbound::Heartbeat => {
+        Inbound::Heartbeat { armed, kind } => {
             counters.add("heartbeat_in", 1);
-            None
+            Some(FusionMsg::VehicleState {
+                armed: Some(armed),
+                on_ground: None,
+                kind: Some(kind),
+            })
+        }
+        Inbound::LandedState { on_ground } => {
+            counters.add("extended_sys_state", 1);
+            Some(FusionMsg::VehicleState {
+                armed: None,
+                on_ground,
+                kind: None,
+            })
         }
         Inbound::SystemTime { unix_us, boot_ms } => {
             counters.add("system_time", 1);
+            // Unix time 0: the autopilot does not know the time yet (no
+            // GPS); its boot time alone maps nothing.
+            if unix_us == 0 {
+                counters.add("system_time_unset", 1);
+                return None;
+            }
             Some(FusionMsg::SystemTime { unix_us, boot_ms })
         }
         Inbound::GpsGlobalOrigin {
@@ -427,98 +476,6 @@ pub(super) fn spawn_sender(
                 Err(e) => {
                     counters.add("mavlink_send_error", 1);
                     tracing::debug!(error = %e, "send failed");
-                }
-            }
-        }
-    })
-}
-
-/// An autopilot heard but without IMU this long after the start is warned
-/// about.
-const IMU_EXPECTED_WITHIN: Duration = Duration::from_secs(5);
-
-/// What the link watchdog needs.
-pub(super) struct Watch {
-    pub counters: Counters,
-    pub status: Arc<Status>,
-    pub fusion_tx: mpsc::Sender<FusionMsg>,
-    /// Set, once, to why the daemon must exit.
-    pub fatal: watch::Sender<Option<String>>,
-    pub start: Instant,
-    pub stop: watch::Receiver<bool>,
-}
-
-/// The link watchdog, every 100 ms of wall time: an autopilot silent for
-/// `mavlink.link_down_after_s` puts `link_down` in the HEARTBEAT, the
-/// outage in the log, and makes a UDP link forget its address (to learn it
-/// again: the autopilot may come back from another port); silent for
-/// `mavlink.link_exit_after_s` (also never heard since the start), the
-/// daemon exits non-zero so that its service manager restarts it.
-pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> JoinHandle<()> {
-    let down_after = Duration::from_secs_f64(cfg.mavlink.link_down_after_s);
-    let exit_after =
-        (cfg.mavlink.link_exit_after_s > 0.0).then(|| Duration::from_secs_f64(cfg.mavlink.link_exit_after_s));
-    let address = cfg.mavlink.address.clone();
-    tokio::spawn(async move {
-        let mut tick = tokio::time::interval(Duration::from_millis(100));
-        let mut down_since: Option<Duration> = None;
-        let mut imu_warned = false;
-        loop {
-            tokio::select! { _ = tick.tick() => {}, _ = w.stop.changed() => return }
-            let heard = link.silent_for();
-            let silent = heard.unwrap_or_else(|| w.start.elapsed());
-            if silent >= down_after && down_since.is_none() {
-                down_since = Some(silent);
-                w.status.set_io(Degraded::LinkDown, true);
-                w.counters.add("link_down", 1);
-                if link.forget_peer() {
-                    w.counters.add("mavlink_autopilot_address_stale", 1);
-                }
-                if heard.is_none() {
-                    tracing::error!(
-                        %address,
-                        silent_s = silent.as_secs_f64(),
-                        "no autopilot heard on {address}: check mavlink.address, the wiring, and that the autopilot \
-                         sends MAVLink there (ArduPilot: SERIALn_PROTOCOL = 2; or a router's endpoint)"
-                    );
-                } else {
-                    tracing::error!(%address, silent_s = silent.as_secs_f64(), "MAVLink link down: the autopilot is silent");
-                }
-                let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
-                    up: false,
-                    silent_s: silent.as_secs_f64(),
-                });
-            } else if silent < down_after && down_since.is_some() {
-                down_since = None;
-                w.status.set_io(Degraded::LinkDown, false);
-                w.counters.add("link_up", 1);
-                tracing::warn!("MAVLink link up again");
-                let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
-                    up: true,
-                    silent_s: silent.as_secs_f64(),
-                });
-            }
-            // Heard, but no IMU: the stream requests go unanswered.
-            let imu = w.counters.get("imu_highres") + w.counters.get("imu_scaled") + w.counters.get("imu_raw");
-            if !imu_warned && heard.is_some() && imu == 0 && w.start.elapsed() > IMU_EXPECTED_WITHIN {
-                imu_warned = true;
-                w.counters.add("autopilot_sends_no_imu", 1);
-                tracing::error!(
-                    %address,
-                    "the autopilot on {address} sends no IMU (HIGHRES_IMU, SCALED_IMU or RAW_IMU) although asked: \
-                     check its stream rates and that it accepts MAV_CMD_SET_MESSAGE_INTERVAL"
-                );
-            }
-            if let Some(limit) = exit_after {
-                if silent >= limit {
-                    let why = format!(
-                        "the autopilot has been silent for {:.1} s (mavlink.link_exit_after_s = {:.1})",
-                        silent.as_secs_f64(),
-                        limit.as_secs_f64()
-                    );
-                    tracing::error!("{why}: exiting so that the service manager restarts us");
-                    let _ = w.fatal.send(Some(why));
-                    return;
                 }
             }
         }

@@ -2,14 +2,16 @@
 //! fusion loop, one room per concern:
 //!
 //! - this file: the wiring ([`run`]) and the messages the rooms exchange;
-//! - `link.rs`: the MAVLink receive and send tasks;
+//! - `link.rs`: the MAVLink receive and send tasks; `watchdog.rs`: a
+//!   silent autopilot said so, and a long silence made an exit;
 //! - `features.rs`: the feature socket and its forwarder;
 //! - `gnss_input.rs`: a receiver's RTCM3 stream, and RTCM to GNSS epochs;
 //! - `heartbeat.rs`: HEARTBEAT and STATUSTEXT, stream requests, TIMESYNC;
 //! - `fusion.rs`: the fusion loop on its own thread, and the restart path;
 //! - `autopilot.rs`: what the autopilot tells of itself, and our origin;
 //! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
-//! - `init.rs`: starting the filter; `output.rs`: the estimates sent;
+//! - `init.rs`: starting the filter, and restarting it from our own
+//!   estimate; `output.rs`: the estimates sent;
 //! - `rebase.rs`: compressed mode's global updates on a worker thread;
 //! - `records.rs`: the log records written at IMU and camera rate;
 //! - `time_guard.rs`: time sanity, one bad stamp rejected, jumps confirmed;
@@ -33,6 +35,7 @@ mod rebase;
 mod records;
 mod service;
 mod time_guard;
+mod watchdog;
 
 use std::future::Future;
 use std::path::PathBuf;
@@ -49,7 +52,7 @@ use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink as mav;
 use crate::io::mcap_log::{LogAlarm, McapLogger};
-use crate::io::messages::Outbound;
+use crate::io::messages::{AutopilotKind, Outbound};
 use crate::io::Counters;
 use crate::status::Status;
 
@@ -105,6 +108,25 @@ pub enum FusionMsg {
         t_s: f64,
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
+    },
+    /// The autopilot's magnetometer: the field in the body frame, its
+    /// direction only (for the compass yaw of the first start).
+    Magnetometer {
+        mag_B: Vector3<f64>,
+    },
+    /// What the autopilot says of itself: armed (its `HEARTBEAT`), on the
+    /// ground (`EXTENDED_SYS_STATE`); each `None` when this message does
+    /// not say. Zero-velocity updates are for a vehicle on the ground: a
+    /// hover is never still.
+    VehicleState {
+        armed: Option<bool>,
+        on_ground: Option<bool>,
+        kind: Option<AutopilotKind>,
+    },
+    /// Today, in Unix days, by the companion computer's clock when the
+    /// daemon starts (for the declination; logged so replay uses the same).
+    Date {
+        unix_days: i64,
     },
     /// The autopilot's GNSS accuracy (m, one sigma).
     GpsAccuracy {
@@ -190,6 +212,13 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     let start = Instant::now();
     let frames_queued = Arc::new(AtomicUsize::new(0));
 
+    // Today's date, for the declination of a compass yaw (the first message:
+    // it is logged, so a replay uses the same date).
+    if let Ok(since_epoch) = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH) {
+        let _ = fusion_tx.try_send(FusionMsg::Date {
+            unix_days: (since_epoch.as_secs() / 86_400) as i64,
+        });
+    }
     let (feat_task, fwd) = features::spawn(&cfg, listener, &fusion_tx, &counters, &stop_rx, frames_queued.clone());
     let receive = link::Receive {
         counters: counters.clone(),
@@ -201,10 +230,10 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     };
     let rx_task = link::spawn_receiver(&cfg, link.clone(), receive);
     let (fatal_tx, mut fatal_rx) = watch::channel::<Option<String>>(None);
-    let watchdog = link::spawn_watchdog(
+    let watchdog = watchdog::spawn_watchdog(
         &cfg,
         link.clone(),
-        link::Watch {
+        watchdog::Watch {
             counters: counters.clone(),
             status: status.clone(),
             fusion_tx: fusion_tx.clone(),

@@ -15,12 +15,12 @@ use tokio::sync::mpsc;
 
 use super::fusion::Fusion;
 use super::records;
-use crate::config::OutputMessage;
+use crate::config::{OutputMessage, PoseCovariance, YawSource};
 use crate::estimator::math::skew;
 use crate::estimator::propagate::{BG, P as P_OFF, TH, V};
 use crate::estimator::{Estimator, ImuMeas, ImuState, Mat15};
 use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::messages::Outbound;
+use crate::io::messages::{AutopilotKind, Outbound};
 use crate::io::Counters;
 
 impl Fusion {
@@ -47,7 +47,15 @@ impl Fusion {
                 log_state(l, m.t_s, &x, est);
             }
         }
+        let ardupilot = self.autopilot_kind == Some(AutopilotKind::ArduPilot);
         let snap = OutputState {
+            pose_covariance: match self.cfg.output.covariance {
+                PoseCovariance::Auto if ardupilot => PoseCovariance::ArdupilotCbrt,
+                PoseCovariance::Auto => PoseCovariance::Variances,
+                other => other,
+            },
+            // North-referenced unless the first yaw was a configured one.
+            frame_ned: self.autopilot_kind == Some(AutopilotKind::Px4) && self.cfg.init.yaw_source != YawSource::Config,
             t_s: m.t_s,
             x,
             imu_cov,
@@ -183,6 +191,36 @@ pub struct OutputState {
     pub reset_counter: u8,
     /// `ODOMETRY.quality`: see [`quality`].
     pub quality: i8,
+    /// How the pose covariance is written (`Variances` or `ArdupilotCbrt`).
+    pub pose_covariance: PoseCovariance,
+    /// `ODOMETRY` in `MAV_FRAME_LOCAL_NED` (towards PX4) rather than
+    /// `MAV_FRAME_LOCAL_FRD` (ArduPilot's only accepted frame).
+    pub frame_ned: bool,
+}
+
+/// The 21 entries of the pose covariance `c` (`[x y z roll pitch yaw]`) as
+/// `encoding` writes them (see [`PoseCovariance::ArdupilotCbrt`]: eq. O1
+/// of `src/estimator/README.md`).
+pub fn pose_covariance21(c: &Matrix6<f64>, encoding: PoseCovariance) -> [f32; 21] {
+    if encoding != PoseCovariance::ArdupilotCbrt {
+        return upper21(c);
+    }
+    let sigma_p = c[(0, 0)].max(c[(1, 1)]).max(c[(2, 2)]).max(0.0).sqrt();
+    let sigma_yaw = c[(5, 5)].max(0.0).sqrt();
+    let entry = |sigma: f64| (sigma.powf(1.5) / 3f64.sqrt()) as f32;
+    let mut out = [0.0f32; 21];
+    // Diagonal positions in MAVLink's row-major upper triangle.
+    for (k, sigma) in [
+        (0, sigma_p),
+        (6, sigma_p),
+        (11, sigma_p),
+        (15, sigma_yaw),
+        (18, sigma_yaw),
+        (20, sigma_yaw),
+    ] {
+        out[k] = entry(sigma);
+    }
+    out
 }
 
 /// The variance of one gyro reading's white noise at `rate_hz` from the
@@ -293,10 +331,11 @@ pub fn outputs(s: &OutputState, message: OutputMessage) -> Vec<Outbound> {
                 v_body_mps: x.q_W_B.inverse_transform_vector(&x.v_B_in_W),
                 w_body_radps: s.gyro_radps - x.b_g,
                 // The same [x y z roll pitch yaw] layout as VPE's.
-                pose_covariance: upper21(&c),
+                pose_covariance: pose_covariance21(&c, s.pose_covariance),
                 velocity_covariance: upper21(&body_velocity_rate_covariance(x, &s.imu_cov, s.gyro_var)),
                 reset_counter: s.reset_counter,
                 quality: s.quality,
+                frame_ned: s.frame_ned,
             }]
         }
         OutputMessage::VisionPositionEstimate => {
@@ -358,6 +397,8 @@ mod tests {
             gyro_radps: Vector3::new(0.1, 0.2, -0.3),
             gyro_var: gyro_white_variance(1.7e-4, 200.0),
             reset_counter: 2,
+            pose_covariance: PoseCovariance::Variances,
+            frame_ned: false,
             quality: 100,
         }
     }
@@ -433,6 +474,7 @@ mod tests {
             velocity_covariance,
             reset_counter,
             quality,
+            frame_ned,
         } = &o[0]
         else {
             panic!("{o:?}")
@@ -442,6 +484,7 @@ mod tests {
             (1_500_000, 2, 50, s.x.p_B_in_W)
         );
         assert_eq!(*w_body_radps, s.gyro_radps - s.x.b_g);
+        assert!(!frame_ned, "LOCAL_FRD unless the autopilot is PX4");
         assert!((s.x.q_W_B * v_body_mps - s.x.v_B_in_W).norm() < 1e-12);
         let q = s.x.q_W_B.coords;
         assert_eq!(*q_wxyz, [q.w as f32, q.x as f32, q.y as f32, q.z as f32]);
@@ -486,6 +529,44 @@ mod tests {
         }
         let got = body_velocity_rate_covariance(x, &s.imu_cov, s.gyro_var);
         assert!((got - want).abs().max() < 1e-7 * want.abs().max(), "{got} vs {want}");
+    }
+
+    /// ArduPilot's reduction (GCS_Common.cpp before PR #32084) applied to
+    /// what `ardupilot_cbrt` writes gives back the largest position σ and
+    /// the yaw σ (eq. O1); measured on ArduPilot's own SITL (its `VISP.PErr`
+    /// logged 3.634 for c₀ = c₆ = c₁₁ = 4, i.e. cbrt(3·4²)).
+    #[test]
+    fn ardupilot_cbrt_covariance_survives_the_reduction() {
+        let reduce = |c: &[f32; 21], [a, b, d]: [usize; 3]| {
+            ((c[a] as f64).powi(2) + (c[b] as f64).powi(2) + (c[d] as f64).powi(2)).cbrt()
+        };
+        let mut cov = Matrix6::zeros();
+        for (k, sigma) in [0.12, 0.3, 0.2, 0.01, 0.02, 0.05].iter().enumerate() {
+            cov[(k, k)] = sigma * sigma;
+        }
+        cov[(0, 1)] = 0.001;
+        cov[(1, 0)] = 0.001;
+        let enc = pose_covariance21(&cov, PoseCovariance::ArdupilotCbrt);
+        assert!(
+            (reduce(&enc, [0, 6, 11]) - 0.3).abs() < 1e-6,
+            "position: {}",
+            reduce(&enc, [0, 6, 11])
+        );
+        assert!(
+            (reduce(&enc, [15, 18, 20]) - 0.05).abs() < 1e-6,
+            "yaw: {}",
+            reduce(&enc, [15, 18, 20])
+        );
+        assert_eq!(enc.iter().filter(|&&c| c != 0.0).count(), 6, "only the diagonal");
+        // The MAVLink encoding is the plain upper triangle, and under the
+        // same reduction it is wrong (3^(1/3)·σ^(4/3) for equal axes).
+        let plain = pose_covariance21(&cov, PoseCovariance::Variances);
+        assert_eq!(plain, upper21(&cov));
+        assert!(
+            (reduce(&plain, [0, 6, 11]) - 0.3).abs() > 0.05,
+            "{}",
+            reduce(&plain, [0, 6, 11])
+        );
     }
 
     #[test]

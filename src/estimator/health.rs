@@ -211,6 +211,12 @@ impl Estimator {
         }
         self.monitor.verdict()
     }
+
+    /// Starts the monitor's grace period at `t_s` (a filter restarted from
+    /// an estimate of a moment ago is new from now, not from that moment).
+    pub fn start_health_grace(&mut self, t_s: f64) {
+        self.t_start_s = t_s;
+    }
 }
 
 #[cfg(test)]

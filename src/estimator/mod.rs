@@ -284,6 +284,8 @@ struct Track {
 #[derive(Clone, Debug)]
 pub struct Estimator {
     s: Settings,
+    /// Whether the vehicle may be still (see [`Estimator::set_zupt_allowed`]).
+    zupt_allowed: bool,
     g_W: Vector3<f64>,
     t_s: f64,
     imu: ImuState,
@@ -432,6 +434,7 @@ impl Estimator {
             next_kf_id: 0,
             last_kf_t_s: f64::NEG_INFINITY,
             stats: Stats::default(),
+            zupt_allowed: true,
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }

@@ -38,6 +38,14 @@ impl Stillness {
 }
 
 impl Estimator {
+    /// Whether zero-velocity updates may be taken at all: the caller knows
+    /// what the IMU and camera cannot tell apart, a vehicle on the ground
+    /// from one hovering (which drifts at centimetres per second, and a
+    /// zero-velocity update would pin it). True by default.
+    pub fn set_zupt_allowed(&mut self, allowed: bool) {
+        self.zupt_allowed = allowed;
+    }
+
     /// Median displacement (normalised units) of the features seen both in
     /// `obs` and at their track's last clone; `None` with too few in common.
     fn median_disparity(&self, obs: &[NormObs]) -> Option<f64> {
@@ -67,6 +75,7 @@ impl Estimator {
         let tilt_sigma = self.P[(0, 0)].max(self.P[(1, 1)]).max(0.0).sqrt();
         let accel_bound = z.max_accel_dev_mps2 + 3.0 * self.g_W.norm() * tilt_sigma;
         if !z.enabled
+            || !self.zupt_allowed
             || still.samples == 0
             || still.max_gyro_radps > z.max_gyro_radps
             || still.max_accel_dev_mps2 > accel_bound

@@ -1,10 +1,12 @@
-//! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME and
-//! GPS_GLOBAL_ORIGIN at 1 Hz, ATTITUDE and LOCAL_POSITION_NED (its EKF's
-//! view, with that EKF's errors: see [`super::autopilot`]) at 10 Hz, and
-//! HIGHRES_IMU at the IMU rate, with the IMU faults applied. It sends no
-//! GPS_RAW_INT, so the daemon takes its configured prior for the
-//! autopilot's position (`init.sigma_position_autopilot_m`, 3 m, above the
-//! EKF's errors here).
+//! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME,
+//! GPS_GLOBAL_ORIGIN and GPS_RAW_INT at 1 Hz, ATTITUDE and
+//! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
+//! [`super::autopilot`]) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! the IMU faults applied. GPS_RAW_INT says the autopilot has a 3D fix of
+//! its own (none during a GNSS outage), with its accuracy unknown (0), so
+//! the daemon knows the autopilot's position is not only the echo of its
+//! own and takes its configured prior for it
+//! (`init.sigma_position_autopilot_m`, 3 m, above the EKF's errors here).
 
 use std::time::Instant;
 
@@ -20,12 +22,24 @@ use cmsckf_models::gnss::{GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S};
 impl Streamer<'_> {
     /// The 1 Hz messages at flight time `t`, and every 30 s the broadcast
     /// ephemerides.
-    pub(super) async fn send_1hz(&mut self, t: f64) {
+    pub(super) async fn send_1hz(&mut self, t: f64, active: &Active<'_>) {
         self.next_1hz += 1.0;
         self.send(heartbeat()).await;
         let g = &self.ds.cfg.gnss;
         self.send(system_time(g, t, self.boot(t))).await;
         self.send(gps_global_origin(g, self.boot(t))).await;
+        let fix = !active.has(FaultKind::GnssOutage);
+        self.send(apm::MavMessage::GPS_RAW_INT(apm::GPS_RAW_INT_DATA {
+            time_usec: self.boot(t),
+            fix_type: if fix {
+                apm::GpsFixType::GPS_FIX_TYPE_3D_FIX
+            } else {
+                apm::GpsFixType::GPS_FIX_TYPE_NO_FIX
+            },
+            satellites_visible: if fix { 12 } else { 0 },
+            ..Default::default()
+        }))
+        .await;
         // Broadcast ephemerides every 30 s, as receivers repeat them.
         if (t as u64).is_multiple_of(30) {
             self.send_ephemerides().await;
@@ -73,8 +87,14 @@ impl Streamer<'_> {
                 .iter()
                 .skip(self.estimates_seen)
                 .map(|r| {
-                    // Diagonal of the upper-triangular layout: x 0, y 6, z 11.
-                    let var_m2 = nalgebra::Vector3::new(r.cov[0] as f64, r.cov[6] as f64, r.cov[11] as f64);
+                    // As ArduPilot reduces it (GCS_Common.cpp, before PR
+                    // #32084; measured on its SITL): one position error
+                    // cbrt(c₀² + c₆² + c₁₁²) from the diagonal of the
+                    // upper-triangular layout (x 0, y 6, z 11), the 1σ of
+                    // every axis.
+                    let pos_err_m =
+                        ((r.cov[0] as f64).powi(2) + (r.cov[6] as f64).powi(2) + (r.cov[11] as f64).powi(2)).cbrt();
+                    let var_m2 = nalgebra::Vector3::repeat(pos_err_m * pos_err_m);
                     (
                         r.t_us,
                         VpeSample {

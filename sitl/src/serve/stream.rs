@@ -138,7 +138,7 @@ impl<'a> Streamer<'a> {
                 // own socket, still does); its EKF runs on, unheard.
                 self.skip(t, t_imu, &active);
             } else if t == self.next_1hz {
-                self.send_1hz(t).await;
+                self.send_1hz(t, &active).await;
             } else if t == self.next_slow {
                 self.send_10hz(t, &active).await;
             } else if t == t_imu {
