@@ -1,0 +1,531 @@
+//! ArduPilot's own SITL (`arducopter`) flown on the daemon's output, with
+//! cmsckf as EKF3's only position, velocity and yaw source (`EK3_SRC1_* = 6`,
+//! no GPS). A synthetic camera follows the SITL's simulated truth
+//! (`SIM_STATE`) and writes feature tracks to the daemon's socket; the test
+//! plays the ground station: home, GUIDED, arm, take-off to 5 m, a 10 m
+//! box, a hover, land. It asserts that EKF3 takes the estimates, that the
+//! autopilot's LOCAL_POSITION_NED stays within 0.5 m of the truth standing
+//! and flying, and that the filter never restarts.
+//!
+//! The SITL is a GPL-3.0 test fixture beside the project, never in it: the
+//! test finds it through `CMSCKF_ARDUPILOT_SITL` (a folder holding
+//! `arducopter` and `copter.parm`; `.ci/run` sets it) and skips, saying why,
+//! when it is absent.
+
+mod common;
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use cmsckf_models::camera::Camera;
+use cmsckf_models::geodesy::{llh_to_ecef, NedFrame};
+use cmsckf_models::geoid;
+use cmsckf_sitl::features::FeatureSim;
+use cmsckf_sitl::trajectory::TruthSample;
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{MavHeader, MavlinkVersion, Message};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+
+/// Where the vehicle stands: ArduPilot's usual SITL home (CMAC, Canberra),
+/// MSL altitude, and a heading that is not north, so a yaw taken from a
+/// placeholder shows as a rotated track.
+const HOME: [f64; 4] = [-35.363261, 149.165230, 584.0, 37.0];
+/// Seconds of standing after EKF3 takes the estimates, before arming.
+const STAND_S: f64 = 20.0;
+/// Seconds of hover over the start before landing.
+const HOVER_S: f64 = 8.0;
+/// The box's corners in the autopilot's local NED frame (m).
+const BOX: [[f32; 3]; 5] = [
+    [0.0, 0.0, -5.0],
+    [10.0, 0.0, -5.0],
+    [10.0, 10.0, -5.0],
+    [0.0, 10.0, -5.0],
+    [0.0, 0.0, -5.0],
+];
+/// The whole flight must end within this (wall clock, SITL at 1×).
+const BUDGET: Duration = Duration::from_secs(200);
+
+/// The fixture's folder, or why the test cannot run.
+fn fixture() -> Result<PathBuf, String> {
+    let dir = std::env::var_os("CMSCKF_ARDUPILOT_SITL")
+        .ok_or("CMSCKF_ARDUPILOT_SITL is not set (a folder with ArduPilot's arducopter SITL and copter.parm)")?;
+    let dir = PathBuf::from(dir);
+    for f in ["arducopter", "copter.parm"] {
+        if !dir.join(f).is_file() {
+            return Err(format!("{} has no {f}", dir.display()));
+        }
+    }
+    Ok(dir)
+}
+
+/// A free loopback UDP port.
+fn free_udp_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// ArduPilot's SITL, killed when dropped.
+struct Sitl(Child);
+
+impl Drop for Sitl {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `arducopter` in `dir` with ext-nav as its only source: serial0
+/// to the ground station's port, serial1 to the daemon's.
+fn start_sitl(fixture: &Path, dir: &Path, gcs_port: u16, daemon_port: u16) -> Sitl {
+    std::fs::copy(fixture.join("copter.parm"), dir.join("copter.parm")).unwrap();
+    // External navigation as EKF3's only position, velocity and yaw source
+    // (docs/setup-ardupilot.md gives each value's reason).
+    std::fs::write(
+        dir.join("extnav.parm"),
+        "VISO_TYPE 1\nVISO_DELAY_MS 10\nEK3_SRC1_POSXY 6\nEK3_SRC1_VELXY 6\nEK3_SRC1_POSZ 6\n\
+         EK3_SRC1_VELZ 6\nEK3_SRC1_YAW 6\nGPS1_TYPE 0\n",
+    )
+    .unwrap();
+    let rc_port = free_udp_port();
+    let child = Command::new(fixture.join("arducopter"))
+        .current_dir(dir)
+        .args(["-w", "--model", "+", "--speedup", "1", "-I0", "--home"])
+        .arg(HOME.map(|v| v.to_string()).join(","))
+        .args(["--defaults", "copter.parm,extnav.parm", "--serial0"])
+        .arg(format!("udpclient:127.0.0.1:{gcs_port}"))
+        .arg("--serial1")
+        .arg(format!("udpclient:127.0.0.1:{daemon_port}"))
+        .args(["--serial2", "none", "--rc-in-port"])
+        .arg(rc_port.to_string())
+        .stdout(std::fs::File::create(dir.join("arducopter.out")).unwrap())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    Sitl(child)
+}
+
+/// The test's ground station on serial0: MAVLink 2 as system 255.
+struct Gcs {
+    sock: UdpSocket,
+    peer: Option<SocketAddr>,
+    seq: u8,
+    buf: Vec<u8>,
+}
+
+impl Gcs {
+    fn bind(port: u16) -> Self {
+        let sock = UdpSocket::bind(("127.0.0.1", port)).unwrap();
+        sock.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
+        Self {
+            sock,
+            peer: None,
+            seq: 0,
+            buf: vec![0; 65536],
+        }
+    }
+
+    /// The messages of one datagram (none after 20 ms of quiet).
+    fn recv(&mut self) -> Vec<(MavHeader, apm::MavMessage)> {
+        let Ok((len, from)) = self.sock.recv_from(&mut self.buf) else {
+            return Vec::new();
+        };
+        self.peer = Some(from);
+        // ArduPilot packs several messages into a datagram; one this
+        // dialect does not know must not lose the rest.
+        let mut r = mavlink::MavlinkReader::new(&self.buf[..len]);
+        let mut out = Vec::new();
+        loop {
+            match r.read_any_message::<apm::MavMessage>() {
+                Ok(m) => out.push(m),
+                Err(mavlink::error::MessageReadError::Io(_)) => break,
+                Err(_) => continue,
+            }
+        }
+        out
+    }
+
+    fn send(&mut self, msg: &apm::MavMessage) {
+        let Some(peer) = self.peer else { return };
+        let h = MavHeader {
+            system_id: 255,
+            component_id: 190,
+            sequence: self.seq,
+        };
+        self.seq = self.seq.wrapping_add(1);
+        let mut frame = Vec::new();
+        mavlink::write_versioned_msg(&mut frame, MavlinkVersion::V2, h, msg).unwrap();
+        let _ = self.sock.send_to(&frame, peer);
+    }
+
+    fn command(&mut self, command: apm::MavCmd, p: [f32; 7]) {
+        self.send(&apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            target_system: 1,
+            target_component: 1,
+            command,
+            param1: p[0],
+            param2: p[1],
+            param3: p[2],
+            param4: p[3],
+            param5: p[4],
+            param6: p[5],
+            param7: p[6],
+            confirmation: 0,
+        }));
+    }
+
+    /// Home where the vehicle stands, as COMMAND_INT (COMMAND_LONG's float
+    /// parameters would move it by decimetres).
+    fn set_home(&mut self) {
+        self.send(&apm::MavMessage::COMMAND_INT(apm::COMMAND_INT_DATA {
+            target_system: 1,
+            target_component: 1,
+            frame: apm::MavFrame::MAV_FRAME_GLOBAL,
+            command: apm::MavCmd::MAV_CMD_DO_SET_HOME,
+            x: (HOME[0] * 1e7).round() as i32,
+            y: (HOME[1] * 1e7).round() as i32,
+            z: HOME[2] as f32,
+            ..Default::default()
+        }));
+    }
+
+    fn stream(&mut self, id: u32, hz: f32) {
+        self.command(
+            apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+            [id as f32, 1e6 / hz, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+    }
+
+    fn goto(&mut self, p_ned: [f32; 3]) {
+        self.send(&apm::MavMessage::SET_POSITION_TARGET_LOCAL_NED(
+            apm::SET_POSITION_TARGET_LOCAL_NED_DATA {
+                target_system: 1,
+                target_component: 1,
+                coordinate_frame: apm::MavFrame::MAV_FRAME_LOCAL_NED,
+                // Position only: ignore velocity, acceleration, yaw, yaw rate.
+                type_mask: apm::PositionTargetTypemask::from_bits_truncate(0x0DF8),
+                x: p_ned[0],
+                y: p_ned[1],
+                z: p_ned[2],
+                ..Default::default()
+            },
+        ));
+    }
+}
+
+/// Error statistics of one phase (m).
+#[derive(Default, Debug)]
+struct Errors {
+    n: usize,
+    max_m: f64,
+    sum_sq: f64,
+}
+
+impl Errors {
+    fn add(&mut self, e: f64) {
+        self.n += 1;
+        self.max_m = self.max_m.max(e);
+        self.sum_sq += e * e;
+    }
+    fn rms_m(&self) -> f64 {
+        (self.sum_sq / self.n.max(1) as f64).sqrt()
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, PartialOrd)]
+enum Phase {
+    WaitEkf,
+    Stand,
+    Arm,
+    TakeOff,
+    Box(usize),
+    Hover,
+    Land,
+    Done,
+}
+
+/// The truth history: (autopilot time, NED position).
+struct Truth {
+    frame: NedFrame,
+    hist: VecDeque<(f64, Vector3<f64>)>,
+}
+
+impl Truth {
+    fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
+        let i = self.hist.partition_point(|(u, _)| *u <= t_s);
+        let (t1, p1) = self.hist.get(i)?;
+        let (t0, p0) = self.hist.get(i.checked_sub(1)?)?;
+        let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
+        Some(p0 + (p1 - p0) * w)
+    }
+}
+
+#[test]
+fn ardupilot_flies_on_cmsckf_alone() {
+    let fixture = match fixture() {
+        Ok(f) => f,
+        Err(why) => {
+            eprintln!("skipped: {why}");
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (gcs_port, daemon_port) = (free_udp_port(), free_udp_port());
+    let mut gcs = Gcs::bind(gcs_port);
+
+    // The daemon: the autopilot on udpin, the origin from the config (VIO
+    // only), sent to the autopilot as SET_GPS_GLOBAL_ORIGIN.
+    let (mut cfg, _) = common::loopback_config(dir.path());
+    cfg.mavlink.address = format!("udpin:127.0.0.1:{daemon_port}");
+    cfg.gnss.source = cmsckf::config::GnssSource::Off;
+    let h_ell = geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2]);
+    cfg.gnss.origin_llh = vec![HOME[0], HOME[1], h_ell];
+    cfg.output.set_gps_origin = true;
+    cfg.log.path = dir.path().join("flight.mcap").display().to_string();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let _guard = rt.enter();
+    let (stop_daemon, daemon) = common::spawn_daemon(cfg.clone());
+    let started = Instant::now();
+    let _sitl = start_sitl(&fixture, dir.path(), gcs_port, daemon_port);
+
+    // The camera: features of the SITL's truth, from its SIM_STATE.
+    let sim = cmsckf::eval::sim_config_for(&cfg);
+    let mut camera = FeatureSim::new(
+        &sim.features,
+        Camera::from_config(&cfg.camera),
+        cfg.camera.pixel_noise_px,
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let mut socket: Option<std::os::unix::net::UnixStream> = None;
+    let frame_dt_s = 1.0 / cfg.camera.rate_hz;
+    let mut last_frame_t = f64::NEG_INFINITY;
+    let mut truth = Truth {
+        frame: NedFrame::from_llh_deg(HOME[0], HOME[1], HOME[2]),
+        hist: VecDeque::new(),
+    };
+
+    let mut phase = Phase::WaitEkf;
+    let mut phase_since = Instant::now();
+    let mut last_cmd = Instant::now() - Duration::from_secs(10);
+    let mut imu_t_s = None::<f64>;
+    let mut streams_asked = Instant::now() - Duration::from_secs(10);
+    let mut accepted_after_s = None::<f64>;
+    let mut armed = false;
+    let (mut standing, mut flying, mut hovering) = (Errors::default(), Errors::default(), Errors::default());
+    let mut texts = Vec::new();
+    let mut local = None::<(f64, Vector3<f64>)>;
+    let mut to_score = VecDeque::<(f64, Vector3<f64>, Phase)>::new();
+
+    let mut next_print = Instant::now();
+    let mut seen = std::collections::BTreeMap::new();
+    while phase != Phase::Done && started.elapsed() < BUDGET {
+        if Instant::now() >= next_print {
+            next_print += Duration::from_secs(2);
+            if let (Some((t, p)), Some(p_true)) = (local, local.and_then(|(t, _)| truth.at(t))) {
+                eprintln!(
+                    "[{:6.1} s] t {t:.1} EKF3 {:.2?} truth {:.2?}",
+                    started.elapsed().as_secs_f64(),
+                    p.as_slice(),
+                    p_true.as_slice()
+                );
+            }
+        }
+        for (h, msg) in gcs.recv() {
+            *seen.entry(msg.message_id()).or_insert(0usize) += 1;
+            match msg {
+                apm::MavMessage::HIGHRES_IMU(m) if h.component_id == 1 => imu_t_s = Some(m.time_usec as f64 * 1e-6),
+                apm::MavMessage::SIM_STATE(s) => {
+                    let Some(t_s) = imu_t_s else { continue };
+                    let r = llh_to_ecef(
+                        (s.lat_int as f64 * 1e-7).to_radians(),
+                        (s.lon_int as f64 * 1e-7).to_radians(),
+                        s.alt as f64,
+                    );
+                    let p = truth.frame.to_ned(&r);
+                    truth.hist.push_back((t_s, p));
+                    if truth.hist.len() > 2000 {
+                        truth.hist.pop_front();
+                    }
+                    if t_s - last_frame_t < frame_dt_s * 0.99 {
+                        continue;
+                    }
+                    last_frame_t = t_s;
+                    let q = UnitQuaternion::from_quaternion(Quaternion::new(
+                        s.q1 as f64,
+                        s.q2 as f64,
+                        s.q3 as f64,
+                        s.q4 as f64,
+                    ));
+                    let sample = TruthSample {
+                        t_s,
+                        p_B_in_W: p,
+                        v_B_in_W: Vector3::new(s.vn as f64, s.ve as f64, s.vd as f64),
+                        a_B_in_W: Vector3::zeros(),
+                        q_W_B: q,
+                        w_B: Vector3::zeros(),
+                    };
+                    let frame = camera.frame(&sample, &mut rng);
+                    let feats: Vec<String> = frame
+                        .features
+                        .iter()
+                        .map(|f| format!("[{},{:.3},{:.3}]", f.landmark_id, f.u_px, f.v_px))
+                        .collect();
+                    let line = common::autopilot::line(t_s, &feats.join(","));
+                    if socket.is_none() {
+                        socket = std::os::unix::net::UnixStream::connect(&cfg.features.socket).ok();
+                    }
+                    if let Some(sock) = socket.as_mut() {
+                        if sock.write_all(line.as_bytes()).is_err() {
+                            socket = None;
+                        }
+                    }
+                }
+                apm::MavMessage::LOCAL_POSITION_NED(l) => {
+                    let t_s = l.time_boot_ms as f64 * 1e-3;
+                    let p = Vector3::new(l.x as f64, l.y as f64, l.z as f64);
+                    local = Some((t_s, p));
+                    // Scored once the truth of its instant has come.
+                    to_score.push_back((t_s, p, phase));
+                }
+                apm::MavMessage::STATUSTEXT(t) => {
+                    let text = String::from_utf8_lossy(t.text.as_slice())
+                        .trim_end_matches('\0')
+                        .to_string();
+                    eprintln!("[{:6.1} s] {text}", started.elapsed().as_secs_f64());
+                    if text.contains("using external nav") && accepted_after_s.is_none() {
+                        accepted_after_s = Some(started.elapsed().as_secs_f64());
+                    }
+                    texts.push(text);
+                }
+                apm::MavMessage::HEARTBEAT(hb) if h.component_id == 1 => {
+                    armed = hb.base_mode.bits() & 0x80 != 0;
+                }
+                _ => {}
+            }
+        }
+        while let Some(&(t_s, p, at_phase)) = to_score.front() {
+            let Some(p_true) = truth.at(t_s) else { break };
+            to_score.pop_front();
+            let e = (p - p_true).norm();
+            match at_phase {
+                Phase::Stand | Phase::Arm => standing.add(e),
+                Phase::TakeOff | Phase::Box(_) | Phase::Land => flying.add(e),
+                Phase::Hover => hovering.add(e),
+                _ => {}
+            }
+        }
+        if gcs.peer.is_some() && streams_asked.elapsed() > Duration::from_secs(2) {
+            // Truth and its clock at 50 Hz (SIM_STATE carries no time: it is
+            // paired with the HIGHRES_IMU of the same burst), the EKF's
+            // position at 20 Hz; asked again until each comes (ArduPilot
+            // refuses LOCAL_POSITION_NED before it has an origin).
+            for (id, hz) in [(105, 50.0), (108, 50.0), (32, 20.0), (193, 2.0)] {
+                if !seen.contains_key(&id) {
+                    gcs.stream(id, hz);
+                }
+            }
+            streams_asked = Instant::now();
+        }
+        let since = phase_since.elapsed();
+        let resend = last_cmd.elapsed() > Duration::from_secs(1);
+        let next = match phase {
+            Phase::WaitEkf => accepted_after_s.map(|_| Phase::Stand),
+            Phase::Stand => (since.as_secs_f64() > STAND_S).then_some(Phase::Arm),
+            Phase::Arm => {
+                if resend {
+                    gcs.set_home();
+                    gcs.command(apm::MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 4.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                    gcs.command(
+                        apm::MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+                        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                    );
+                    last_cmd = Instant::now();
+                }
+                armed.then_some(Phase::TakeOff)
+            }
+            Phase::TakeOff => {
+                if resend {
+                    gcs.command(apm::MavCmd::MAV_CMD_NAV_TAKEOFF, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
+                    last_cmd = Instant::now();
+                }
+                local.is_some_and(|(_, p)| p.z < -4.7).then_some(Phase::Box(1))
+            }
+            Phase::Box(k) => {
+                let target = BOX[k];
+                if resend {
+                    gcs.goto(target);
+                    last_cmd = Instant::now();
+                }
+                let there = local.is_some_and(|(_, p)| {
+                    (p - Vector3::new(target[0] as f64, target[1] as f64, target[2] as f64)).norm() < 0.4
+                });
+                there.then_some(if k + 1 < BOX.len() {
+                    Phase::Box(k + 1)
+                } else {
+                    Phase::Hover
+                })
+            }
+            // A hover: the camera all but still, the vehicle not quite.
+            Phase::Hover => (since.as_secs_f64() > HOVER_S).then_some(Phase::Land),
+            Phase::Land => {
+                if resend {
+                    gcs.command(apm::MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 9.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                    last_cmd = Instant::now();
+                }
+                (!armed && since > Duration::from_secs(2)).then_some(Phase::Done)
+            }
+            Phase::Done => None,
+        };
+        if let Some(n) = next {
+            eprintln!("[{:6.1} s] phase {n:?}", started.elapsed().as_secs_f64());
+            phase = n;
+            phase_since = Instant::now();
+            last_cmd = Instant::now() - Duration::from_secs(10);
+        }
+    }
+    let finished = phase == Phase::Done;
+    eprintln!("ground station received (message id: count): {seen:?}");
+    let _ = stop_daemon.send(());
+    let summary = rt.block_on(daemon).unwrap().expect("daemon ran");
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    eprintln!(
+        "EKF3 took the estimates {:.1} s after start; standing: max {:.3} m, RMS {:.3} m ({} samples); \
+         flying: max {:.3} m, RMS {:.3} m ({} samples); hovering: max {:.3} m, RMS {:.3} m ({} samples); \
+         filter restarts {}, initialisations {}",
+        accepted_after_s.unwrap_or(f64::NAN),
+        standing.max_m,
+        standing.rms_m(),
+        standing.n,
+        flying.max_m,
+        flying.rms_m(),
+        flying.n,
+        hovering.max_m,
+        hovering.rms_m(),
+        hovering.n,
+        c("filter_reset"),
+        c("init_static") + c("init_in_flight"),
+    );
+    eprintln!("daemon counters: {:?}", summary.counters);
+    assert!(finished, "flight did not finish within {BUDGET:?}: stuck in {phase:?}");
+    assert_eq!(
+        c("gps_origin_confirmed"),
+        1,
+        "our origin never came back from the autopilot"
+    );
+    assert!(
+        standing.n > 100 && flying.n > 100,
+        "too few samples: {standing:?} {flying:?}"
+    );
+    assert_eq!(
+        c("filter_reset") + c("imu_gap_restart"),
+        0,
+        "the filter restarted: {:?}",
+        summary.counters
+    );
+    assert!(standing.max_m < 0.5, "standing error {standing:?}");
+    assert!(flying.max_m < 0.5, "flying error {flying:?}");
+    assert!(hovering.max_m < 0.5, "hovering error {hovering:?}");
+}
