@@ -318,6 +318,9 @@ fn ardupilot_flies_on_cmsckf_alone() {
     let mut texts = Vec::new();
     let mut local = None::<(f64, Vector3<f64>)>;
     let mut to_score = VecDeque::<(f64, Vector3<f64>, Phase)>::new();
+    let mut truth_yaw = None::<f64>;
+    let mut yaw_err_max_deg = 0.0f64;
+    let mut ekf_flags_standing = None::<u16>;
 
     let mut next_print = Instant::now();
     let mut seen = std::collections::BTreeMap::new();
@@ -359,6 +362,7 @@ fn ardupilot_flies_on_cmsckf_alone() {
                         s.q3 as f64,
                         s.q4 as f64,
                     ));
+                    truth_yaw = Some(s.yaw as f64);
                     let sample = TruthSample {
                         t_s,
                         p_B_in_W: p,
@@ -400,6 +404,18 @@ fn ardupilot_flies_on_cmsckf_alone() {
                     }
                     texts.push(text);
                 }
+                // EKF3's yaw is ours (EK3_SRC1_YAW = 6): its error against
+                // the truth while the vehicle stands shows where our first
+                // yaw came from.
+                apm::MavMessage::ATTITUDE(a) if phase == Phase::Stand => {
+                    if let Some(y) = truth_yaw {
+                        let d = a.yaw as f64 - y;
+                        yaw_err_max_deg = yaw_err_max_deg.max(d.sin().atan2(d.cos()).abs().to_degrees());
+                    }
+                }
+                apm::MavMessage::EKF_STATUS_REPORT(r) if phase == Phase::Stand => {
+                    ekf_flags_standing = Some(r.flags.bits());
+                }
                 apm::MavMessage::HEARTBEAT(hb) if h.component_id == 1 => {
                     armed = hb.base_mode.bits() & 0x80 != 0;
                 }
@@ -422,7 +438,7 @@ fn ardupilot_flies_on_cmsckf_alone() {
             // paired with the HIGHRES_IMU of the same burst), the EKF's
             // position at 20 Hz; asked again until each comes (ArduPilot
             // refuses LOCAL_POSITION_NED before it has an origin).
-            for (id, hz) in [(105, 50.0), (108, 50.0), (32, 20.0), (193, 2.0)] {
+            for (id, hz) in [(105, 50.0), (108, 50.0), (32, 20.0), (30, 10.0), (193, 2.0)] {
                 if !seen.contains_key(&id) {
                     gcs.stream(id, hz);
                 }
@@ -509,11 +525,28 @@ fn ardupilot_flies_on_cmsckf_alone() {
         c("init_static") + c("init_in_flight"),
     );
     eprintln!("daemon counters: {:?}", summary.counters);
+    eprintln!(
+        "yaw error standing (EKF3's, ours): max {yaw_err_max_deg:.2}° at a {}° heading",
+        HOME[3]
+    );
     assert!(finished, "flight did not finish within {BUDGET:?}: stuck in {phase:?}");
     assert_eq!(
         c("gps_origin_confirmed"),
         1,
         "our origin never came back from the autopilot"
+    );
+    // EKF3 on external navigation: "using external nav data", and its
+    // status with attitude, velocity and relative and absolute position
+    // (EKF_ATTITUDE … EKF_POS_VERT_ABS, 0x3f; ArduPilot reports 0x33f).
+    assert!(
+        accepted_after_s.is_some(),
+        "EKF3 never said it uses external navigation"
+    );
+    eprintln!("EKF_STATUS_REPORT.flags standing: {ekf_flags_standing:#x?}");
+    assert_eq!(
+        ekf_flags_standing.map(|f| f & 0x3f),
+        Some(0x3f),
+        "EKF3 status {ekf_flags_standing:?}"
     );
     assert!(
         standing.n > 100 && flying.n > 100,
@@ -528,4 +561,5 @@ fn ardupilot_flies_on_cmsckf_alone() {
     assert!(standing.max_m < 0.5, "standing error {standing:?}");
     assert!(flying.max_m < 0.5, "flying error {flying:?}");
     assert!(hovering.max_m < 0.5, "hovering error {hovering:?}");
+    assert!(yaw_err_max_deg < 3.0, "yaw {yaw_err_max_deg}° off while standing");
 }
