@@ -18,7 +18,7 @@ use serde_json::Value;
 use tokio::sync::mpsc;
 
 use crate::config::{Config, FeatureClock};
-use crate::daemon::{Ctx, Fusion, FusionMsg};
+use crate::daemon::{Ctx, Fusion, FusionMsg, RtcmStream};
 use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
@@ -107,13 +107,19 @@ fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> 
         "/input/rebase_installed" => FusionMsg::RebaseInstalled {
             seq: v["seq"].as_u64()?,
         },
-        "/input/rtcm" => FusionMsg::Rtcm(
-            v["bytes"]
+        "/input/rtcm" => FusionMsg::Rtcm {
+            bytes: v["bytes"]
                 .as_array()?
                 .iter()
                 .filter_map(|b| b.as_u64().map(|x| x as u8))
                 .collect(),
-        ),
+            // Logs from before the stream was recorded: the link's vehicle.
+            stream: match v["stream"].as_str() {
+                Some("receiver") => RtcmStream::Receiver,
+                Some("link_other") => RtcmStream::LinkOther,
+                _ => RtcmStream::LinkVehicle,
+            },
+        },
         "/input/mavlink/system_time" => FusionMsg::SystemTime {
             unix_us: v["unix_us"].as_u64()?,
             boot_ms: v["boot_ms"].as_u64()? as u32,

@@ -113,6 +113,11 @@ fn loopback_config(
     let dir = tempfile::Builder::new().prefix("cmsckf-demo-").tempdir()?;
     let port = free_udp_port()?;
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
+    // The SITL autopilot relays its receiver's RTCM in GPS_RTCM_DATA as
+    // station 7: without a configured rover id, that is the rover.
+    if cfg.gnss.rover_station_id == 0 {
+        cfg.gnss.rover_station_id = cmsckf_sitl::serve::ROVER_STATION_ID;
+    }
     cfg.features.socket = dir.path().join("features.sock").display().to_string();
     cfg.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok((cfg, dir, port))

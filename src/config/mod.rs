@@ -322,8 +322,14 @@ pub struct GnssConfig {
     pub source: GnssSource,
     /// For `stream`: `serial:/dev/ttyUSB0:115200`, `tcp:host:port` or `file:path`.
     pub stream: String,
-    /// RTCM reference-station id of the drone's own receiver; 0 = accept the
-    /// configured MAVLink source instead.
+    /// RTCM reference-station id of the drone's own receiver, when its RTCM
+    /// comes through `GPS_RTCM_DATA` (`source = "mavlink"`). That message
+    /// normally carries a base station's corrections to the autopilot: any
+    /// other station's observations there are a base's, kept apart and
+    /// never fused as the rover's; 0 = none of them are the rover's. A
+    /// station that sends its antenna position (MT1005/1006) is a base
+    /// whatever this says. With `source = "stream"` the stream is the
+    /// rover's own receiver.
     pub rover_station_id: u16,
     /// Constellations to use, comma separated: G, E, R, C, J.
     pub systems: String,

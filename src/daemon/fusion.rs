@@ -19,7 +19,7 @@ use super::gnss_input::GnssIn;
 use super::init::{Carried, GoodEstimates, RECENT_IMU_S};
 use super::rebase::{InstallSite, RebaseExec};
 use super::time_guard::{SteadyValue, TimeGuard, Verdict};
-use super::{records, FusionMsg, Restart, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
+use super::{records, FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
 use crate::config::{Config, FeatureClock};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, ImuMeas};
@@ -281,9 +281,13 @@ impl Fusion {
                 let site = install_site(&mut self.est, self.est_gen, &self.log, self.last_imu_t);
                 self.rebase.on_installed(seq, site, &ctx.counters);
             }
-            FusionMsg::Rtcm(bytes) => {
-                self.log(Topic::InputRtcm, self.last_imu_t, &json!({ "bytes": bytes }));
-                self.on_rtcm(&bytes, &ctx.counters)
+            FusionMsg::Rtcm { bytes, stream } => {
+                self.log(
+                    Topic::InputRtcm,
+                    self.last_imu_t,
+                    &json!({ "bytes": bytes, "stream": stream.name() }),
+                );
+                self.on_rtcm(&bytes, stream, &ctx.counters)
             }
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu_msg(m, ctx),
@@ -293,10 +297,16 @@ impl Fusion {
 
     /// RTCM from the rover: each completed epoch's measurements wait in
     /// time order for IMU to cover them.
-    fn on_rtcm(&mut self, bytes: &[u8], counters: &Counters) {
+    fn on_rtcm(&mut self, bytes: &[u8], stream: RtcmStream, counters: &Counters) {
         let mut epochs = Vec::new();
-        self.gnss
-            .on_rtcm(bytes, self.est.as_ref(), self.log.as_ref(), counters, &mut epochs);
+        self.gnss.on_rtcm(
+            bytes,
+            stream,
+            self.est.as_ref(),
+            self.log.as_ref(),
+            counters,
+            &mut epochs,
+        );
         for (t, sats) in epochs {
             self.enqueue(t, Pending::Gnss(sats), counters);
         }

@@ -10,7 +10,7 @@ use serde_json::json;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::{DaemonError, FusionMsg};
+use super::{DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
 use crate::estimator::Estimator;
 use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
@@ -43,7 +43,9 @@ pub(super) fn spawn_stream(
         loop {
             tokio::select! {
                 b = rx.recv() => match b {
-                    Some(b) => if fwd_tx.try_send(FusionMsg::Rtcm(b)).is_err() { counters2.add("fusion_queue_full", 1) },
+                    Some(bytes) => if fwd_tx.try_send(FusionMsg::Rtcm { bytes, stream: RtcmStream::Receiver }).is_err() {
+                        counters2.add("fusion_queue_full", 1)
+                    },
                     None => return,
                 },
                 _ = stop.changed() => return,
@@ -71,7 +73,15 @@ pub(super) struct GnssIn {
     /// that fix's position sigma (m), `PDOP · σ_pseudorange`.
     pub(super) origin_fix_sigma_m: Option<f64>,
     pseudorange_sigma_m: f64,
+    /// `gnss.rover_station_id`: the station id of the rover's own RTCM on
+    /// the link (0: none there).
+    rover_station_id: u16,
+    /// Base stations seen (MT1005/1006): id and antenna position (ECEF, m).
+    bases: Vec<(u16, [f64; 3])>,
 }
+
+/// Base stations remembered (more are still kept apart by stream and id).
+const MAX_BASES: usize = 8;
 
 impl GnssIn {
     pub(super) fn new(cfg: &Config) -> Self {
@@ -89,7 +99,9 @@ impl GnssIn {
                 } else {
                     crate::gnss::gps_week_now()
                 },
-                cfg.gnss.rover_station_id,
+                // Which station is the rover's is decided per stream here
+                // (`is_rovers`), not by the receiver model.
+                0,
             ),
             frame: (cfg.gnss.origin_llh.len() == 3).then(|| {
                 let o = &cfg.gnss.origin_llh;
@@ -98,6 +110,8 @@ impl GnssIn {
             unix_minus_boot_s: None,
             origin_fix_sigma_m: None,
             pseudorange_sigma_m: cfg.gnss.pseudorange_sigma_m,
+            rover_station_id: cfg.gnss.rover_station_id,
+            bases: Vec::new(),
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -119,9 +133,68 @@ impl GnssIn {
     /// boot clock (SYSTEM_TIME), less the receiver clock offset), pushed to
     /// `out` for the fusion loop to queue. `est` places the world origin at
     /// the first fix when none is configured; fixes go to `log`.
+    /// Whether a decoded message goes to the rover's receiver model.
+    /// Ephemerides do from any stream (broadcast orbits are the same
+    /// whoever relays them: a base's serve a rover that sends none).
+    /// Observations do only when they are the rover's (see
+    /// [`RtcmStream`]); a base station's are counted and kept apart, and a
+    /// station that sends its antenna position (MT1005/1006) is a base,
+    /// whatever its id.
+    fn is_rovers(&mut self, m: &GnssMessage, stream: RtcmStream, counters: &Counters) -> bool {
+        match m {
+            GnssMessage::Station { station_id, arp_ecef_m } => {
+                counters.add("gnss_base_station_position", 1);
+                if self.bases.len() < MAX_BASES && !self.bases.iter().any(|(id, _)| id == station_id) {
+                    self.bases.push((*station_id, *arp_ecef_m));
+                    let (lat, lon, h) = ecef_to_llh(&nalgebra::Vector3::from(*arp_ecef_m));
+                    tracing::info!(
+                        station_id,
+                        lat_deg = lat.to_degrees(),
+                        lon_deg = lon.to_degrees(),
+                        h_m = h,
+                        stream = stream.name(),
+                        "a base station announces itself (MT1005/1006): its observations are kept apart"
+                    );
+                    if *station_id == self.rover_station_id {
+                        counters.add("gnss_rover_id_is_a_base", 1);
+                        tracing::warn!(
+                            station_id,
+                            reason = "gnss_rover_id_is_a_base",
+                            "gnss.rover_station_id names a base station (it sends its antenna position): its \
+                             observations are not taken as the rover's"
+                        );
+                    }
+                }
+                false
+            }
+            GnssMessage::Msm(e) => {
+                let is_base = self.bases.iter().any(|(id, _)| *id == e.station_id);
+                let rovers = match stream {
+                    RtcmStream::Receiver => true,
+                    RtcmStream::LinkVehicle => {
+                        self.rover_station_id != 0 && e.station_id == self.rover_station_id && !is_base
+                    }
+                    RtcmStream::LinkOther => false,
+                };
+                counters.add(
+                    match (rovers, stream) {
+                        (true, RtcmStream::Receiver) => "gnss_rover_msm_from_receiver",
+                        (true, _) => "gnss_rover_msm_from_link",
+                        (false, RtcmStream::LinkOther) => "gnss_base_msm_from_ground_station",
+                        (false, _) => "gnss_base_msm_from_link",
+                    },
+                    1,
+                );
+                rovers
+            }
+            GnssMessage::Eph(_) | GnssMessage::Other(_) => true,
+        }
+    }
+
     pub(super) fn on_rtcm(
         &mut self,
         bytes: &[u8],
+        stream: RtcmStream,
         est: Option<&Estimator>,
         log: Option<&McapLogger>,
         counters: &Counters,
@@ -133,9 +206,13 @@ impl GnssIn {
             counters.add("rtcm_crc_failure", self.dec.stats.crc_failures - before);
             tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
         }
-        for m in self.msgs.drain(..) {
-            self.rx.push(m, &mut self.epochs);
+        let mut msgs = std::mem::take(&mut self.msgs);
+        for m in msgs.drain(..) {
+            if self.is_rovers(&m, stream, counters) {
+                self.rx.push(m, &mut self.epochs);
+            }
         }
+        self.msgs = msgs;
         let epochs: Vec<_> = self.epochs.drain(..).collect();
         for ep in epochs {
             counters.add("gnss_epochs", 1);

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::{signing_key, DaemonError, FusionMsg};
+use super::{signing_key, DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
 use crate::estimator::ImuMeas;
 use crate::gnss::reassembly::{Reassembled, Reassembler};
@@ -79,9 +79,6 @@ struct RxState {
     /// rover's own stream interleave their fragments on one link.
     reasm: BTreeMap<Source, Reassembler>,
     rtcm_from_mavlink: bool,
-    /// Without a rover station id, RTCM counts as the rover's only when it
-    /// comes from the configured vehicle.
-    rover_id: u16,
     vehicle: u32,
     /// The autopilot: sensor and time messages are taken from it alone.
     autopilot: Source,
@@ -116,7 +113,6 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
     let mut st = RxState {
         reasm: BTreeMap::new(),
         rtcm_from_mavlink: cfg.gnss.source == GnssSource::Mavlink,
-        rover_id: cfg.gnss.rover_station_id,
         vehicle: cfg.mavlink.system_id as u32,
         autopilot: Source {
             system: cfg.mavlink.system_id as u32,
@@ -422,7 +418,7 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
 }
 
 /// Reassembles `GPS_RTCM_DATA` fragments (MAVLink spec), one reassembler
-/// per sender, and forwards each whole RTCM3 message from the rover (the
+/// per sender, and forwards each whole RTCM3 message with its stream (the
 /// station id inside tells rover from base further on).
 fn on_rtcm_fragment(flags: u8, data: &[u8], src: Source, st: &mut RxState, r: &Receive) {
     let counters = &r.counters;
@@ -436,9 +432,15 @@ fn on_rtcm_fragment(flags: u8, data: &[u8], src: Source, st: &mut RxState, r: &R
             Reassembled::Message(m) => {
                 counters.add("rtcm_messages", 1);
                 counters.add("rtcm_bytes", m.len() as u64);
-                if !(st.rover_id != 0 || src.system == st.vehicle) {
+                // Every stream goes on, told apart: only the vehicle's own
+                // may hold the rover's observations (by their station id).
+                let stream = if src.system == st.vehicle {
+                    RtcmStream::LinkVehicle
+                } else {
                     counters.add("rtcm_other_source", 1);
-                } else if r.fusion_tx.try_send(FusionMsg::Rtcm(m)).is_err() {
+                    RtcmStream::LinkOther
+                };
+                if r.fusion_tx.try_send(FusionMsg::Rtcm { bytes: m, stream }).is_err() {
                     counters.add("fusion_queue_full", 1);
                 }
                 break;

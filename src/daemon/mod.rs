@@ -46,7 +46,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use tokio::sync::{mpsc, watch};
 
-use crate::config::Config;
+use crate::config::{Config, GnssSource};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
@@ -136,8 +136,12 @@ pub enum FusionMsg {
     /// A camera frame as received (logged as such) and its features
     /// normalised where it arrived, off the fusion thread.
     Frame(FeatureFrame, NormFrame),
-    /// One reassembled RTCM3 message from the rover.
-    Rtcm(Vec<u8>),
+    /// RTCM3 bytes and the stream they came by (which decides whether their
+    /// observations may be the rover's).
+    Rtcm {
+        bytes: Vec<u8>,
+        stream: RtcmStream,
+    },
     SystemTime {
         unix_us: u64,
         boot_ms: u32,
@@ -157,6 +161,34 @@ pub enum FusionMsg {
     RebaseInstalled {
         seq: u64,
     },
+}
+
+/// Where RTCM reached the daemon, and so what its observations may be.
+/// `GPS_RTCM_DATA` normally carries a base station's corrections to the
+/// autopilot; a receiver wired to the companion is the rover itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RtcmStream {
+    /// The receiver on the companion (`gnss.source = "stream"`): the
+    /// rover's own, whatever its station id.
+    Receiver,
+    /// `GPS_RTCM_DATA` from the vehicle's system id: the rover's only when
+    /// its station id is `gnss.rover_station_id` (and it announces no
+    /// antenna position, as a base does); else a base station's.
+    LinkVehicle,
+    /// `GPS_RTCM_DATA` from another system (a ground station injecting a
+    /// base's corrections): never the rover's.
+    LinkOther,
+}
+
+impl RtcmStream {
+    /// The name logged for replay.
+    pub fn name(self) -> &'static str {
+        match self {
+            RtcmStream::Receiver => "receiver",
+            RtcmStream::LinkVehicle => "link_vehicle",
+            RtcmStream::LinkOther => "link_other",
+        }
+    }
 }
 
 /// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).
@@ -202,6 +234,13 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     let link = link::connect(&cfg).await?;
     let listener = feature_pipe::bind(&PathBuf::from(&cfg.features.socket)).await?;
     tracing::info!(address = %cfg.mavlink.address, socket = %cfg.features.socket, mode = cfg.estimator.mode.name(), "cmsckf running");
+    if cfg.gnss.source == GnssSource::Mavlink && cfg.gnss.rover_station_id == 0 {
+        tracing::warn!(
+            "gnss.rover_station_id = 0: RTCM in GPS_RTCM_DATA is taken as a base station's and kept apart, so no \
+             GNSS is fused; set gnss.rover_station_id to your receiver's RTCM station id, or gnss.source = \"stream\" \
+             for a receiver on the companion"
+        );
+    }
 
     let (stop_tx, stop_rx) = watch::channel(false);
     let (fusion_tx, fusion_rx) = mpsc::channel::<FusionMsg>(FUSION_QUEUE);

@@ -106,7 +106,7 @@ impl Receiver {
                 self.stats.ephemerides += 1;
             }
             GnssMessage::Msm(e) => self.push_msm(e, out),
-            GnssMessage::Other(_) => {}
+            GnssMessage::Station { .. } | GnssMessage::Other(_) => {}
         }
     }
 

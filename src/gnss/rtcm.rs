@@ -74,6 +74,12 @@ impl RawEph {
 pub enum GnssMessage {
     Msm(MsmEpoch),
     Eph(RawEph),
+    /// A reference station's antenna position (MT1005/1006): what a base
+    /// station sends, so that its observations are told from the rover's.
+    Station {
+        station_id: u16,
+        arp_ecef_m: [f64; 3],
+    },
     /// A valid frame of a type this module does not use.
     Other(u16),
 }
@@ -268,6 +274,22 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
             week_field: e.gal_week_number,
             eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1046(&e, e.gal_week_number as u32),
         })),
+        Message::Msg1005(s) => Some(GnssMessage::Station {
+            station_id: s.reference_station_id,
+            arp_ecef_m: [
+                s.antenna_ref_point_ecef_x_m,
+                s.antenna_ref_point_ecef_y_m,
+                s.antenna_ref_point_ecef_z_m,
+            ],
+        }),
+        Message::Msg1006(s) => Some(GnssMessage::Station {
+            station_id: s.reference_station_id,
+            arp_ecef_m: [
+                s.antenna_ref_point_ecef_x_m,
+                s.antenna_ref_point_ecef_y_m,
+                s.antenna_ref_point_ecef_z_m,
+            ],
+        }),
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
     }

@@ -16,6 +16,9 @@ pub fn loopback_config(dir: &std::path::Path) -> (Config, u16) {
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
     cfg.features.socket = dir.join("f.sock").display().to_string();
     cfg.log.path = String::new();
+    // The SITL autopilot relays its receiver's RTCM in GPS_RTCM_DATA as
+    // station 7: the rover's, by its id.
+    cfg.gnss.rover_station_id = cmsckf_sitl::serve::ROVER_STATION_ID;
     (cfg, port)
 }
 
