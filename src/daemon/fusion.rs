@@ -2,7 +2,8 @@
 //! they arrive (IMU, camera frames, RTCM, autopilot state), logs each one it
 //! uses (so `cmsckf replay` feeds them back through this same code),
 //! holds measurements until IMU covers their time, runs the estimator, and
-//! has one restart path (reboot, IMU gap, divergence).
+//! has one restart path (reboot, IMU gap, divergence; `Fusion::restart` in
+//! `init.rs`, beside the starts it leads to).
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicI64, Ordering};
@@ -45,13 +46,6 @@ const FRAME_MAX_LAG_S: f64 = 5.0;
 /// on (s): later than this, a frame is late anyway (they arrive within
 /// 0.1 s), and GNSS epochs reach back through their clones.
 const MAX_FILTER_LAG_S: f64 = 1.0;
-
-/// The autopilot's GNSS fix counts as its own position source for this long
-/// after its last `GPS_RAW_INT` with a 3D fix (s).
-const AUTOPILOT_FIX_FRESH_S: f64 = 5.0;
-/// A restart from our own estimate that fails again within this (s) is not
-/// repeated: that estimate was wrong already (a runaway while blind).
-const IN_PLACE_RETRY_S: f64 = 10.0;
 
 /// Most IMU samples kept in `recent_imu` (2.5 s at 1.6 kHz): allocated once.
 const RECENT_IMU_CAPACITY: usize = 4096;
@@ -117,7 +111,7 @@ pub struct Fusion {
     /// The autopilot's Unix − boot offset (s), from SYSTEM_TIME, changed
     /// only when several messages agree.
     pub(super) unix_minus_boot: SteadyValue,
-    last_frame_t: f64,
+    pub(super) last_frame_t: f64,
     pub(super) next_output_t: f64,
     pub(super) reset_counter: u8,
     /// Degraded-state reasons, in autopilot time.
@@ -499,65 +493,6 @@ impl Fusion {
         }
         let at = self.pending.partition_point(|(u, _)| *u <= t);
         self.pending.insert(at, (t, item));
-    }
-
-    /// Drops the filter so that the next IMU sample starts a fresh one (the
-    /// one reset path): `reset_counter` moves on, the autopilot gets a
-    /// `STATUSTEXT`, the log a `/log` line, and the status shows
-    /// `filter_reset` for 2 s. The next filter starts at once from the
-    /// estimate carried over (see below and `init.rs`); without one, as at
-    /// the first start. After a reboot or a long IMU gap the autopilot's
-    /// attitude and position are stale and are dropped (and, after a
-    /// reboot, SYSTEM_TIME must map GPS time again).
-    fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
-        self.log_text(4, t_s, &format!("filter reset: {why}"));
-        let _ = out.try_send(Outbound::StatusText {
-            severity: if kind == Restart::Unhealthy { 2 } else { 4 },
-            text: format!("cmsckf reset: {why}"),
-        });
-        self.est = None;
-        // Where the next filter starts, at once (eq. I3): from our own
-        // estimate when the autopilot has no position of its own (no GNSS
-        // fix: with external navigation as its only source, its position is
-        // the echo of ours; the best one kept, which ages out after
-        // CARRY_MAX_S); from the autopilot's state when it has one, unless
-        // a start from it failed again just now; and as at the first start
-        // (a static window, the compass) after a reboot (the autopilot's EKF
-        // starts afresh too, and the time out is unknown).
-        let own_fix = self
-            .autopilot_fix_t
-            .is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S);
-        let failed_again = self.in_place_t.is_some_and(|t| (t_s - t).abs() < IN_PLACE_RETRY_S);
-        let good = self.good.take_best();
-        if kind != Restart::Unhealthy {
-            self.attitude = None;
-            self.local = None;
-            self.gps_accuracy = None;
-        }
-        self.carried = if kind == Restart::Reboot {
-            None
-        } else if own_fix {
-            (!failed_again)
-                .then(|| self.autopilot_start(t_s, good.as_ref()))
-                .flatten()
-        } else {
-            good.or(self.carried.take())
-        };
-        self.reset_counter = self.reset_counter.wrapping_add(1);
-        self.static_buf.clear();
-        if kind == Restart::Reboot {
-            // A rebooted autopilot has lost the origin we gave it.
-            self.origin = OriginSend::default();
-            self.tracker.restart_clock();
-            self.gnss.unix_minus_boot_s = None;
-            self.unix_minus_boot.reset();
-            self.pending.clear();
-            self.last_frame_t = f64::NEG_INFINITY;
-            self.next_output_t = f64::NEG_INFINITY;
-            self.next_state_log = f64::NEG_INFINITY;
-            self.last_imu_t = f64::NEG_INFINITY;
-        }
-        self.tracker.hold(Degraded::FilterReset, t_s);
     }
 
     /// One IMU sample through the filter: the origin to the autopilot once

@@ -20,13 +20,18 @@ use std::collections::VecDeque;
 use cmsckf_models::geodesy::ecef_to_llh;
 use cmsckf_models::magnetic;
 use nalgebra::{UnitQuaternion, Vector3};
+use tokio::sync::mpsc;
 
+use super::autopilot::OriginSend;
 use super::fusion::Fusion;
 use super::rebase::RebaseExec;
+use super::Restart;
 use crate::config::YawSource;
 use crate::estimator::propagate::{BA, BG, P as P_OFF, TH, V};
 use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Mat15};
+use crate::io::messages::Outbound;
 use crate::io::Counters;
+use crate::status::Degraded;
 
 /// Our last estimate is carried into a restart for at most this long (s of
 /// IMU time): beyond it (a long IMU gap) the motion in between is unknown.
@@ -67,11 +72,18 @@ impl GoodEstimates {
     /// The estimate to restart from (the older if there is one), leaving
     /// none for the next filter, which keeps its own.
     pub(super) fn take_best(&mut self) -> Option<Carried> {
-        let best = self.older.take().or(self.recent.take());
-        self.recent = None;
-        best
+        // `or`'s argument is taken either way: both are left empty.
+        self.older.take().or(self.recent.take())
     }
 }
+
+/// The autopilot's GNSS fix counts as its own position source for this long
+/// after its last `GPS_RAW_INT` with a 3D fix (s).
+const AUTOPILOT_FIX_FRESH_S: f64 = 5.0;
+
+/// A restart from our own estimate that fails again within this (s) is not
+/// repeated: that estimate was wrong already (a runaway while blind).
+const IN_PLACE_RETRY_S: f64 = 10.0;
 
 /// An estimate carried over a restart: the next filter's start.
 #[derive(Clone, Debug)]
@@ -138,29 +150,13 @@ impl Fusion {
     /// them (after an IMU gap or a reboot they are dropped as stale).
     pub(super) fn autopilot_start(&self, t_s: f64, good: Option<&Carried>) -> Option<Carried> {
         let (roll, pitch, yaw) = self.attitude?;
-        let (p, v, t) = self.local?;
+        let (_, _, t) = self.local?;
         // Fresh (and finite) only.
         if (t_s - t).abs().partial_cmp(&1.0) != Some(std::cmp::Ordering::Less) {
             return None;
         }
-        let i = &self.cfg.init;
-        let mut P = self.cfg.initial_covariance();
-        let (h, vert) = self
-            .gps_accuracy
-            .unwrap_or((i.sigma_position_autopilot_m, i.sigma_position_autopilot_m));
-        for k in 0..3 {
-            P[(TH + k, TH + k)] *= 4.0;
-            P[(V + k, V + k)] = 0.2f64.powi(2);
-            P[(P_OFF + k, P_OFF + k)] = [h, h, vert][k].powi(2);
-        }
-        P[(TH + 2, TH + 2)] = i.sigma_yaw_autopilot_deg.to_radians().powi(2);
-        let mut x = ImuState {
-            q_W_B: UnitQuaternion::from_euler_angles(roll, pitch, yaw),
-            v_B_in_W: v,
-            p_B_in_W: p + v * (t_s - t),
-            b_g: Vector3::zeros(),
-            b_a: Vector3::zeros(),
-        };
+        let (mut x, mut P) = self.initial_state(t_s, None, [roll, pitch, yaw])?;
+        P[(TH + 2, TH + 2)] = self.cfg.init.sigma_yaw_autopilot_deg.to_radians().powi(2);
         if let Some(g) = good {
             (x.b_g, x.b_a) = (g.x.b_g, g.x.b_a);
         }
@@ -237,21 +233,21 @@ impl Fusion {
             && w.gyr_var < 1e-3
             && (w.acc.norm() - self.cfg.imu.gravity_mps2).abs() < 0.3
             && self.local.is_none_or(|(_, v, _)| v.norm() < 0.3);
-        let Some((x0, mut p0)) = self.initial_state(m.t_s, is_static, &w, [roll, pitch, yaw]) else {
+        let Some((x0, mut p0)) = self.initial_state(m.t_s, is_static.then_some(&w), [roll, pitch, yaw]) else {
             return;
         };
         p0[(TH + 2, TH + 2)] = yaw_sigma_deg.to_radians().powi(2);
         self.start_filter(m, x0, &p0, is_static, counters);
     }
 
-    /// The first state and its covariance, or `None` while what it needs is
-    /// missing (a static attitude from the IMU; in flight, the autopilot's
-    /// local position).
+    /// The first state and its covariance, static from the `still` window
+    /// or else in flight from the autopilot's state, or `None` while what
+    /// it needs is missing (a static attitude from the IMU; in flight, the
+    /// autopilot's local position).
     fn initial_state(
         &self,
         t_s: f64,
-        is_static: bool,
-        w: &StillWindow,
+        still: Option<&StillWindow>,
         [roll, pitch, yaw]: [f64; 3],
     ) -> Option<(ImuState, Mat15)> {
         // The autopilot's position, carried to this sample's time (its
@@ -275,7 +271,7 @@ impl Fusion {
                 p0[(6 + k, 6 + k)] = s * s;
             }
         }
-        let (q, b_g, v) = if is_static {
+        let (q, b_g, v) = if let Some(w) = still {
             (attitude_from_static(&w.acc, yaw)?, w.gyr, Vector3::zeros())
         } else {
             self.local?;
@@ -351,6 +347,65 @@ impl Fusion {
             },
         );
         tracing::info!(static_start = is_static, t_s, "filter initialised");
+    }
+
+    /// Drops the filter so that the next IMU sample starts a fresh one (the
+    /// one reset path): `reset_counter` moves on, the autopilot gets a
+    /// `STATUSTEXT`, the log a `/log` line, and the status shows
+    /// `filter_reset` for 2 s. The next filter starts at once from the
+    /// estimate carried over (see below and `init.rs`); without one, as at
+    /// the first start. After a reboot or a long IMU gap the autopilot's
+    /// attitude and position are stale and are dropped (and, after a
+    /// reboot, SYSTEM_TIME must map GPS time again).
+    pub(super) fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
+        self.log_text(4, t_s, &format!("filter reset: {why}"));
+        let _ = out.try_send(Outbound::StatusText {
+            severity: if kind == Restart::Unhealthy { 2 } else { 4 },
+            text: format!("cmsckf reset: {why}"),
+        });
+        self.est = None;
+        // Where the next filter starts, at once (eq. I3): from our own
+        // estimate when the autopilot has no position of its own (no GNSS
+        // fix: with external navigation as its only source, its position is
+        // the echo of ours; the best one kept, which ages out after
+        // CARRY_MAX_S); from the autopilot's state when it has one, unless
+        // a start from it failed again just now; and as at the first start
+        // (a static window, the compass) after a reboot (the autopilot's EKF
+        // starts afresh too, and the time out is unknown).
+        let own_fix = self
+            .autopilot_fix_t
+            .is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S);
+        let failed_again = self.in_place_t.is_some_and(|t| (t_s - t).abs() < IN_PLACE_RETRY_S);
+        let good = self.good.take_best();
+        if kind != Restart::Unhealthy {
+            self.attitude = None;
+            self.local = None;
+            self.gps_accuracy = None;
+        }
+        self.carried = if kind == Restart::Reboot {
+            None
+        } else if own_fix {
+            (!failed_again)
+                .then(|| self.autopilot_start(t_s, good.as_ref()))
+                .flatten()
+        } else {
+            good.or(self.carried.take())
+        };
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.static_buf.clear();
+        if kind == Restart::Reboot {
+            // A rebooted autopilot has lost the origin we gave it.
+            self.origin = OriginSend::default();
+            self.tracker.restart_clock();
+            self.gnss.unix_minus_boot_s = None;
+            self.unix_minus_boot.reset();
+            self.pending.clear();
+            self.last_frame_t = f64::NEG_INFINITY;
+            self.next_output_t = f64::NEG_INFINITY;
+            self.next_state_log = f64::NEG_INFINITY;
+            self.last_imu_t = f64::NEG_INFINITY;
+        }
+        self.tracker.hold(Degraded::FilterReset, t_s);
     }
 }
 

@@ -7,11 +7,11 @@
 //! - `features.rs`: the feature socket and its forwarder;
 //! - `gnss_input.rs`: a receiver's RTCM3 stream, and RTCM to GNSS epochs;
 //! - `heartbeat.rs`: HEARTBEAT and STATUSTEXT, stream requests, TIMESYNC;
-//! - `fusion.rs`: the fusion loop on its own thread, and the restart path;
+//! - `fusion.rs`: the fusion loop on its own thread;
 //! - `autopilot.rs`: what the autopilot tells of itself, and our origin;
 //! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
-//! - `init.rs`: starting the filter, and restarting it from our own
-//!   estimate; `output.rs`: the estimates sent;
+//! - `init.rs`: starting the filter, and the one restart path (from our
+//!   own estimate, never the autopilot's echo); `output.rs`: the estimates sent;
 //! - `rebase.rs`: compressed mode's global updates on a worker thread;
 //! - `records.rs`: the log records written at IMU and camera rate;
 //! - `time_guard.rs`: time sanity, one bad stamp rejected, jumps confirmed;
