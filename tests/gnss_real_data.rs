@@ -55,9 +55,15 @@ fn assert_agrees(name: &str, n: usize, med: f64, p95: f64) {
 /// Runs `cmsckf gnss … --csv` and returns `(matched, median, p95 3-D
 /// distance, stderr)`.
 fn compare(file: &str, iono: &str, week: &str, reference_file: &str) -> (usize, f64, f64, String) {
+    compare_with(file, &[], iono, week, reference_file)
+}
+
+/// [`compare`] with extra arguments.
+fn compare_with(file: &str, extra: &[&str], iono: &str, week: &str, reference_file: &str) -> (usize, f64, f64, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
         .args(["gnss"])
         .arg(data(file))
+        .args(extra)
         .args([
             "--iono",
             iono,
@@ -145,6 +151,52 @@ fn gmsd7_gps_with_four_satellites() {
     assert!(counts.contains("truncated tail bytes: 302"), "{counts}");
 }
 
+/// 3040's RINEX-header position (ECEF, m): the antenna's surveyed point.
+const SURVEYED_3040: &str = "-3978242.4348,3382841.1715,3649902.7667";
+
+/// Code DGNSS of rover 3040 against base 0759 (3.3 km, MT1005 in its
+/// stream) against RTKLIB's DGPS, and both of our solutions against the
+/// surveyed position: the differential one must be the metre-better one.
+#[test]
+fn dgnss_3040_against_base_0759() {
+    let base = data("0759_base_msm7.rtcm3");
+    let base = base.to_str().unwrap();
+    let extra = ["--base", base, "--surveyed-ecef-m", SURVEYED_3040];
+    let (n, med, p95, counts) = compare_with(
+        "3040_msm7.rtcm3",
+        &extra,
+        "off",
+        "1316",
+        "3040_0759_rtklib_dgps_gps.pos",
+    );
+    eprintln!("{counts}");
+    assert!(n >= 96, "{n} epochs matched");
+    assert_agrees("3040-0759 DGNSS", n, med, p95);
+    assert!(
+        counts.contains("base: station 759 at ECEF -3976219.5082, 3382372.5671, 3652512.9849 m"),
+        "{counts}"
+    );
+    assert!(
+        counts.contains("base frames by type: 1005:120 1019:162 1077:120"),
+        "{counts}"
+    );
+    // "SPP: 120 epochs, distance from the surveyed position: median 5.256 m, ..."
+    let median_of = |name: &str| -> f64 {
+        let line = counts
+            .lines()
+            .find(|l| l.starts_with(name))
+            .unwrap_or_else(|| panic!("{counts}"));
+        let v = line.split("median ").nth(1).unwrap().split(' ').next().unwrap();
+        v.parse().unwrap()
+    };
+    let (spp, dgnss) = (median_of("SPP:"), median_of("DGNSS:"));
+    assert!(
+        (4.5..6.0).contains(&spp),
+        "SPP {spp} m from the surveyed point (RTKLIB: 5.25)"
+    );
+    assert!(dgnss < 0.7, "DGNSS {dgnss} m from the surveyed point (RTKLIB: 0.58)");
+}
+
 #[test]
 fn bad_arguments_are_clear_errors() {
     let run = |args: &[&str]| {
@@ -159,4 +211,7 @@ fn bad_arguments_are_clear_errors() {
     let f = f.to_str().unwrap();
     assert!(run(&["gnss", f, "--iono", "magic"]).contains("unknown ionosphere mode"));
     assert!(run(&["gnss", f, "--systems", "G,X"]).contains("unknown system"));
+    assert!(run(&["gnss", f, "--base", "/no/base.rtcm3"]).contains("/no/base.rtcm3"));
+    assert!(run(&["gnss", f, "--surveyed-ecef-m", "1,2"]).contains("X,Y,Z"));
+    assert!(run(&["gnss", f, "--base-max-age-s", "-1"]).contains("--base-max-age-s"));
 }

@@ -1,14 +1,17 @@
 //! `cmsckf gnss`: decodes a recorded RTCM3 file in stream order and prints
 //! one single-point solution per epoch (text or CSV), then the decoder's and
-//! the receiver's counts. The same receiver model as the daemon's, without
-//! the filter: a check of the GNSS path on real data.
+//! the receiver's counts. With `--base`, a base station's stream is merged
+//! in by time and each epoch also gets its differential solution. The same
+//! receiver model as the daemon's, without the filter: a check of the GNSS
+//! path on real data.
 
 use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
-use cmsckf::gnss::{rtcm, spp, Epoch, Receiver, ReceiverStats};
+use cmsckf::gnss::rtcm::GnssMessage;
+use cmsckf::gnss::{dgnss, rtcm, spp, Epoch, Receiver, ReceiverStats};
 
 // The arguments of `cmsckf gnss` (a plain comment: a doc comment here would
 // replace the subcommand's own help line).
@@ -31,9 +34,33 @@ pub struct GnssArgs {
     /// Only observations of this RTCM station id.
     #[arg(long, default_value_t = 0)]
     station_id: u16,
+    /// A base station's RTCM3 stream (with its MT1005/1006 antenna
+    /// position): each epoch also gets the differential solution, and
+    /// `--csv` writes that one.
+    #[arg(long)]
+    base: Option<PathBuf>,
+    /// Oldest base epoch a differential solution may use (s).
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
+    base_max_age_s: f64,
+    /// The antenna's surveyed ECEF position `X,Y,Z` (m): the distances of
+    /// the solutions from it are summarised after them.
+    #[arg(long, value_parser = parse_ecef, allow_hyphen_values = true)]
+    surveyed_ecef_m: Option<[f64; 3]>,
     /// CSV rows on stdout (counts go to stderr).
     #[arg(long)]
     csv: bool,
+}
+
+/// `X,Y,Z` in metres.
+fn parse_ecef(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|e| format!("'{x}': {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err("give three finite ECEF coordinates in metres: X,Y,Z".into()),
+    }
 }
 
 /// The header of the `--csv` rows.
@@ -48,21 +75,53 @@ pub fn gnss(args: &GnssArgs) -> anyhow::Result<()> {
     let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
     let week = args.week_hint.unwrap_or_else(cmsckf::gnss::gps_week_now);
     let mut rx = Receiver::new(opts, week, args.station_id);
+    if !(args.base_max_age_s.is_finite() && args.base_max_age_s > 0.0) {
+        bail!(
+            "--base-max-age-s {}: give a positive number of seconds",
+            args.base_max_age_s
+        );
+    }
+    rx.dgnss_max_age_s = args.base_max_age_s;
     let mut dec = rtcm::RtcmDecoder::new();
-    let results = decode_and_solve(&bytes, &mut dec, &mut rx);
+    let mut base_dec = rtcm::RtcmDecoder::new();
+    let base_bytes = match &args.base {
+        Some(f) => Some(std::fs::read(f).with_context(|| format!("reading {}", f.display()))?),
+        None => None,
+    };
+    let results = decode_and_solve(&bytes, base_bytes.as_deref(), &mut dec, &mut base_dec, &mut rx);
     let mut out = std::io::stdout().lock();
     if args.csv {
         writeln!(out, "{CSV_HEADER}")?;
     }
     for r in &results {
-        let Ok(s) = &r.fix else { continue };
+        let dgnss = r.dgnss.as_ref().and_then(|d| d.as_ref().ok());
         if args.csv {
-            write_csv_row(&mut out, s)?;
-        } else {
-            write_text_row(&mut out, s)?;
+            // The differential solution when a base is given, else the
+            // single-point one.
+            let row = if args.base.is_some() {
+                dgnss
+            } else {
+                r.fix.as_ref().ok()
+            };
+            if let Some(s) = row {
+                write_csv_row(&mut out, s)?;
+            }
+            continue;
+        }
+        if let Ok(s) = &r.fix {
+            write_text_row(&mut out, "SPP  ", s)?;
+        }
+        if let Some(s) = dgnss {
+            write_text_row(&mut out, "DGNSS", s)?;
         }
     }
-    let report = counts_report(&dec.stats, &rx.stats);
+    let mut report = counts_report(&dec.stats, &rx.stats);
+    if let Some(b) = &rx.base {
+        report += &base_report(&base_dec.stats, b, &rx.stats);
+    }
+    if let Some(truth) = args.surveyed_ecef_m {
+        report += &surveyed_report(&results, &nalgebra::Vector3::from(truth));
+    }
     if args.csv {
         eprintln!("{report}");
     } else {
@@ -86,17 +145,80 @@ fn spp_options(mask_deg: f64, iono: &str, systems: &str) -> anyhow::Result<spp::
     })
 }
 
-/// Decodes all of `bytes` with `dec`, feeds the messages to `rx` in stream
-/// order and flushes it: every epoch, solved or not.
-fn decode_and_solve(bytes: &[u8], dec: &mut rtcm::RtcmDecoder, rx: &mut Receiver) -> Vec<Epoch> {
+/// Decodes all of `bytes` with `dec` (and the base's `base` with
+/// `base_dec`), feeds the messages to `rx` in stream order, the two streams
+/// merged by time ([`merge_by_time`]), and flushes it: every epoch, solved
+/// or not.
+fn decode_and_solve(
+    bytes: &[u8],
+    base: Option<&[u8]>,
+    dec: &mut rtcm::RtcmDecoder,
+    base_dec: &mut rtcm::RtcmDecoder,
+    rx: &mut Receiver,
+) -> Vec<Epoch> {
     let mut msgs = Vec::new();
     dec.push(bytes, &mut msgs);
+    let mut base_msgs = Vec::new();
+    if let Some(b) = base {
+        base_dec.push(b, &mut base_msgs);
+    }
     let mut results = Vec::new();
-    for m in msgs {
-        rx.push(m, &mut results);
+    for (from_base, m) in merge_by_time(msgs, base_msgs) {
+        if from_base {
+            rx.push_base(m);
+        } else {
+            rx.push(m, &mut results);
+        }
     }
     rx.flush(&mut results);
     results
+}
+
+/// Interleaves a rover stream and a base stream as they would arrive
+/// together: each message is stamped with the time of the MSM epoch it
+/// follows (its own, for an MSM), and a base message goes first when its
+/// stamp is at most [`dgnss::PAIR_TOLERANCE_S`] after the rover's, so a base
+/// epoch is there when the rover's epoch of the same instant is solved.
+/// Returns `(from the base?, message)` in arrival order.
+fn merge_by_time(rover: Vec<GnssMessage>, base: Vec<GnssMessage>) -> Vec<(bool, GnssMessage)> {
+    let (r, b) = (stamped(rover), stamped(base));
+    let mut out = Vec::with_capacity(r.len() + b.len());
+    let (mut r, mut b) = (r.into_iter().peekable(), b.into_iter().peekable());
+    loop {
+        let take_base = match (r.peek(), b.peek()) {
+            (Some((tr, _)), Some((tb, _))) => *tb <= *tr + dgnss::PAIR_TOLERANCE_S,
+            (None, Some(_)) => true,
+            (Some(_), None) => false,
+            (None, None) => break,
+        };
+        let next = if take_base {
+            b.next().map(|(_, m)| (true, m))
+        } else {
+            r.next().map(|(_, m)| (false, m))
+        };
+        out.extend(next);
+    }
+    out
+}
+
+/// Each message with the time (s, unwrapped over week ends) of the MSM
+/// epoch it follows: its own for an MSM, −∞ before the stream's first.
+fn stamped(msgs: Vec<GnssMessage>) -> Vec<(f64, GnssMessage)> {
+    let mut t = f64::NEG_INFINITY;
+    let mut wraps = 0.0;
+    msgs.into_iter()
+        .map(|m| {
+            if let GnssMessage::Msm(e) = &m {
+                let tow = e.tow_ms as f64 * 1e-3 + wraps;
+                // A time of week that falls by more than half a week is the next week.
+                if tow < t - 302_400.0 {
+                    wraps += 604_800.0;
+                }
+                t = e.tow_ms as f64 * 1e-3 + wraps;
+            }
+            (t, m)
+        })
+        .collect()
 }
 
 /// One solution as a `--csv` row.
@@ -119,8 +241,8 @@ fn write_csv_row(out: &mut impl Write, s: &spp::SppSolution) -> std::io::Result<
     )
 }
 
-/// One solution as a line of text, with its RAIM outcome.
-fn write_text_row(out: &mut impl Write, s: &spp::SppSolution) -> std::io::Result<()> {
+/// One solution as a line of text, with its kind and RAIM outcome.
+fn write_text_row(out: &mut impl Write, kind: &str, s: &spp::SppSolution) -> std::io::Result<()> {
     let (lat, lon, h) = cmsckf_models::geodesy::ecef_to_llh(&s.r_ecef_m);
     let raim = match &s.raim {
         spp::Raim::Passed => "raim ok".to_string(),
@@ -129,7 +251,7 @@ fn write_text_row(out: &mut impl Write, s: &spp::SppSolution) -> std::io::Result
     };
     writeln!(
         out,
-        "week {} tow {:>10.3}  {} sats  lat {:>13.8} lon {:>13.8} h {:>9.3} m  PDOP {:>5.2}  rms {:>6.3} m  {}{}",
+        "{kind} week {} tow {:>10.3}  {} sats  lat {:>13.8} lon {:>13.8} h {:>9.3} m  PDOP {:>5.2}  rms {:>6.3} m  {}{}",
         s.week,
         s.tow_s,
         s.sats.len(),
@@ -163,4 +285,65 @@ epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}  MSMs of unselected syste
         rx.ephemerides,
         rx.skipped_system
     )
+}
+
+/// The base stream's counts and the differential solutions'.
+fn base_report(dec: &rtcm::DecodeStats, b: &dgnss::BaseStation, rx: &ReceiverStats) -> String {
+    let mut counts = String::new();
+    for (t, n) in &dec.frames_by_type {
+        counts += &format!(" {t}:{n}");
+    }
+    let arp = match b.arp {
+        Some((id, p)) => format!("station {id} at ECEF {:.4}, {:.4}, {:.4} m", p.x, p.y, p.z),
+        None => "no antenna position (MT1005/1006)".into(),
+    };
+    format!(
+        "
+base frames by type:{counts}
+base CRC failures: {}  bytes skipped: {}  truncated tail bytes: {}
+base: {arp}  epochs: {}  positions: {} (changes: {})
+differential solutions: {}  skipped: {:?}",
+        dec.crc_failures,
+        dec.bytes_skipped,
+        dec.trailing_bytes,
+        b.stats.epochs,
+        b.stats.positions,
+        b.stats.position_changes,
+        rx.dgnss_solved,
+        rx.dgnss_skipped
+    )
+}
+
+/// The 3-D distances of the single-point and the differential solutions
+/// from the antenna's surveyed position: count, median, RMS and maximum.
+fn surveyed_report(results: &[Epoch], truth: &nalgebra::Vector3<f64>) -> String {
+    let line = |name: &str, mut d: Vec<f64>| {
+        if d.is_empty() {
+            return format!("\n{name}: no solution");
+        }
+        d.sort_by(f64::total_cmp);
+        let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+        format!(
+            "\n{name}: {} epochs, distance from the surveyed position: median {:.3} m, RMS {:.3} m, max {:.3} m",
+            d.len(),
+            d[d.len() / 2],
+            rms,
+            d[d.len() - 1]
+        )
+    };
+    let spp = results
+        .iter()
+        .filter_map(|r| r.fix.as_ref().ok())
+        .map(|s| (s.r_ecef_m - truth).norm())
+        .collect();
+    let dgnss = results
+        .iter()
+        .filter_map(|r| r.dgnss.as_ref()?.as_ref().ok())
+        .map(|s| (s.r_ecef_m - truth).norm())
+        .collect();
+    let mut out = line("SPP", spp);
+    if results.iter().any(|r| r.dgnss.is_some()) {
+        out += &line("DGNSS", dgnss);
+    }
+    out
 }

@@ -11,6 +11,7 @@
 //! [`gps_week_now`], the week hint's fallback): bytes come in from
 //! `io::mavlink` or `io::gnss_stream`, and it stands on `cmsckf-models` alone.
 
+pub mod dgnss;
 pub mod reassembly;
 pub mod rtcm;
 pub mod spp;
@@ -21,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use cmsckf_models::gnss::Klobuchar;
 
+use dgnss::{BaseStation, DgnssError};
 use rtcm::{GnssMessage, MsmEpoch, SatObs, System};
 use spp::{EphStore, SppError, SppOptions, SppSolution};
 
@@ -57,6 +59,46 @@ pub struct Epoch {
     pub tow_s: f64,
     pub sats: Vec<SatObs>,
     pub fix: Result<SppSolution, SppError>,
+    /// The differential solution against the base station, when a base
+    /// stream is attached ([`Receiver::push_base`]).
+    pub dgnss: Option<Result<SppSolution, DgnssError>>,
+}
+
+/// Groups MSMs into epochs: by time of week, closed by the next epoch's
+/// time or by an MSM without the multiple-message bit.
+#[derive(Default)]
+pub struct EpochAssembler {
+    /// Station id, time of week (ms) and satellites of the open epoch.
+    pending: Option<(u16, u32, Vec<SatObs>)>,
+}
+
+impl EpochAssembler {
+    /// Feeds one MSM, keeping its satellites if its constellation is one of
+    /// `systems` (returns whether it was); calls `done` with each epoch it
+    /// completes.
+    pub fn push(&mut self, e: MsmEpoch, systems: &[System], mut done: impl FnMut(u16, u32, Vec<SatObs>)) -> bool {
+        if self.pending.as_ref().is_some_and(|(_, t, _)| *t != e.tow_ms) {
+            if let Some(p) = self.pending.take() {
+                done(p.0, p.1, p.2);
+            }
+        }
+        let entry = self.pending.get_or_insert_with(|| (e.station_id, e.tow_ms, Vec::new()));
+        let selected = systems.contains(&e.system);
+        if selected {
+            entry.2.extend(e.sats);
+        }
+        if !e.multiple {
+            if let Some(p) = self.pending.take() {
+                done(p.0, p.1, p.2);
+            }
+        }
+        selected
+    }
+
+    /// The open epoch, if any (at the end of a stream).
+    pub fn take(&mut self) -> Option<(u16, u32, Vec<SatObs>)> {
+        self.pending.take()
+    }
 }
 
 /// Counts kept by the receiver.
@@ -69,6 +111,9 @@ pub struct ReceiverStats {
     pub other_station: u64,
     /// MSMs of constellations not selected, by system letter.
     pub skipped_system: BTreeMap<char, u64>,
+    /// Differential solutions, and epochs without one by reason.
+    pub dgnss_solved: u64,
+    pub dgnss_skipped: BTreeMap<String, u64>,
 }
 
 /// A stream-order GNSS receiver model: ephemerides, epochs and solutions.
@@ -79,7 +124,11 @@ pub struct Receiver {
     /// Accept observations only from this RTCM station (0 = any).
     pub station_id: u16,
     pub ephs: EphStore,
-    pending: Option<(u32, Vec<SatObs>)>,
+    assembler: EpochAssembler,
+    /// The base station, when a base stream is attached.
+    pub base: Option<BaseStation>,
+    /// Oldest base epoch (s) a differential solution may use.
+    pub dgnss_max_age_s: f64,
     pub stats: ReceiverStats,
 }
 
@@ -90,7 +139,9 @@ impl Receiver {
             week_hint,
             station_id,
             ephs: EphStore::default(),
-            pending: None,
+            assembler: EpochAssembler::default(),
+            base: None,
+            dgnss_max_age_s: 10.0,
             stats: ReceiverStats::default(),
         }
     }
@@ -110,30 +161,55 @@ impl Receiver {
         }
     }
 
+    /// Feeds one message of the base station's stream: its ephemerides
+    /// join the rover's, its antenna position and epochs make the base
+    /// (attached at the first call).
+    pub fn push_base(&mut self, m: GnssMessage) {
+        if matches!(m, GnssMessage::Eph(_)) {
+            return self.push(m, &mut Vec::new());
+        }
+        let base = self.base.get_or_insert_with(BaseStation::default);
+        match m {
+            GnssMessage::Eph(_) | GnssMessage::Other(_) => {}
+            GnssMessage::Station { station_id, arp_ecef_m } => base.set_position(station_id, arp_ecef_m),
+            GnssMessage::Msm(e) => {
+                let (ephs, hint) = (&self.ephs, self.week_hint);
+                base.push_msm(e, &self.opts.systems, |tow| ephs.week_for_tow(tow).unwrap_or(hint));
+            }
+        }
+    }
+
     fn push_msm(&mut self, e: MsmEpoch, out: &mut Vec<Epoch>) {
         if self.station_id != 0 && e.station_id != self.station_id {
             self.stats.other_station += 1;
             return;
         }
-        if self.pending.as_ref().is_some_and(|(t, _)| *t != e.tow_ms) {
-            self.flush(out);
+        let (system, mut done) = (e.system, Vec::new());
+        if !self
+            .assembler
+            .push(e, &self.opts.systems, |_, tow_ms, sats| done.push((tow_ms, sats)))
+        {
+            *self.stats.skipped_system.entry(system.letter()).or_default() += 1;
         }
-        let entry = self.pending.get_or_insert_with(|| (e.tow_ms, Vec::new()));
-        if self.opts.systems.contains(&e.system) {
-            entry.1.extend(e.sats);
-        } else {
-            *self.stats.skipped_system.entry(e.system.letter()).or_default() += 1;
-        }
-        if !e.multiple {
-            self.flush(out);
+        for (tow_ms, sats) in done {
+            self.solve(tow_ms, sats, out);
         }
     }
 
     /// Solves the pending epoch, if any (call at the end of a stream).
     pub fn flush(&mut self, out: &mut Vec<Epoch>) {
-        let Some((tow_ms, sats)) = self.pending.take() else {
-            return;
-        };
+        if let Some(base) = &mut self.base {
+            let (ephs, hint) = (&self.ephs, self.week_hint);
+            base.flush(|tow| ephs.week_for_tow(tow).unwrap_or(hint));
+        }
+        if let Some((_, tow_ms, sats)) = self.assembler.take() {
+            self.solve(tow_ms, sats, out);
+        }
+    }
+
+    /// The single-point and, with a base, the differential solution of one
+    /// completed epoch.
+    fn solve(&mut self, tow_ms: u32, sats: Vec<SatObs>, out: &mut Vec<Epoch>) {
         self.stats.epochs += 1;
         let tow_s = tow_ms as f64 * 1e-3;
         // MSMs carry only the time of week: the week is the ephemerides'.
@@ -143,7 +219,21 @@ impl Receiver {
             Ok(_) => self.stats.solved += 1,
             Err(error) => *self.stats.skipped.entry(error.to_string()).or_default() += 1,
         }
-        out.push(Epoch { week, tow_s, sats, fix });
+        let dgnss = self.base.as_ref().map(|b| {
+            let r = dgnss::solve(&sats, week, tow_s, b, &self.ephs, &self.opts, self.dgnss_max_age_s);
+            match &r {
+                Ok(_) => self.stats.dgnss_solved += 1,
+                Err(error) => *self.stats.dgnss_skipped.entry(error.to_string()).or_default() += 1,
+            }
+            r
+        });
+        out.push(Epoch {
+            week,
+            tow_s,
+            sats,
+            fix,
+            dgnss,
+        });
     }
 }
 

@@ -23,7 +23,9 @@ use std::collections::BTreeMap;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
-use cmsckf_models::gnss::{saastamoinen_m, BroadcastEphemeris};
+use cmsckf_models::gnss::{
+    niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, BroadcastEphemeris,
+};
 use cmsckf_models::stats::chi2_quantile;
 
 use super::rtcm::{SatObs, System};
@@ -151,12 +153,42 @@ pub fn state_at_transmission(eph: &BroadcastEphemeris, tow_rx_s: f64, pr_m: f64)
 }
 
 /// One satellite ready for the solver.
-struct Meas {
-    sat: (System, u8),
-    pr_m: f64,
-    r_sat: Vector3<f64>,
-    dts_m: f64,
-    ura_m: f64,
+pub(super) struct Meas {
+    pub sat: (System, u8),
+    pub pr_m: f64,
+    pub r_sat: Vector3<f64>,
+    pub dts_m: f64,
+    pub ura_m: f64,
+}
+
+/// What the code measurements of an epoch are, which sets the troposphere
+/// and the weights of the least squares.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) enum CodeModel {
+    /// One frequency, no ionosphere model: Saastamoinen, RTKLIB's variance
+    /// with 5 m of ionosphere.
+    Single,
+    /// The ionosphere-free combination: Saastamoinen, tripled σ.
+    IonoFree,
+    /// Rover-minus-base corrected codes (`dgnss.rs`): the hydrostatic
+    /// Saastamoinen zenith delay mapped by Niell's function at day of year
+    /// `doy`, variance `2 (0.3² + 0.3²/sin² el)` (RTKLIB's relative-mode
+    /// code error, the rover's and the base's), no URA: orbit, clock and
+    /// ionosphere errors cancel in the difference.
+    Differential { doy: f64 },
+}
+
+impl CodeModel {
+    /// The modelled troposphere (m) at latitude `lat`, height `h` (m) and
+    /// elevation `el` (rad).
+    pub(super) fn troposphere_m(self, lat: f64, h: f64, el: f64) -> f64 {
+        match self {
+            CodeModel::Single | CodeModel::IonoFree => saastamoinen_m(lat, h, el),
+            CodeModel::Differential { doy } => {
+                saastamoinen_zenith_hydrostatic_m(lat, h) * niell_hydrostatic_mapping(lat, h, el, doy)
+            }
+        }
+    }
 }
 
 /// The ionosphere-free pseudorange `(P2 − γ P1)/(1 − γ)`, `γ = (f1/f2)²`,
@@ -205,16 +237,33 @@ pub fn solve(
         });
     }
     let iono_free = iono_free_used.unwrap_or(false);
+    let model = if iono_free {
+        CodeModel::IonoFree
+    } else {
+        CodeModel::Single
+    };
+    solve_meas(&meas, week, tow_s, opt, model)
+}
+
+/// Least squares with RAIM fault detection and exclusion over prepared
+/// measurements of one epoch.
+pub(super) fn solve_meas(
+    meas: &[Meas],
+    week: u32,
+    tow_s: f64,
+    opt: &SppOptions,
+    model: CodeModel,
+) -> Result<SppSolution, SppError> {
     let mut excluded: Option<(System, u8)> = None;
-    let first = lsq(&meas, None, opt, iono_free);
+    let first = lsq(meas, None, opt, model);
     let sol = match first {
         Ok(s) => s,
         Err(SppError::Chi2) => {
             // RAIM FDE: the exclusion with the smallest residuals that passes
             // (needs one redundant satellite left after the exclusion).
             let mut best: Option<(f64, LsqOut, (System, u8))> = None;
-            for m in &meas {
-                if let Ok(s) = lsq(&meas, Some(m.sat), opt, iono_free) {
+            for m in meas {
+                if let Ok(s) = lsq(meas, Some(m.sat), opt, model) {
                     if s.sats.len() > s.n_unknowns && best.as_ref().is_none_or(|b| s.rms < b.0) {
                         best = Some((s.rms, s, m.sat));
                     }
@@ -241,7 +290,7 @@ pub fn solve(
         pdop: sol.pdop,
         residual_rms_m: sol.rms,
         raim,
-        iono_free,
+        iono_free: model == CodeModel::IonoFree,
     })
 }
 
@@ -261,7 +310,7 @@ struct LsqOut {
 /// Weighted Gauss–Newton least squares on the position and one clock per
 /// constellation, from the Earth's centre; `exclude` leaves one satellite
 /// out (RAIM). Ends with the χ² test of the residuals and the DOPs.
-fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free: bool) -> Result<LsqOut, SppError> {
+fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, model: CodeModel) -> Result<LsqOut, SppError> {
     let mut x = Vector3::zeros();
     // One clock per constellation present, in a fixed order (GPS first).
     let mut systems: Vec<System> = meas.iter().map(|m| m.sat.0).collect();
@@ -271,7 +320,7 @@ fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, iono_free
     let mut clk = vec![0.0; systems.len()];
     let mask = opt.elevation_mask_deg.to_radians();
     for _iter in 0..10 {
-        let rows = lsq_rows(meas, exclude, &x, &systems, &clk, mask, iono_free);
+        let rows = lsq_rows(meas, exclude, &x, &systems, &clk, mask, model);
         let n = rows.len();
         // Every constellation's clock needs one of its own satellites.
         let present = (0..systems.len()).filter(|k| rows.iter().any(|r| r.1 == *k)).count();
@@ -305,7 +354,7 @@ fn lsq_rows(
     systems: &[System],
     clk: &[f64],
     mask: f64,
-    iono_free: bool,
+    model: CodeModel,
 ) -> Vec<Row> {
     let (lat, _, h) = ecef_to_llh(x);
     let known = x.norm() > 6.0e6;
@@ -324,18 +373,24 @@ fn lsq_rows(
         let d = m.r_sat - x;
         let rho = d.norm() + OMEGA_E_RADPS * (m.r_sat.x * x.y - m.r_sat.y * x.x) / C_MPS;
         let u = d / d.norm();
-        let trop = if known { saastamoinen_m(lat, h, el) } else { 0.0 };
+        let trop = if known { model.troposphere_m(lat, h, el) } else { 0.0 };
         let v = m.pr_m - (rho + clk[k] - m.dts_m + trop);
-        rows.push((-u, k, v, code_variance_m2(el, m.ura_m, iono_free), m.sat));
+        rows.push((-u, k, v, code_variance_m2(el, m.ura_m, model), m.sat));
     }
     rows
 }
 
 /// A pseudorange's variance (m²) at elevation `el` (rad): the RTKLIB model
 /// (tripled σ for the iono-free combination, else 5 m of ionosphere), plus
-/// the URA `ura_m`.
-fn code_variance_m2(el: f64, ura_m: f64, iono_free: bool) -> f64 {
+/// the URA `ura_m`; for differential codes, RTKLIB's relative-mode
+/// `2 (0.3² + 0.3²/sin² el)`.
+fn code_variance_m2(el: f64, ura_m: f64, model: CodeModel) -> f64 {
     let sin_el = el.sin();
+    let iono_free = match model {
+        CodeModel::Differential { .. } => return 2.0 * (0.09 + 0.09 / (sin_el * sin_el)),
+        CodeModel::Single => false,
+        CodeModel::IonoFree => true,
+    };
     let mut var = 0.09 * (1.0 + 1.0 / sin_el);
     if iono_free {
         var *= 9.0;

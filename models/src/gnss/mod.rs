@@ -9,7 +9,7 @@ pub mod atmosphere;
 pub mod ephemeris;
 pub mod rtcm_eph;
 
-pub use atmosphere::{saastamoinen_m, Klobuchar};
+pub use atmosphere::{niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, Klobuchar};
 pub use ephemeris::{tk, BroadcastEphemeris, SatState, REL_F};
 
 use nalgebra::Vector3;
@@ -26,6 +26,28 @@ pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
 /// GPS week and time of week → Unix time (s), through the leap seconds.
 pub fn gps_to_unix_s(week: u32, tow_s: f64) -> f64 {
     GPS_EPOCH_UNIX_S + week as f64 * WEEK_S + tow_s - GPS_UTC_LEAP_S
+}
+
+/// Day of year of a GPS time (1.0 = 1 January 00:00 GPST), as the
+/// troposphere's seasonal terms want it: the civil year is found from the
+/// days since 1970 (Hinnant's `civil_from_days`).
+pub fn gps_day_of_year(week: u32, tow_s: f64) -> f64 {
+    // Days from 1970-01-01 to 1980-01-06: 3657.
+    let t_days = week as f64 * 7.0 + tow_s / 86_400.0 + 3657.0;
+    let z = t_days.floor() as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy_mar = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy_mar + 2) / 153;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    // Days from 1970-01-01 to 1 January of `year` (days_from_civil).
+    let y = year - 1;
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let jan1 = era * 146_097 + yoe * 365 + yoe / 4 - yoe / 100 + 306 - 719_468;
+    t_days - jan1 as f64 + 1.0
 }
 
 /// Constellations.
@@ -71,4 +93,18 @@ pub struct SatMeas {
     pub noise_scale: f64,
     /// Added pseudorange variance (m²): an unmodelled ionosphere.
     pub extra_var_m2: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    /// Day of year in GPST: 2005-04-02 00:00 (GPS week 1316, day 6) is day
+    /// 92; 1 January 00:00 is 1.0; a leap year's 31 December noon is 366.5.
+    #[test]
+    fn day_of_year() {
+        assert!((super::gps_day_of_year(1316, 6.0 * 86_400.0) - 92.0).abs() < 1e-9);
+        // 2024-01-01 00:00 GPST is GPS week 2295, day 1 (Monday).
+        assert!((super::gps_day_of_year(2295, 86_400.0) - 1.0).abs() < 1e-9);
+        // 2024-12-31 12:00 GPST: week 2347, day 2 (Tuesday).
+        assert!((super::gps_day_of_year(2347, 2.5 * 86_400.0) - 366.5).abs() < 1e-9);
+    }
 }
