@@ -122,6 +122,47 @@ fn rtcm_stream() {
     assert!(dec.stats.crc_failures > 0 && frames > 0);
 }
 
+/// Mutated slices of the real u-blox log (UBX frames among NMEA) through
+/// the UBX decoder in random pieces: no panic, a bounded buffer, frames
+/// decoded and checksum failures counted.
+#[test]
+fn ubx_stream() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let real = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data")
+            .join("ubx_20080526.ubx"),
+    )
+    .unwrap();
+    let mut dec = cmsckf::gnss::ubx::UbxDecoder::new();
+    let mut out = Vec::new();
+    let mut frames = 0u64;
+    for _ in 0..iters() {
+        let start = rng.random_range(0..real.len() - 4096);
+        let seed = &real[start..start + rng.random_range(1..4096)];
+        let s = mutate(&mut rng, seed, 8192);
+        for piece in s.chunks(rng.random_range(1..600)) {
+            dec.push(piece, &mut out);
+            assert!(
+                dec.buffered() <= 3 * (16 + 32 * 255 + 8),
+                "decoder buffer {}",
+                dec.buffered()
+            );
+        }
+        frames += out.len() as u64;
+        out.clear();
+    }
+    let good: u64 = dec.stats.frames_by_id.values().sum();
+    eprintln!(
+        "UBX: {} inputs, {good} good frames, {frames} messages, {} checksum failures, {} malformed, {} bytes skipped",
+        iters(),
+        dec.stats.checksum_failures,
+        dec.stats.malformed,
+        dec.stats.bytes_skipped
+    );
+    assert!(dec.stats.checksum_failures > 0 && frames > 0);
+}
+
 #[test]
 fn rtcm_fragments() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);

@@ -151,6 +151,29 @@ fn gmsd7_gps_with_four_satellites() {
     assert!(counts.contains("truncated tail bytes: 302"), "{counts}");
 }
 
+/// A u-blox receiver's own raw log (legacy RXM-RAW and RXM-SFRB among
+/// NMEA), its orbits from its own subframes, against RTKLIB. In stream
+/// order every ephemeris is there from 05:59:48.999: 218 of 242 epochs.
+#[test]
+fn ubx_legacy_raw_and_subframes() {
+    let (n, med, p95, counts) = compare(
+        "ubx_20080526.ubx",
+        "off",
+        "1481",
+        "ubx_20080526_rtklib_spp_gps_ionooff.pos",
+    );
+    eprintln!("{counts}");
+    assert!(n >= 200, "{n} epochs matched");
+    assert_agrees("u-blox RXM-RAW", n, med, p95);
+    assert!(counts.contains("format: UBX"), "{counts}");
+    assert!(counts.contains("02-10:242 02-11:842"), "{counts}");
+    assert!(
+        counts.contains("bytes skipped: 152266  truncated tail bytes: 18"),
+        "{counts}"
+    );
+    assert!(counts.contains("ephemerides: 18"), "{counts}");
+}
+
 /// 3040's RINEX-header position (ECEF, m): the antenna's surveyed point.
 const SURVEYED_3040: &str = "-3978242.4348,3382841.1715,3649902.7667";
 

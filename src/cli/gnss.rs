@@ -1,4 +1,5 @@
-//! `cmsckf gnss`: decodes a recorded RTCM3 file in stream order and prints
+//! `cmsckf gnss`: decodes a recorded RTCM3 or UBX file (recognised from its
+//! bytes) in stream order and prints
 //! one single-point solution per epoch (text or CSV), then the decoder's and
 //! the receiver's counts. With `--base`, a base station's stream is merged
 //! in by time and each epoch also gets its differential solution. The same
@@ -11,7 +12,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 
 use cmsckf::gnss::rtcm::GnssMessage;
-use cmsckf::gnss::{dgnss, rtcm, spp, Epoch, Receiver, ReceiverStats};
+use cmsckf::gnss::{dgnss, rtcm, spp, ubx, Epoch, Receiver, ReceiverStats, StreamDecoder};
 
 // The arguments of `cmsckf gnss` (a plain comment: a doc comment here would
 // replace the subcommand's own help line).
@@ -82,8 +83,8 @@ pub fn gnss(args: &GnssArgs) -> anyhow::Result<()> {
         );
     }
     rx.dgnss_max_age_s = args.base_max_age_s;
-    let mut dec = rtcm::RtcmDecoder::new();
-    let mut base_dec = rtcm::RtcmDecoder::new();
+    let mut dec = StreamDecoder::default();
+    let mut base_dec = StreamDecoder::default();
     let base_bytes = match &args.base {
         Some(f) => Some(std::fs::read(f).with_context(|| format!("reading {}", f.display()))?),
         None => None,
@@ -115,9 +116,9 @@ pub fn gnss(args: &GnssArgs) -> anyhow::Result<()> {
             write_text_row(&mut out, "DGNSS", s)?;
         }
     }
-    let mut report = counts_report(&dec.stats, &rx.stats);
+    let mut report = counts_report(&dec, &rx.stats);
     if let Some(b) = &rx.base {
-        report += &base_report(&base_dec.stats, b, &rx.stats);
+        report += &base_report(&base_dec, b, &rx.stats);
     }
     if let Some(truth) = args.surveyed_ecef_m {
         report += &surveyed_report(&results, &nalgebra::Vector3::from(truth));
@@ -152,15 +153,19 @@ fn spp_options(mask_deg: f64, iono: &str, systems: &str) -> anyhow::Result<spp::
 fn decode_and_solve(
     bytes: &[u8],
     base: Option<&[u8]>,
-    dec: &mut rtcm::RtcmDecoder,
-    base_dec: &mut rtcm::RtcmDecoder,
+    dec: &mut StreamDecoder,
+    base_dec: &mut StreamDecoder,
     rx: &mut Receiver,
 ) -> Vec<Epoch> {
+    // In pieces, as a port delivers them: RTCM3 and UBX frames of one
+    // stream then stay in their order.
     let mut msgs = Vec::new();
-    dec.push(bytes, &mut msgs);
+    for piece in bytes.chunks(256) {
+        dec.push(piece, &mut msgs);
+    }
     let mut base_msgs = Vec::new();
-    if let Some(b) = base {
-        base_dec.push(b, &mut base_msgs);
+    for piece in base.unwrap_or_default().chunks(256) {
+        base_dec.push(piece, &mut base_msgs);
     }
     let mut results = Vec::new();
     for (from_base, m) in merge_by_time(msgs, base_msgs) {
@@ -209,12 +214,12 @@ fn stamped(msgs: Vec<GnssMessage>) -> Vec<(f64, GnssMessage)> {
     msgs.into_iter()
         .map(|m| {
             if let GnssMessage::Msm(e) = &m {
-                let tow = e.tow_ms as f64 * 1e-3 + wraps;
+                let tow = e.tow_s + wraps;
                 // A time of week that falls by more than half a week is the next week.
                 if tow < t - 302_400.0 {
                     wraps += 604_800.0;
                 }
-                t = e.tow_ms as f64 * 1e-3 + wraps;
+                t = e.tow_s + wraps;
             }
             (t, m)
         })
@@ -265,20 +270,19 @@ fn write_text_row(out: &mut impl Write, kind: &str, s: &spp::SppSolution) -> std
     )
 }
 
-/// The decoder's and the receiver's counts, as printed after the solutions.
-fn counts_report(dec: &rtcm::DecodeStats, rx: &ReceiverStats) -> String {
-    let mut counts = String::new();
-    for (t, n) in &dec.frames_by_type {
-        counts += &format!(" {t}:{n}");
-    }
+/// The decoders' and the receiver's counts, as printed after the solutions:
+/// RTCM3's always, UBX's when the stream has UBX frames.
+fn counts_report(dec: &StreamDecoder, rx: &ReceiverStats) -> String {
     format!(
-        "frames by type:{counts}
-CRC failures: {}  undecodable: {}  bytes skipped: {}  truncated tail bytes: {}
+        "format: {}{}{}
 epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}  MSMs of unselected systems: {:?}",
-        dec.crc_failures,
-        dec.undecodable,
-        dec.bytes_skipped,
-        dec.trailing_bytes,
+        dec.formats(),
+        if dec.rtcm_in_use() {
+            rtcm_counts(&dec.rtcm.stats)
+        } else {
+            String::new()
+        },
+        ubx_counts(&dec.ubx.stats),
         rx.epochs,
         rx.solved,
         rx.skipped,
@@ -287,25 +291,60 @@ epochs: {}  solved: {}  skipped: {:?}  ephemerides: {}  MSMs of unselected syste
     )
 }
 
-/// The base stream's counts and the differential solutions'.
-fn base_report(dec: &rtcm::DecodeStats, b: &dgnss::BaseStation, rx: &ReceiverStats) -> String {
+/// RTCM3 frame counts.
+fn rtcm_counts(dec: &rtcm::DecodeStats) -> String {
     let mut counts = String::new();
     for (t, n) in &dec.frames_by_type {
         counts += &format!(" {t}:{n}");
     }
+    format!(
+        "
+frames by type:{counts}
+CRC failures: {}  undecodable: {}  bytes skipped: {}  truncated tail bytes: {}",
+        dec.crc_failures, dec.undecodable, dec.bytes_skipped, dec.trailing_bytes
+    )
+}
+
+/// UBX frame counts, when there are UBX frames.
+fn ubx_counts(u: &ubx::UbxStats) -> String {
+    if u.frames_by_id.is_empty() && u.checksum_failures == 0 {
+        return String::new();
+    }
+    let mut counts = String::new();
+    for ((c, i), n) in &u.frames_by_id {
+        counts += &format!(" {c:02X}-{i:02X}:{n}");
+    }
+    format!(
+        "
+UBX frames by class-id:{counts}
+UBX checksum failures: {}  oversize: {}  malformed: {}  bytes skipped: {}  truncated tail bytes: {}
+UBX measurements of unused systems by gnssId: {:?}  navigation frames not decoded by gnssId: {:?}  \
+GPS subframes without preamble: {}  subframe sets of mixed issues: {}",
+        u.checksum_failures,
+        u.oversize,
+        u.malformed,
+        u.bytes_skipped,
+        u.trailing_bytes,
+        u.unused_measurements,
+        u.nav_not_decoded,
+        u.bad_subframes,
+        u.mismatched_issues
+    )
+}
+
+/// The base stream's counts and the differential solutions'.
+fn base_report(dec: &StreamDecoder, b: &dgnss::BaseStation, rx: &ReceiverStats) -> String {
     let arp = match b.arp {
         Some((id, p)) => format!("station {id} at ECEF {:.4}, {:.4}, {:.4} m", p.x, p.y, p.z),
         None => "no antenna position (MT1005/1006)".into(),
     };
     format!(
         "
-base frames by type:{counts}
-base CRC failures: {}  bytes skipped: {}  truncated tail bytes: {}
+base format: {}{}
 base: {arp}  epochs: {}  positions: {} (changes: {})
 differential solutions: {}  skipped: {:?}",
-        dec.crc_failures,
-        dec.bytes_skipped,
-        dec.trailing_bytes,
+        dec.formats(),
+        (rtcm_counts(&dec.rtcm.stats) + &ubx_counts(&dec.ubx.stats)).replace('\n', "\nbase "),
         b.stats.epochs,
         b.stats.positions,
         b.stats.position_changes,

@@ -15,7 +15,7 @@ use crate::config::{Config, GnssSource};
 use crate::estimator::Estimator;
 use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use crate::gnss::spp::{SppOptions, SppSolution};
-use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver};
+use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver, StreamDecoder};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::Counters;
 
@@ -59,7 +59,12 @@ pub(super) fn spawn_stream(
 /// GNSS input of the fusion loop: RTCM decoding, the receiver model, the
 /// world origin and the GPS-time → autopilot-time map.
 pub(super) struct GnssIn {
+    /// RTCM3 from the MAVLink link (`GPS_RTCM_DATA`).
     dec: RtcmDecoder,
+    /// The receiver's own stream (`gnss.source = "stream"`): RTCM3 or UBX,
+    /// recognised from the bytes. Each stream has its own decoder, so a
+    /// frame is never spliced from two.
+    stream_dec: StreamDecoder,
     pub(super) rx: Receiver,
     pub(super) frame: Option<NedFrame>,
     /// Unix time minus autopilot boot time (s), from SYSTEM_TIME.
@@ -87,6 +92,7 @@ impl GnssIn {
     pub(super) fn new(cfg: &Config) -> Self {
         GnssIn {
             dec: RtcmDecoder::new(),
+            stream_dec: StreamDecoder::default(),
             rx: Receiver::new(
                 SppOptions {
                     elevation_mask_deg: cfg.gnss.elevation_mask_deg,
@@ -200,16 +206,15 @@ impl GnssIn {
         counters: &Counters,
         out: &mut Vec<(f64, Vec<SatMeas>)>,
     ) {
-        let before = self.dec.stats.crc_failures;
-        self.dec.push(bytes, &mut self.msgs);
-        if self.dec.stats.crc_failures > before {
-            counters.add("rtcm_crc_failure", self.dec.stats.crc_failures - before);
-            tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
-        }
+        self.decode(bytes, stream, counters);
         let mut msgs = std::mem::take(&mut self.msgs);
         for m in msgs.drain(..) {
             if self.is_rovers(&m, stream, counters) {
                 self.rx.push(m, &mut self.epochs);
+            } else {
+                // A base station's: its position and epochs make the
+                // corrections of the differential solution.
+                self.rx.push_base(m);
             }
         }
         self.msgs = msgs;
@@ -238,6 +243,35 @@ impl GnssIn {
             if !sats.is_empty() {
                 out.push((t, sats));
             }
+        }
+    }
+
+    /// Decodes one stream's bytes into `self.msgs`, counting the frames whose
+    /// checksum failed.
+    fn decode(&mut self, bytes: &[u8], stream: RtcmStream, counters: &Counters) {
+        let (link_before, stream_before, ubx_before) = (
+            self.dec.stats.crc_failures,
+            self.stream_dec.rtcm.stats.crc_failures,
+            self.stream_dec.ubx.stats.checksum_failures,
+        );
+        match stream {
+            RtcmStream::Receiver => self.stream_dec.push(bytes, &mut self.msgs),
+            RtcmStream::LinkVehicle | RtcmStream::LinkOther => self.dec.push(bytes, &mut self.msgs),
+        }
+        // A UBX receiver's bytes fail RTCM's CRC by the hundred: the stream's
+        // are counted only while it is RTCM3 (or nothing yet).
+        let mut rtcm_failures = self.dec.stats.crc_failures - link_before;
+        if self.stream_dec.rtcm_in_use() {
+            rtcm_failures += self.stream_dec.rtcm.stats.crc_failures - stream_before;
+        }
+        if rtcm_failures > 0 {
+            counters.add("rtcm_crc_failure", rtcm_failures);
+            tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
+        }
+        let ubx_failures = self.stream_dec.ubx.stats.checksum_failures - ubx_before;
+        if ubx_failures > 0 {
+            counters.add("ubx_checksum_failure", ubx_failures);
+            tracing::warn!(reason = "ubx_checksum_failure", "UBX frame with a bad checksum skipped");
         }
     }
 

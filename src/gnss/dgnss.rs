@@ -103,21 +103,20 @@ impl BaseStation {
     pub fn push_msm(&mut self, e: MsmEpoch, systems: &[System], week_of: impl Fn(f64) -> u32) {
         let mut done = Vec::new();
         self.assembler
-            .push(e, systems, |id, tow_ms, sats| done.push((id, tow_ms, sats)));
-        for (id, tow_ms, sats) in done {
-            self.push_epoch(id, tow_ms, &sats, &week_of);
+            .push(e, systems, |id, tow_s, sats| done.push((id, tow_s, sats)));
+        for (id, tow_s, sats) in done {
+            self.push_epoch(id, tow_s, &sats, &week_of);
         }
     }
 
     /// Closes a pending base epoch (at the end of a stream).
     pub fn flush(&mut self, week_of: impl Fn(f64) -> u32) {
-        if let Some((id, tow_ms, sats)) = self.assembler.take() {
-            self.push_epoch(id, tow_ms, &sats, &week_of);
+        if let Some((id, tow_s, sats)) = self.assembler.take() {
+            self.push_epoch(id, tow_s, &sats, &week_of);
         }
     }
 
-    fn push_epoch(&mut self, station_id: u16, tow_ms: u32, sats: &[SatObs], week_of: impl Fn(f64) -> u32) {
-        let tow_s = tow_ms as f64 * 1e-3;
+    fn push_epoch(&mut self, station_id: u16, tow_s: f64, sats: &[SatObs], week_of: impl Fn(f64) -> u32) {
         let e = BaseEpoch {
             station_id,
             week: week_of(tow_s),

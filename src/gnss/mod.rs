@@ -12,9 +12,11 @@
 //! `io::mavlink` or `io::gnss_stream`, and it stands on `cmsckf-models` alone.
 
 pub mod dgnss;
+pub mod lnav;
 pub mod reassembly;
 pub mod rtcm;
 pub mod spp;
+pub mod ubx;
 
 use std::collections::BTreeMap;
 
@@ -51,6 +53,45 @@ impl std::str::FromStr for IonoMode {
     }
 }
 
+/// A receiver's byte stream in whichever format it speaks, recognised from
+/// the bytes: RTCM3 and UBX frames are both looked for in every byte (a
+/// u-blox F9 can send both on one port, with NMEA between them), each by
+/// its own checksum, so neither can take the other's frames.
+#[derive(Default)]
+pub struct StreamDecoder {
+    pub rtcm: rtcm::RtcmDecoder,
+    pub ubx: ubx::UbxDecoder,
+}
+
+impl StreamDecoder {
+    /// Feeds bytes; returns the messages completed by them, each decoder's
+    /// in the order of its frames (feed small pieces, as a port delivers
+    /// them, to keep the two formats' frames in stream order too).
+    pub fn push(&mut self, bytes: &[u8], out: &mut Vec<GnssMessage>) {
+        self.rtcm.push(bytes, out);
+        self.ubx.push(bytes, out);
+    }
+
+    /// Whether the RTCM3 decoder's counts mean anything: it has found
+    /// frames, or nothing has (in a UBX-only stream its CRC failures and
+    /// skipped bytes are just UBX and NMEA bytes).
+    pub fn rtcm_in_use(&self) -> bool {
+        !self.rtcm.stats.frames_by_type.is_empty() || self.ubx.stats.frames_by_id.is_empty()
+    }
+
+    /// The formats seen so far, by their good frames.
+    pub fn formats(&self) -> &'static str {
+        let rtcm = !self.rtcm.stats.frames_by_type.is_empty();
+        let ubx = !self.ubx.stats.frames_by_id.is_empty();
+        match (rtcm, ubx) {
+            (true, true) => "RTCM3 and UBX",
+            (true, false) => "RTCM3",
+            (false, true) => "UBX",
+            (false, false) => "none recognised",
+        }
+    }
+}
+
 /// One completed epoch: the rover's observations and its single-point fix.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Epoch {
@@ -68,21 +109,21 @@ pub struct Epoch {
 /// time or by an MSM without the multiple-message bit.
 #[derive(Default)]
 pub struct EpochAssembler {
-    /// Station id, time of week (ms) and satellites of the open epoch.
-    pending: Option<(u16, u32, Vec<SatObs>)>,
+    /// Station id, time of week (s) and satellites of the open epoch.
+    pending: Option<(u16, f64, Vec<SatObs>)>,
 }
 
 impl EpochAssembler {
     /// Feeds one MSM, keeping its satellites if its constellation is one of
     /// `systems` (returns whether it was); calls `done` with each epoch it
     /// completes.
-    pub fn push(&mut self, e: MsmEpoch, systems: &[System], mut done: impl FnMut(u16, u32, Vec<SatObs>)) -> bool {
-        if self.pending.as_ref().is_some_and(|(_, t, _)| *t != e.tow_ms) {
+    pub fn push(&mut self, e: MsmEpoch, systems: &[System], mut done: impl FnMut(u16, f64, Vec<SatObs>)) -> bool {
+        if self.pending.as_ref().is_some_and(|(_, t, _)| *t != e.tow_s) {
             if let Some(p) = self.pending.take() {
                 done(p.0, p.1, p.2);
             }
         }
-        let entry = self.pending.get_or_insert_with(|| (e.station_id, e.tow_ms, Vec::new()));
+        let entry = self.pending.get_or_insert_with(|| (e.station_id, e.tow_s, Vec::new()));
         let selected = systems.contains(&e.system);
         if selected {
             entry.2.extend(e.sats);
@@ -96,7 +137,7 @@ impl EpochAssembler {
     }
 
     /// The open epoch, if any (at the end of a stream).
-    pub fn take(&mut self) -> Option<(u16, u32, Vec<SatObs>)> {
+    pub fn take(&mut self) -> Option<(u16, f64, Vec<SatObs>)> {
         self.pending.take()
     }
 }
@@ -187,12 +228,12 @@ impl Receiver {
         let (system, mut done) = (e.system, Vec::new());
         if !self
             .assembler
-            .push(e, &self.opts.systems, |_, tow_ms, sats| done.push((tow_ms, sats)))
+            .push(e, &self.opts.systems, |_, tow_s, sats| done.push((tow_s, sats)))
         {
             *self.stats.skipped_system.entry(system.letter()).or_default() += 1;
         }
-        for (tow_ms, sats) in done {
-            self.solve(tow_ms, sats, out);
+        for (tow_s, sats) in done {
+            self.solve(tow_s, sats, out);
         }
     }
 
@@ -202,16 +243,15 @@ impl Receiver {
             let (ephs, hint) = (&self.ephs, self.week_hint);
             base.flush(|tow| ephs.week_for_tow(tow).unwrap_or(hint));
         }
-        if let Some((_, tow_ms, sats)) = self.assembler.take() {
-            self.solve(tow_ms, sats, out);
+        if let Some((_, tow_s, sats)) = self.assembler.take() {
+            self.solve(tow_s, sats, out);
         }
     }
 
     /// The single-point and, with a base, the differential solution of one
     /// completed epoch.
-    fn solve(&mut self, tow_ms: u32, sats: Vec<SatObs>, out: &mut Vec<Epoch>) {
+    fn solve(&mut self, tow_s: f64, sats: Vec<SatObs>, out: &mut Vec<Epoch>) {
         self.stats.epochs += 1;
-        let tow_s = tow_ms as f64 * 1e-3;
         // MSMs carry only the time of week: the week is the ephemerides'.
         let week = self.ephs.week_for_tow(tow_s).unwrap_or(self.week_hint);
         let fix = spp::solve(&sats, week, tow_s, &self.ephs, &self.opts);

@@ -43,8 +43,9 @@ pub struct MsmEpoch {
     pub system: System,
     pub msg_type: u16,
     pub station_id: u16,
-    /// Epoch time of week in the constellation's time (ms).
-    pub tow_ms: u32,
+    /// Epoch time of week in the constellation's time (s): whole
+    /// milliseconds in RTCM, the receiver's own time tag in UBX.
+    pub tow_s: f64,
     /// More MSMs of the same epoch follow.
     pub multiple: bool,
     pub sats: Vec<SatObs>,
@@ -217,7 +218,7 @@ macro_rules! msm_epoch {
             system: $sys,
             msg_type: $t,
             station_id: $v.reference_station_id,
-            tow_ms: $v.$epoch,
+            tow_s: $v.$epoch as f64 * 1e-3,
             multiple: $v.msm_multiple_message_flag != 0,
             sats,
         }))
