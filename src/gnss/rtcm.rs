@@ -63,7 +63,9 @@ impl RawEph {
     /// The full GPS week of the ephemeris, the one nearest `hint_week`.
     pub fn full_week(&self, hint_week: u32) -> u32 {
         match self.eph.system {
-            System::Gps => resolve_week(self.week_field, hint_week),
+            System::Gps | System::Qzss | System::Glonass => resolve_week(self.week_field, hint_week),
+            // BDT week 0 is GPS week 1356 (2006-01-01); 13 bits.
+            System::BeiDou => 1356 + resolve_mod(self.week_field as u32 % 8192, 8192, hint_week.saturating_sub(1356)),
             // GST week 0 is GPS week 1024 (1999-08-22).
             System::Galileo => 1024 + resolve_mod(self.week_field as u32 % 4096, 4096, hint_week.saturating_sub(1024)),
         }

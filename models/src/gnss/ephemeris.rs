@@ -97,7 +97,11 @@ impl BroadcastEphemeris {
     pub fn accuracy_m(&self) -> f64 {
         let i = self.ura_index as f64;
         match (self.system, self.ura_index) {
-            (System::Gps, k) => URA_M.get(k as usize).copied().unwrap_or(6144.0),
+            // BeiDou's URA index uses GPS's table; GLONASS has no Kepler
+            // ephemeris (its own accuracy comes with its orbit model).
+            (System::Gps | System::Qzss | System::BeiDou | System::Glonass, k) => {
+                URA_M.get(k as usize).copied().unwrap_or(6144.0)
+            }
             (System::Galileo, 0..=49) => i * 0.01,
             (System::Galileo, 50..=74) => 0.5 + (i - 50.0) * 0.02,
             (System::Galileo, 75..=99) => 1.0 + (i - 75.0) * 0.04,

@@ -56,6 +56,12 @@ pub enum System {
     #[default]
     Gps,
     Galileo,
+    /// GLONASS: FDMA, its own orbit model (a PZ-90 state vector) and time.
+    Glonass,
+    /// BeiDou: BDT (GPS time − 14 s), Kepler orbits, GEO satellites.
+    BeiDou,
+    /// QZSS: GPS time and GPS's Kepler model.
+    Qzss,
 }
 
 impl System {
@@ -64,14 +70,20 @@ impl System {
         match self {
             System::Gps => 'G',
             System::Galileo => 'E',
+            System::Glonass => 'R',
+            System::BeiDou => 'C',
+            System::Qzss => 'J',
         }
     }
 
     /// The gravitational constant the constellation's ephemerides use (m³/s²).
     pub fn gm_m3ps2(self) -> f64 {
         match self {
-            System::Gps => MU_GPS_M3PS2,
-            System::Galileo => MU_GAL_M3PS2,
+            System::Gps | System::Qzss => MU_GPS_M3PS2,
+            // BeiDou's CGCS2000 value equals Galileo's; GLONASS's PZ-90 one
+            // (3.9860044e14) is used by its own orbit model, not here.
+            System::Galileo | System::BeiDou => MU_GAL_M3PS2,
+            System::Glonass => 3.986_004_4e14,
         }
     }
 }

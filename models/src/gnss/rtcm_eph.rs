@@ -18,6 +18,8 @@ const SC: f64 = std::f64::consts::PI;
 pub enum RtcmEncodeError {
     #[error("RTCM encoding failed: {0:?}")]
     Encode(rtcm_rs::rtcm_error::RtcmError),
+    #[error("no ephemeris encoder for system '{0}' (GPS and Galileo only)")]
+    Unsupported(char),
 }
 
 fn msg1019(e: &BroadcastEphemeris) -> Msg1019T {
@@ -99,6 +101,7 @@ pub fn encode_ephemeris(eph: &BroadcastEphemeris) -> Result<Vec<u8>, RtcmEncodeE
     let msg = match eph.system {
         System::Gps => Message::Msg1019(msg1019(eph)),
         System::Galileo => Message::Msg1046(msg1046(eph)),
+        other => return Err(RtcmEncodeError::Unsupported(other.letter())),
     };
     let mut b = MessageBuilder::new();
     b.build_message(&msg)

@@ -277,8 +277,9 @@ impl GnssModel {
                 continue;
             }
             let (rng, isb): (&mut dyn rand::RngCore, f64) = match eph.system {
-                System::Gps => (&mut *gps_rng, 0.0),
                 System::Galileo => (&mut self.gal_rng, self.cfg.isb_galileo_m),
+                // The simulator flies GPS and Galileo only.
+                System::Gps | System::Glonass | System::BeiDou | System::Qzss => (&mut *gps_rng, 0.0),
             };
             let sin_el = el.sin().max(0.1);
             let n_pr: f64 = rng.sample(StandardNormal);
