@@ -367,6 +367,13 @@ pub struct GnssConfig {
     /// Latest an epoch may arrive after its own time and still be fused at
     /// that time (s); later ones are counted as `gnss_late`.
     pub max_delay_s: f64,
+    /// Differential GNSS: when a base station is on the link (RTCM in
+    /// `GPS_RTCM_DATA` with its MT1005/1006 antenna position), fuse the
+    /// rover's codes less the base's corrections instead of the raw codes.
+    pub dgnss: bool,
+    /// Oldest base epoch a differential code may use (s); older, the epoch
+    /// falls back to single-point codes.
+    pub dgnss_max_age_s: f64,
 }
 
 impl Default for GnssConfig {
@@ -375,6 +382,8 @@ impl Default for GnssConfig {
             source: GnssSource::Mavlink,
             stream: String::new(),
             rover_station_id: 0,
+            dgnss: true,
+            dgnss_max_age_s: 10.0,
             systems: "G,E".into(),
             iono: IonoMode::Auto,
             elevation_mask_deg: 10.0,

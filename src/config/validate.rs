@@ -205,6 +205,7 @@ impl Config {
             return Err(c.fail("systems", why, "use \"G\", \"E\" or \"G,E\""));
         }
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
+        c.range("dgnss_max_age_s", g.dgnss_max_age_s, 0.1, 60.0)?;
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;

@@ -13,6 +13,7 @@ use tokio::task::JoinHandle;
 use super::{DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
 use crate::estimator::Estimator;
+use crate::gnss::dgnss::{self, CodeModel};
 use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use crate::gnss::spp::{SppOptions, SppSolution};
 use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver, StreamDecoder};
@@ -83,6 +84,8 @@ pub(super) struct GnssIn {
     rover_station_id: u16,
     /// Base stations seen (MT1005/1006): id and antenna position (ECEF, m).
     bases: Vec<(u16, [f64; 3])>,
+    /// `gnss.dgnss`: fuse differential codes when a base is on the link.
+    dgnss: bool,
 }
 
 /// Base stations remembered (more are still kept apart by stream and id).
@@ -118,6 +121,7 @@ impl GnssIn {
             pseudorange_sigma_m: cfg.gnss.pseudorange_sigma_m,
             rover_station_id: cfg.gnss.rover_station_id,
             bases: Vec::new(),
+            dgnss: cfg.gnss.dgnss,
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -233,17 +237,69 @@ impl GnssIn {
             if self.frame.is_none() {
                 self.origin_from_fix(&ep, est, counters);
             }
-            let obs = ep.sats.iter().map(RawSat::from_obs);
-            let policy = IonoPolicy {
-                mode: self.iono,
-                klobuchar: self.klobuchar.as_ref(),
-                rx_ecef_m: ep.fix.as_ref().ok().map(|f| f.r_ecef_m),
-            };
-            let sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
+            let sats = self.measurements(&ep, counters);
             if !sats.is_empty() {
                 out.push((t, sats));
             }
         }
+    }
+
+    /// The filter's measurements of an epoch: differential codes (§8c) when
+    /// `gnss.dgnss` is on and a base has corrections for it, each with the
+    /// base's noise added (σ·√2) and no ionosphere left; else the raw codes
+    /// with the ionosphere handled per `gnss.iono`. Range rates are the
+    /// rover's own either way.
+    fn measurements(&self, ep: &Epoch, counters: &Counters) -> Vec<SatMeas> {
+        let corrections = match (&self.rx.base, self.dgnss) {
+            (Some(base), true) => {
+                let mask = self.rx.opts.elevation_mask_deg.to_radians();
+                let c = dgnss::corrections(
+                    ep.week,
+                    ep.tow_s,
+                    base,
+                    &self.rx.ephs,
+                    mask,
+                    self.rx.dgnss_max_age_s,
+                    CodeModel::Single,
+                );
+                if let Err(e) = &c {
+                    counters.add("gnss_dgnss_unavailable", 1);
+                    tracing::debug!(reason = %e, "no differential codes for this epoch");
+                }
+                c.ok().filter(|c| !c.is_empty())
+            }
+            _ => None,
+        };
+        let rx_ecef_m = ep.fix.as_ref().ok().map(|f| f.r_ecef_m);
+        let Some(corr) = corrections else {
+            let policy = IonoPolicy {
+                mode: self.iono,
+                klobuchar: self.klobuchar.as_ref(),
+                rx_ecef_m,
+            };
+            let obs = ep.sats.iter().map(RawSat::from_obs);
+            return crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
+        };
+        counters.add("gnss_dgnss_epochs", 1);
+        let obs = ep.sats.iter().map(RawSat::from_obs).filter_map(|s| {
+            let c = corr.iter().find(|(k, _)| *k == (s.system, s.prn))?.1;
+            Some(RawSat {
+                l1_pseudorange_m: Some(s.l1_pseudorange_m? - c),
+                l2_pseudorange: None,
+                ..s
+            })
+        });
+        let policy = IonoPolicy {
+            mode: IonoMode::Off,
+            klobuchar: None,
+            rx_ecef_m,
+        };
+        let mut sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
+        for s in &mut sats {
+            s.noise_scale = std::f64::consts::SQRT_2;
+            s.differential = true;
+        }
+        sats
     }
 
     /// Decodes one stream's bytes into `self.msgs`, counting the frames whose

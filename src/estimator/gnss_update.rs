@@ -233,6 +233,17 @@ impl Estimator {
         rep: &mut GnssReport,
     ) -> bool {
         let (nom, _, _) = self.epoch_states(states, t_s);
+        let differential = sats.iter().any(|s| s.differential);
+        if self.clock_initialised && differential != self.gnss_differential {
+            // D4: differential codes see the clock less the base
+            // corrections' common part, a few metres from the raw codes'
+            // one: the bias and inter-system bias start again from this
+            // epoch's median residuals; the drift, which a Doppler sees the
+            // same either way, is kept.
+            self.rebase_clock_bias(frame, sats, &nom);
+            rep.clock_initialised = true;
+        }
+        self.gnss_differential = differential;
         if !self.init_clock_states(frame, sats, &nom, rep) {
             return false;
         }
@@ -377,6 +388,23 @@ impl Estimator {
             }
         }
         true
+    }
+
+    /// Sets the clock bias from the median GPS code residual at the current
+    /// clock, with a (10 m)² variance, and has the Galileo inter-system bias
+    /// initialised again (D4).
+    fn rebase_clock_bias(&mut self, frame: &NedFrame, sats: &[SatMeas], nom: &GnssNominal) {
+        let lever = self.s.p_A_in_B_m;
+        let res: Vec<f64> = sats
+            .iter()
+            .filter(|s| s.system == System::Gps)
+            .filter_map(|s| Some(s.pseudorange_m? - predict_sat(frame, nom, &lever, s).pseudorange_m))
+            .collect();
+        if let Some(m) = median(res) {
+            let b = nom.clock.x + m;
+            self.reset_clock_states(&[CLK_B], &[b], &[10.0f64.powi(2)]);
+        }
+        self.isb_initialised = false;
     }
 
     /// The gated, whitened rows of an epoch's measurements against `nom`,

@@ -299,6 +299,8 @@ pub struct Estimator {
     clock: nalgebra::Vector3<f64>,
     clock_initialised: bool,
     isb_initialised: bool,
+    /// Whether the last fused epoch's codes were differential (§8c).
+    gnss_differential: bool,
     clones: VecDeque<CloneState>,
     next_seq: u64,
     keyframes: BTreeMap<u64, Keyframe>,
@@ -411,6 +413,7 @@ impl Estimator {
             t_start_s: t_s,
             clock: nalgebra::Vector3::zeros(),
             clock_initialised: false,
+            gnss_differential: false,
             isb_initialised: false,
             g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
             t_s,

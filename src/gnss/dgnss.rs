@@ -8,7 +8,8 @@
 //! which they cancel (estimator README §8c, eqs. D1–D3):
 //!
 //! - D1: `c_b,i = P_b,i − (ρ_b,i + sagnac − c·δt_i(t_b) + T_b,i)` at the base's
-//!   epoch `t_b`, with the base at its ARP and the rover's ephemeris;
+//!   epoch `t_b`, with the base at its ARP and the rover's ephemeris; D1′:
+//!   less each constellation's median over the epoch (the base's clock);
 //! - D2: `P̃_r,i = P_r,i − c_b,i(t_r)`, with `c_b,i(t_r)` the correction of a
 //!   base epoch within [`PAIR_TOLERANCE_S`] of the rover's, else the newest
 //!   older one extrapolated linearly from the two before `t_r` (up to
@@ -30,8 +31,10 @@ use nalgebra::Vector3;
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
 use cmsckf_models::gnss::{gps_day_of_year, BroadcastEphemeris};
 
+pub use super::spp::CodeModel;
+
 use super::rtcm::{MsmEpoch, SatObs, System};
-use super::spp::{self, CodeModel, EphStore, Meas, SppError, SppOptions, SppSolution};
+use super::spp::{self, EphStore, Meas, SppError, SppOptions, SppSolution};
 use super::{EpochAssembler, IonoMode, RawSat};
 
 /// Base and rover epochs this close (s) are the same epoch: receivers' time
@@ -147,10 +150,16 @@ impl BaseStation {
     }
 }
 
-/// The base's correction (D1) for satellite `sat` of ephemeris `eph` at the
-/// base epoch `e`, with the base at `arp`; `None` below the elevation mask
-/// (rad) or without a code.
-fn correction_at(e: &BaseEpoch, arp: &Vector3<f64>, eph: &BroadcastEphemeris, mask: f64) -> Option<f64> {
+/// The base's correction (D1) for the satellite of ephemeris `eph` at the
+/// base epoch `e`, with the base at `arp` and the troposphere of `model`;
+/// `None` below the elevation mask (rad) or without a code.
+fn correction_at(
+    e: &BaseEpoch,
+    arp: &Vector3<f64>,
+    eph: &BroadcastEphemeris,
+    mask: f64,
+    model: CodeModel,
+) -> Option<f64> {
     let raw = e.sats.iter().find(|s| (s.system, s.prn) == (eph.system, eph.prn))?;
     let pr = raw.l1_pseudorange_m.filter(|p| (1.0e7..=4.0e7).contains(p))?;
     let st = spp::state_at_transmission(eph, e.tow_s, pr);
@@ -161,11 +170,81 @@ fn correction_at(e: &BaseEpoch, arp: &Vector3<f64>, eph: &BroadcastEphemeris, ma
     let (lat, _, h) = ecef_to_llh(arp);
     let d = st.r_ecef_m - arp;
     let rho = d.norm() + OMEGA_E_RADPS * (st.r_ecef_m.x * arp.y - st.r_ecef_m.y * arp.x) / C_MPS;
-    let trop = CodeModel::Differential {
-        doy: gps_day_of_year(e.week, e.tow_s),
+    Some(pr - (rho - st.dt_s * C_MPS + model.troposphere_m(lat, h, el)))
+}
+
+/// Every correction (D1) of base epoch `e`, each constellation's less their
+/// median (D1′): the median is the base's clock (and its inter-system
+/// bias), common to all of a constellation's satellites, so it changes no
+/// solution, and without it a differential code keeps the rover's own
+/// clock rather than the rover's minus the base's, which a Doppler cannot
+/// see. Ephemerides are selected at the rover's time, as the rover's are.
+fn epoch_corrections(
+    e: &BaseEpoch,
+    arp: &Vector3<f64>,
+    ephs: &EphStore,
+    (week, tow_s): (u32, f64),
+    mask: f64,
+    model: CodeModel,
+) -> Vec<((System, u8), f64)> {
+    let mut out: Vec<((System, u8), f64)> = e
+        .sats
+        .iter()
+        .filter_map(|s| {
+            let eph = ephs.select(s.system, s.prn, week, tow_s)?;
+            Some(((s.system, s.prn), correction_at(e, arp, eph, mask, model)?))
+        })
+        .collect();
+    let mut systems: Vec<System> = out.iter().map(|(k, _)| k.0).collect();
+    systems.dedup();
+    for sys in systems {
+        let mut v: Vec<f64> = out.iter().filter(|(k, _)| k.0 == sys).map(|(_, c)| *c).collect();
+        v.sort_by(f64::total_cmp);
+        let median = v[v.len() / 2];
+        out.iter_mut()
+            .filter(|(k, _)| k.0 == sys)
+            .for_each(|(_, c)| *c -= median);
     }
-    .troposphere_m(lat, h, el);
-    Some(pr - (rho - st.dt_s * C_MPS + trop))
+    out
+}
+
+/// The base's corrections at the rover epoch `week`/`tow_s` (D2), by
+/// satellite: the matched base epoch's, else the newest's extrapolated from
+/// the one before it, with base epochs at most `max_age_s` old and the
+/// troposphere of `model` (the one the corrected codes will be predicted
+/// with).
+pub fn corrections(
+    week: u32,
+    tow_s: f64,
+    base: &BaseStation,
+    ephs: &EphStore,
+    mask: f64,
+    max_age_s: f64,
+    model: CodeModel,
+) -> Result<Vec<((System, u8), f64)>, DgnssError> {
+    let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
+    let (newest, before) = base.epochs_for(week, tow_s, max_age_s).ok_or(DgnssError::NoBaseEpoch)?;
+    let age = |e: &BaseEpoch| (week as f64 - e.week as f64) * 604_800.0 + tow_s - e.tow_s;
+    let c1 = epoch_corrections(newest, &arp, ephs, (week, tow_s), mask, model);
+    let c0 = match before {
+        Some(b) if age(newest).abs() > PAIR_TOLERANCE_S => {
+            let span = age(b) - age(newest);
+            Some((span, epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model)))
+        }
+        _ => None,
+    };
+    Ok(c1
+        .into_iter()
+        .map(|(sat, c)| {
+            let prior = c0
+                .as_ref()
+                .and_then(|(span, v)| Some((span, v.iter().find(|(k, _)| *k == sat)?.1)));
+            match prior {
+                Some((span, c_before)) => (sat, c + (c - c_before) / span * age(newest)),
+                None => (sat, c),
+            }
+        })
+        .collect())
 }
 
 /// The differential solution (D1–D3) of a rover epoch `sats` at
@@ -181,47 +260,33 @@ pub fn solve(
     opt: &SppOptions,
     max_age_s: f64,
 ) -> Result<SppSolution, DgnssError> {
-    let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
-    let (newest, before) = base.epochs_for(week, tow_s, max_age_s).ok_or(DgnssError::NoBaseEpoch)?;
     let mask = opt.elevation_mask_deg.to_radians();
-    let age = |e: &BaseEpoch| (week as f64 - e.week as f64) * 604_800.0 + tow_s - e.tow_s;
+    let model = CodeModel::Differential {
+        doy: gps_day_of_year(week, tow_s),
+    };
+    let corr = corrections(week, tow_s, base, ephs, mask, max_age_s, model)?;
     let mut meas = Vec::new();
     for s in sats.iter().filter(|s| opt.systems.contains(&s.system)) {
         let Some((pr, _)) = RawSat::from_obs(s).code(IonoMode::Off) else {
             continue;
         };
-        if !(1.0e7..=4.0e7).contains(&pr) {
+        let Some(c) = corr.iter().find(|(k, _)| *k == (s.system, s.prn)).map(|(_, c)| *c) else {
             continue;
-        }
+        };
         let Some(eph) = ephs.select(s.system, s.prn, week, tow_s) else {
             continue;
         };
-        let Some(c1) = correction_at(newest, &arp, eph, mask) else {
+        if !(1.0e7..=4.0e7).contains(&pr) {
             continue;
-        };
-        // D2: the matched epoch's correction, else extrapolated.
-        let corr = match before.and_then(|b| Some((b, correction_at(b, &arp, eph, mask)?))) {
-            Some((b, c0)) if age(newest).abs() > PAIR_TOLERANCE_S => {
-                let span = age(b) - age(newest);
-                c1 + (c1 - c0) / span * age(newest)
-            }
-            _ => c1,
-        };
+        }
         let st = spp::state_at_transmission(eph, tow_s, pr);
         meas.push(Meas {
             sat: (s.system, s.prn),
-            pr_m: pr - corr,
+            pr_m: pr - c,
             r_sat: st.r_ecef_m,
             dts_m: st.dt_s * C_MPS,
             ura_m: 0.0,
         });
     }
-    let doy = gps_day_of_year(week, tow_s);
-    Ok(spp::solve_meas(
-        &meas,
-        week,
-        tow_s,
-        opt,
-        CodeModel::Differential { doy },
-    )?)
+    Ok(spp::solve_meas(&meas, week, tow_s, opt, model)?)
 }

@@ -12,6 +12,7 @@
 //! `io::mavlink` or `io::gnss_stream`, and it stands on `cmsckf-models` alone.
 
 pub mod dgnss;
+pub mod inav;
 pub mod lnav;
 pub mod reassembly;
 pub mod rtcm;
@@ -400,6 +401,7 @@ pub fn sat_measurements(
                 range_rate_mps: s.l1_range_rate_mps,
                 noise_scale,
                 extra_var_m2,
+                differential: false,
             })
         })
         .collect()

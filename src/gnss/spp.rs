@@ -164,7 +164,7 @@ pub(super) struct Meas {
 /// What the code measurements of an epoch are, which sets the troposphere
 /// and the weights of the least squares.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) enum CodeModel {
+pub enum CodeModel {
     /// One frequency, no ionosphere model: Saastamoinen, RTKLIB's variance
     /// with 5 m of ionosphere.
     Single,
@@ -181,7 +181,7 @@ pub(super) enum CodeModel {
 impl CodeModel {
     /// The modelled troposphere (m) at latitude `lat`, height `h` (m) and
     /// elevation `el` (rad).
-    pub(super) fn troposphere_m(self, lat: f64, h: f64, el: f64) -> f64 {
+    pub fn troposphere_m(self, lat: f64, h: f64, el: f64) -> f64 {
         match self {
             CodeModel::Single | CodeModel::IonoFree => saastamoinen_m(lat, h, el),
             CodeModel::Differential { doy } => {

@@ -17,6 +17,7 @@ use std::collections::BTreeMap;
 
 use cmsckf_models::geodesy::C_MPS;
 
+use super::inav::InavAssembler;
 use super::lnav::{LnavAssembler, Subframe};
 use super::rtcm::{GnssMessage, MsmEpoch, SatObs, SignalObs, System};
 
@@ -44,8 +45,8 @@ pub struct UbxStats {
     /// Navigation-data frames (RXM-SFRBX) of signals not decoded (all but
     /// GPS L1 C/A), by UBX gnssId.
     pub nav_not_decoded: BTreeMap<u8, u64>,
-    /// GPS subframes without the TLM preamble, and complete subframe sets
-    /// whose issues disagreed.
+    /// GPS subframes without the TLM preamble and Galileo pages whose CRC
+    /// failed, and complete subframe or word sets whose issues disagreed.
     pub bad_subframes: u64,
     pub mismatched_issues: u64,
 }
@@ -55,6 +56,7 @@ pub struct UbxStats {
 pub struct UbxDecoder {
     buf: Vec<u8>,
     lnav: LnavAssembler,
+    inav: InavAssembler,
     pub stats: UbxStats,
 }
 
@@ -165,8 +167,8 @@ impl UbxDecoder {
         if !ok {
             self.stats.malformed += 1;
         }
-        self.stats.bad_subframes = self.lnav.bad_preamble;
-        self.stats.mismatched_issues = self.lnav.mismatched_issue;
+        self.stats.bad_subframes = self.lnav.bad_preamble + self.inav.crc_failures;
+        self.stats.mismatched_issues = self.lnav.mismatched_issue + self.inav.mismatched_issue;
     }
 
     /// RXM-RAW (u-blox 5/6): `iTOW` (ms), week, `numSV`, then per satellite
@@ -272,18 +274,23 @@ impl UbxDecoder {
 
     /// RXM-SFRBX (M8/F9): gnssId, svId, the number of words, then the words.
     /// GPS L1 C/A: ten 30-bit words in bits 29–0, data bits 29–6 (parity in
-    /// 5–0). Other signals' navigation data are counted, not decoded.
+    /// 5–0). Galileo E1-B I/NAV: eight (or nine) words of one page, even
+    /// and odd parts ([`super::inav`]). Other signals' navigation data are
+    /// counted, not decoded.
     fn rxm_sfrbx(&mut self, p: &[u8], out: &mut Vec<GnssMessage>) -> bool {
         if p.len() < 8 || p.len() < 8 + 4 * p[4] as usize {
             return false;
         }
-        let (gnss_id, prn, words) = (p[0], p[1], p[4] as usize);
-        if gnss_id != 0 || words != 10 {
-            *self.stats.nav_not_decoded.entry(gnss_id).or_default() += 1;
-            return true;
+        let (gnss_id, prn, n) = (p[0], p[1], p[4] as usize);
+        let words: Vec<u32> = (0..n).map(|k| u32_at(p, 8 + 4 * k)).collect();
+        match (gnss_id, n) {
+            (0, 10) => {
+                let sf: Subframe = std::array::from_fn(|k| (words[k] >> 6) & 0x00FF_FFFF);
+                out.extend(self.lnav.push(prn, sf).map(GnssMessage::Eph));
+            }
+            (2, 8..) => out.extend(self.inav.push(prn, &words).map(GnssMessage::Eph)),
+            _ => *self.stats.nav_not_decoded.entry(gnss_id).or_default() += 1,
         }
-        let sf: Subframe = std::array::from_fn(|k| (u32_at(p, 8 + 4 * k) >> 6) & 0x00FF_FFFF);
-        out.extend(self.lnav.push(prn, sf).map(GnssMessage::Eph));
         true
     }
 }

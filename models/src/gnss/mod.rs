@@ -105,6 +105,10 @@ pub struct SatMeas {
     pub noise_scale: f64,
     /// Added pseudorange variance (m²): an unmodelled ionosphere.
     pub extra_var_m2: f64,
+    /// The code is differential: the rover's less a base station's
+    /// correction, so satellite orbit, clock and atmosphere errors are gone
+    /// and its clock offset differs from a raw code's by a few metres.
+    pub differential: bool,
 }
 
 #[cfg(test)]
