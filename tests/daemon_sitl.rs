@@ -36,6 +36,7 @@ fn fly(
                 feature_socket: cfg.features.socket.clone().into(),
                 speedup: 10.0,
                 faults: Vec::new(),
+                gnss_stream: None,
             },
             &ds,
         ))

@@ -43,6 +43,7 @@ async fn fly(faults: &[&str], seed: u64, duration_s: f64) -> (Report, RunSummary
             feature_socket: cfg.features.socket.clone().into(),
             speedup: 10.0,
             faults,
+            gnss_stream: None,
         },
         &ds,
     )

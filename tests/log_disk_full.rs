@@ -35,6 +35,7 @@ fn a_full_log_disk_is_loud_at_once_and_the_flight_goes_on() {
         feature_socket: cfg.features.socket.clone().into(),
         speedup: 10.0,
         faults: Vec::new(),
+        gnss_stream: None,
     };
     let report = tokio::runtime::Runtime::new()
         .unwrap()

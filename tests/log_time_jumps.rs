@@ -45,6 +45,7 @@ fn sigkill_after_clock_jumps_loses_at_most_about_a_second() {
         feature_socket: cfg.features.socket.clone().into(),
         speedup: SPEEDUP,
         faults: vec![format!("clock_jump@{REBOOT_S}+1").parse().unwrap()],
+        gnss_stream: None,
     };
     let start = Instant::now();
     let sitl = std::thread::spawn(move || {

@@ -25,6 +25,7 @@ fn sigkill_leaves_a_readable_log() {
         feature_socket: cfg.features.socket.clone().into(),
         speedup,
         faults: Vec::new(),
+        gnss_stream: None,
     };
     let start = Instant::now();
     let sitl = std::thread::spawn(move || {

@@ -127,6 +127,50 @@ pub struct GnssSimConfig {
     /// The default, `[0.10, 0.05, −0.10]`, is 10 cm forward, 5 cm right and
     /// 10 cm up, 0.15 m from the IMU, a mast on a small multirotor.
     pub p_A_in_B_m: [f64; 3],
+    /// Broadcast orbit and clock error projected on the line of sight, one
+    /// sigma per satellite (m): the "signal-in-space range error" every
+    /// receiver sees alike (GPS's is about 0.6 m). Constant over a flight;
+    /// a base station nearby sees the same, so differential GNSS removes it.
+    pub broadcast_error_m: f64,
+    /// The troposphere the receiver's model misses, as a fraction of the
+    /// Saastamoinen slant delay (the wet part's misfit), alike for every
+    /// receiver nearby.
+    pub troposphere_error_frac: f64,
+    /// A base station near the flight, sending its observations and antenna
+    /// position (MT1005) as a ground station injects them into
+    /// `GPS_RTCM_DATA`.
+    pub base: BaseSimConfig,
+    /// Elevation below which the rover sees no satellite (deg) from
+    /// `canyon_s[0]` to `canyon_s[1]` of flight time, except the
+    /// `canyon_keep` highest (an urban canyon); empty: none.
+    pub canyon_s: Vec<f64>,
+    pub canyon_keep: usize,
+}
+
+/// A simulated base station: a receiver of the same kind at a surveyed
+/// point, with its own clock and noise.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct BaseSimConfig {
+    pub enabled: bool,
+    /// The antenna's position in the world frame (NED from the origin, m).
+    pub p_base_in_W_m: [f64; 3],
+    /// RTCM reference-station id.
+    pub station_id: u16,
+    /// Delay from an epoch to its arrival at the vehicle (s), drawn per epoch:
+    /// a radio link and the ground station's relay.
+    pub latency_s: [f64; 2],
+}
+
+impl Default for BaseSimConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            p_base_in_W_m: [2000.0, -1500.0, 0.0],
+            station_id: 100,
+            latency_s: [0.3, 0.8],
+        }
+    }
 }
 
 impl Default for GnssSimConfig {
@@ -152,6 +196,11 @@ impl Default for GnssSimConfig {
             isb_galileo_m: 6.0,
             latency_s: [0.2, 0.6],
             p_A_in_B_m: [0.10, 0.05, -0.10],
+            broadcast_error_m: 0.6,
+            troposphere_error_frac: 0.05,
+            base: BaseSimConfig::default(),
+            canyon_s: Vec::new(),
+            canyon_keep: 3,
         }
     }
 }
@@ -192,6 +241,18 @@ impl Validate for GnssSimConfig {
         c.range("multipath_m", self.multipath_m, 0.0, 1e4)?;
         c.range("isb_galileo_m", self.isb_galileo_m, -1e3, 1e3)?;
         latency_range(&c, "latency_s", &self.latency_s, 5.0)?;
+        c.range("broadcast_error_m", self.broadcast_error_m, 0.0, 100.0)?;
+        c.range("troposphere_error_frac", self.troposphere_error_frac, -1.0, 1.0)?;
+        if !self.canyon_s.is_empty() && (self.canyon_s.len() != 2 || self.canyon_s[1] < self.canyon_s[0]) {
+            return Err(c.fail(
+                "canyon_s",
+                "is not [start, end]",
+                "give [start_s, end_s] with end ≥ start, or []",
+            ));
+        }
+        c.within("canyon_keep", self.canyon_keep as u64, 0, 64, "set 0..64")?;
+        c.all_finite("base.p_base_in_W_m", &self.base.p_base_in_W_m, -1e5, 1e5)?;
+        latency_range(&c, "base.latency_s", &self.base.latency_s, 10.0)?;
         c.all_finite("p_A_in_B_m", &self.p_A_in_B_m, -5.0, 5.0)
     }
 }

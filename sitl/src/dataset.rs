@@ -46,6 +46,10 @@ pub struct Dataset {
     pub imu: Vec<ImuSample>,
     pub frames: Vec<CameraFrame>,
     pub gnss: Vec<GnssEpoch>,
+    /// The base station's epochs (`gnss.base.enabled`), delivered late by
+    /// its own link, and its antenna position (ECEF, m).
+    pub base_gnss: Vec<GnssEpoch>,
+    pub base_arp_ecef_m: Option<[f64; 3]>,
     pub ephemerides: Vec<BroadcastEphemeris>,
     pub track_stats: TrackStats,
     /// The ground truth itself, for sampling at any time.
@@ -54,7 +58,8 @@ pub struct Dataset {
 
 /// The RNG stream `stream` of `seed`. Streams: 1 initial biases, 2 IMU
 /// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency, 7 the
-/// mock autopilot's EKF errors (drawn while serving).
+/// mock autopilot's EKF errors (drawn while serving), 8 the base station's
+/// noise and clock, 9 its latency.
 pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);
@@ -131,6 +136,24 @@ impl Dataset {
         } else {
             Vec::new()
         };
+        let base = &cfg.gnss.base;
+        let p_base = nalgebra::Vector3::from(base.p_base_in_W_m);
+        let (base_gnss, base_arp_ecef_m) = if cfg.gnss.enabled && base.enabled {
+            let mut rng = rng_for(seed, 8);
+            let mut rng_latency = rng_for(seed, 9);
+            let mut model = gnss_model.base_station((-4_000.0, -2.0), seed);
+            let n = (duration * cfg.gnss.rate_hz).floor() as usize + 1;
+            let epochs = (0..n)
+                .map(|k| {
+                    model
+                        .static_epoch_at(&p_base, k as f64 / cfg.gnss.rate_hz, &mut rng)
+                        .delivered(uniform_in(base.latency_s, &mut rng_latency))
+                })
+                .collect();
+            (epochs, Some(gnss_model.frame.to_ecef(&p_base).into()))
+        } else {
+            (Vec::new(), None)
+        };
         Self {
             scenario: traj.name.clone(),
             seed,
@@ -140,6 +163,8 @@ impl Dataset {
             imu,
             frames,
             gnss,
+            base_gnss,
+            base_arp_ecef_m,
             ephemerides: gnss_model.ephemerides,
             track_stats: fsim.stats,
             trajectory: traj.clone(),

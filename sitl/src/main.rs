@@ -66,6 +66,11 @@ enum Cmd {
         /// Fail if the p99 latency is above this (ms).
         #[arg(long)]
         max_latency_ms: Option<f64>,
+        /// Serve the rover receiver's RTCM on a TCP listener at HOST:PORT
+        /// (the daemon's `gnss.stream = "tcp:HOST:PORT"`) instead of in
+        /// GPS_RTCM_DATA.
+        #[arg(long)]
+        gnss_stream: Option<String>,
         /// Inject a fault: NAME@START+DURATION (s of flight), repeatable.
         #[arg(long = "fault")]
         faults: Vec<cmsckf_sitl::serve::Fault>,
@@ -125,6 +130,7 @@ fn main() -> anyhow::Result<()> {
             max_ate_m,
             min_rate_hz,
             max_latency_ms,
+            gnss_stream,
             faults,
         } => {
             anyhow::ensure!(
@@ -143,6 +149,7 @@ fn main() -> anyhow::Result<()> {
                 feature_socket: features,
                 speedup,
                 faults,
+                gnss_stream,
             };
             let report = rt.block_on(cmsckf_sitl::serve::serve(&opts, &ds))?;
             if json {

@@ -149,3 +149,27 @@ fn galileo_msm7(gal: &[&crate::gnss::SatObs], station_id: u16, epoch_ms: u32) ->
         },
     }
 }
+
+/// Frames a reference station's antenna position as MT1005 (station id,
+/// GPS and Galileo in service, ARP in ECEF to 0.1 mm): what a base station
+/// sends beside its observations, and what tells it from a rover.
+pub fn encode_station(station_id: u16, arp_ecef_m: [f64; 3]) -> Result<Vec<u8>, RtcmEncodeError> {
+    let msg = rtcm_rs::msg::Msg1005T {
+        reference_station_id: station_id,
+        reserved_24_6: 0,
+        gps_flag: 1,
+        glonass_flag: 0,
+        galileo_flag: 1,
+        reference_station_ind: 0,
+        antenna_ref_point_ecef_x_m: arp_ecef_m[0],
+        single_receiver_osc_ind: 0,
+        reserved_73_1: 0,
+        antenna_ref_point_ecef_y_m: arp_ecef_m[1],
+        quarter_cycle_ind: 0,
+        antenna_ref_point_ecef_z_m: arp_ecef_m[2],
+    };
+    let mut b = MessageBuilder::new();
+    b.build_message(&Message::Msg1005(msg))
+        .map(<[u8]>::to_vec)
+        .map_err(RtcmEncodeError::Encode)
+}

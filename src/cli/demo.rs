@@ -152,6 +152,7 @@ fn fly(
             feature_socket: cfg.features.socket.clone().into(),
             speedup,
             faults,
+            gnss_stream: None,
         };
         let report = cmsckf_sitl::serve::serve(&opts, ds).await;
         let _ = stop_tx.send(());

@@ -86,6 +86,9 @@ pub(super) struct GnssIn {
     bases: Vec<(u16, [f64; 3])>,
     /// `gnss.dgnss`: fuse differential codes when a base is on the link.
     dgnss: bool,
+    /// `gnss.source = "mavlink"`: the rover's observations may come on the
+    /// link; with a receiver of its own, every observation there is a base's.
+    rover_on_link: bool,
 }
 
 /// Base stations remembered (more are still kept apart by stream and id).
@@ -122,6 +125,7 @@ impl GnssIn {
             rover_station_id: cfg.gnss.rover_station_id,
             bases: Vec::new(),
             dgnss: cfg.gnss.dgnss,
+            rover_on_link: cfg.gnss.source == GnssSource::Mavlink,
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -182,7 +186,10 @@ impl GnssIn {
                 let rovers = match stream {
                     RtcmStream::Receiver => true,
                     RtcmStream::LinkVehicle => {
-                        self.rover_station_id != 0 && e.station_id == self.rover_station_id && !is_base
+                        self.rover_on_link
+                            && self.rover_station_id != 0
+                            && e.station_id == self.rover_station_id
+                            && !is_base
                     }
                     RtcmStream::LinkOther => false,
                 };

@@ -78,6 +78,9 @@ struct RxState {
     /// One reassembler per sender: a ground station's corrections and the
     /// rover's own stream interleave their fragments on one link.
     reasm: BTreeMap<Source, Reassembler>,
+    /// Whether `GPS_RTCM_DATA` is read: with any GNSS source, since a base
+    /// station's corrections come that way even when the rover's receiver
+    /// has its own port.
     rtcm_from_mavlink: bool,
     vehicle: u32,
     /// The autopilot: sensor and time messages are taken from it alone.
@@ -112,7 +115,7 @@ fn magnetometer(msg: &Inbound, st: &mut RxState) -> Option<FusionMsg> {
 pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> JoinHandle<()> {
     let mut st = RxState {
         reasm: BTreeMap::new(),
-        rtcm_from_mavlink: cfg.gnss.source == GnssSource::Mavlink,
+        rtcm_from_mavlink: cfg.gnss.source != GnssSource::Off,
         vehicle: cfg.mavlink.system_id as u32,
         autopilot: Source {
             system: cfg.mavlink.system_id as u32,

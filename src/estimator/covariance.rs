@@ -293,6 +293,27 @@ impl Estimator {
     }
 }
 
+impl Estimator {
+    /// Moves the clock bias by `delta_m`, live and in every GNSS clone, and
+    /// adds a common error of variance `var_m2` to all of them (eq. D4): `P
+    /// += var · u uᵀ`, `u` one at each copy of the bias. Like process noise,
+    /// it touches the local part only.
+    pub(super) fn shift_clock_bias(&mut self, delta_m: f64, var_m2: f64) {
+        let go = self.gnss_clones_offset();
+        self.clock.x += delta_m;
+        let mut idx = vec![CLK_B];
+        for (i, c) in self.gnss_clones.iter_mut().enumerate() {
+            c.nom.clock.x += delta_m;
+            idx.push(go + GNSS_CLONE_DIM * i + 12);
+        }
+        for &a in &idx {
+            for &b in &idx {
+                self.P[(a, b)] += var_m2;
+            }
+        }
+    }
+}
+
 /// Position σ (m, `√trace`) of the pose block `[δθ, δp]` starting at `o`.
 pub(super) fn position_sigma_m(p: &DMatrix<f64>, o: usize) -> f64 {
     let o = o + 3;

@@ -390,9 +390,10 @@ impl Estimator {
         true
     }
 
-    /// Sets the clock bias from the median GPS code residual at the current
-    /// clock, with a (10 m)² variance, and has the Galileo inter-system bias
-    /// initialised again (D4).
+    /// Moves the clock bias by the median GPS code residual `Δ` of this
+    /// epoch, live and in every GNSS clone alike, and adds `Δ² + (1 m)²` of
+    /// common variance to them; the Galileo inter-system bias is
+    /// initialised again (D4). The drift and every correlation are kept.
     fn rebase_clock_bias(&mut self, frame: &NedFrame, sats: &[SatMeas], nom: &GnssNominal) {
         let lever = self.s.p_A_in_B_m;
         let res: Vec<f64> = sats
@@ -400,9 +401,8 @@ impl Estimator {
             .filter(|s| s.system == System::Gps)
             .filter_map(|s| Some(s.pseudorange_m? - predict_sat(frame, nom, &lever, s).pseudorange_m))
             .collect();
-        if let Some(m) = median(res) {
-            let b = nom.clock.x + m;
-            self.reset_clock_states(&[CLK_B], &[b], &[10.0f64.powi(2)]);
+        if let Some(d) = median(res) {
+            self.shift_clock_bias(d, d * d + 1.0);
         }
         self.isb_initialised = false;
     }

@@ -1,6 +1,9 @@
 //! Broadcast orbits and clocks: GPS LNAV and Galileo I/NAV and F/NAV
 //! Keplerian ephemerides and the satellite state they give (IS-GPS-200
-//! Table 20-IV; Galileo OS SIS ICD §5.1.1, the same with Galileo's GM).
+//! Table 20-IV; Galileo OS SIS ICD §5.1.1, the same with Galileo's GM), and
+//! BeiDou's and QZSS's, the same model (BDS-SIS-ICD-B1I 3.0 §5.2.4.12, with
+//! BeiDou's own Earth rate and a tilted frame for its GEO satellites; QZSS
+//! exactly as GPS).
 //!
 //! One implementation serves the simulator's truth and the receiver's
 //! decoded satellite states; it is checked against GNSSTk and Skydel values
@@ -15,11 +18,37 @@ use crate::geodesy::OMEGA_E_RADPS;
 /// Relativistic clock constant F (s/√m), IS-GPS-200 20.3.3.3.3.1.
 pub const REL_F: f64 = -4.442_807_633e-10;
 
-/// A Keplerian broadcast ephemeris and clock: GPS LNAV (RTCM 1019) or
-/// Galileo I/NAV and F/NAV (RTCM 1046, 1045), in SI units and radians
+/// Earth rotation rate of BeiDou's CGCS2000 (rad/s, BDS-SIS-ICD-B1I 3.0
+/// §5.2.4.12); GPS's 7.2921151467e-5 would put a BeiDou satellite 2 m off.
+pub const OMEGA_E_BDS_RADPS: f64 = 7.292_115_0e-5;
+/// GPS time − BDT (s): BDT started at 2006-01-01 00:00:00 UTC, when GPS −
+/// UTC was 14 s, and both count without leap seconds since.
+pub const BDT_GPS_OFFSET_S: f64 = 14.0;
+/// GPS week of BDT week 0.
+pub const BDT_GPS_WEEK_OFFSET: u32 = 1356;
+/// The rotation about x from the frame BeiDou's GEO elements are given in
+/// to BDCS (BDS-SIS-ICD-B1I 3.0 §5.2.4.12: −5°).
+const BDS_GEO_TILT_DEG: f64 = -5.0;
+
+/// A BDT week and time of week on the GPS scale: tow + 14 s, week + 1356,
+/// carried into the next GPS week when the 14 s cross it.
+pub fn bdt_to_gps(bdt_week: u32, bdt_tow_s: f64) -> (u32, f64) {
+    let week = bdt_week.saturating_add(BDT_GPS_WEEK_OFFSET);
+    let tow = bdt_tow_s + BDT_GPS_OFFSET_S;
+    if tow >= WEEK_S {
+        (week.saturating_add(1), tow - WEEK_S)
+    } else {
+        (week, tow)
+    }
+}
+
+/// A Keplerian broadcast ephemeris and clock: GPS LNAV (RTCM 1019),
+/// Galileo I/NAV and F/NAV (RTCM 1046, 1045), BeiDou D1/D2 (RTCM 1042) or
+/// QZSS LNAV (RTCM 1044), in SI units and radians
 /// (RTCM's semicircles are converted at the wire boundary). Galileo's weeks
 /// and times of week are stored on the GPS scale (GST week + 1024; GST and
-/// GPS time share the second of week).
+/// GPS time share the second of week), and so are BeiDou's (BDT week + 1356,
+/// BDT + 14 s: [`bdt_to_gps`]); BeiDou's `prn` is its PRN (1–63).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BroadcastEphemeris {
     pub system: System,
@@ -110,8 +139,16 @@ impl BroadcastEphemeris {
         }
     }
 
+    /// BeiDou's GEO satellites, whose elements are given in a frame tilted by
+    /// −5°: PRN 1–5 (BeiDou-2) and 59–63 (BeiDou-3), as RTKLIB 2.4.3 counts
+    /// them.
+    pub fn is_beidou_geo(&self) -> bool {
+        self.system == System::BeiDou && matches!(self.prn, 1..=5 | 59..=63)
+    }
+
     /// Position and eccentric anomaly at GPS time of week `t` (IS-GPS-200
-    /// Table 20-IV; Galileo OS SIS ICD Table 58, the same with its own GM).
+    /// Table 20-IV; Galileo OS SIS ICD Table 58, the same with its own GM;
+    /// BDS-SIS-ICD-B1I 3.0 §5.2.4.12 for BeiDou, below).
     fn position(&self, t_tow_s: f64) -> (Vector3<f64>, f64) {
         let a = self.sqrt_a * self.sqrt_a;
         let n = (self.system.gm_m3ps2() / (a * a * a)).sqrt() + self.delta_n_radps;
@@ -133,7 +170,31 @@ impl BroadcastEphemeris {
         let r = a * (1.0 - self.e * e_anom.cos()) + self.crs_m * s2 + self.crc_m * c2;
         let i = self.i0_rad + self.cis_rad * s2 + self.cic_rad * c2 + self.idot_radps * dt;
         let (xp, yp) = (r * u.cos(), r * u.sin());
-        let om = self.omega0_rad + (self.omega_dot_radps - OMEGA_E_RADPS) * dt - OMEGA_E_RADPS * self.toe_s;
+        // BeiDou's Ω0 is referred to the start of the BDT week, so the
+        // Earth-rotation term takes toe in BDT (stored on the GPS scale).
+        let (omega_e, toe_week_s) = match self.system {
+            System::BeiDou => (OMEGA_E_BDS_RADPS, (self.toe_s - BDT_GPS_OFFSET_S).rem_euclid(WEEK_S)),
+            _ => (OMEGA_E_RADPS, self.toe_s),
+        };
+        if self.is_beidou_geo() {
+            // BDS ICD §5.2.4.12, GEO: Ω_k = Ω0 + Ω̇·t_k − Ω_e·t_oe (no Earth
+            // rotation over t_k yet), the position in the tilted inertial-like
+            // frame, then [X Y Z] = Rz(Ω_e·t_k)·Rx(−5°)·[X_GK Y_GK Z_GK] with
+            // Rx(φ) = [1 0 0; 0 cos φ sin φ; 0 −sin φ cos φ] and
+            // Rz(φ) = [cos φ sin φ 0; −sin φ cos φ 0; 0 0 1].
+            let om = self.omega0_rad + self.omega_dot_radps * dt - omega_e * toe_week_s;
+            let (so, co) = om.sin_cos();
+            let (si, ci) = i.sin_cos();
+            let gk = Vector3::new(xp * co - yp * ci * so, xp * so + yp * ci * co, yp * si);
+            let (sf, cf) = BDS_GEO_TILT_DEG.to_radians().sin_cos();
+            let tilted = Vector3::new(gk.x, cf * gk.y + sf * gk.z, -sf * gk.y + cf * gk.z);
+            let (sz, cz) = (omega_e * dt).sin_cos();
+            return (
+                Vector3::new(cz * tilted.x + sz * tilted.y, -sz * tilted.x + cz * tilted.y, tilted.z),
+                e_anom,
+            );
+        }
+        let om = self.omega0_rad + (self.omega_dot_radps - omega_e) * dt - omega_e * toe_week_s;
         let (so, co) = om.sin_cos();
         let (si, ci) = i.sin_cos();
         (
@@ -323,5 +384,174 @@ mod tests {
     fn week_crossover() {
         assert_eq!(tk(10.0, WEEK_S - 10.0), 20.0);
         assert_eq!(tk(WEEK_S - 10.0, 10.0), -20.0);
+    }
+
+    /// BeiDou C02 (GEO) and C06 (IGSO), the 10:00 BDT ephemerides of BDT
+    /// week 888 (toe 36 000 s BDT = 36 014 s GPST, GPS week 2244) from the
+    /// Skydel RINEX shipped with INSTINCT
+    /// (`test/data/GNSS/Skydel_static_duration-4h_rate-5min_sys-GERCQIS/
+    /// SkydelRINEX_S_20238959_3600S_CN.rnx`), stored on the GPS scale.
+    #[allow(clippy::inconsistent_digit_grouping, clippy::excessive_precision)] // values as published
+    fn beidou_c02_c06() -> (BroadcastEphemeris, BroadcastEphemeris) {
+        let c02 = BroadcastEphemeris {
+            prn: 2,
+            ..eph(
+                System::BeiDou,
+                2244,
+                36_014.0,
+                [
+                    6.493481067657e3,
+                    9.540994651616e-4,
+                    -5.156079508322e-1,
+                    -2.415814914102e-9,
+                    -5.011557524058e-1,
+                    3.626579633027e-9,
+                    1.125395887542e-1,
+                    5.325221816864e-10,
+                    -1.175464677199,
+                    -2.160156145692e-5,
+                    2.393499016762e-7,
+                    -4.96875,
+                    -6.5725e2,
+                    -1.117587089539e-8,
+                    9.080395102501e-8,
+                    0.0,
+                ],
+                [-6.993988063186e-5, -1.344755418131e-10, 0.0],
+                1.4e-9,
+            )
+        };
+        let c06 = BroadcastEphemeris {
+            prn: 6,
+            ..eph(
+                System::BeiDou,
+                2244,
+                36_014.0,
+                [
+                    6.492945194244e3,
+                    3.454052493908e-3,
+                    1.652985884108e-1,
+                    1.575065607805e-9,
+                    1.170534452350,
+                    -1.890435887100e-9,
+                    9.452606977880e-1,
+                    1.040043321979e-9,
+                    -3.134031840914,
+                    3.844499588013e-6,
+                    8.593313395977e-6,
+                    -2.2421875e1,
+                    1.189687500000e2,
+                    -7.916241884232e-8,
+                    1.089647412300e-7,
+                    0.0,
+                ],
+                [2.073270972147e-4, -3.033129303276e-12, 0.0],
+                8.6e-9,
+            )
+        };
+        (c02, c06)
+    }
+
+    /// BeiDou satellite states against Skydel's truth (INSTINCT's
+    /// `sat_data/B1 02.csv` and `B1 06.csv`, Iono-none_tropo-none), at the
+    /// transmission time of the 36 300 s GPST epoch. Skydel's B1I clock
+    /// includes relativity and −TGD1, like `dt_s`.
+    /// - C06 (IGSO) agrees to 10 µm (with GPS's Earth rate instead of
+    ///   BeiDou's it would be 2.2 m off).
+    /// - C02 (GEO, the −5° frame) agrees to 1.8 cm, its velocity to the
+    ///   truth's 10-minute difference quotient to 1 mm/s. Without the GEO
+    ///   rotation it would be 3 600 km off, with toe on the GPS scale in the
+    ///   Ω term 43 km, and read on the GPS time scale (no 14 s) 187 m.
+    #[test]
+    #[allow(clippy::inconsistent_digit_grouping)] // values as published
+    fn beidou_positions_match_skydel() {
+        let (c02, c06) = beidou_c02_c06();
+
+        let t = 36_300.0 - 37_315_465.53863 / C_MPS;
+        let want = Vector3::new(-8_668_440.498344, 40_578_147.42062, -6_599_670.28856);
+        let st = c06.state(t);
+        assert!((st.r_ecef_m - want).norm() < 1e-3, "{:?}", st.r_ecef_m - want);
+        assert!((st.dt_s - 2.073_157_797_571e-4).abs() < 1e-13, "{}", st.dt_s);
+
+        let t = 36_300.0 - 36_948_927.97992 / C_MPS;
+        let want = Vector3::new(4_456_433.905018, 41_880_148.90687, -1_054_098.955061);
+        let st = c02.state(t);
+        assert!((st.r_ecef_m - want).norm() < 0.05, "{:?}", st.r_ecef_m - want);
+        assert!((st.dt_s - -6.997_841_600_047e-5).abs() < 1e-13, "{}", st.dt_s);
+        // The truth's difference quotient over the 36 000 s and 36 600 s
+        // epochs, centred on t.
+        let v_truth = (Vector3::new(4_454_568.825513, 41_879_880.10726, -1_057_402.476001)
+            - Vector3::new(4_458_281.722593, 41_880_449.18674, -1_050_289.98781))
+            / 600.0;
+        assert!((st.v_ecef_mps - v_truth).norm() < 0.01, "{:?}", st.v_ecef_mps - v_truth);
+        let not_geo = BroadcastEphemeris { prn: 6, ..c02.clone() };
+        assert!((not_geo.state(t).r_ecef_m - want).norm() > 1e6);
+    }
+
+    /// A GEO stays put: C02's position over toe ± 1 h stays within 100 km of
+    /// where it is at toe (87 km at most: an inclined GEO's daily figure
+    /// eight), moving at under 50 m/s, where a MEO or IGSO satellite moves
+    /// at kilometres per second in ECEF.
+    #[test]
+    fn beidou_geo_is_near_stationary() {
+        let (c02, c06) = beidou_c02_c06();
+        assert!(c02.is_beidou_geo() && !c06.is_beidou_geo());
+        let at_toe = c02.state(36_014.0).r_ecef_m;
+        for k in -60..=60 {
+            let st = c02.state(36_014.0 + k as f64 * 60.0);
+            assert!((st.r_ecef_m - at_toe).norm() < 100e3, "{k} min");
+            assert!(st.v_ecef_mps.norm() < 50.0, "{k} min: {}", st.v_ecef_mps.norm());
+            // Geostationary radius, 42 164 km ± 100 km.
+            assert!((st.r_ecef_m.norm() - 42_164e3).abs() < 100e3);
+        }
+        assert!(c06.state(36_014.0).v_ecef_mps.norm() > 1_000.0);
+        for prn in [59, 63] {
+            assert!(BroadcastEphemeris { prn, ..c02.clone() }.is_beidou_geo());
+        }
+    }
+
+    /// The BeiDou handling leaves the other constellations alone: a GPS or
+    /// QZSS satellite numbered like a BeiDou GEO is an ordinary one.
+    #[test]
+    fn low_prn_gps_is_not_geo() {
+        let (elements, _) = beidou_c02_c06();
+        let gps = BroadcastEphemeris {
+            system: System::Gps,
+            prn: 3,
+            ..elements
+        };
+        let gps30 = BroadcastEphemeris { prn: 30, ..gps.clone() };
+        assert!(!gps.is_beidou_geo());
+        assert_eq!(gps.state(36_300.0), gps30.state(36_300.0));
+        let qzs = BroadcastEphemeris {
+            system: System::Qzss,
+            ..gps.clone()
+        };
+        assert_eq!(gps.state(36_300.0), qzs.state(36_300.0));
+    }
+
+    /// BDT to the GPS scale, with the week carried when the 14 s cross it.
+    #[test]
+    fn bdt_on_gps_scale() {
+        assert_eq!(bdt_to_gps(888, 36_000.0), (2244, 36_014.0));
+        assert_eq!(bdt_to_gps(888, WEEK_S - 8.0), (2245, 6.0));
+        assert_eq!(bdt_to_gps(888, WEEK_S - 14.0), (2245, 0.0));
+        // A toe of BDT 604 792 s (week 888) is stored as 6 s of GPS week
+        // 2245; the Ω term must still see 604 792 s, as it does for the same
+        // instant written unwrapped (604 806 s of GPS week 2244).
+        let (_, c06) = beidou_c02_c06();
+        let late = BroadcastEphemeris {
+            week: 2245,
+            toe_s: 6.0,
+            toc_s: 6.0,
+            ..c06.clone()
+        };
+        let early = BroadcastEphemeris {
+            toe_s: WEEK_S + 6.0,
+            toc_s: WEEK_S + 6.0,
+            ..c06
+        };
+        let (a, b) = (late.state(106.0).r_ecef_m, early.state(WEEK_S + 106.0).r_ecef_m);
+        assert!((a - b).norm() < 1e-6, "{:?}", a - b);
     }
 }

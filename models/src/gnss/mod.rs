@@ -7,10 +7,12 @@
 
 pub mod atmosphere;
 pub mod ephemeris;
+pub mod glonass;
 pub mod rtcm_eph;
 
 pub use atmosphere::{niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, Klobuchar};
-pub use ephemeris::{tk, BroadcastEphemeris, SatState, REL_F};
+pub use ephemeris::{bdt_to_gps, tk, BroadcastEphemeris, SatState, REL_F};
+pub use glonass::{glonass_tb_to_gps, GlonassEphemeris};
 
 use nalgebra::Vector3;
 

@@ -3,9 +3,12 @@
 //! GPS is 31 satellites in six planes (55° inclination, semi-major axis
 //! 26 559.7 km); Galileo is a Walker 24/3/1 (56°, 29 600 km). Both are
 //! described by broadcast-ephemeris parameters, the fields RTCM 1019 and 1046
-//! carry. The satellites' true orbits are exactly those ephemerides (no
-//! ephemeris error is simulated), computed per IS-GPS-200 Table 20-IV, which
-//! the Galileo OS SIS ICD §5.1.1 repeats with Galileo's own GM.
+//! carry, computed per IS-GPS-200 Table 20-IV, which the Galileo OS SIS ICD
+//! §5.1.1 repeats with Galileo's own GM. The broadcast orbits and clocks are
+//! not perfect: each satellite's range carries a constant error `E_sv`
+//! (`gnss.broadcast_error_m`, 0.6 m σ by default, GPS's signal-in-space
+//! range error), the same for every receiver, so a base station nearby sees
+//! it too and differential GNSS removes it.
 //!
 //! The receiver measures at its antenna `A`, not at the IMU: a real antenna
 //! sits on a mast, `p_A_in_B` away (config `gnss.p_A_in_B_m`), so
@@ -13,7 +16,9 @@
 //! (in the world frame, then ECEF).
 //!
 //! Pseudorange at reception time `t_rx` (GPS time):
-//! `P = ρ + c·δt_rx − c·δt_sv(t_tx) + T + I + ε (+ multipath)`, with the
+//! `P = ρ + c·δt_rx − c·δt_sv(t_tx) + E_sv + T (1 + f_T) + I + ε (+ multipath)`,
+//! `f_T` the fraction of the troposphere a receiver's model misses
+//! (`gnss.troposphere_error_frac`, 5 %), with the
 //! geometric range `ρ = |Rz(ωe τ) r_sat(t_tx) − r_A|`, `t_tx = t_rx − τ` and
 //! `τ = ρ/c` the signal flight time: `Rz(ωe τ)` carries the satellite's
 //! position at transmission into the ECEF frame of reception (the Sagnac
@@ -32,6 +37,11 @@
 //! differences along the geometry's motion. The ionosphere enters with the
 //! carrier-phase sign (`−İ`), because a receiver's range rate is a Doppler,
 //! a phase rate, and MSM7 sends it as one.
+//!
+//! A base station (`gnss.base`) is a second receiver of the same kind at a
+//! fixed point, with its own clock and noise and an open sky; an urban
+//! canyon (`gnss.canyon_s`) leaves the rover only its highest few
+//! satellites for a while.
 //!
 //! A receiver reports an epoch some time after it: [`GnssEpoch::t_s`] is
 //! the epoch's instant and [`GnssEpoch::t_delivered_s`] when it reaches the
@@ -116,6 +126,11 @@ pub struct GnssModel {
     /// Noise for Galileo's measurements, its own stream so that GPS's draws
     /// do not depend on whether Galileo is simulated.
     gal_rng: rand_chacha::ChaCha8Rng,
+    /// Each satellite's broadcast orbit and clock error on the line of sight
+    /// (m), in `ephemerides`' order: the same for every receiver.
+    sis_error_m: Vec<f64>,
+    /// A base station's receiver: open sky (no canyon).
+    open_sky: bool,
 }
 
 impl GnssModel {
@@ -139,7 +154,59 @@ impl GnssModel {
             clock_drift_mps: cfg.clock_drift0_mps,
             last_t_s: None,
             gal_rng: rand::SeedableRng::seed_from_u64(cfg.start_week as u64 ^ 0x6a1),
+            sis_error_m: Vec::new(),
+            open_sky: false,
         }
+        .with_broadcast_errors()
+    }
+
+    /// Draws each satellite's broadcast error from its own stream (seeded by
+    /// the week: the constellation's, not a receiver's).
+    fn with_broadcast_errors(mut self) -> Self {
+        let mut rng: rand_chacha::ChaCha8Rng = rand::SeedableRng::seed_from_u64(self.cfg.start_week as u64 ^ 0x515e);
+        self.sis_error_m = self
+            .ephemerides
+            .iter()
+            .map(|_| rng.sample::<f64, _>(StandardNormal) * self.cfg.broadcast_error_m)
+            .collect();
+        self
+    }
+
+    /// The broadcast (orbit and clock) range error of a satellite (m).
+    pub fn broadcast_error_m(&self, system: System, prn: u8) -> f64 {
+        self.ephemerides
+            .iter()
+            .position(|e| (e.system, e.prn) == (system, prn))
+            .map_or(0.0, |i| self.sis_error_m[i])
+    }
+
+    /// A base station's receiver beside this one: the same satellites and
+    /// broadcast errors, its own clock (`clock0`: bias m, drift m/s) and
+    /// noise streams, open sky.
+    pub fn base_station(&self, clock0: (f64, f64), noise_seed: u64) -> Self {
+        Self {
+            cfg: self.cfg.clone(),
+            frame: self.frame.clone(),
+            ephemerides: self.ephemerides.clone(),
+            clock_bias_m: clock0.0,
+            clock_drift_mps: clock0.1,
+            last_t_s: None,
+            gal_rng: rand::SeedableRng::seed_from_u64(noise_seed ^ 0x6a1),
+            sis_error_m: self.sis_error_m.clone(),
+            open_sky: true,
+        }
+    }
+
+    /// The epoch a static receiver at `p_in_W_m` (NED, m) tags `t_tag_s`.
+    pub fn static_epoch_at<R: Rng>(&mut self, p_in_W_m: &Vector3<f64>, t_tag_s: f64, rng: &mut R) -> GnssEpoch {
+        self.advance_clock(t_tag_s, rng);
+        let t_s = t_tag_s - self.clock_bias_m / C_MPS;
+        let r = self.frame.to_ecef(p_in_W_m);
+        let mut ep = self.measure_at(t_s, &r, &Vector3::zeros(), rng);
+        let (week, tow) = self.gps_time(t_tag_s);
+        ep.week = week;
+        ep.tow_s = tow;
+        ep
     }
 
     /// GPS week and time of week at simulation time `t_s`.
@@ -232,7 +299,7 @@ impl GnssModel {
         let (ta, ia) = self.atmosphere_m(&(r_rx - v_rx * h), &(r_sat - s_dot * h));
         let (tb, ib) = self.atmosphere_m(&(r_rx + v_rx * h), &(r_sat + s_dot * h));
         let (t_dot, i_dot) = ((tb - ta) / (2.0 * h), (ib - ia) / (2.0 * h));
-        rho_dot - C_MPS * st.ddt * (1.0 - tau_dot) + t_dot - i_dot
+        rho_dot - C_MPS * st.ddt * (1.0 - tau_dot) + t_dot * (1.0 + self.cfg.troposphere_error_frac) - i_dot
     }
 
     /// Advances the receiver clock to `t_s` (two-state random walk).
@@ -267,15 +334,41 @@ impl GnssModel {
     }
 
     fn measure<R: Rng>(&mut self, truth: &TruthSample, gps_rng: &mut R) -> GnssEpoch {
-        let (week, tow) = self.gps_time(truth.t_s);
         let (r_rx, v_rx) = self.antenna_ecef(truth);
+        self.measure_at(truth.t_s, &r_rx, &v_rx, gps_rng)
+    }
+
+    /// The satellites a receiver at `r_rx` sees at `t_s`: those above the
+    /// mask, and inside the urban canyon (`canyon_s`) only the
+    /// `canyon_keep` highest.
+    fn visible(&self, t_s: f64, tow: f64, r_rx: &Vector3<f64>) -> Vec<usize> {
+        let mut v: Vec<(usize, f64)> = self
+            .ephemerides
+            .iter()
+            .enumerate()
+            .filter_map(|(i, eph)| {
+                let (_, _, r_sat) = self.range_terms(eph, tow, r_rx);
+                let (el, _) = elevation_azimuth(r_rx, &r_sat);
+                (el.to_degrees() >= self.cfg.elevation_mask_deg).then_some((i, el))
+            })
+            .collect();
+        let c = &self.cfg.canyon_s;
+        if !self.open_sky && c.len() == 2 && (c[0]..c[1]).contains(&t_s) {
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            v.truncate(self.cfg.canyon_keep);
+            v.sort_by_key(|x| x.0);
+        }
+        v.into_iter().map(|(i, _)| i).collect()
+    }
+
+    fn measure_at<R: Rng>(&mut self, t_s: f64, r_rx: &Vector3<f64>, v_rx: &Vector3<f64>, gps_rng: &mut R) -> GnssEpoch {
+        let (week, tow) = self.gps_time(t_s);
+        let (r_rx, v_rx) = (*r_rx, *v_rx);
         let mut sats = Vec::new();
-        for eph in &self.ephemerides {
+        for i in self.visible(t_s, tow, &r_rx) {
+            let eph = &self.ephemerides[i];
             let (terms, st, r_sat) = self.range_terms(eph, tow, &r_rx);
             let (el, _) = elevation_azimuth(&r_rx, &r_sat);
-            if el.to_degrees() < self.cfg.elevation_mask_deg {
-                continue;
-            }
             let (rng, isb): (&mut dyn rand::RngCore, f64) = match eph.system {
                 System::Galileo => (&mut self.gal_rng, self.cfg.isb_galileo_m),
                 // The simulator flies GPS and Galileo only.
@@ -295,7 +388,8 @@ impl GnssModel {
                 system: eph.system,
                 prn: eph.prn,
                 pseudorange_m: terms.geometric_m + self.clock_bias_m + isb - terms.sat_clock_m
-                    + terms.troposphere_m
+                    + terms.troposphere_m * (1.0 + self.cfg.troposphere_error_frac)
+                    + self.sis_error_m[i]
                     + terms.ionosphere_m
                     + mp
                     + n_pr * self.cfg.pseudorange_noise_m / sin_el,
@@ -308,8 +402,8 @@ impl GnssModel {
             });
         }
         GnssEpoch {
-            t_s: truth.t_s,
-            t_delivered_s: truth.t_s,
+            t_s,
+            t_delivered_s: t_s,
             week,
             // A receiver tags epochs with its own clock: GPS time + δt.
             tow_s: tow + self.clock_bias_m / C_MPS,
@@ -369,7 +463,10 @@ mod tests {
             } else {
                 0.0
             };
-            let modelled = ep.clock_bias_m + isb - t.sat_clock_m + t.troposphere_m + t.ionosphere_m;
+            let modelled = ep.clock_bias_m + isb - t.sat_clock_m
+                + t.troposphere_m * (1.0 + cfg.troposphere_error_frac)
+                + t.ionosphere_m
+                + m.broadcast_error_m(s.system, s.prn);
             assert!((s.pseudorange_m - t.geometric_m - modelled).abs() < 1e-6);
             assert!(t.troposphere_m > 2.3 && t.troposphere_m < 2.3 / (10f64.to_radians().sin()) + 1.0);
             assert!(t.ionosphere_m >= 5.0 && t.ionosphere_m < 16.0);

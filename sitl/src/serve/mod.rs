@@ -66,6 +66,14 @@ const HEADER: MavHeader = MavHeader {
     sequence: 0,
 };
 
+/// The header of a ground station injecting a base station's corrections
+/// (system 255, component 190, as QGroundControl and Mission Planner do).
+const GCS_HEADER: MavHeader = MavHeader {
+    system_id: 255,
+    component_id: 190,
+    sequence: 0,
+};
+
 /// Settings of one served flight.
 #[derive(Clone, Debug)]
 pub struct ServeOptions {
@@ -77,6 +85,11 @@ pub struct ServeOptions {
     pub speedup: f64,
     /// Faults to inject.
     pub faults: Vec<Fault>,
+    /// `Some(address)`: the receiver is wired to the companion rather than
+    /// relayed by the autopilot: its RTCM (observations and ephemerides) is
+    /// served on a TCP listener at `address` (the daemon's
+    /// `gnss.stream = "tcp:…"`), not in `GPS_RTCM_DATA`.
+    pub gnss_stream: Option<String>,
 }
 
 /// Errors that stop the mock autopilot.
@@ -84,6 +97,8 @@ pub struct ServeOptions {
 pub enum ServeError {
     #[error("MAVLink address '{0}': {1}")]
     Link(String, std::io::Error),
+    #[error("GNSS stream listener '{0}': {1}")]
+    GnssStream(String, std::io::Error),
 }
 
 /// Serves `ds` to the daemon and scores its estimates.
@@ -96,8 +111,16 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     // Receive: answer commands and time sync, collect estimates.
     let rx = receive::spawn_receiver(conn.clone(), inbox.clone(), started, t_start, opts.speedup, stop_rx);
+    let receiver_port = match &opts.gnss_stream {
+        Some(addr) => Some(
+            rtcm::ReceiverPort::listen(addr)
+                .await
+                .map_err(|e| ServeError::GnssStream(addr.clone(), e))?,
+        ),
+        None => None,
+    };
     // Stream the flight in time order, paced by the wall clock.
-    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s, inbox.clone());
+    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s, inbox.clone(), receiver_port);
     out.run(t_start).await;
     // Let the last estimates arrive.
     tokio::time::sleep(Duration::from_millis(300)).await;

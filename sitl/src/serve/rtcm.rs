@@ -1,12 +1,60 @@
-//! The GNSS receiver's side of the link: RTCM3 observations (MSM7) and
+//! The GNSS receivers' side: the rover's RTCM3 observations (MSM7) and
 //! broadcast ephemerides, split into MAVLink `GPS_RTCM_DATA` fragments as an
-//! autopilot relays them.
+//! autopilot relays them, or written to a TCP port as a receiver wired to
+//! the companion sends them ([`ReceiverPort`]); and a base station's
+//! observations with its antenna position (MT1005), injected by a ground
+//! station into `GPS_RTCM_DATA`.
+
+use std::sync::Arc;
+use std::time::Duration;
 
 use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{AsyncMavConnection, MavHeader};
+use tokio::io::AsyncWriteExt;
+use tokio::sync::Mutex;
 
 use super::fault::{add_pr_outliers, break_crc, Active, FaultKind};
 use super::stream::Streamer;
-use super::ROVER_STATION_ID;
+use super::{GCS_HEADER, HEADER, ROVER_STATION_ID};
+
+/// The rover receiver's own port: a TCP listener whose latest client gets
+/// every byte the receiver sends. Nothing waits for a client: bytes sent
+/// while none is connected are lost, as on a serial line nobody reads.
+pub struct ReceiverPort {
+    client: Arc<Mutex<Option<tokio::net::TcpStream>>>,
+    _accept: tokio::task::JoinHandle<()>,
+}
+
+impl ReceiverPort {
+    /// Listens on `addr` (`host:port`) and keeps accepting clients.
+    pub async fn listen(addr: &str) -> std::io::Result<Self> {
+        let listener = tokio::net::TcpListener::bind(addr).await?;
+        let client = Arc::new(Mutex::new(None));
+        let c = client.clone();
+        let accept = tokio::spawn(async move {
+            while let Ok((s, _)) = listener.accept().await {
+                let _ = s.set_nodelay(true);
+                *c.lock().await = Some(s);
+            }
+        });
+        Ok(Self {
+            client,
+            _accept: accept,
+        })
+    }
+
+    /// Writes `bytes` to the client, if any (dropped on an error or after
+    /// 100 ms).
+    async fn write(&self, bytes: &[u8]) {
+        let mut guard = self.client.lock().await;
+        if let Some(s) = guard.as_mut() {
+            let ok = tokio::time::timeout(Duration::from_millis(100), s.write_all(bytes)).await;
+            if !matches!(ok, Ok(Ok(()))) {
+                *guard = None;
+            }
+        }
+    }
+}
 
 /// Splits an RTCM message into `GPS_RTCM_DATA` fragments (MAVLink spec):
 /// flags bit 0 = fragmented, bits 1–2 = fragment id, bits 3–7 = sequence.
@@ -48,8 +96,9 @@ impl Streamer<'_> {
                 if active.has(FaultKind::RtcmBadCrc) {
                     break_crc(&mut bytes);
                 }
+                // Copies go under one sequence number, as a relay repeats.
                 for _ in 0..active.copies() {
-                    self.send_rtcm(&bytes).await;
+                    self.send_receiver(&bytes).await;
                 }
                 self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
             }
@@ -62,16 +111,47 @@ impl Streamer<'_> {
         let ds = self.ds;
         for e in &ds.ephemerides {
             if let Ok(bytes) = cmsckf_models::gnss::rtcm_eph::encode_ephemeris(e) {
-                self.send_rtcm(&bytes).await;
+                self.send_receiver(&bytes).await;
                 self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
             }
         }
     }
 
-    /// Sends one RTCM message under the current sequence number.
-    async fn send_rtcm(&self, bytes: &[u8]) {
+    /// Delivers the next base-station epoch (at its `t_delivered_s`): its
+    /// MT1005 and MSM7, from the ground station's system id.
+    pub(super) async fn send_base_epoch(&mut self, active: &Active<'_>) {
+        let Some(ep) = self.next_base_epoch() else { return };
+        self.k_base += 1;
+        let (Some(arp), false) = (self.ds.base_arp_ecef_m, active.link_down()) else {
+            return;
+        };
+        let id = self.ds.cfg.gnss.base.station_id;
+        for bytes in [
+            crate::rtcm_out::encode_station(id, arp),
+            crate::rtcm_out::encode_epoch(ep, id),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            self.send_rtcm(&GCS_HEADER, &bytes).await;
+            self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
+        }
+    }
+
+    /// One message of the rover's receiver: to its own port when it has
+    /// one, else relayed by the autopilot in `GPS_RTCM_DATA`.
+    async fn send_receiver(&self, bytes: &[u8]) {
+        match &self.receiver_port {
+            Some(port) => port.write(bytes).await,
+            None => self.send_rtcm(&HEADER, bytes).await,
+        }
+    }
+
+    /// Sends one RTCM message in `GPS_RTCM_DATA` under the current sequence
+    /// number, from `header`'s system.
+    async fn send_rtcm(&self, header: &MavHeader, bytes: &[u8]) {
         for f in rtcm_fragments(bytes, self.rtcm_seq) {
-            self.send(apm::MavMessage::GPS_RTCM_DATA(f)).await;
+            let _ = self.conn.send(header, &apm::MavMessage::GPS_RTCM_DATA(f)).await;
         }
     }
 }

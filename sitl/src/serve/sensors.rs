@@ -40,8 +40,11 @@ impl Streamer<'_> {
             ..Default::default()
         }))
         .await;
-        // Broadcast ephemerides every 30 s, as receivers repeat them.
-        if (t as u64).is_multiple_of(30) {
+        // Broadcast ephemerides every 30 s, as receivers repeat them; every
+        // 5 s from a receiver on its own port, whose reader may connect
+        // after the first ones went out.
+        let every = if self.receiver_port.is_some() { 5 } else { 30 };
+        if (t as u64).is_multiple_of(every) {
             self.send_ephemerides().await;
         }
     }

@@ -46,6 +46,11 @@ pub(super) struct Streamer<'a> {
     pub(super) k_cam: usize,
     pub(super) gnss_order: Vec<usize>,
     pub(super) k_gnss: usize,
+    /// The base station's epochs in delivery order, and the next to send.
+    pub(super) base_order: Vec<usize>,
+    pub(super) k_base: usize,
+    /// The rover receiver's own port, when it is wired to the companion.
+    pub(super) receiver_port: Option<super::rtcm::ReceiverPort>,
     /// Flight time of the next 10 Hz attitude / position.
     pub(super) next_slow: f64,
     /// Flight time of the next 1 Hz heartbeat, system time and origin.
@@ -70,6 +75,7 @@ impl<'a> Streamer<'a> {
         ds: &'a Dataset,
         reboot_s: Option<f64>,
         inbox: Inbox,
+        receiver_port: Option<super::rtcm::ReceiverPort>,
     ) -> Self {
         Self {
             conn,
@@ -83,6 +89,9 @@ impl<'a> Streamer<'a> {
             k_cam: 0,
             gnss_order: delivery_order(ds.gnss.iter().map(|e| e.t_delivered_s)),
             k_gnss: 0,
+            base_order: delivery_order(ds.base_gnss.iter().map(|e| e.t_delivered_s)),
+            k_base: 0,
+            receiver_port,
             next_slow: 0.0,
             next_1hz: 0.0,
             rtcm_seq: 0,
@@ -114,6 +123,11 @@ impl<'a> Streamer<'a> {
         self.gnss_order.get(self.k_gnss).map(|&i| &self.ds.gnss[i])
     }
 
+    /// The next base-station epoch to deliver.
+    pub(super) fn next_base_epoch(&self) -> Option<&'a GnssEpoch> {
+        self.base_order.get(self.k_base).map(|&i| &self.ds.base_gnss[i])
+    }
+
     /// Streams the whole flight, flight time 0 being `t_start` on the wall
     /// clock divided by the speed-up. Frames and epochs go out at their
     /// delivery times. At equal times, GNSS goes first, then the 1 Hz, the
@@ -124,7 +138,15 @@ impl<'a> Streamer<'a> {
             let t_imu = ds.imu.get(self.k_imu).map_or(f64::INFINITY, |m| m.t_s);
             let t_cam = self.next_frame().map_or(f64::INFINITY, |f| f.t_delivered_s);
             let t_gnss = self.next_epoch().map_or(f64::INFINITY, |e| e.t_delivered_s.max(0.0));
-            let t = t_imu.min(t_cam).min(self.next_slow).min(self.next_1hz).min(t_gnss);
+            let t_base = self
+                .next_base_epoch()
+                .map_or(f64::INFINITY, |e| e.t_delivered_s.max(0.0));
+            let t = t_imu
+                .min(t_cam)
+                .min(self.next_slow)
+                .min(self.next_1hz)
+                .min(t_gnss)
+                .min(t_base);
             if !t.is_finite() || t > ds.duration_s + 1e-9 {
                 break;
             }
@@ -133,6 +155,8 @@ impl<'a> Streamer<'a> {
             let active = Active::at(&self.opts.faults, t);
             if t == t_gnss {
                 self.send_gnss_epoch(&active).await;
+            } else if t == t_base {
+                self.send_base_epoch(&active).await;
             } else if active.link_down() && (t == t_imu || t == self.next_1hz || t == self.next_slow) {
                 // Nothing from the autopilot gets through (the camera, on its
                 // own socket, still does); its EKF runs on, unheard.
