@@ -58,8 +58,21 @@ fn compare(file: &str, iono: &str, week: &str, reference_file: &str) -> (usize, 
     compare_with(file, &[], iono, week, reference_file)
 }
 
-/// [`compare`] with extra arguments.
+/// [`compare`] with extra arguments (a later `--systems` wins over the
+/// default `G`).
 fn compare_with(file: &str, extra: &[&str], iono: &str, week: &str, reference_file: &str) -> (usize, f64, f64, String) {
+    compare_filtered(file, extra, iono, week, reference_file, |_| true)
+}
+
+/// [`compare_with`] over the epochs whose satellite count passes `keep`.
+fn compare_filtered(
+    file: &str,
+    extra: &[&str],
+    iono: &str,
+    week: &str,
+    reference_file: &str,
+    keep: impl Fn(usize) -> bool,
+) -> (usize, f64, f64, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
         .args(["gnss"])
         .arg(data(file))
@@ -69,12 +82,15 @@ fn compare_with(file: &str, extra: &[&str], iono: &str, week: &str, reference_fi
             iono,
             "--elevation-mask-deg",
             "10",
-            "--systems",
-            "G",
             "--week-hint",
             week,
             "--csv",
         ])
+        .args(if extra.contains(&"--systems") {
+            &[][..]
+        } else {
+            &["--systems", "G"][..]
+        })
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -85,10 +101,9 @@ fn compare_with(file: &str, extra: &[&str], iono: &str, week: &str, reference_fi
         "gps_week,gps_tow_s,n_sats,ecef_x_m,ecef_y_m,ecef_z_m,lat_deg,lon_deg,height_m,pdop,residual_rms_m"
     );
     let ours: Vec<(f64, [f64; 3])> = lines
-        .map(|l| {
-            let f: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
-            (f[1], [f[3], f[4], f[5]])
-        })
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect::<Vec<f64>>())
+        .filter(|f| keep(f[2] as usize))
+        .map(|f| (f[1], [f[3], f[4], f[5]]))
         .collect();
     let refs = reference(reference_file);
     let mut d: Vec<f64> = Vec::new();
@@ -174,6 +189,29 @@ fn ubx_legacy_raw_and_subframes() {
     assert!(counts.contains("ephemerides: 18"), "{counts}");
 }
 
+/// GPS + GLONASS on GMSD7 (a NetR9's MT1087 and MT1020) against RTKLIB's
+/// GPS + GLONASS solution: over the epochs with the reference's seven
+/// satellites, those after R15's ephemeris has arrived in stream order (the
+/// earlier ones, with 4–6 satellites, are other solutions, 11 m away). The
+/// 2012 data need GPS − UTC = 16 s, not today's 18, to place GLONASS's
+/// Moscow time.
+#[test]
+fn gmsd7_gps_and_glonass() {
+    let (n, med, p95, counts) = compare_filtered(
+        "GMSD7_20121014.rtcm3",
+        &["--systems", "G,R"],
+        "off",
+        "1710",
+        "GMSD7_rtklib_spp_gr_ionooff.pos",
+        |n_sats| n_sats == 7,
+    );
+    eprintln!("{counts}\nGMSD7 G+R, 7 satellites: {n} matched, median {med:.4} m, p95 {p95:.4} m");
+    assert!(n >= 20, "{n} epochs with all seven satellites");
+    assert!(med <= 0.2, "median {med} m (target 1 m)");
+    assert!(p95 <= 0.3, "p95 {p95} m");
+    assert!(counts.contains("1020:16"), "{counts}");
+}
+
 /// 3040's RINEX-header position (ECEF, m): the antenna's surveyed point.
 const SURVEYED_3040: &str = "-3978242.4348,3382841.1715,3649902.7667";
 
@@ -234,6 +272,7 @@ fn bad_arguments_are_clear_errors() {
     let f = f.to_str().unwrap();
     assert!(run(&["gnss", f, "--iono", "magic"]).contains("unknown ionosphere mode"));
     assert!(run(&["gnss", f, "--systems", "G,X"]).contains("unknown system"));
+    assert!(run(&["gnss", f, "--systems", ","]).contains("no system given"));
     assert!(run(&["gnss", f, "--base", "/no/base.rtcm3"]).contains("/no/base.rtcm3"));
     assert!(run(&["gnss", f, "--surveyed-ecef-m", "1,2"]).contains("X,Y,Z"));
     assert!(run(&["gnss", f, "--base-max-age-s", "-1"]).contains("--base-max-age-s"));

@@ -204,7 +204,7 @@ impl GnssIn {
                 );
                 rovers
             }
-            GnssMessage::Eph(_) | GnssMessage::Other(_) => true,
+            GnssMessage::Eph(_) | GnssMessage::GlonassEph(_) | GnssMessage::Other(_) => true,
         }
     }
 

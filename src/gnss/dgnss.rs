@@ -29,12 +29,12 @@ use std::collections::VecDeque;
 use nalgebra::Vector3;
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
-use cmsckf_models::gnss::{gps_day_of_year, BroadcastEphemeris};
+use cmsckf_models::gnss::gps_day_of_year;
 
 pub use super::spp::CodeModel;
 
 use super::rtcm::{MsmEpoch, SatObs, System};
-use super::spp::{self, EphStore, Meas, SppError, SppOptions, SppSolution};
+use super::spp::{self, EphStore, Meas, Orbit, SppError, SppOptions, SppSolution};
 use super::{EpochAssembler, IonoMode, RawSat};
 
 /// Base and rover epochs this close (s) are the same epoch: receivers' time
@@ -150,19 +150,20 @@ impl BaseStation {
     }
 }
 
-/// The base's correction (D1) for the satellite of ephemeris `eph` at the
-/// base epoch `e`, with the base at `arp` and the troposphere of `model`;
-/// `None` below the elevation mask (rad) or without a code.
+/// The base's correction (D1) for its satellite `raw`, whose orbit is
+/// `orbit`, at the base epoch `e`, with the base at `arp` and the
+/// troposphere of `model`; `None` below the elevation mask (rad) or without
+/// a code.
 fn correction_at(
     e: &BaseEpoch,
+    raw: &RawSat,
     arp: &Vector3<f64>,
-    eph: &BroadcastEphemeris,
+    orbit: Orbit<'_>,
     mask: f64,
     model: CodeModel,
 ) -> Option<f64> {
-    let raw = e.sats.iter().find(|s| (s.system, s.prn) == (eph.system, eph.prn))?;
     let pr = raw.l1_pseudorange_m.filter(|p| (1.0e7..=4.0e7).contains(p))?;
-    let st = spp::state_at_transmission(eph, e.tow_s, pr);
+    let st = spp::state_at_transmission(orbit, e.week, e.tow_s, pr);
     let (el, _) = elevation_azimuth(arp, &st.r_ecef_m);
     if el < mask {
         return None;
@@ -191,8 +192,8 @@ fn epoch_corrections(
         .sats
         .iter()
         .filter_map(|s| {
-            let eph = ephs.select(s.system, s.prn, week, tow_s)?;
-            Some(((s.system, s.prn), correction_at(e, arp, eph, mask, model)?))
+            let orbit = ephs.orbit(s.system, s.prn, week, tow_s)?;
+            Some(((s.system, s.prn), correction_at(e, s, arp, orbit, mask, model)?))
         })
         .collect();
     let mut systems: Vec<System> = out.iter().map(|(k, _)| k.0).collect();
@@ -273,13 +274,13 @@ pub fn solve(
         let Some(c) = corr.iter().find(|(k, _)| *k == (s.system, s.prn)).map(|(_, c)| *c) else {
             continue;
         };
-        let Some(eph) = ephs.select(s.system, s.prn, week, tow_s) else {
+        let Some(orbit) = ephs.orbit(s.system, s.prn, week, tow_s) else {
             continue;
         };
         if !(1.0e7..=4.0e7).contains(&pr) {
             continue;
         }
-        let st = spp::state_at_transmission(eph, tow_s, pr);
+        let st = spp::state_at_transmission(orbit, week, tow_s, pr);
         meas.push(Meas {
             sat: (s.system, s.prn),
             pr_m: pr - c,

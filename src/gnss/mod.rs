@@ -93,6 +93,22 @@ impl StreamDecoder {
     }
 }
 
+/// GLONASS ephemerides held until the receiver knows the time.
+const MAX_PENDING_GLONASS: usize = 32;
+
+/// The time of week with the same time of day as `tow_s` nearest to
+/// `near_s` (a GLONASS MSM without its day of week).
+fn nearest_same_time_of_day(tow_s: f64, near_s: f64) -> f64 {
+    let tod = tow_s.rem_euclid(86_400.0);
+    let day = (near_s / 86_400.0).floor();
+    [day - 1.0, day, day + 1.0]
+        .into_iter()
+        .map(|d| d * 86_400.0 + tod)
+        .min_by(|a, b| (a - near_s).abs().total_cmp(&(b - near_s).abs()))
+        .unwrap_or(tod)
+        .rem_euclid(604_800.0)
+}
+
 /// One completed epoch: the rover's observations and its single-point fix.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Epoch {
@@ -119,13 +135,19 @@ impl EpochAssembler {
     /// `systems` (returns whether it was); calls `done` with each epoch it
     /// completes.
     pub fn push(&mut self, e: MsmEpoch, systems: &[System], mut done: impl FnMut(u16, f64, Vec<SatObs>)) -> bool {
+        let selected = systems.contains(&e.system);
+        // An unselected constellation's MSM may close the open epoch (same
+        // time, last message) but never splits one: its time may be
+        // mislabelled (GMSD7's BeiDou carries GPS time where BDT belongs).
+        if !selected && self.pending.as_ref().is_some_and(|(_, t, _)| *t != e.tow_s) {
+            return false;
+        }
         if self.pending.as_ref().is_some_and(|(_, t, _)| *t != e.tow_s) {
             if let Some(p) = self.pending.take() {
                 done(p.0, p.1, p.2);
             }
         }
         let entry = self.pending.get_or_insert_with(|| (e.station_id, e.tow_s, Vec::new()));
-        let selected = systems.contains(&e.system);
         if selected {
             entry.2.extend(e.sats);
         }
@@ -153,6 +175,10 @@ pub struct ReceiverStats {
     pub other_station: u64,
     /// MSMs of constellations not selected, by system letter.
     pub skipped_system: BTreeMap<char, u64>,
+    /// GLONASS ephemerides dropped while waiting for a time, and GLONASS
+    /// MSMs without a day of week before any epoch gave one.
+    pub glonass_ephemerides_dropped: u64,
+    pub glonass_day_unknown: u64,
     /// Differential solutions, and epochs without one by reason.
     pub dgnss_solved: u64,
     pub dgnss_skipped: BTreeMap<String, u64>,
@@ -167,6 +193,10 @@ pub struct Receiver {
     pub station_id: u16,
     pub ephs: EphStore,
     assembler: EpochAssembler,
+    /// The GPS week and time of week of the last epoch.
+    last_time: Option<(u32, f64)>,
+    /// GLONASS ephemerides waiting for the first epoch's time.
+    pending_glonass: Vec<Box<rtcm::Msg1020>>,
     /// The base station, when a base stream is attached.
     pub base: Option<BaseStation>,
     /// Oldest base epoch (s) a differential solution may use.
@@ -182,6 +212,8 @@ impl Receiver {
             station_id,
             ephs: EphStore::default(),
             assembler: EpochAssembler::default(),
+            last_time: None,
+            pending_glonass: Vec::new(),
             base: None,
             dgnss_max_age_s: 10.0,
             stats: ReceiverStats::default(),
@@ -198,8 +230,52 @@ impl Receiver {
                 self.ephs.insert(eph);
                 self.stats.ephemerides += 1;
             }
-            GnssMessage::Msm(e) => self.push_msm(e, out),
+            GnssMessage::GlonassEph(m) => {
+                self.pending_glonass.push(m);
+                if self.pending_glonass.len() > MAX_PENDING_GLONASS {
+                    self.pending_glonass.remove(0);
+                    self.stats.glonass_ephemerides_dropped += 1;
+                }
+                self.place_glonass();
+            }
+            GnssMessage::Msm(mut e) => {
+                if self.to_gps_time(&mut e) {
+                    self.push_msm(e, out)
+                }
+            }
             GnssMessage::Station { .. } | GnssMessage::Other(_) => {}
+        }
+    }
+
+    /// Puts a GLONASS MSM's UTC time on the GPS scale: GPS − UTC of the day,
+    /// and the day itself from the last epoch when the message lacks it.
+    /// `false`: it cannot be placed yet (counted).
+    fn to_gps_time(&mut self, e: &mut MsmEpoch) -> bool {
+        if !e.utc {
+            return true;
+        }
+        let near = self.last_time.unwrap_or((self.week_hint, e.tow_s));
+        if e.day_unknown {
+            if self.last_time.is_none() {
+                self.stats.glonass_day_unknown += 1;
+                return false;
+            }
+            e.tow_s = nearest_same_time_of_day(e.tow_s, near.1);
+        }
+        let week = self.ephs.week_for_tow(e.tow_s).unwrap_or(near.0);
+        e.tow_s = (e.tow_s + cmsckf_models::gnss::gps_utc_leap_s(week, e.tow_s)).rem_euclid(604_800.0);
+        e.utc = false;
+        true
+    }
+
+    /// GLONASS ephemerides carry their time as a time of the Moscow day:
+    /// they are placed (and stored) once the receiver knows the GPS time.
+    fn place_glonass(&mut self) {
+        let Some((week, tow)) = self.last_time else { return };
+        for m in self.pending_glonass.drain(..) {
+            let eph = cmsckf_models::gnss::rtcm_eph::glonass_from_1020(&m, week, tow);
+            self.ephs.insert_glonass(eph);
+            self.stats.ephemerides += 1;
         }
     }
 
@@ -207,15 +283,19 @@ impl Receiver {
     /// join the rover's, its antenna position and epochs make the base
     /// (attached at the first call).
     pub fn push_base(&mut self, m: GnssMessage) {
-        if matches!(m, GnssMessage::Eph(_)) {
+        if matches!(m, GnssMessage::Eph(_) | GnssMessage::GlonassEph(_)) {
             return self.push(m, &mut Vec::new());
         }
         let base = self.base.get_or_insert_with(BaseStation::default);
         match m {
-            GnssMessage::Eph(_) | GnssMessage::Other(_) => {}
+            GnssMessage::Eph(_) | GnssMessage::GlonassEph(_) | GnssMessage::Other(_) => {}
             GnssMessage::Station { station_id, arp_ecef_m } => base.set_position(station_id, arp_ecef_m),
-            GnssMessage::Msm(e) => {
+            GnssMessage::Msm(mut e) => {
+                if !self.to_gps_time(&mut e) {
+                    return;
+                }
                 let (ephs, hint) = (&self.ephs, self.week_hint);
+                let base = self.base.get_or_insert_with(BaseStation::default);
                 base.push_msm(e, &self.opts.systems, |tow| ephs.week_for_tow(tow).unwrap_or(hint));
             }
         }
@@ -255,6 +335,8 @@ impl Receiver {
         self.stats.epochs += 1;
         // MSMs carry only the time of week: the week is the ephemerides'.
         let week = self.ephs.week_for_tow(tow_s).unwrap_or(self.week_hint);
+        self.last_time = Some((week, tow_s));
+        self.place_glonass();
         let fix = spp::solve(&sats, week, tow_s, &self.ephs, &self.opts);
         match &fix {
             Ok(_) => self.stats.solved += 1,
@@ -302,14 +384,25 @@ impl RawSat {
     /// (attributes C, then X, then B), and the first second-frequency code in
     /// the message's signal order.
     pub fn from_obs(s: &SatObs) -> Self {
-        let l1 = ['C', 'X', 'B']
+        // The first frequency: L1/E1/G1 (C/A, pilot or data code), and for
+        // BeiDou B1I (RINEX band 2, the signal its TGD1 is for).
+        let (band, attributes): (u8, &[char]) = match s.system {
+            System::BeiDou => (2, &['I', 'X']),
+            System::Glonass => (1, &['C', 'P']),
+            System::Gps | System::Galileo | System::Qzss => (1, &['C', 'X', 'B']),
+        };
+        let l1 = attributes
             .iter()
             .find_map(|a| {
                 s.signals
                     .iter()
-                    .find(|g| g.band == 1 && g.attribute == *a && g.pseudorange_m.is_some())
+                    .find(|g| g.band == band && g.attribute == *a && g.pseudorange_m.is_some())
             })
-            .or_else(|| s.signals.iter().find(|g| g.band == 1 && g.attribute == 'C'));
+            .or_else(|| {
+                s.signals
+                    .iter()
+                    .find(|g| g.band == band && g.attribute == attributes[0])
+            });
         let second = |band: u8| match (s.system, band) {
             (System::Gps, 2) => Some(F_L2_HZ),
             (System::Gps | System::Galileo, 5) => Some(F_L5_HZ),
@@ -367,14 +460,14 @@ pub fn sat_measurements(
     let c = cmsckf_models::geodesy::C_MPS;
     sats.into_iter()
         .filter_map(|s| {
-            let eph = ephs.select(s.system, s.prn, week, tow_s)?;
+            let orbit = ephs.orbit(s.system, s.prn, week, tow_s)?;
             let (pr, is_if) = match s.code(iono) {
                 Some((p, is_if)) => (Some(p), is_if),
                 None => (None, false),
             };
-            let st = spp::state_at_transmission(eph, tow_s, pr.unwrap_or(0.075 * c));
+            let st = spp::state_at_transmission(orbit, week, tow_s, pr.unwrap_or(0.075 * c));
             // The iono-free combination sees the clock without TGD (§8).
-            let dts = if is_if { st.dt_s + eph.tgd_s } else { st.dt_s };
+            let dts = if is_if { st.dt_s + orbit.tgd_s() } else { st.dt_s };
             let klob = match (policy.klobuchar, policy.rx_ecef_m) {
                 (Some(k), Some(r)) if !is_if && iono != IonoMode::Off => {
                     let (lat, lon, _) = cmsckf_models::geodesy::ecef_to_llh(&r);
@@ -407,9 +500,8 @@ pub fn sat_measurements(
         .collect()
 }
 
-/// Parses a `--systems` list such as `G,E`. GLONASS, BeiDou and QZSS are
-/// refused by name rather than silently dropped: their ephemerides (1020,
-/// 1042, 1044) are not decoded, so they could not be used.
+/// Parses a `--systems` list such as `G,E,R,C,J`: GPS, Galileo, GLONASS,
+/// BeiDou, QZSS.
 pub fn parse_systems(s: &str) -> Result<Vec<System>, String> {
     let v = s
         .split(',')
@@ -418,16 +510,27 @@ pub fn parse_systems(s: &str) -> Result<Vec<System>, String> {
         .map(|x| match x {
             "G" => Ok(System::Gps),
             "E" => Ok(System::Galileo),
-            "R" | "C" | "J" => Err(format!(
-                "system '{x}' is not supported: its ephemerides are not decoded; use G, E or G,E"
+            "R" => Ok(System::Glonass),
+            "C" => Ok(System::BeiDou),
+            "J" => Ok(System::Qzss),
+            _ => Err(format!(
+                "unknown system '{x}': use G (GPS), E (Galileo), R (GLONASS), C (BeiDou), J (QZSS), e.g. G,E,R"
             )),
-            _ => Err(format!("unknown system '{x}': use G (GPS), E (Galileo) or G,E")),
         })
         .collect::<Result<Vec<_>, _>>()?;
     if v.is_empty() {
-        return Err("no system given: use G, E or G,E".into());
+        return Err("no system given: use G, E, R, C or J, e.g. G,E".into());
     }
     Ok(v)
+}
+
+/// The receiver clock a constellation's codes share: QZSS keeps GPS time,
+/// the others have their own (an inter-system bias from GPS's).
+pub fn clock_group(s: System) -> System {
+    match s {
+        System::Qzss => System::Gps,
+        other => other,
+    }
 }
 
 /// The current GPS week from the system clock (leap seconds do not matter

@@ -11,6 +11,9 @@ use std::collections::BTreeMap;
 
 use rtcm_rs::{Message, MessageFrame};
 
+/// A GLONASS ephemeris as MT1020 carries it.
+pub type Msg1020 = rtcm_rs::msg::Msg1020T;
+
 use cmsckf_models::geodesy::C_MPS;
 use cmsckf_models::gnss::BroadcastEphemeris;
 pub use cmsckf_models::gnss::System;
@@ -43,9 +46,16 @@ pub struct MsmEpoch {
     pub system: System,
     pub msg_type: u16,
     pub station_id: u16,
-    /// Epoch time of week in the constellation's time (s): whole
-    /// milliseconds in RTCM, the receiver's own time tag in UBX.
+    /// Epoch time of week (s): RTCM's whole milliseconds on the GPS scale
+    /// (BeiDou's BDT + 14 s), the receiver's own time tag in UBX; for
+    /// GLONASS, UTC (Moscow time − 3 h), see `utc`.
     pub tow_s: f64,
+    /// `tow_s` is a UTC time of week (GLONASS): the receiver adds GPS − UTC
+    /// of the day, which the message does not carry.
+    pub utc: bool,
+    /// GLONASS MSM without its day of week (7): `tow_s` is only known modulo
+    /// a day, and the receiver places it near its other epochs.
+    pub day_unknown: bool,
     /// More MSMs of the same epoch follow.
     pub multiple: bool,
     pub sats: Vec<SatObs>,
@@ -64,8 +74,13 @@ impl RawEph {
     pub fn full_week(&self, hint_week: u32) -> u32 {
         match self.eph.system {
             System::Gps | System::Qzss | System::Glonass => resolve_week(self.week_field, hint_week),
-            // BDT week 0 is GPS week 1356 (2006-01-01); 13 bits.
-            System::BeiDou => 1356 + resolve_mod(self.week_field as u32 % 8192, 8192, hint_week.saturating_sub(1356)),
+            // BDT week 0 is GPS week 1356 (2006-01-01); 13 bits. The
+            // ephemeris was built from the truncated week: its toe may
+            // already have carried into the next GPS week.
+            System::BeiDou => {
+                let carry = self.eph.week.saturating_sub(self.week_field as u32 + 1356);
+                1356 + resolve_mod(self.week_field as u32 % 8192, 8192, hint_week.saturating_sub(1356)) + carry
+            }
             // GST week 0 is GPS week 1024 (1999-08-22).
             System::Galileo => 1024 + resolve_mod(self.week_field as u32 % 4096, 4096, hint_week.saturating_sub(1024)),
         }
@@ -77,6 +92,8 @@ impl RawEph {
 pub enum GnssMessage {
     Msm(MsmEpoch),
     Eph(RawEph),
+    /// A GLONASS ephemeris (MT1020), as broadcast.
+    GlonassEph(Box<Msg1020>),
     /// A reference station's antenna position (MT1005/1006): what a base
     /// station sends, so that its observations are told from the rover's.
     Station {
@@ -190,7 +207,7 @@ impl RtcmDecoder {
 /// (`$epoch`, `$fine`, `$cnr`) and in whether they carry range rates
 /// (`rate: yes | no`), hence a macro rather than a function.
 macro_rules! msm_epoch {
-    ($t:ident, $v:ident, $sys:expr, $epoch:ident, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
+    ($t:ident, $v:ident, $sys:expr, tow: $tow:expr, $fine:ident, rate: $rate:tt, cnr: $cnr:ident) => {{
         let d = &$v.data_segment;
         let mut sats = Vec::with_capacity(d.satellite_data.len());
         for s in d.satellite_data.iter() {
@@ -220,7 +237,9 @@ macro_rules! msm_epoch {
             system: $sys,
             msg_type: $t,
             station_id: $v.reference_station_id,
-            tow_s: $v.$epoch as f64 * 1e-3,
+            tow_s: $tow.0,
+            utc: $sys == System::Glonass,
+            day_unknown: $tow.1,
             multiple: $v.msm_multiple_message_flag != 0,
             sats,
         }))
@@ -241,28 +260,64 @@ macro_rules! msm_epoch {
 fn convert(t: u16, m: Message) -> Option<GnssMessage> {
     match m {
         Message::Msg1074(v) => {
-            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Gps, tow: (v.gps_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1075(v) => {
-            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Gps, tow: (v.gps_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1076(v) => {
-            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Gps, tow: (v.gps_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1077(v) => {
-            msm_epoch!(t, v, System::Gps, gps_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Gps, tow: (v.gps_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1084(v) => {
+            msm_epoch!(t, v, System::Glonass, tow: glonass_tow(v.glo_day_of_week, v.glo_epoch_time_ms), gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1085(v) => {
+            msm_epoch!(t, v, System::Glonass, tow: glonass_tow(v.glo_day_of_week, v.glo_epoch_time_ms), gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1086(v) => {
+            msm_epoch!(t, v, System::Glonass, tow: glonass_tow(v.glo_day_of_week, v.glo_epoch_time_ms), gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1087(v) => {
+            msm_epoch!(t, v, System::Glonass, tow: glonass_tow(v.glo_day_of_week, v.glo_epoch_time_ms), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1094(v) => {
-            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Galileo, tow: (v.gal_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1095(v) => {
-            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+            msm_epoch!(t, v, System::Galileo, tow: (v.gal_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
         }
         Message::Msg1096(v) => {
-            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Galileo, tow: (v.gal_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
         }
         Message::Msg1097(v) => {
-            msm_epoch!(t, v, System::Galileo, gal_epoch_time_ms, gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+            msm_epoch!(t, v, System::Galileo, tow: (v.gal_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1114(v) => {
+            msm_epoch!(t, v, System::Qzss, tow: (v.qzss_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1115(v) => {
+            msm_epoch!(t, v, System::Qzss, tow: (v.qzss_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1116(v) => {
+            msm_epoch!(t, v, System::Qzss, tow: (v.qzss_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1117(v) => {
+            msm_epoch!(t, v, System::Qzss, tow: (v.qzss_epoch_time_ms as f64 * 1e-3, false), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1124(v) => {
+            msm_epoch!(t, v, System::BeiDou, tow: (bdt_to_gps_tow(v.bds_epoch_time_ms), false), gnss_signal_fine_pseudorange_ms, rate: no, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1125(v) => {
+            msm_epoch!(t, v, System::BeiDou, tow: (bdt_to_gps_tow(v.bds_epoch_time_ms), false), gnss_signal_fine_pseudorange_ms, rate: yes, cnr: gnss_signal_cnr_dbhz)
+        }
+        Message::Msg1126(v) => {
+            msm_epoch!(t, v, System::BeiDou, tow: (bdt_to_gps_tow(v.bds_epoch_time_ms), false), gnss_signal_fine_pseudorange_ext_ms, rate: no, cnr: gnss_signal_cnr_ext_dbhz)
+        }
+        Message::Msg1127(v) => {
+            msm_epoch!(t, v, System::BeiDou, tow: (bdt_to_gps_tow(v.bds_epoch_time_ms), false), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
         // The weeks stay truncated until the receiver resolves them.
         Message::Msg1019(e) => Some(GnssMessage::Eph(RawEph {
@@ -277,6 +332,19 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
             week_field: e.gal_week_number,
             eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1046(&e, e.gal_week_number as u32),
         })),
+        // BeiDou's week on the GPS scale is built from the truncated BDT
+        // week here; `RawEph::full_week` moves it to the resolved one.
+        Message::Msg1042(e) => Some(GnssMessage::Eph(RawEph {
+            week_field: e.bds_week_number,
+            eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1042(&e, e.bds_week_number as u32),
+        })),
+        Message::Msg1044(e) => Some(GnssMessage::Eph(RawEph {
+            week_field: e.qzss_week_number,
+            eph: cmsckf_models::gnss::rtcm_eph::ephemeris_from_1044(&e, e.qzss_week_number as u32),
+        })),
+        // GLONASS's t_b is a time of the Moscow day: the receiver places it
+        // with its own time.
+        Message::Msg1020(e) => Some(GnssMessage::GlonassEph(Box::new(e))),
         Message::Msg1005(s) => Some(GnssMessage::Station {
             station_id: s.reference_station_id,
             arp_ecef_m: [
@@ -296,6 +364,21 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
     }
+}
+
+/// BeiDou time of week (ms of BDT) on the GPS scale: BDT = GPST − 14 s.
+fn bdt_to_gps_tow(ms: u32) -> f64 {
+    (ms as f64 * 1e-3 + 14.0).rem_euclid(604_800.0)
+}
+
+/// A GLONASS MSM epoch (day of week 0–6, 7 = unknown, and milliseconds of
+/// the Moscow day, UTC + 3 h) as a UTC time of week, `day·86400 + tod −
+/// 10 800`; whether the day is unknown.
+fn glonass_tow(dow: Option<u8>, tod_ms: u32) -> (f64, bool) {
+    let dow = dow.unwrap_or(7);
+    let day = if dow < 7 { dow as f64 } else { 0.0 };
+    let t = day * 86_400.0 + tod_ms as f64 * 1e-3 - 10_800.0;
+    (t.rem_euclid(604_800.0), dow >= 7)
 }
 
 /// Resolves a 10-bit GPS week against a full-week hint: the full week

@@ -24,7 +24,8 @@ use nalgebra::{DMatrix, DVector, Vector3};
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
 use cmsckf_models::gnss::{
-    niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, BroadcastEphemeris,
+    niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, BroadcastEphemeris, GlonassEphemeris,
+    SatState,
 };
 use cmsckf_models::stats::chi2_quantile;
 
@@ -37,15 +38,82 @@ const F1: f64 = 1_575.42e6;
 /// Largest `|t − toe|` for an ephemeris to be used (s).
 const MAX_AGE_S: f64 = 7200.0;
 
+/// Largest `|t − t_b|` for a GLONASS ephemeris to be used (s): they are
+/// broadcast every 30 min (RTKLIB's limit).
+const MAX_AGE_GLONASS_S: f64 = 1800.0;
+
 /// Broadcast ephemerides by satellite, with resolved weeks.
 #[derive(Clone, Debug, Default)]
 pub struct EphStore {
     by_sat: BTreeMap<(System, u8), Vec<BroadcastEphemeris>>,
+    /// GLONASS's, by slot.
+    glonass: BTreeMap<u8, Vec<GlonassEphemeris>>,
     /// Week and toe of the latest ephemeris, to place a time of week.
     last: Option<(u32, f64)>,
 }
 
+/// A satellite's broadcast orbit and clock: a Kepler ephemeris (GPS,
+/// Galileo, BeiDou, QZSS) or a GLONASS state vector.
+#[derive(Clone, Copy, Debug)]
+pub enum Orbit<'a> {
+    Kepler(&'a BroadcastEphemeris),
+    Glonass(&'a GlonassEphemeris),
+}
+
+impl Orbit<'_> {
+    /// Position, velocity and clock at GPS time `week`/`tow_s`.
+    pub fn state(&self, week: u32, tow_s: f64) -> SatState {
+        match self {
+            Orbit::Kepler(e) => e.state(tow_s),
+            Orbit::Glonass(g) => g.state(week, tow_s),
+        }
+    }
+
+    /// The single-frequency user's group delay (s): GPS TGD, Galileo BGD,
+    /// BeiDou TGD1; GLONASS none.
+    pub fn tgd_s(&self) -> f64 {
+        match self {
+            Orbit::Kepler(e) => e.tgd_s,
+            Orbit::Glonass(_) => 0.0,
+        }
+    }
+
+    /// The broadcast accuracy (m): URA, SISA, or GLONASS's fixed 5 m.
+    pub fn accuracy_m(&self) -> f64 {
+        match self {
+            Orbit::Kepler(e) => e.accuracy_m(),
+            Orbit::Glonass(g) => g.accuracy_m(),
+        }
+    }
+}
+
 impl EphStore {
+    /// Adds a GLONASS ephemeris, replacing one with the same `t_b`.
+    pub fn insert_glonass(&mut self, eph: GlonassEphemeris) {
+        self.last = Some((eph.week, eph.toe_s));
+        let v = self.glonass.entry(eph.slot).or_default();
+        v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week));
+        v.push(eph);
+        if v.len() > 8 {
+            v.remove(0);
+        }
+    }
+
+    /// The satellite's orbit at the time: the healthy ephemeris nearest to
+    /// it ([`Self::select`]; GLONASS's within 30 min of `t_b`).
+    pub fn orbit(&self, system: System, prn: u8, week: u32, tow_s: f64) -> Option<Orbit<'_>> {
+        if system != System::Glonass {
+            return self.select(system, prn, week, tow_s).map(Orbit::Kepler);
+        }
+        self.glonass
+            .get(&prn)?
+            .iter()
+            .filter(|e| e.health == 0)
+            .map(|e| (e, e.since_tb_s(week, tow_s).abs()))
+            .filter(|(_, d)| *d <= MAX_AGE_GLONASS_S)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(e, _)| Orbit::Glonass(e))
+    }
     /// Adds an ephemeris, replacing one with the same `toe` and IODE.
     pub fn insert(&mut self, eph: BroadcastEphemeris) {
         self.last = Some((eph.week, eph.toe_s));
@@ -84,7 +152,7 @@ impl EphStore {
     }
 
     pub fn len(&self) -> usize {
-        self.by_sat.values().map(Vec::len).sum()
+        self.by_sat.values().map(Vec::len).sum::<usize>() + self.glonass.values().map(Vec::len).sum::<usize>()
     }
     pub fn is_empty(&self) -> bool {
         self.len() == 0
@@ -144,12 +212,12 @@ pub enum SppError {
 }
 
 /// The satellite's state at the transmission time of a signal received at
-/// `tow_rx_s` with pseudorange `pr_m`: `t_tx = t_rx − P/c − δt_sv` (RTKLIB's
-/// `satposs`).
-pub fn state_at_transmission(eph: &BroadcastEphemeris, tow_rx_s: f64, pr_m: f64) -> cmsckf_models::gnss::SatState {
+/// `week`/`tow_rx_s` with pseudorange `pr_m`: `t_tx = t_rx − P/c − δt_sv`
+/// (RTKLIB's `satposs`).
+pub fn state_at_transmission(orbit: Orbit<'_>, week: u32, tow_rx_s: f64, pr_m: f64) -> SatState {
     let t0 = tow_rx_s - pr_m / C_MPS;
-    let clk0 = eph.state(t0).dt_s + eph.tgd_s;
-    eph.state(t0 - clk0)
+    let clk0 = orbit.state(week, t0).dt_s + orbit.tgd_s();
+    orbit.state(week, t0 - clk0)
 }
 
 /// One satellite ready for the solver.
@@ -221,19 +289,19 @@ pub fn solve(
         if !(1.0e7..=4.0e7).contains(&pr) {
             continue;
         }
-        let Some(eph) = ephs.select(s.system, s.prn, week, tow_s) else {
+        let Some(orbit) = ephs.orbit(s.system, s.prn, week, tow_s) else {
             continue;
         };
-        let st = state_at_transmission(eph, tow_s, pr);
+        let st = state_at_transmission(orbit, week, tow_s, pr);
         // The single-frequency code sees clock − TGD (already in `dt_s`); the
         // iono-free combination sees the clock without TGD.
-        let dts = if is_if { st.dt_s + eph.tgd_s } else { st.dt_s };
+        let dts = if is_if { st.dt_s + orbit.tgd_s() } else { st.dt_s };
         meas.push(Meas {
             sat: (s.system, s.prn),
             pr_m: pr,
             r_sat: st.r_ecef_m,
             dts_m: dts * C_MPS,
-            ura_m: eph.accuracy_m(),
+            ura_m: orbit.accuracy_m(),
         });
     }
     let iono_free = iono_free_used.unwrap_or(false);
@@ -313,7 +381,7 @@ struct LsqOut {
 fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, model: CodeModel) -> Result<LsqOut, SppError> {
     let mut x = Vector3::zeros();
     // One clock per constellation present, in a fixed order (GPS first).
-    let mut systems: Vec<System> = meas.iter().map(|m| m.sat.0).collect();
+    let mut systems: Vec<System> = meas.iter().map(|m| super::clock_group(m.sat.0)).collect();
     systems.sort();
     systems.dedup();
     let nu = 3 + systems.len();
@@ -369,13 +437,16 @@ fn lsq_rows(
         if known && el < mask {
             continue;
         }
-        let k = systems.iter().position(|s| *s == m.sat.0).unwrap_or(0);
+        let k = systems
+            .iter()
+            .position(|s| *s == super::clock_group(m.sat.0))
+            .unwrap_or(0);
         let d = m.r_sat - x;
         let rho = d.norm() + OMEGA_E_RADPS * (m.r_sat.x * x.y - m.r_sat.y * x.x) / C_MPS;
         let u = d / d.norm();
         let trop = if known { model.troposphere_m(lat, h, el) } else { 0.0 };
         let v = m.pr_m - (rho + clk[k] - m.dts_m + trop);
-        rows.push((-u, k, v, code_variance_m2(el, m.ura_m, model), m.sat));
+        rows.push((-u, k, v, code_variance_m2(el, m.ura_m, model, m.sat.0), m.sat));
     }
     rows
 }
@@ -384,14 +455,16 @@ fn lsq_rows(
 /// (tripled σ for the iono-free combination, else 5 m of ionosphere), plus
 /// the URA `ura_m`; for differential codes, RTKLIB's relative-mode
 /// `2 (0.3² + 0.3²/sin² el)`.
-fn code_variance_m2(el: f64, ura_m: f64, model: CodeModel) -> f64 {
+fn code_variance_m2(el: f64, ura_m: f64, model: CodeModel, system: System) -> f64 {
     let sin_el = el.sin();
+    // RTKLIB's error factor: GLONASS's codes 1.5 times noisier.
+    let fact2 = if system == System::Glonass { 2.25 } else { 1.0 };
     let iono_free = match model {
-        CodeModel::Differential { .. } => return 2.0 * (0.09 + 0.09 / (sin_el * sin_el)),
+        CodeModel::Differential { .. } => return fact2 * 2.0 * (0.09 + 0.09 / (sin_el * sin_el)),
         CodeModel::Single => false,
         CodeModel::IonoFree => true,
     };
-    let mut var = 0.09 * (1.0 + 1.0 / sin_el);
+    let mut var = fact2 * 0.09 * (1.0 + 1.0 / sin_el);
     if iono_free {
         var *= 9.0;
     }

@@ -313,6 +313,8 @@ fn epoch(system: System, msg_type: u16, tow_s: f64, multiple: bool, sats: Vec<Sa
         msg_type,
         station_id: 0,
         tow_s,
+        utc: false,
+        day_unknown: false,
         multiple,
         sats,
     })

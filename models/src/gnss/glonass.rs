@@ -16,7 +16,7 @@
 
 use nalgebra::Vector3;
 
-use super::{SatState, GPS_UTC_LEAP_S, WEEK_S};
+use super::{gps_utc_leap_s, SatState, WEEK_S};
 
 /// PZ-90 gravitational constant (m³/s²), RTKLIB's; PZ-90.02's
 /// 398 600.4418e9 moves a satellite by about a millimetre over 15 min.
@@ -203,7 +203,8 @@ pub fn glonass_tb_to_gps(tb_min: f64, ref_week: u32, ref_tow_s: f64) -> (u32, f6
     // A continuous Moscow-time count from the GPS epoch (1980-01-06 00:00
     // UTC): t_MSK = t_GPS − (GPS − UTC) + 3 h, whose whole days are Moscow
     // midnights.
-    let ref_msk_s = ref_week as f64 * WEEK_S + ref_tow_s - GPS_UTC_LEAP_S + MOSCOW_UTC_S;
+    let leap_s = gps_utc_leap_s(ref_week, ref_tow_s);
+    let ref_msk_s = ref_week as f64 * WEEK_S + ref_tow_s - leap_s + MOSCOW_UTC_S;
     let midnight_s = (ref_msk_s / DAY_S).floor() * DAY_S;
     let mut tb_msk_s = midnight_s + tb_min * 60.0;
     if tb_msk_s - ref_msk_s > DAY_S / 2.0 {
@@ -211,7 +212,7 @@ pub fn glonass_tb_to_gps(tb_min: f64, ref_week: u32, ref_tow_s: f64) -> (u32, f6
     } else if tb_msk_s - ref_msk_s < -DAY_S / 2.0 {
         tb_msk_s += DAY_S;
     }
-    let tb_gps_s = (tb_msk_s - MOSCOW_UTC_S + GPS_UTC_LEAP_S).max(0.0);
+    let tb_gps_s = (tb_msk_s - MOSCOW_UTC_S + leap_s).max(0.0);
     let week = (tb_gps_s / WEEK_S).floor();
     (week as u32, tb_gps_s - week * WEEK_S)
 }

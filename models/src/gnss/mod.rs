@@ -30,6 +30,49 @@ pub fn gps_to_unix_s(week: u32, tow_s: f64) -> f64 {
     GPS_EPOCH_UNIX_S + week as f64 * WEEK_S + tow_s - GPS_UTC_LEAP_S
 }
 
+/// Days from 1970-01-01 to a civil date (Hinnant's `days_from_civil`).
+fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * (m + if m > 2 { -3 } else { 9 }) + 2) / 5 + d - 1;
+    era * 146_097 + yoe * 365 + yoe / 4 - yoe / 100 + doy - 719_468
+}
+
+/// GPS − UTC (s) at GPS time `week`/`tow_s`: the leap seconds inserted since
+/// 1980 (IERS Bulletin C). Old data need the count of their day (16 s in
+/// 2012), live data the current [`GPS_UTC_LEAP_S`].
+pub fn gps_utc_leap_s(week: u32, tow_s: f64) -> f64 {
+    // (UTC date from which it holds, GPS − UTC).
+    const LEAPS: [(i64, i64, i64, f64); 18] = [
+        (1981, 7, 1, 1.0),
+        (1982, 7, 1, 2.0),
+        (1983, 7, 1, 3.0),
+        (1985, 7, 1, 4.0),
+        (1988, 1, 1, 5.0),
+        (1990, 1, 1, 6.0),
+        (1991, 1, 1, 7.0),
+        (1992, 7, 1, 8.0),
+        (1993, 7, 1, 9.0),
+        (1994, 7, 1, 10.0),
+        (1996, 1, 1, 11.0),
+        (1997, 7, 1, 12.0),
+        (1999, 1, 1, 13.0),
+        (2006, 1, 1, 14.0),
+        (2009, 1, 1, 15.0),
+        (2012, 7, 1, 16.0),
+        (2015, 7, 1, 17.0),
+        (2017, 1, 1, 18.0),
+    ];
+    let t = week as f64 * WEEK_S + tow_s;
+    let gps_epoch_days = days_from_civil(1980, 1, 6);
+    LEAPS
+        .iter()
+        .rev()
+        .find(|(y, m, d, leap)| t >= (days_from_civil(*y, *m, *d) - gps_epoch_days) as f64 * 86_400.0 + leap)
+        .map_or(0.0, |l| l.3)
+}
+
 /// Day of year of a GPS time (1.0 = 1 January 00:00 GPST), as the
 /// troposphere's seasonal terms want it: the civil year is found from the
 /// days since 1970 (Hinnant's `civil_from_days`).
@@ -117,6 +160,19 @@ pub struct SatMeas {
 mod tests {
     /// Day of year in GPST: 2005-04-02 00:00 (GPS week 1316, day 6) is day
     /// 92; 1 January 00:00 is 1.0; a leap year's 31 December noon is 366.5.
+    /// GPS − UTC: 13 s before 2006, 16 s through 2012-10 (GMSD7), 18 s now.
+    #[test]
+    fn leap_seconds() {
+        assert_eq!(super::gps_utc_leap_s(1316, 518_400.0), 13.0); // 2005-04-02
+        assert_eq!(super::gps_utc_leap_s(1709, 604_790.0), 16.0);
+        assert_eq!(super::gps_utc_leap_s(2443, 0.0), 18.0);
+        // 2017-01-01 00:00:18 GPST is the first instant of 18 s.
+        let w = 1930;
+        let tow_new_year = 0.0 * 86_400.0; // 2017-01-01 is a Sunday: GPS week 1930 starts then
+        assert_eq!(super::gps_utc_leap_s(w, tow_new_year + 17.0), 17.0);
+        assert_eq!(super::gps_utc_leap_s(w, tow_new_year + 18.0), 18.0);
+    }
+
     #[test]
     fn day_of_year() {
         assert!((super::gps_day_of_year(1316, 6.0 * 86_400.0) - 92.0).abs() < 1e-9);
