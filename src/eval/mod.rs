@@ -60,6 +60,9 @@ pub fn init_from_truth(ds: &Dataset, p0: &Mat15, seed: u64) -> ImuState {
 #[derive(Clone, Debug)]
 pub struct FlightResult {
     pub mode: Mode,
+    /// The simulated urban canyon `[start, end]` (s), if any
+    /// (`gnss.canyon_s`): its position error is scored apart.
+    pub canyon_s: Option<(f64, f64)>,
     pub t_s: Vec<f64>,
     pub p_est: Vec<Vector3<f64>>,
     pub q_est: Vec<UnitQuaternion<f64>>,
@@ -375,6 +378,7 @@ fn record(r: &mut FlightResult, ds: &Dataset, est: &Estimator) {
 fn empty(mode: Mode) -> FlightResult {
     FlightResult {
         mode,
+        canyon_s: None,
         t_s: vec![],
         p_est: vec![],
         q_est: vec![],
@@ -421,6 +425,8 @@ fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) 
 pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -> FlightResult {
     let mut runner = runner(ds, cfg, mode, init_seed, gnss);
     let mut r = empty(mode);
+    let c = &ds.cfg.gnss.canyon_s;
+    r.canyon_s = (c.len() == 2).then(|| (c[0], c[1]));
     for k in 0..ds.frames.len() {
         let (us, _) = runner.step_frame(k);
         r.frame_us.push(us);

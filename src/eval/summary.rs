@@ -15,6 +15,12 @@ use crate::estimator::Mode;
 pub struct ModeSummary {
     pub ate_unaligned_m: f64,
     pub ate_aligned_m: f64,
+    /// Inside the simulated urban canyon (`gnss.canyon_s`): the position
+    /// RMSE (m, unaligned) and the error at its end, mean over seeds, and
+    /// the RMSE of each seed.
+    pub canyon_rmse_m: Option<f64>,
+    pub canyon_end_error_m: Option<f64>,
+    pub per_seed_canyon_rmse_m: Vec<f64>,
     pub rot_rmse_deg: f64,
     pub nees_mean: f64,
     pub nees_in_bounds: f64,
@@ -220,6 +226,9 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
             .map(|r| r.rebase_us.iter().map(|(n, us)| (*n, us / 1e3)).collect())
             .unwrap_or_default(),
         per_seed_ate_unaligned_m: scores.iter().map(|s| s.ate.unaligned_m).collect(),
+        canyon_rmse_m: mean_of(runs.iter().filter_map(|r| canyon_errors(r).map(|c| c.0))),
+        canyon_end_error_m: mean_of(runs.iter().filter_map(|r| canyon_errors(r).map(|c| c.1))),
+        per_seed_canyon_rmse_m: runs.iter().filter_map(|r| canyon_errors(r).map(|c| c.0)).collect(),
         per_seed_ate_aligned_m: scores.iter().map(|s| s.ate.aligned_m).collect(),
         per_seed_nees_mean: scores.iter().map(|s| s.nees_mean).collect(),
         max_rel_diff_vs_full: diff,
@@ -287,6 +296,24 @@ fn clock_rmse(runs: &[FlightResult], pick: impl Fn(&(f64, f64, f64)) -> f64) -> 
     (!e.is_empty()).then(|| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt())
 }
 
+/// The position RMSE (m) inside a run's urban canyon and the error at its
+/// last estimate in it.
+fn canyon_errors(r: &FlightResult) -> Option<(f64, f64)> {
+    let (a, b) = r.canyon_s?;
+    let e: Vec<f64> = (0..r.t_s.len())
+        .filter(|&i| (a..b).contains(&r.t_s[i]))
+        .map(|i| (r.p_est[i] - r.p_true[i]).norm())
+        .collect();
+    let last = *e.last()?;
+    Some(((e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt(), last))
+}
+
+/// The mean of some values, `None` without any.
+fn mean_of(v: impl Iterator<Item = f64>) -> Option<f64> {
+    let v: Vec<f64> = v.collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
 impl Evaluation {
     /// The human-readable table.
     pub fn table(&self) -> String {
@@ -310,6 +337,20 @@ impl Evaluation {
                     r.frame_us_mean,
                     r.frame_us_p99,
                     r.max_rel_diff_vs_full.map_or("-".to_string(), |d| format!("{d:.1e}"))
+                );
+            }
+        }
+        for m in Mode::ALL {
+            if let (Some(r), Some(rmse), Some(end)) = self
+                .modes
+                .get(m.name())
+                .map_or((None, None, None), |r| (Some(r), r.canyon_rmse_m, r.canyon_end_error_m))
+            {
+                let per: Vec<String> = r.per_seed_canyon_rmse_m.iter().map(|x| format!("{x:.2}")).collect();
+                s += &format!(
+                    "{:<11} urban canyon: position RMSE {rmse:.3} m, error at its end {end:.3} m; per seed {}\n",
+                    m.name(),
+                    per.join(" ")
                 );
             }
         }
