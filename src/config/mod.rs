@@ -344,6 +344,16 @@ pub struct GnssConfig {
     pub pseudorange_sigma_m: f64,
     /// Range-rate (Doppler) noise at zenith, one sigma (m/s).
     pub range_rate_sigma_mps: f64,
+    /// Broadcast orbit and clock error on each satellite's range, one sigma
+    /// (m). Typically 0.6 m for GPS, but constant over a flight, so a filter
+    /// that fuses it as white noise epoch after epoch must take it wider:
+    /// the default, 2.4 m, is the user range accuracy a healthy GPS
+    /// satellite broadcasts (URA index 0), as RTKLIB weights it. Added to
+    /// single-point codes; differential codes have it removed.
+    pub broadcast_sigma_m: f64,
+    /// Error of the troposphere model at zenith, one sigma (m); grows as
+    /// 1/sin(el). Added to single-point codes; a base nearby removes it.
+    pub troposphere_sigma_m: f64,
     /// Receiver clock bias white-frequency noise (m/√s).
     pub clock_bias_rw_m_per_sqrt_s: f64,
     /// Receiver clock drift random walk (m/s/√s).
@@ -390,6 +400,8 @@ impl Default for GnssConfig {
             week_hint: 0,
             pseudorange_sigma_m: 0.5,
             range_rate_sigma_mps: 0.05,
+            broadcast_sigma_m: 2.4,
+            troposphere_sigma_m: 0.1,
             clock_bias_rw_m_per_sqrt_s: 0.02,
             clock_drift_rw_mps_per_sqrt_s: 0.01,
             isb_rw_m_per_sqrt_s: 0.001,

@@ -33,6 +33,8 @@ impl Config {
             isb_rw: c.gnss.isb_rw_m_per_sqrt_s,
             pseudorange_sigma_m: c.gnss.pseudorange_sigma_m,
             range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
+            broadcast_sigma_m: c.gnss.broadcast_sigma_m,
+            troposphere_sigma_m: c.gnss.troposphere_sigma_m,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
             async_rebase: false,
             time_offset_s: c.estimator.time_offset_s,

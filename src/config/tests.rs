@@ -58,7 +58,7 @@ fn errors_name_the_field_and_the_fix() {
     let e = Config::from_toml("[gnss]\nsystems = \"G,R\"\n", "x")
         .unwrap_err()
         .to_string();
-    assert!(e.contains("gnss.systems") && e.contains("not supported"), "{e}");
+    assert!(e.contains("gnss.systems") && e.contains("no clock state"), "{e}");
     let e = Config::from_toml("[gnss]\nsystems = \"G,X\"\n", "x")
         .unwrap_err()
         .to_string();

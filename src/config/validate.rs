@@ -217,6 +217,8 @@ impl Config {
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
         c.range("dgnss_max_age_s", g.dgnss_max_age_s, 0.1, 60.0)?;
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
+        c.range("broadcast_sigma_m", g.broadcast_sigma_m, 0.0, 100.0)?;
+        c.range("troposphere_sigma_m", g.troposphere_sigma_m, 0.0, 10.0)?;
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;

@@ -295,7 +295,7 @@ impl Estimator {
 
 impl Estimator {
     /// Moves the clock bias by `delta_m`, live and in every GNSS clone, and
-    /// adds a common error of variance `var_m2` to all of them (eq. D4): `P
+    /// adds a common error of variance `var_m2` to all of them (§8c, eq. DG4): `P
     /// += var · u uᵀ`, `u` one at each copy of the bias. Like process noise,
     /// it touches the local part only.
     pub(super) fn shift_clock_bias(&mut self, delta_m: f64, var_m2: f64) {

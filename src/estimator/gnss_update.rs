@@ -235,7 +235,7 @@ impl Estimator {
         let (nom, _, _) = self.epoch_states(states, t_s);
         let differential = sats.iter().any(|s| s.differential);
         if self.clock_initialised && differential != self.gnss_differential {
-            // D4: differential codes see the clock less the base
+            // DG4: differential codes see the clock less the base
             // corrections' common part, a few metres from the raw codes'
             // one: the bias and inter-system bias start again from this
             // epoch's median residuals; the drift, which a Doppler sees the
@@ -393,7 +393,7 @@ impl Estimator {
     /// Moves the clock bias by the median GPS code residual `Δ` of this
     /// epoch, live and in every GNSS clone alike, and adds `Δ² + (1 m)²` of
     /// common variance to them; the Galileo inter-system bias is
-    /// initialised again (D4). The drift and every correlation are kept.
+    /// initialised again (§8c, DG4). The drift and every correlation are kept.
     fn rebase_clock_bias(&mut self, frame: &NedFrame, sats: &[SatMeas], nom: &GnssNominal) {
         let lever = self.s.p_A_in_B_m;
         let res: Vec<f64> = sats
@@ -469,7 +469,16 @@ impl Estimator {
         let sin_el = pred.elevation_rad.sin().max(0.1);
         let mut res = (s.prn, None, None);
         if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
-            let sigma = ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2).sqrt();
+            // σ² = (σ_P·k / sin el)² + σ_I² [+ σ_eph² + (σ_T / sin el)²] (§8c, eq. DG5):
+            // the broadcast and troposphere terms only for single-point
+            // codes, since a base station's corrections remove them.
+            let common_var_m2 = if s.differential {
+                0.0
+            } else {
+                self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2)
+            };
+            let sigma =
+                ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2 + common_var_m2).sqrt();
             let r = z - pred.pseudorange_m;
             res.1 = Some(r);
             if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * sigma) {

@@ -69,6 +69,11 @@ pub struct Settings {
     /// Pseudorange and range-rate sigmas at zenith (m, m/s).
     pub pseudorange_sigma_m: f64,
     pub range_rate_sigma_mps: f64,
+    /// Broadcast orbit/clock range error (m) and troposphere model error at
+    /// zenith (m) of a single-point code; a differential code has neither
+    /// (§8c, eq. DG5).
+    pub broadcast_sigma_m: f64,
+    pub troposphere_sigma_m: f64,
     pub elevation_mask_deg: f64,
     /// Compressed mode: rebases are computed by whoever takes the job
     /// ([`Estimator::take_rebase_job`]) instead of at once (§5 R4).

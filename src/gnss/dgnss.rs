@@ -5,16 +5,16 @@
 //! ionosphere, the troposphere's error and the base's own clock. Over a
 //! short baseline the rover sees the same errors, so its pseudorange less
 //! the base's correction for the same satellite is a single difference in
-//! which they cancel (estimator README §8c, eqs. D1–D3):
+//! which they cancel (estimator README §8c, eqs. DG1–DG3):
 //!
-//! - D1: `c_b,i = P_b,i − (ρ_b,i + sagnac − c·δt_i(t_b) + T_b,i)` at the base's
-//!   epoch `t_b`, with the base at its ARP and the rover's ephemeris; D1′:
+//! - DG1: `c_b,i = P_b,i − (ρ_b,i + sagnac − c·δt_i(t_b) + T_b,i)` at the base's
+//!   epoch `t_b`, with the base at its ARP and the rover's ephemeris; DG1′:
 //!   less each constellation's median over the epoch (the base's clock);
-//! - D2: `P̃_r,i = P_r,i − c_b,i(t_r)`, with `c_b,i(t_r)` the correction of a
+//! - DG2: `P̃_r,i = P_r,i − c_b,i(t_r)`, with `c_b,i(t_r)` the correction of a
 //!   base epoch within [`PAIR_TOLERANCE_S`] of the rover's, else the newest
 //!   older one extrapolated linearly from the two before `t_r` (up to
 //!   `max_age_s` old);
-//! - D3: `P̃_r,i = ρ_r,i + sagnac − c·δt_i(t_r) + T_r,i + c·(δt_r − δt_b) + ε`,
+//! - DG3: `P̃_r,i = ρ_r,i + sagnac − c·δt_i(t_r) + T_r,i + c·(δt_r − δt_b) + ε`,
 //!   solved like a single-point epoch for the position and one clock per
 //!   constellation, with no ionosphere term and the differential weights of
 //!   [`super::spp::CodeModel::Differential`].
@@ -150,7 +150,7 @@ impl BaseStation {
     }
 }
 
-/// The base's correction (D1) for its satellite `raw`, whose orbit is
+/// The base's correction (DG1) for its satellite `raw`, whose orbit is
 /// `orbit`, at the base epoch `e`, with the base at `arp` and the
 /// troposphere of `model`; `None` below the elevation mask (rad) or without
 /// a code.
@@ -174,8 +174,8 @@ fn correction_at(
     Some(pr - (rho - st.dt_s * C_MPS + model.troposphere_m(lat, h, el)))
 }
 
-/// Every correction (D1) of base epoch `e`, each constellation's less their
-/// median (D1′): the median is the base's clock (and its inter-system
+/// Every correction (DG1) of base epoch `e`, each constellation's less their
+/// median (DG1′): the median is the base's clock (and its inter-system
 /// bias), common to all of a constellation's satellites, so it changes no
 /// solution, and without it a differential code keeps the rover's own
 /// clock rather than the rover's minus the base's, which a Doppler cannot
@@ -209,7 +209,7 @@ fn epoch_corrections(
     out
 }
 
-/// The base's corrections at the rover epoch `week`/`tow_s` (D2), by
+/// The base's corrections at the rover epoch `week`/`tow_s` (DG2), by
 /// satellite: the matched base epoch's, else the newest's extrapolated from
 /// the one before it, with base epochs at most `max_age_s` old and the
 /// troposphere of `model` (the one the corrected codes will be predicted
@@ -248,7 +248,7 @@ pub fn corrections(
         .collect())
 }
 
-/// The differential solution (D1–D3) of a rover epoch `sats` at
+/// The differential solution (DG1–DG3) of a rover epoch `sats` at
 /// `week`/`tow_s` against `base`, with base epochs at most `max_age_s` old.
 /// The first-frequency codes are used whatever `opt.iono` says: the
 /// ionosphere cancels in the difference.
