@@ -142,11 +142,6 @@ impl GnssIn {
 }
 
 impl GnssIn {
-    /// Decodes RTCM and completes epochs; each becomes the satellites'
-    /// measurements at its autopilot time (GPS tag → Unix (leap seconds) →
-    /// boot clock (SYSTEM_TIME), less the receiver clock offset), pushed to
-    /// `out` for the fusion loop to queue. `est` places the world origin at
-    /// the first fix when none is configured; fixes go to `log`.
     /// Whether a decoded message goes to the rover's receiver model.
     /// Ephemerides do from any stream (broadcast orbits are the same
     /// whoever relays them: a base's serve a rover that sends none).
@@ -208,6 +203,11 @@ impl GnssIn {
         }
     }
 
+    /// Decodes a stream's bytes (RTCM3 or UBX) and completes epochs; each becomes the satellites'
+    /// measurements at its autopilot time (GPS tag → Unix (leap seconds) →
+    /// boot clock (SYSTEM_TIME), less the receiver clock offset), pushed to
+    /// `out` for the fusion loop to queue. `est` places the world origin at
+    /// the first fix when none is configured; fixes go to `log`.
     pub(super) fn on_rtcm(
         &mut self,
         bytes: &[u8],

@@ -37,6 +37,9 @@ use super::rtcm::{MsmEpoch, SatObs, System};
 use super::spp::{self, EphStore, Meas, Orbit, SppError, SppOptions, SppSolution};
 use super::{EpochAssembler, IonoMode, RawSat};
 
+/// Code corrections (m) by satellite `(system, prn)`.
+pub type Corrections = Vec<((System, u8), f64)>;
+
 /// Base and rover epochs this close (s) are the same epoch: receivers' time
 /// tags drift by milliseconds (RTKLIB pairs within 25 ms).
 pub const PAIR_TOLERANCE_S: f64 = 0.05;
@@ -187,8 +190,8 @@ fn epoch_corrections(
     (week, tow_s): (u32, f64),
     mask: f64,
     model: CodeModel,
-) -> Vec<((System, u8), f64)> {
-    let mut out: Vec<((System, u8), f64)> = e
+) -> Corrections {
+    let mut out: Corrections = e
         .sats
         .iter()
         .filter_map(|s| {
@@ -222,7 +225,7 @@ pub fn corrections(
     mask: f64,
     max_age_s: f64,
     model: CodeModel,
-) -> Result<Vec<((System, u8), f64)>, DgnssError> {
+) -> Result<Corrections, DgnssError> {
     let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
     let (newest, before) = base.epochs_for(week, tow_s, max_age_s).ok_or(DgnssError::NoBaseEpoch)?;
     let age = |e: &BaseEpoch| (week as f64 - e.week as f64) * 604_800.0 + tow_s - e.tow_s;

@@ -186,7 +186,7 @@ impl GnssModel {
     pub fn base_station(&self, clock0: (f64, f64), noise_seed: u64) -> Self {
         Self {
             cfg: self.cfg.clone(),
-            frame: self.frame.clone(),
+            frame: self.frame,
             ephemerides: self.ephemerides.clone(),
             clock_bias_m: clock0.0,
             clock_drift_mps: clock0.1,
