@@ -25,8 +25,8 @@ pub struct GnssArgs {
     iono: String,
     #[arg(long, default_value_t = 10.0)]
     elevation_mask_deg: f64,
-    /// Constellations: G (GPS), E (Galileo), or G,E.
-    #[arg(long, default_value = "G,E")]
+    /// Constellations, any of G (GPS), E (Galileo), R (GLONASS), C (BeiDou), J (QZSS).
+    #[arg(long, default_value = "G,E,R,C,J")]
     systems: String,
     /// Full GPS week near the data (resolves MT1019's 10-bit week);
     /// default: today's week.

@@ -394,7 +394,7 @@ impl Default for GnssConfig {
             rover_station_id: 0,
             dgnss: true,
             dgnss_max_age_s: 10.0,
-            systems: "G,E".into(),
+            systems: "G,E,R,C,J".into(),
             iono: IonoMode::Auto,
             elevation_mask_deg: 10.0,
             week_hint: 0,

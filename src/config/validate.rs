@@ -2,7 +2,6 @@
 //! error names the field and the fix.
 
 use cmsckf_models::check::{Check, FieldError, Validate};
-use cmsckf_models::gnss::System;
 
 use super::{Config, GnssSource};
 
@@ -202,17 +201,8 @@ impl Config {
                 "give serial:DEV:BAUD, tcp:HOST:PORT or file:PATH",
             ));
         }
-        match crate::gnss::parse_systems(&g.systems) {
-            Err(why) => return Err(c.fail("systems", why, "use \"G\", \"E\" or \"G,E\"")),
-            Ok(v) if v.iter().any(|s| matches!(s, System::Glonass | System::BeiDou)) => {
-                return Err(c.fail(
-                    "systems",
-                    "names GLONASS (R) or BeiDou (C), which the filter has no clock state for yet \
-                     (`cmsckf gnss` decodes and solves them)",
-                    "use G, E and J, e.g. \"G,E,J\"",
-                ))
-            }
-            Ok(_) => {}
+        if let Err(why) = crate::gnss::parse_systems(&g.systems) {
+            return Err(c.fail("systems", why, "use letters of G, E, R, C, J, e.g. \"G,E,R,C\""));
         }
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
         c.range("dgnss_max_age_s", g.dgnss_max_age_s, 0.1, 60.0)?;

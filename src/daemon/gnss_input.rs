@@ -303,7 +303,7 @@ impl GnssIn {
         };
         let mut sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
         for s in &mut sats {
-            s.noise_scale = std::f64::consts::SQRT_2;
+            s.noise_scale *= std::f64::consts::SQRT_2;
             s.differential = true;
         }
         sats

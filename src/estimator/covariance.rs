@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::math::{self, exp_so3};
 use super::propagate;
-use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, GNSS_CLONE_DIM, IMU_DIM, POSE_IDX, TD};
+use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, CLOCK_DIM, GNSS_CLONE_DIM, IMU_DIM, POSE_IDX, TD};
 
 impl Estimator {
     /// Propagates the active block with the transition `f` and noise `q` of
@@ -241,7 +241,7 @@ impl Estimator {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);
         self.fej_dv += dx.fixed_rows::<3>(propagate::V);
         self.fej_dp += dx.fixed_rows::<3>(propagate::P);
-        self.clock += dx.fixed_rows::<3>(CLK_B);
+        self.clock += dx.fixed_rows::<CLOCK_DIM>(CLK_B);
         self.t_d_s += dx[TD];
         for (j, id) in self.local_kfs.clone().iter().enumerate() {
             let o = self.kf_offset(j);

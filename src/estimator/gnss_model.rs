@@ -1,6 +1,6 @@
 //! What a satellite measures (README.md §8): the predicted pseudorange and
 //! range rate of the antenna at `p_A_in_B_m` on the body, and their
-//! Jacobians over the GNSS row order `[δθ, δv, δp, δb_g, δb, δḃ, δisb]`.
+//! Jacobians over the GNSS row order `[δθ, δv, δp, δb_g, δb, δḃ, δisb_E,R,C]`.
 //! The antenna sits at `r = o + R_en (p_B_in_W + R_W_B p_A_in_B)` in ECEF,
 //! with `o` the world origin and `R_en` the NED→ECEF rotation, and moves
 //! with `v_B_in_W + R_W_B (ω_B × p_A_in_B)`: the rows have attitude and
@@ -10,18 +10,36 @@
 use nalgebra::{Matrix3, RowVector3, Vector3};
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, NedFrame, C_MPS, OMEGA_E_RADPS};
-use cmsckf_models::gnss::{saastamoinen_m, SatMeas, System};
+use cmsckf_models::gnss::{saastamoinen_m, SatMeas};
 
 use super::math::skew;
 use super::propagate::{boxplus, ImuState, IMU_DIM};
-use super::{CLK_B, CLK_D, CLK_E};
+use super::{isb_slot, ClockVec, CLK_B, CLK_D, CLK_E, CLOCK_DIM};
 
 /// Error-state size of a GNSS clone, and the column order of every GNSS
-/// row: `[δθ, δv, δp, δb_g, δb, δḃ, δisb]`.
-pub const GNSS_CLONE_DIM: usize = 15;
+/// row: `[δθ, δv, δp, δb_g, δb, δḃ, δisb_E, δisb_R, δisb_C]`.
+pub const GNSS_CLONE_DIM: usize = 12 + CLOCK_DIM;
 
 /// The active states a GNSS row involves, in the row's column order.
-pub(super) const GNSS_COLS: [usize; GNSS_CLONE_DIM] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, CLK_B, CLK_D, CLK_E];
+pub(super) const GNSS_COLS: [usize; GNSS_CLONE_DIM] = [
+    0,
+    1,
+    2,
+    3,
+    4,
+    5,
+    6,
+    7,
+    8,
+    9,
+    10,
+    11,
+    CLK_B,
+    CLK_D,
+    CLK_E,
+    CLK_E + 1,
+    CLK_E + 2,
+];
 /// Row offsets of the blocks within a GNSS row.
 pub(super) const G_TH: usize = 0;
 pub(super) const G_V: usize = 3;
@@ -39,8 +57,8 @@ pub struct GnssNominal {
     pub imu: ImuState,
     /// The measured body rate at the instant (rad/s).
     pub gyro_radps: Vector3<f64>,
-    /// `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]`.
-    pub clock: Vector3<f64>,
+    /// `[c·δt_G (m), c·δṫ (m/s), isb_E, isb_R, isb_C (m)]`.
+    pub clock: ClockVec,
 }
 
 impl GnssNominal {
@@ -50,7 +68,7 @@ impl GnssNominal {
         let mut d_imu = [0.0; IMU_DIM];
         d_imu[..G_B].copy_from_slice(&d[..G_B]);
         self.imu = boxplus(&self.imu, &d_imu);
-        self.clock += Vector3::new(d[G_B], d[G_D], d[G_E]);
+        self.clock += ClockVec::from_column_slice(&d[G_B..G_B + CLOCK_DIM]);
     }
 }
 
@@ -76,8 +94,10 @@ pub fn predict_sat(frame: &NedFrame, nom: &GnssNominal, p_A_in_B_m: &Vector3<f64
     let spin_W = r_wb * w_B.cross(p_A_in_B_m);
     let p_A = nom.imu.p_B_in_W + lever_W;
     let v_A = nom.imu.v_B_in_W + spin_W;
-    let isb = if s.system == System::Galileo { 1.0 } else { 0.0 };
-    let (pr, hp, el) = pseudorange(frame, &p_A, nom.clock.x + isb * nom.clock.z, s);
+    // Each constellation's own bias: GPS's plus its inter-system bias.
+    let slot = isb_slot(s.system);
+    let bias_m = nom.clock[0] + slot.map_or(0.0, |k| nom.clock[2 + k]);
+    let (pr, hp, el) = pseudorange(frame, &p_A, bias_m, s);
     let (rate, hv, hpr) = range_rate(frame, &p_A, &v_A, nom.clock.y, s);
     let dpa_dth = -skew(&lever_W);
     let dva_dth = -skew(&spin_W);
@@ -90,7 +110,9 @@ pub fn predict_sat(frame: &NedFrame, nom: &GnssNominal, p_A_in_B_m: &Vector3<f64
     put(&mut h_pr, G_TH, hp * dpa_dth);
     put(&mut h_pr, G_P, hp);
     h_pr[G_B] = 1.0;
-    h_pr[G_E] = isb;
+    if let Some(k) = slot {
+        h_pr[G_E + k] = 1.0;
+    }
     put(&mut h_rate, G_TH, hv * dva_dth + hpr * dpa_dth);
     put(&mut h_rate, G_V, hv);
     put(&mut h_rate, G_P, hpr);
@@ -161,6 +183,7 @@ pub fn range_rate(
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
+    use cmsckf_models::gnss::System;
 
     /// A satellite 2e7 m up and 8e6 m east of a Sydney origin, moving, with
     /// clock terms: the fixture of the measurement-model tests.

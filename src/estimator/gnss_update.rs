@@ -25,7 +25,10 @@ use cmsckf_models::gnss::{SatMeas, System};
 pub use super::gnss_model::{predict_sat, pseudorange, range_rate, GnssNominal, SatPrediction, GNSS_CLONE_DIM};
 use super::gnss_model::{GNSS_COLS, G_B, G_D};
 use super::propagate::{integrate, transition, ImuMeas};
-use super::{math, Estimator, GnssClone, GnssGrid, InputError, Stats, CLK_B, CLK_D, CLK_E, OUTLIER_SIGMAS};
+use super::{
+    isb_slot, math, ClockVec, Estimator, GnssClone, GnssGrid, InputError, Stats, CLK_B, CLK_D, CLK_E, ISB_SYSTEMS,
+    OUTLIER_SIGMAS,
+};
 
 /// What one GNSS epoch did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -122,18 +125,16 @@ enum EpochStates {
 }
 
 impl Estimator {
-    /// The receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]` and its
-    /// variances.
-    pub fn clock(&self) -> (nalgebra::Vector3<f64>, nalgebra::Vector3<f64>) {
-        (
-            self.clock,
-            nalgebra::Vector3::new(self.P[(CLK_B, CLK_B)], self.P[(CLK_D, CLK_D)], self.P[(CLK_E, CLK_E)]),
-        )
+    /// The receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E, isb_R, isb_C (m)]`
+    /// and its variances.
+    pub fn clock(&self) -> (ClockVec, ClockVec) {
+        (self.clock, ClockVec::from_fn(|k, _| self.P[(CLK_B + k, CLK_B + k)]))
     }
 
-    /// Whether a Galileo epoch has set the inter-system bias yet.
-    pub fn isb_initialised(&self) -> bool {
-        self.isb_initialised
+    /// Whether an epoch of `system` has set its inter-system bias yet
+    /// (always for GPS and QZSS, which have none).
+    pub fn isb_initialised(&self, system: System) -> bool {
+        isb_slot(system).is_none_or(|k| self.isb_initialised[k])
     }
 
     /// The live states a GNSS row involves.
@@ -363,7 +364,8 @@ impl Estimator {
                 .filter(|s| sys.is_none_or(|y| s.system == y))
                 .filter_map(|s| {
                     let mut n = *nom;
-                    n.clock = Vector3::new(bias, 0.0, 0.0);
+                    n.clock = ClockVec::zeros();
+                    n.clock[0] = bias;
                     let p = predict_sat(frame, &n, &lever, s);
                     match sys {
                         Some(_) => s.pseudorange_m.map(|z| z - p.pseudorange_m),
@@ -381,10 +383,13 @@ impl Estimator {
             self.clock_initialised = true;
             rep.clock_initialised = true;
         }
-        if !self.isb_initialised {
-            if let Some(isb) = median(residuals(Some(System::Galileo), self.clock.x)) {
-                self.reset_clock_states(&[CLK_E], &[isb], &[30.0f64.powi(2)]);
-                self.isb_initialised = true;
+        for (k, &system) in ISB_SYSTEMS.iter().enumerate() {
+            if self.isb_initialised[k] {
+                continue;
+            }
+            if let Some(isb) = median(residuals(Some(system), self.clock.x)) {
+                self.reset_clock_states(&[CLK_E + k], &[isb], &[30.0f64.powi(2)]);
+                self.isb_initialised[k] = true;
             }
         }
         true
@@ -404,7 +409,7 @@ impl Estimator {
         if let Some(d) = median(res) {
             self.shift_clock_bias(d, d * d + 1.0);
         }
-        self.isb_initialised = false;
+        self.isb_initialised = [false; ISB_SYSTEMS.len()];
     }
 
     /// The gated, whitened rows of an epoch's measurements against `nom`,

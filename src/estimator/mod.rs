@@ -43,6 +43,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use compressed::Global;
 pub use compressed::{InstallError, RebaseJob, RebaseResult};
 
+use cmsckf_models::gnss::System;
 use nalgebra::{DMatrix, DVector, Matrix6, UnitQuaternion, Vector3};
 
 use covariance::position_sigma_m;
@@ -52,18 +53,33 @@ use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
 pub use settings::{Mode, Settings, ZuptSettings};
 
+/// The constellations with an inter-system bias state, in state order:
+/// each one's own clock bias is GPS's plus its ISB (QZSS runs on GPS's
+/// clock and has none).
+pub const ISB_SYSTEMS: [System; 3] = [System::Galileo, System::Glonass, System::BeiDou];
+/// The receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E, isb_R, isb_C (m)]`:
+/// GPS's bias, the common drift, and the inter-system biases
+/// `c·(δt_X − δt_G)` of [`ISB_SYSTEMS`] (§8, eq. K1).
+pub const CLOCK_DIM: usize = 2 + ISB_SYSTEMS.len();
+/// A receiver clock state (see [`CLOCK_DIM`]).
+pub type ClockVec = nalgebra::SVector<f64, CLOCK_DIM>;
 /// Active (always-local) states: the IMU, then the GNSS receiver clock
-/// `[c·δt_G (m), c·δṫ (m/s), c·(δt_E − δt_G) (m)]`: GPS's bias, the common
-/// drift, and Galileo's inter-system bias (so Galileo's own bias is
-/// `c·δt_E = c·δt_G + isb`: a bias per constellation and one drift), then
-/// the camera–IMU time offset `t_d` (s, `t_imu = t_cam + t_d`, §3b).
-pub const ACTIVE_DIM: usize = IMU_DIM + 4;
-/// Offsets of the clock bias, drift and Galileo inter-system bias.
+/// ([`CLOCK_DIM`]), then the camera–IMU time offset `t_d` (s,
+/// `t_imu = t_cam + t_d`, §3b).
+pub const ACTIVE_DIM: usize = IMU_DIM + CLOCK_DIM + 1;
+/// Offsets of the clock bias, drift and the first inter-system bias
+/// (Galileo's; the others follow in [`ISB_SYSTEMS`] order).
 pub const CLK_B: usize = IMU_DIM;
 pub const CLK_D: usize = IMU_DIM + 1;
 pub const CLK_E: usize = IMU_DIM + 2;
 /// Offset of the camera–IMU time offset.
-pub const TD: usize = IMU_DIM + 3;
+pub const TD: usize = IMU_DIM + CLOCK_DIM;
+
+/// The inter-system-bias slot of a constellation (its index in
+/// [`ISB_SYSTEMS`]); `None` for GPS and QZSS, which use GPS's bias.
+pub fn isb_slot(system: System) -> Option<usize> {
+    ISB_SYSTEMS.iter().position(|&s| s == system)
+}
 /// The active block's transition.
 pub type MatActive = nalgebra::SMatrix<f64, ACTIVE_DIM, ACTIVE_DIM>;
 use propagate::{P as P_OFF, TH};
@@ -294,11 +310,11 @@ pub struct Estimator {
     /// Transition accumulated since the cross-covariances were last synced.
     f_acc: MatActive,
     P: DMatrix<f64>,
-    /// Receiver clock `[c·δt_G (m), c·δṫ (m/s), isb_E (m)]`; set from the
-    /// first GNSS epoch, the inter-system bias from the first Galileo one (§8).
-    clock: nalgebra::Vector3<f64>,
+    /// Receiver clock (see [`CLOCK_DIM`]); set from the first GNSS epoch,
+    /// each inter-system bias from the first epoch of its constellation (§8).
+    clock: ClockVec,
     clock_initialised: bool,
-    isb_initialised: bool,
+    isb_initialised: [bool; ISB_SYSTEMS.len()],
     /// Whether the last fused epoch's codes were differential (§8c).
     gnss_differential: bool,
     clones: VecDeque<CloneState>,
@@ -401,7 +417,9 @@ impl Estimator {
         // The clock is unknown until the first GNSS epoch sets it.
         P[(CLK_B, CLK_B)] = 1.0;
         P[(CLK_D, CLK_D)] = 1.0;
-        P[(CLK_E, CLK_E)] = 1.0;
+        for k in 0..ISB_SYSTEMS.len() {
+            P[(CLK_E + k, CLK_E + k)] = 1.0;
+        }
         P[(TD, TD)] = s.time_offset_sigma_s.powi(2).max(1e-12);
         Self {
             t_d_s: s.time_offset_s,
@@ -411,10 +429,10 @@ impl Estimator {
             gnss_grid: None,
             still: Stillness::default(),
             t_start_s: t_s,
-            clock: nalgebra::Vector3::zeros(),
+            clock: ClockVec::zeros(),
             clock_initialised: false,
             gnss_differential: false,
-            isb_initialised: false,
+            isb_initialised: [false; ISB_SYSTEMS.len()],
             g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
             t_s,
             centre_W: imu.p_B_in_W,
@@ -559,9 +577,10 @@ impl Estimator {
         }
         for g in &est.gnss_clones {
             push_q(&mut x, &g.nom.imu.q_W_B);
-            for v in [g.nom.imu.v_B_in_W, g.nom.imu.p_B_in_W, g.nom.imu.b_g, g.nom.clock] {
+            for v in [g.nom.imu.v_B_in_W, g.nom.imu.p_B_in_W, g.nom.imu.b_g] {
                 x.extend(v.iter());
             }
+            x.extend(g.nom.clock.iter());
         }
         Snapshot {
             x: DVector::from_vec(x),

@@ -13,7 +13,7 @@ use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 use super::math::{exp_so3, skew};
 use cmsckf_models::sensors::ImuConfig;
 
-use super::{Estimator, InputError, MatActive, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP};
+use super::{Estimator, InputError, MatActive, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP, ISB_SYSTEMS};
 
 pub type Mat15 = SMatrix<f64, 15, 15>;
 
@@ -263,7 +263,9 @@ impl Estimator {
         q[(CLK_B, CLK_D)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_B)] = qd * dt * dt / 2.0;
         q[(CLK_D, CLK_D)] = qd * dt;
-        q[(CLK_E, CLK_E)] = self.s.isb_rw.powi(2) * dt;
+        for k in 0..ISB_SYSTEMS.len() {
+            q[(CLK_E + k, CLK_E + k)] = self.s.isb_rw.powi(2) * dt;
+        }
         self.still.push(&m, dt, &self.imu, &self.g_W);
         self.imu = integrate(&self.imu, &m0, &m, &self.g_W);
         self.clock.x += self.clock.y * dt;

@@ -110,6 +110,9 @@ struct GnssInput {
     next: usize,
     /// Deliver each epoch at its own instant (no latency), for comparisons.
     on_time: bool,
+    /// Changes each epoch's measurements before they are fused (tests: a
+    /// constellation the simulator has not, relabelled from one it has).
+    map: Option<fn(&mut [cmsckf_models::gnss::SatMeas])>,
 }
 
 /// The satellites' measurements of epoch `i`, as the daemon would make them.
@@ -236,7 +239,17 @@ impl<'a> Runner<'a> {
             order,
             next: 0,
             on_time,
+            map: None,
         });
+        self
+    }
+
+    /// Passes each epoch's measurements through `map` before fusing them
+    /// (after [`Self::with_gnss`]).
+    pub fn with_measurement_map(mut self, map: fn(&mut [cmsckf_models::gnss::SatMeas])) -> Self {
+        if let Some(g) = self.gnss.as_mut() {
+            g.map = Some(map);
+        }
         self
     }
 
@@ -290,7 +303,10 @@ impl<'a> Runner<'a> {
                 break;
             }
             g.next += 1;
-            let sats = epoch_measurements(ds, &g.ephs, i);
+            let mut sats = epoch_measurements(ds, &g.ephs, i);
+            if let Some(map) = g.map {
+                map(&mut sats);
+            }
             let frame = g.frame;
             // The IMU has arrived up to the delivery.
             self.feed_imu(delivered);
@@ -298,7 +314,7 @@ impl<'a> Runner<'a> {
                 // The clock is the filter's now, after the epoch.
                 let (c, _) = self.est.clock();
                 let clock_truth = ep.clock_bias_m + ep.clock_drift_mps * (self.est.time_s() - ep.t_s);
-                let isb_err = if self.est.isb_initialised() {
+                let isb_err = if self.est.isb_initialised(cmsckf_models::gnss::System::Galileo) {
                     c.z - ep.isb_galileo_m
                 } else {
                     f64::NAN

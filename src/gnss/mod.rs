@@ -483,6 +483,7 @@ pub fn sat_measurements(
                 (false, _, None) => (1.0, 25.0),
             };
             let pr = pr.map(|p| p - klob.unwrap_or(0.0));
+            let noise_scale = noise_scale * spp::code_sigma_factor(s.system);
             Some(cmsckf_models::gnss::SatMeas {
                 system: s.system,
                 prn: s.prn,

@@ -451,14 +451,25 @@ fn lsq_rows(
     rows
 }
 
+/// How much noisier a constellation's codes are than GPS's: RTKLIB's error
+/// factor, 1.5 for GLONASS, whose FDMA channels each carry their own
+/// receiver delay (the inter-frequency bias, which no state models here;
+/// estimator README §8c).
+pub fn code_sigma_factor(system: System) -> f64 {
+    if system == System::Glonass {
+        1.5
+    } else {
+        1.0
+    }
+}
+
 /// A pseudorange's variance (m²) at elevation `el` (rad): the RTKLIB model
 /// (tripled σ for the iono-free combination, else 5 m of ionosphere), plus
 /// the URA `ura_m`; for differential codes, RTKLIB's relative-mode
 /// `2 (0.3² + 0.3²/sin² el)`.
 fn code_variance_m2(el: f64, ura_m: f64, model: CodeModel, system: System) -> f64 {
     let sin_el = el.sin();
-    // RTKLIB's error factor: GLONASS's codes 1.5 times noisier.
-    let fact2 = if system == System::Glonass { 2.25 } else { 1.0 };
+    let fact2 = code_sigma_factor(system).powi(2);
     let iono_free = match model {
         CodeModel::Differential { .. } => return fact2 * 2.0 * (0.09 + 0.09 / (sin_el * sin_el)),
         CodeModel::Single => false,
