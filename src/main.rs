@@ -1,5 +1,5 @@
-//! The `cmsckf` command line: `run` (the daemon), `replay` and `review` (a
-//! flight log), `gnss` (an RTCM3 file), `calib` (calibration import) and,
+//! The `cmsckf` command line: `run` (the daemon), `replay`, `review` and
+//! `log recover` (a flight log), `gnss` (an RTCM3 file), `calib` (calibration import) and,
 //! with the `sim` feature, `demo` (the daemon and the SITL autopilot over
 //! loopback) and `evaluate` (offline accuracy table).
 //!
@@ -26,6 +26,8 @@ enum Cmd {
     Calib(cli::calib::CalibArgs),
     /// Decode a recorded RTCM3 file and print one single-point solution per epoch.
     Gnss(cli::gnss::GnssArgs),
+    /// Flight-log files: `recover` rewrites an unfinished (killed) log with indexes and a summary.
+    Log(cli::log::LogArgs),
     /// Re-run the filter on a flight log's inputs and write a new log.
     Replay(cli::replay::ReplayArgs),
     /// Summarise a flight log, draw its plots, export its trajectory.
@@ -45,6 +47,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Evaluate(args) => cli::evaluate::evaluate(args)?,
         Cmd::Calib(args) => cli::calib::calib(&args)?,
         Cmd::Gnss(args) => cli::gnss::gnss(&args)?,
+        Cmd::Log(args) => cli::log::log(args)?,
         Cmd::Replay(args) => cli::replay::replay(args)?,
         Cmd::Review(args) => cli::review::review(args)?,
         Cmd::Run(args) => cli::run::run(&args)?,

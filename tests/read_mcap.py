@@ -2,19 +2,35 @@
 """Reads a cmsckf MCAP log with the independent Python `mcap` reader.
 
 Checks that every message decodes as JSON, that each channel has a JSON
-schema, and prints message counts per topic as JSON. Exits 1 on a problem.
-Usage: read_mcap.py LOG.mcap
+schema, and prints message counts per topic and the last log time as JSON.
+Exits 1 on a problem.
+Usage: read_mcap.py [--seeking] LOG.mcap
+
+With --seeking it reads as PlotJuggler and Python's make_reader on a file
+do: through the summary section and its chunk indexes, which a log must
+have (a killed daemon's log has them only once `cmsckf log recover` has
+rewritten it).
 """
 import json
 import sys
 
-from mcap.reader import make_reader
+from mcap.reader import SeekingReader, make_reader
 
 
 def main() -> int:
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    seeking = "--seeking" in sys.argv[1:]
     counts = {}
-    with open(sys.argv[1], "rb") as f:
-        reader = make_reader(f)
+    last = 0
+    with open(args[0], "rb") as f:
+        if seeking:
+            reader = SeekingReader(f)
+            summary = reader.get_summary()
+            if summary is None or not summary.chunk_indexes:
+                print("no summary with chunk indexes", file=sys.stderr)
+                return 1
+        else:
+            reader = make_reader(f)
         header = reader.get_header()
         for schema, channel, message in reader.iter_messages():
             if schema is None or schema.encoding != "jsonschema":
@@ -25,8 +41,9 @@ def main() -> int:
                 print(f"{channel.topic}: log and publish time differ", file=sys.stderr)
                 return 1
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            last = max(last, message.log_time)
         meta = [m.name for m in reader.iter_metadata()]
-    print(json.dumps({"library": header.library, "metadata": meta, "counts": counts}))
+    print(json.dumps({"library": header.library, "metadata": meta, "counts": counts, "last_log_time_ns": last}))
     return 0 if counts and "cmsckf" in meta else 1
 
 

@@ -1,7 +1,10 @@
 //! A SIGKILL mid-flight leaves an MCAP log that `review` reads up to about a
 //! second before the kill: chunks are closed every second of wall time, and
 //! sooner when their records span a second of sensor time (this flight runs
-//! at 10×). After a jump of the sensor clock: `log_time_jumps.rs`.
+//! at 10×). `cmsckf log recover` then rewrites it with indexes and a
+//! summary, and the independent Python reader reads it the way seeking
+//! readers (PlotJuggler) do. A daemon started again names the unfinished
+//! log. After a jump of the sensor clock: `log_time_jumps.rs`.
 
 mod common;
 
@@ -63,5 +66,67 @@ fn sigkill_leaves_a_readable_log() {
         last_flight_s > kill_flight_s - 2.5,
         "lost {:.2} s",
         kill_flight_s - last_flight_s
+    );
+
+    // Unfinished: a reader that seeks through the summary finds none.
+    let seeking = |path: &std::path::Path| {
+        std::process::Command::new("python3")
+            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
+            .arg("--seeking")
+            .arg(path)
+            .output()
+            .expect("python3 is needed for this test")
+    };
+    assert!(!seeking(&log).status.success(), "a killed log has no summary");
+    assert!(!cmsckf::io::mcap_log::is_finished(&log).unwrap());
+
+    // Recovered by the command a user runs.
+    let fixed = dir.path().join("recovered.mcap");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cmsckf"))
+        .args(["log", "recover"])
+        .arg(&log)
+        .arg(&fixed)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rep: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    eprintln!("recover: {rep}");
+    assert_eq!(rep["input_was_complete"], false);
+    assert_eq!(rep["chunks_dropped"], 0);
+    assert!(cmsckf::io::mcap_log::is_finished(&fixed).unwrap());
+    // Every message review read from the killed log is kept.
+    let kept = rep["messages_kept"].as_u64().unwrap();
+    assert_eq!(kept, r.messages);
+    let py = seeking(&fixed);
+    assert!(
+        py.status.success(),
+        "Python seeking reader: {} {}",
+        String::from_utf8_lossy(&py.stdout),
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let py: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    let py_total: u64 = py["counts"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(py_total, kept);
+    let py_last_s = py["last_log_time_ns"].as_u64().unwrap() as f64 * 1e-9 - BOOT0_S;
+    assert!(
+        py_last_s > kill_flight_s - 2.5,
+        "recovered to {py_last_s:.2} s of {kill_flight_s:.2} s"
+    );
+    // Recovering a finished log changes nothing it holds.
+    let again = dir.path().join("again.mcap");
+    let r2 = cmsckf::io::mcap_log::recover(&fixed, &again).unwrap();
+    assert!(r2.input_was_complete && r2.tail_bytes_dropped == 0 && r2.messages_kept == kept);
+
+    // The next start names the unfinished log.
+    let next = dir.path().join("next.mcap");
+    assert_eq!(
+        cmsckf::io::mcap_log::unfinished_logs(dir.path(), &next, 3),
+        vec![log.clone()]
     );
 }

@@ -11,6 +11,7 @@ pub mod demo;
 #[cfg(feature = "sim")]
 pub mod evaluate;
 pub mod gnss;
+pub mod log;
 pub mod replay;
 pub mod review;
 pub mod run;

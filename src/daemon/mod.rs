@@ -347,6 +347,20 @@ fn open_log(cfg: &Config, alarm: LogAlarm) -> Result<Option<McapLogger>, DaemonE
         return Ok(None);
     }
     let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
+    // A log the last run left unfinished (killed, or the power went) has
+    // no summary: say so, and how to recover it, before it is forgotten.
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    for old in crate::io::mcap_log::unfinished_logs(&dir, &path, 3) {
+        tracing::warn!(
+            log = %old.display(),
+            "a previous flight log was left unfinished (the daemon was killed or lost power); \
+             `cmsckf log recover {} OUT.mcap` rewrites it with indexes and a summary",
+            old.display()
+        );
+    }
     let l = McapLogger::create_with_alarm(&path, &cfg.log_header(), alarm)?;
     tracing::info!(path = %path.display(), "logging to MCAP");
     Ok(Some(l))

@@ -23,15 +23,21 @@
 //! succeeds again clears it. The counters are [`COUNTER_WRITE_FAILED`] and
 //! [`COUNTER_DROPPED_WRITE_ERROR`].
 //!
+//! A log left unfinished (a killed daemon, a power loss) has no summary:
+//! [`recover`] rewrites it with indexes and one, and the daemon names such
+//! logs at start ([`unfinished_logs`]).
+//!
 //! [`Degraded::LogDiskFull`]: crate::status::Degraded::LogDiskFull
 
 mod failure;
+mod recover;
 mod spool;
 #[cfg(test)]
 mod tests;
 mod topics;
 mod writer;
 
+pub use recover::{is_finished, recover, unfinished_logs, RecoverError, RecoverReport, MCAP_MAGIC};
 pub use topics::Topic;
 
 use std::collections::BTreeMap;
