@@ -24,6 +24,8 @@ enum Cmd {
     Evaluate(cli::evaluate::EvaluateArgs),
     /// Import a calibration: `import-kalibr` prints config sections from Kalibr's files.
     Calib(cli::calib::CalibArgs),
+    /// Print a shell completion script: bash, zsh, fish, elvish or powershell.
+    Completions(cli::completions::CompletionsArgs),
     /// Decode a recorded RTCM3 file and print one single-point solution per epoch.
     Gnss(cli::gnss::GnssArgs),
     /// Flight-log files: `recover` rewrites an unfinished (killed) log with indexes and a summary.
@@ -46,6 +48,7 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "sim")]
         Cmd::Evaluate(args) => cli::evaluate::evaluate(args)?,
         Cmd::Calib(args) => cli::calib::calib(&args)?,
+        Cmd::Completions(args) => cli::completions::completions::<Cli>(&args),
         Cmd::Gnss(args) => cli::gnss::gnss(&args)?,
         Cmd::Log(args) => cli::log::log(args)?,
         Cmd::Replay(args) => cli::replay::replay(args)?,

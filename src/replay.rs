@@ -181,17 +181,34 @@ fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> 
     })
 }
 
+/// The number of inputs in a log, from its summary's statistics (`None`
+/// for a log without one, e.g. a killed daemon's).
+fn input_total(bytes: &[u8]) -> Option<u64> {
+    let summary = mcap::Summary::read(bytes).ok()??;
+    let stats = summary.stats?;
+    Some(
+        summary
+            .channels
+            .iter()
+            .filter(|(_, c)| c.topic.starts_with("/input/"))
+            .filter_map(|(id, _)| stats.channel_message_counts.get(id))
+            .sum(),
+    )
+}
+
 /// Replays `input` into `output`, under `mode` and `config` if given (else
-/// the logged ones). `progress` gets the number of inputs replayed so far.
+/// the logged ones). `progress` gets the number of inputs replayed so far
+/// and, when the log's summary gives it, their total.
 pub fn replay(
     input: &Path,
     output: &Path,
     mode: Option<Mode>,
     config: Option<Config>,
-    mut progress: impl FnMut(u64),
+    mut progress: impl FnMut(u64, Option<u64>),
 ) -> Result<ReplayReport, ReplayError> {
     let name = input.display().to_string();
     let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
+    let total = input_total(&bytes);
     let cfg = replay_config(&bytes, &name, mode, config)?;
     let log = McapLogger::create(output, &cfg.log_header())?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
@@ -217,7 +234,7 @@ pub fn replay(
             for msg in batch {
                 tally.fuse(msg, &mut fusion, &ctx, &mut out_rx);
                 if tally.n_in.is_multiple_of(4096) {
-                    progress(tally.n_in);
+                    progress(tally.n_in, total);
                 }
             }
         }

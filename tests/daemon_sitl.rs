@@ -191,7 +191,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     // bit the same (the wall time spent per update is the one field that
     // differs); under Schmidt they differ.
     let replayed = dir.path().join("replay.mcap");
-    let r = cmsckf::replay::replay(&log_path, &replayed, None, None, |_| {}).unwrap();
+    let r = cmsckf::replay::replay(&log_path, &replayed, None, None, |_, _| {}).unwrap();
     eprintln!("{r:?}");
     assert_eq!(r.estimates_out, report.estimates_received as u64);
     let messages = |p: &std::path::Path, topic: &str| -> Vec<Vec<u8>> {
@@ -227,7 +227,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         &schmidt,
         Some(cmsckf::estimator::Mode::Schmidt),
         None,
-        |_| {},
+        |_, _| {},
     )
     .unwrap();
     assert_ne!(

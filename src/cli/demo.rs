@@ -33,12 +33,19 @@ pub struct DemoArgs {
     /// Print the SITL report as JSON.
     #[arg(long)]
     json: bool,
-    /// Inject a fault in the SITL: NAME@START+DURATION (s), repeatable.
-    /// Names: link_drop, gnss_outage, camera_outage, imu_gap, nan_imu,
-    /// frontend_restart, rtcm_bad_crc, pr_outlier, clock_jump,
-    /// dup_reorder, imu_spike (docs/reliability.md says what each does).
-    #[arg(long = "fault")]
+    // The help names every fault from the fault list itself.
+    #[arg(long = "fault", help = fault_help())]
     faults: Vec<cmsckf_sitl::serve::Fault>,
+}
+
+/// `--fault`'s help: the syntax and every fault's name, from
+/// [`cmsckf_sitl::serve::FaultKind::ALL`].
+fn fault_help() -> String {
+    let names: Vec<&str> = cmsckf_sitl::serve::FaultKind::ALL.iter().map(|k| k.name()).collect();
+    format!(
+        "Inject a fault in the SITL: NAME@START+DURATION (s), repeatable. Names: {} (docs/reliability.md says what each does)",
+        names.join(", ")
+    )
 }
 
 /// Runs `cmsckf demo`: builds the daemon's config for loopback, generates

@@ -74,11 +74,20 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         duration_s,
         gnss,
     };
-    let ev = eval::evaluate(&spec, &cfg, &sim, |msg| {
-        if !quiet {
-            eprintln!("{msg}");
+    // On a terminal a bar with an ETA; elsewhere (a journal, a file) one
+    // plain line per flight.
+    let bar = super::progress_bar(Some(1), "flights", quiet);
+    let on_terminal = !bar.is_hidden();
+    let ev = eval::evaluate(&spec, &cfg, &sim, |p| {
+        if on_terminal {
+            bar.set_length(p.total);
+            bar.set_position(p.done);
+            bar.set_message(p.message.clone());
+        } else if !quiet {
+            eprintln!("[{}/{}] {}", p.done, p.total, p.message);
         }
     })?;
+    bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string(&ev)?);
     } else {

@@ -6,6 +6,7 @@
 //! `sim` feature.
 
 pub mod calib;
+pub mod completions;
 #[cfg(feature = "sim")]
 pub mod demo;
 #[cfg(feature = "sim")]
@@ -25,13 +26,38 @@ use anyhow::bail;
 #[cfg(feature = "sim")]
 use cmsckf::config::Config;
 
+/// A progress bar with an ETA on stderr when it is a terminal, hidden
+/// otherwise (a journal gets no control codes). `hidden` also hides it.
+fn progress_bar(len: Option<u64>, what: &str, hidden: bool) -> indicatif::ProgressBar {
+    if hidden || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        return indicatif::ProgressBar::hidden();
+    }
+    let (bar, template) = match len {
+        Some(n) => (
+            indicatif::ProgressBar::new(n),
+            format!("{what} [{{bar:30}}] {{pos}}/{{len}} · {{elapsed}} · ETA {{eta}} · {{msg}}"),
+        ),
+        None => (
+            indicatif::ProgressBar::new_spinner(),
+            format!("{{spinner}} {what}: {{pos}} ({{per_sec}}) {{elapsed}}"),
+        ),
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
+
 /// Logs to stderr, filtered by `RUST_LOG` or else by `default`.
 fn init_tracing(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    // Colour codes only on a terminal: in a journal or a file they are noise.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(ansi)
         .try_init();
 }
 

@@ -1,5 +1,5 @@
 //! `cmsckf replay`: re-runs the filter on a flight log's inputs (see
-//! [`cmsckf::replay`]) with a spinner on the terminal, and prints the
+//! [`cmsckf::replay`]) with a progress bar on a terminal, and prints the
 //! throughput.
 
 use std::path::PathBuf;
@@ -39,8 +39,23 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
         .transpose()
         .map_err(anyhow::Error::msg)?;
     let cfg = config.map(|p| Config::load(&p)).transpose()?;
-    let bar = progress_bar(json);
-    let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n| bar.set_position(n))?;
+    // A bar with an ETA on a terminal when the log's summary gives the
+    // number of inputs, else a spinner; nothing in a journal or with --json.
+    let bar = super::progress_bar(None, "replaying", json);
+    let mut sized = false;
+    let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n, total| {
+        if let (Some(t), false) = (total, sized) {
+            bar.set_length(t);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "replaying [{bar:30}] {pos}/{len} inputs · {elapsed} · ETA {eta}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            sized = true;
+        }
+        bar.set_position(n);
+    })?;
     bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string(&r)?);
@@ -56,18 +71,4 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// A spinner counting the inputs replayed; hidden with `--json`.
-fn progress_bar(json: bool) -> indicatif::ProgressBar {
-    if json {
-        indicatif::ProgressBar::hidden()
-    } else {
-        let b = indicatif::ProgressBar::new_spinner();
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{spinner} replaying: {pos} inputs ({per_sec}) {elapsed}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
-        );
-        b
-    }
 }

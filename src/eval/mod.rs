@@ -506,14 +506,23 @@ pub struct EvalSpec {
     pub gnss: bool,
 }
 
+/// Where [`evaluate`] is: flights done of all it will fly, and what the
+/// last one was.
+#[derive(Clone, Debug)]
+pub struct Progress {
+    pub done: u64,
+    pub total: u64,
+    pub message: String,
+}
+
 /// Runs `modes` over seeds `1..=seeds`. When both `full` and `compressed`
 /// are asked for they run in lockstep, and compressed reports its largest
-/// difference from full.
+/// difference from full. `progress` hears of each flight as it ends.
 pub fn evaluate(
     spec: &EvalSpec,
     cfg: &Config,
     sim: &SimConfig,
-    mut progress: impl FnMut(&str),
+    mut progress: impl FnMut(&Progress),
 ) -> Result<Evaluation, cmsckf_sitl::trajectory::TrajectoryError> {
     let (scenario, modes, seeds, duration_s, gnss) = (
         spec.scenario.as_str(),
@@ -525,15 +534,23 @@ pub fn evaluate(
     let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
     let mut duration = 0.0;
     let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
+    let per_seed = modes.len() as u64 - u64::from(lockstep);
+    let mut p = Progress {
+        done: 0,
+        total: seeds * per_seed,
+        message: String::new(),
+    };
     for seed in 1..=seeds {
         let ds = Dataset::generate(scenario, seed, duration_s, sim)?;
         duration = ds.duration_s;
         if lockstep {
             let (c, f) = run_compressed_vs_full(&ds, cfg, seed, gnss);
-            progress(&format!(
+            p.done += 1;
+            p.message = format!(
                 "seed {seed}: compressed vs full max rel diff {:.2e}",
                 c.max_rel_diff_vs_full.unwrap_or(0.0)
-            ));
+            );
+            progress(&p);
             per_mode.entry(Mode::Compressed).or_default().push(c);
             per_mode.entry(Mode::Full).or_default().push(f);
         }
@@ -541,8 +558,10 @@ pub fn evaluate(
             if lockstep && (m == Mode::Full || m == Mode::Compressed) {
                 continue;
             }
-            progress(&format!("seed {seed}: {}", m.name()));
             per_mode.entry(m).or_default().push(run(&ds, cfg, m, seed, gnss));
+            p.done += 1;
+            p.message = format!("seed {seed}: {}", m.name());
+            progress(&p);
         }
     }
     Ok(Evaluation {

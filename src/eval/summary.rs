@@ -308,6 +308,17 @@ fn canyon_errors(r: &FlightResult) -> Option<(f64, f64)> {
     Some(((e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt(), max))
 }
 
+/// A count, or a count's mean over seeds: an integer when it is one (never
+/// `-0`), else one decimal.
+fn count(x: f64) -> String {
+    let x = x + 0.0;
+    if (x - x.round()).abs() < 1e-9 {
+        format!("{:.0}", x.round() + 0.0)
+    } else {
+        format!("{x:.1}")
+    }
+}
+
 /// The mean of some values, `None` without any.
 fn mean_of(v: impl Iterator<Item = f64>) -> Option<f64> {
     let v: Vec<f64> = v.collect();
@@ -324,16 +335,16 @@ impl Evaluation {
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 s += &format!(
-                    "{:<11} {:>9.3} {:>9.3} {:>8.3} {:>7.2} {:>6.2} {:>5.1} {:>6.0} {:>6.1} {:>9.0} {:>9.0} {:>10}\n",
+                    "{:<11} {:>9.3} {:>9.3} {:>8.3} {:>7.2} {:>6.2} {:>5} {:>6} {:>6} {:>9.0} {:>9.0} {:>10}\n",
                     m.name(),
                     r.ate_unaligned_m,
                     r.ate_aligned_m,
                     r.rot_rmse_deg,
                     r.nees_mean,
                     r.nees_in_bounds,
-                    r.keyframes,
-                    r.loop_closure_updates,
-                    r.global_updates,
+                    count(r.keyframes),
+                    count(r.loop_closure_updates),
+                    count(r.global_updates),
                     r.frame_us_mean,
                     r.frame_us_p99,
                     r.max_rel_diff_vs_full.map_or("-".to_string(), |d| format!("{d:.1e}"))
@@ -356,12 +367,12 @@ impl Evaluation {
         }
         if let Some(r) = self.modes.get(Mode::Compressed.name()) {
             s += &format!(
-                "compressed  frame p50 {:.0} µs, max {:.0} µs · {:.0} promotions · rebase jobs mean {:.2} ms, max {:.2} ms (timed apart: the daemon runs them on a worker thread)\n",
-                r.frame_us_p50, r.frame_us_max, r.promotions, r.rebase_ms_mean, r.rebase_ms_max
+                "compressed  frame p50 {:.0} µs, max {:.0} µs · {} promotions · rebase jobs mean {:.2} ms, max {:.2} ms (timed apart: the daemon runs them on a worker thread)\n",
+                r.frame_us_p50, r.frame_us_max, count(r.promotions), r.rebase_ms_mean + 0.0, r.rebase_ms_max + 0.0
             );
         }
         s += &format!(
-            "{:<11} {:>21} {:>21} {:>21} {:>21} {:>9} {:>6} {:>6} {:>6}\n",
+            "{:<11} {:>21} {:>21} {:>21} {:>21} {:>9} {:>6} {:>6} {:>6} {:>6}\n",
             "NEES",
             "tilt (2) all/2nd",
             "yaw (1) all/2nd",
@@ -370,12 +381,13 @@ impl Evaluation {
             "t_d[ms]",
             "gnss",
             "late",
-            "zupt"
+            "zupt",
+            "resets"
         );
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 s += &format!(
-                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6.0} {:>6.0} {:>6.0} {:>6}\n",
+                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6} {:>6} {:>6} {:>6}\n",
                     m.name(),
                     r.nees_tilt_mean,
                     r.nees_tilt_mean_second_half,
@@ -386,10 +398,10 @@ impl Evaluation {
                     r.nees_velocity_mean,
                     r.nees_velocity_mean_second_half,
                     r.time_offset_error_ms,
-                    r.gnss_epochs_fused,
-                    r.gnss_epochs_late,
-                    r.zupt_updates,
-                    r.resets
+                    count(r.gnss_epochs_fused),
+                    count(r.gnss_epochs_late),
+                    count(r.zupt_updates),
+                    count(r.resets as f64)
                 );
             }
         }
