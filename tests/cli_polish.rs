@@ -47,7 +47,10 @@ fn evaluate_output_off_a_terminal_is_plain() {
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     );
-    assert!(!stdout.contains('\u{1b}') && !stderr.contains('\u{1b}'), "control codes: {stderr:?}");
+    assert!(
+        !stdout.contains('\u{1b}') && !stderr.contains('\u{1b}'),
+        "control codes: {stderr:?}"
+    );
     // One plain progress line per flight.
     assert!(stderr.contains("[1/1] seed 1: compressed"), "{stderr}");
     // Counts are whole numbers, and nothing prints as -0.

@@ -131,6 +131,9 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         assert_eq!(ch.message_encoding, "json");
     }
     assert_eq!(per_topic["/input/imu"], report.imu_sent as u64);
+    // No record is stamped at 0: inputs from before the first IMU sample
+    // (ephemerides, the autopilot's origin) wait for its time.
+    assert!(stats.message_start_time > 0, "a record at t = 0");
     // Every frame sent is logged, or was dropped by a full queue and counted
     // (a loaded machine running the flight at 10× may fill one).
     let mut last_counters = serde_json::Value::Null;

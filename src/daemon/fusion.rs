@@ -37,6 +37,8 @@ const IMU_JUMP_CONFIRM: u32 = 5;
 /// believed once this many messages agree on it.
 const SYSTEM_TIME_TOL_S: f64 = 1.0;
 const SYSTEM_TIME_CONFIRM: u32 = 3;
+/// Records held until the first IMU sample gives them a sensor time.
+const PRE_IMU_LOG_CAP: usize = 1024;
 /// A camera frame is believed only within this much of the IMU clock:
 /// ahead of it (s), and behind it (s; latency and a short IMU stall).
 const FRAME_MAX_LEAD_S: f64 = 1.0;
@@ -106,6 +108,10 @@ pub struct Fusion {
     /// the carried estimate through.
     pub(super) recent_imu: VecDeque<ImuMeas>,
     pub(super) last_imu_t: f64,
+    /// Records of inputs that came before any IMU sample (an ephemeris, the
+    /// autopilot's origin): they have no sensor time yet, so they wait and
+    /// are logged, in order, at the first IMU sample's time rather than at 0.
+    pre_imu_log: std::cell::RefCell<Vec<(Topic, serde_json::Value)>>,
     /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
     imu_clock: TimeGuard,
     /// The autopilot's Unix − boot offset (s), from SYSTEM_TIME, changed
@@ -220,6 +226,7 @@ impl Fusion {
             recent_imu: VecDeque::with_capacity(RECENT_IMU_CAPACITY),
             gnss: GnssIn::new(&cfg),
             last_imu_t: f64::NEG_INFINITY,
+            pre_imu_log: std::cell::RefCell::new(Vec::new()),
             imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM),
             unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
             last_frame_t: f64::NEG_INFINITY,
@@ -235,6 +242,12 @@ impl Fusion {
     pub fn finish_log(&mut self, counters: &Counters) {
         if self.last_imu_t.is_finite() {
             self.log_diagnostics(self.last_imu_t, counters, 0);
+        }
+        // A log that never saw an IMU sample still keeps its other inputs.
+        if let Some(l) = &self.log {
+            for (topic, v) in self.pre_imu_log.get_mut().drain(..) {
+                l.log(topic, 0.0, &v);
+            }
         }
         let Some(l) = self.log.take() else {
             return;
@@ -457,9 +470,23 @@ impl Fusion {
     }
 
     pub(super) fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
-        if let Some(l) = &self.log {
-            l.log(topic, t_s, v);
+        let Some(l) = &self.log else { return };
+        let mut pending = self.pre_imu_log.borrow_mut();
+        if !t_s.is_finite() {
+            // Before any IMU sample: wait for a sensor time (bounded; past
+            // the bound the logger's own stamp, 0, is better than none).
+            if pending.len() < PRE_IMU_LOG_CAP {
+                if let Ok(v) = serde_json::to_value(v) {
+                    pending.push((topic, v));
+                    return;
+                }
+            }
+        } else {
+            for (topic, v) in pending.drain(..) {
+                l.log(topic, t_s, &v);
+            }
         }
+        l.log(topic, t_s, v);
     }
 
     /// The counters and degraded-state reasons, to `/diagnostics`.
