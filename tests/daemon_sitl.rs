@@ -134,6 +134,24 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     // No record is stamped at 0: inputs from before the first IMU sample
     // (ephemerides, the autopilot's origin) wait for its time.
     assert!(stats.message_start_time > 0, "a record at t = 0");
+    // Foxglove's z-up tree and the fused estimate on the map.
+    assert!(per_topic["/location"] > 100 && per_topic["/tf"] > per_topic["/pose"]);
+    let mut links = std::collections::BTreeSet::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/tf" {
+            let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+            links.insert(format!(
+                "{}>{}",
+                v["parent_frame_id"].as_str().unwrap(),
+                v["child_frame_id"].as_str().unwrap()
+            ));
+        }
+    }
+    assert_eq!(
+        links.into_iter().collect::<Vec<_>>(),
+        ["base_link>camera", "map>ned", "ned>base_link"]
+    );
     // Every frame sent is logged, or was dropped by a full queue and counted
     // (a loaded machine running the flight at 10× may fill one).
     let mut last_counters = serde_json::Value::Null;
@@ -162,7 +180,12 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         report.estimates_received as u64
     );
     assert_eq!(per_topic["/pose"], report.estimates_received as u64);
-    assert_eq!(per_topic["/tf"], report.estimates_received as u64);
+    // One body transform per estimate, and the two static links beside
+    // each /filter/state record.
+    assert_eq!(
+        per_topic["/tf"],
+        report.estimates_received as u64 + 2 * per_topic["/filter/state"]
+    );
     assert!(per_topic["/gnss/fix"] > 30);
     // The counters are in the log, once a second and at shutdown.
     assert!(per_topic["/diagnostics"] > 30);

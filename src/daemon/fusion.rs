@@ -70,6 +70,8 @@ pub struct Fusion {
     /// restarted is recognised and dropped.
     pub(super) est_gen: u64,
     pub(super) next_state_log: f64,
+    /// The camera's pose in the body frame, for the log's frame tree.
+    pub(super) T_B_C: nalgebra::Isometry3<f64>,
     /// Next autopilot time to log the counters at (`/diagnostics`).
     next_diag_t: f64,
     pub(super) cfg: Config,
@@ -206,6 +208,7 @@ impl Fusion {
             rebase: RebaseExec::for_config(&cfg),
             est_gen: 0,
             next_state_log: f64::NEG_INFINITY,
+            T_B_C: cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C,
             next_diag_t: f64::NEG_INFINITY,
             est: None,
             static_buf: VecDeque::with_capacity(4096),

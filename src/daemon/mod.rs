@@ -24,6 +24,7 @@
 
 mod autopilot;
 mod features;
+mod frames;
 mod fusion;
 mod gnss_input;
 mod heartbeat;

@@ -45,6 +45,10 @@ impl Fusion {
             if m.t_s >= self.next_state_log {
                 self.next_state_log = m.t_s + 0.1;
                 log_state(l, m.t_s, &x, est);
+                super::frames::log_static_frames(l, m.t_s, &self.T_B_C);
+                if let Some(frame) = &self.gnss.frame {
+                    super::frames::log_location(l, m.t_s, &x, &imu_cov, frame);
+                }
             }
         }
         let ardupilot = self.autopilot_kind == Some(AutopilotKind::ArduPilot);
@@ -111,7 +115,7 @@ fn log_pose(l: &McapLogger, t_s: f64, x: &ImuState) {
         &records::Transform {
             timestamp,
             parent_frame_id: "ned",
-            child_frame_id: "body_frd",
+            child_frame_id: "base_link",
             translation: position,
             rotation: orientation,
         },

@@ -22,6 +22,8 @@ pub enum Topic {
     Pose,
     Transform,
     GnssFix,
+    /// The fused estimate as a `foxglove.LocationFix` (10 Hz).
+    Location,
     Log,
     /// Every counter (rejections by reason included) and the degraded-state
     /// reasons, once a second of autopilot time and at shutdown.
@@ -29,7 +31,7 @@ pub enum Topic {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 17] = [
+    pub const ALL: [Topic; 18] = [
         Topic::InputImu,
         Topic::InputFeatures,
         Topic::InputRtcm,
@@ -45,6 +47,7 @@ impl Topic {
         Topic::Pose,
         Topic::Transform,
         Topic::GnssFix,
+        Topic::Location,
         Topic::Log,
         Topic::Diagnostics,
     ];
@@ -71,6 +74,7 @@ impl Topic {
             Topic::Pose => ("/pose", "foxglove.PoseInFrame", SCHEMA_POSE_IN_FRAME),
             Topic::Transform => ("/tf", "foxglove.FrameTransform", SCHEMA_FRAME_TRANSFORM),
             Topic::GnssFix => ("/gnss/fix", "foxglove.LocationFix", SCHEMA_LOCATION_FIX),
+            Topic::Location => ("/location", "foxglove.LocationFix", SCHEMA_LOCATION_FIX),
             Topic::Log => ("/log", "foxglove.Log", SCHEMA_LOG),
             Topic::Diagnostics => ("/diagnostics", "cmsckf.Diagnostics", SCHEMA_OBJECT),
         }
