@@ -287,9 +287,12 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         rv.messages
     );
 
-    // An independent reader (PyPI `mcap`; CI installs it) reads it cleanly.
+    // An independent reader (PyPI `mcap`, installed if missing) reads it
+    // cleanly.
+    common::python_modules(&["mcap", "jsonschema"]);
     let out = Command::new("python3")
         .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
+        .arg("--validate")
         .arg(&log_path)
         .output()
         .expect("python3 is needed for this test");
@@ -299,4 +302,15 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
+    // Every message validates against its channel's JSON schema
+    // (Python's `jsonschema`; CI installs it).
+    let py: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let total: u64 = py["counts"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(py["validated"].as_u64(), Some(total));
+    assert_eq!(total, per_topic.values().sum::<u64>());
 }

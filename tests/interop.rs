@@ -3,7 +3,7 @@
 //! ODOMETRY alone by default (finite covariances, a quality in −1..100),
 //! or VISION_POSITION_ESTIMATE with VISION_SPEED_ESTIMATE, with their
 //! covariance and reset_counter.
-//! Needs `python3` with `pymavlink` (CI installs it).
+//! Needs `python3`; `pymavlink` is installed with pip if missing.
 mod common;
 
 use std::process::Command;
@@ -19,6 +19,7 @@ async fn exchange(message: OutputMessage, mode: &'static str) -> serde_json::Val
     cfg.output.message = message;
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
+    common::python_modules(&["pymavlink"]);
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop_pymavlink.py");
     let out = tokio::task::spawn_blocking(move || {
         Command::new("python3")

@@ -69,6 +69,7 @@ fn sigkill_leaves_a_readable_log() {
     );
 
     // Unfinished: a reader that seeks through the summary finds none.
+    common::python_modules(&["mcap"]);
     let seeking = |path: &std::path::Path| {
         std::process::Command::new("python3")
             .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))

@@ -139,3 +139,32 @@ pub fn fusion_ctx() -> (
     };
     (ctx, out_rx)
 }
+
+/// Makes sure `python3` can import each of `modules` (PyPI names equal to
+/// the import names here: pymavlink, mcap, jsonschema), installing the
+/// missing ones with pip, so that `cargo test --workspace` needs no set-up
+/// of its own on a fresh machine. Once per test binary.
+pub fn python_modules(modules: &[&str]) {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let importable = |m: &str| {
+        std::process::Command::new("python3")
+            .args(["-c", &format!("import {m}")])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    let missing: Vec<&str> = modules.iter().copied().filter(|m| !importable(m)).collect();
+    if missing.is_empty() {
+        return;
+    }
+    eprintln!("installing Python modules for this test: {missing:?}");
+    let ok = std::process::Command::new("python3")
+        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
+        .args(&missing)
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "pip could not install {missing:?}: this test needs them (python3 -m pip install {missing:?})"
+    );
+}

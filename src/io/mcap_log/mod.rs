@@ -31,6 +31,7 @@
 
 mod failure;
 mod recover;
+mod schemas;
 mod spool;
 #[cfg(test)]
 mod tests;
