@@ -275,6 +275,24 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         assert!(b.len() > 10_000 && b.starts_with(b"\x89PNG"), "{f}");
     }
     assert!(std::fs::read_to_string(&tum).unwrap().lines().count() > 300);
+    // The HTML report: one self-contained page with every section.
+    let page_path = dir.path().join("report.html");
+    cmsckf::review::review_html(&log_path, &page_path, None).unwrap();
+    let page = std::fs::read_to_string(&page_path).unwrap();
+    assert_eq!(page.matches("src=\"data:image/png;base64,").count(), 4);
+    for section in [
+        "<h2>Summary</h2>",
+        "<h2>Plots</h2>",
+        "Input rates",
+        "Rejections, by reason",
+        "Every counter",
+    ] {
+        assert!(page.contains(section), "the report lacks {section}");
+    }
+    assert!(
+        !page.contains("http://") && !page.contains("https://"),
+        "the report needs no network"
+    );
     // A log cut mid-chunk is reviewed up to its last complete chunk.
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();

@@ -17,6 +17,9 @@ pub struct ReviewArgs {
     /// The keyframe zoomed in Figure 1 (default: the fifth).
     #[arg(long)]
     keyframe: Option<u64>,
+    /// Write one self-contained HTML report here (no network needed to view it).
+    #[arg(long)]
+    html: Option<PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -29,8 +32,12 @@ pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
         plots,
         tum,
         keyframe,
+        html,
         json,
     } = args;
+    if let Some(page) = &html {
+        cmsckf::review::review_html(&input, page, keyframe)?;
+    }
     let s = cmsckf::review::review(&input, plots.as_deref(), tum.as_deref(), keyframe)?;
     if json {
         println!("{}", serde_json::to_string(&s)?);
@@ -41,6 +48,9 @@ pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&s)?);
         if let Some(p) = plots {
             println!("plots in {}", p.display());
+        }
+        if let Some(p) = html {
+            println!("report in {}", p.display());
         }
     }
     Ok(())

@@ -12,6 +12,9 @@
 //! 3. `nis.png`: per-update NIS/dof with its 95% χ² band;
 //! 4. `timing.png`: a histogram of the estimator time per update.
 //!
+//! With `--html`, [`review_html`] puts all of it on one self-contained page
+//! (`html.rs`).
+//!
 //! [`review`] reads the log (`reader.rs`), derives the NIS and timing
 //! statistics, and writes the TUM file and the plots (`plots.rs`).
 //!
@@ -20,6 +23,7 @@
 //! segments cover, and the time series keep plausible times only
 //! (`timeline.rs`), so one far-future or backwards record changes neither.
 
+mod html;
 mod plots;
 mod reader;
 mod timeline;
@@ -71,6 +75,22 @@ pub struct ReviewSummary {
     pub promotions: u64,
     pub keyframes: u64,
     pub estimates: u64,
+    /// Every counter of the daemon at the log's last `/diagnostics` record
+    /// (inputs, rejections by reason, drops).
+    pub counters: BTreeMap<String, u64>,
+}
+
+/// Reviews `log` and writes one self-contained HTML page to `out` (the
+/// summary, the plots inline, rates, rejections and counters; `html.rs`).
+pub fn review_html(log: &Path, out: &Path, keyframe: Option<u64>) -> Result<ReviewSummary, ReviewError> {
+    let dir = tempfile::tempdir().map_err(|e| ReviewError::Io("a temporary folder".into(), e))?;
+    let s = review(log, Some(dir.path()), None, keyframe)?;
+    let name = log
+        .file_name()
+        .map_or_else(|| log.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let page = html::page(&name, &s, dir.path()).map_err(|e| ReviewError::Io(dir.path().display().to_string(), e))?;
+    std::fs::write(out, page).map_err(|e| ReviewError::Io(out.display().to_string(), e))?;
+    Ok(s)
 }
 
 /// Reviews `log`; writes the plots to `plots` and the TUM trajectory to

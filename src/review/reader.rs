@@ -76,6 +76,12 @@ impl LogReader {
             }
             "/output/vision_position_estimate" => s.estimates += 1,
             "/input/mavlink/autopilot" => d.push_autopilot(&v),
+            "/diagnostics" => {
+                // The last record holds every counter at its latest.
+                if let Some(c) = v["counters"].as_object() {
+                    s.counters = c.iter().filter_map(|(k, n)| Some((k.clone(), n.as_u64()?))).collect();
+                }
+            }
             _ => {}
         }
     }
