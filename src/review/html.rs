@@ -91,7 +91,7 @@ pub(super) fn page(name: &str, s: &ReviewSummary, plots_dir: &Path) -> std::io::
 
     let mut figures = String::new();
     for (file, caption) in [
-        ("trajectory.png", "Trajectory from above: the estimate, its keyframes and the autopilot's own position (in SITL, the truth)"),
+        ("trajectory.png", "Trajectory from above, to scale: the estimate, its keyframes and the autopilot's own position (in SITL, the truth)"),
         ("figure1.png", "The paper's Figure 1: each keyframe's position σ over time; right, one keyframe with the vision, GNSS and global updates marked"),
         ("nis.png", "NIS per update against its 95 % χ² band"),
         ("timing.png", "Estimator time per camera frame"),

@@ -4,7 +4,7 @@
 //! log whose writer was killed (no summary section) is reviewed up to its
 //! last complete chunk, and says so. Plots are PNG through `plotters` with a
 //! bundled font (DejaVu Sans), so no system font libraries are needed:
-//! 1. `trajectory.png`: the estimate from above, with the keyframes and the
+//! 1. `trajectory.png`: the estimate from above, to scale, with the keyframes and the
 //!    autopilot's local position (in SITL logs, the ground truth);
 //! 2. `figure1.png`: the paper's Figure 1, the position σ of every keyframe
 //!    over time, and a zoom on one keyframe with the vision updates, the GNSS

@@ -64,14 +64,31 @@ pub(super) fn plot_all(dir: &Path, d: &Data, keyframe: Option<u64>) -> Result<()
     plot_timing(dir, d)
 }
 
-/// `trajectory.png`: the trajectory from above (east right, north up).
+/// Widens the shorter of two spans about its centre so that a metre is as
+/// long on both axes of a `w_px` × `h_px` plot, with `top` of the height
+/// left free above the data (for the legend).
+fn to_scale(x: (f64, f64), y: (f64, f64), w_px: f64, h_px: f64, top: f64) -> ((f64, f64), (f64, f64)) {
+    let y = (y.0, y.1 + (y.1 - y.0) * top);
+    let m_per_px = ((x.1 - x.0) / w_px).max((y.1 - y.0) / h_px);
+    let widen = |(lo, hi): (f64, f64), px: f64| {
+        let c = 0.5 * (lo + hi);
+        (c - 0.5 * m_per_px * px, c + 0.5 * m_per_px * px)
+    };
+    (widen(x, w_px), widen(y, h_px))
+}
+
+/// `trajectory.png`: the trajectory from above (east right, north up), to
+/// scale: a metre is as long east as north.
 fn plot_trajectory(dir: &Path, d: &Data) -> Result<(), String> {
     let p = dir.join("trajectory.png");
-    let root = BitMapBackend::new(&p, (900, 700)).into_drawing_area();
+    let (w, h) = (900u32, 800u32);
+    let root = BitMapBackend::new(&p, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
-    let (xl, xh) = range(d.track.iter().map(|t| t.2));
-    let (yl, yh) = range(d.track.iter().map(|t| t.1));
-    let mut c = chart(&root, "Trajectory from above (estimate)", xl..xh, yl..yh)?;
+    let x = range(d.track.iter().map(|t| t.2).chain(d.autopilot.iter().map(|p| p.1)));
+    let y = range(d.track.iter().map(|t| t.1).chain(d.autopilot.iter().map(|p| p.0)));
+    // The plotting area inside `chart`'s margins, label areas and caption.
+    let ((xl, xh), (yl, yh)) = to_scale(x, y, f64::from(w) - 84.0, f64::from(h) - 94.0, 0.15);
+    let mut c = chart(&root, "Trajectory from above (estimate), to scale", xl..xh, yl..yh)?;
     c.configure_mesh()
         .x_desc("east (m)")
         .y_desc("north (m)")
@@ -91,7 +108,9 @@ fn plot_trajectory(dir: &Path, d: &Data) -> Result<(), String> {
         .map_err(err)?
         .label("keyframes")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, RED.filled()));
+    // In the band left free above the data.
     c.configure_series_labels()
+        .position(SeriesLabelPosition::UpperMiddle)
         .border_style(BLACK)
         .background_style(WHITE)
         .draw()
@@ -128,10 +147,16 @@ fn plot_keyframe_sigmas(area: &Area, d: &Data) -> Result<(), String> {
         .y_desc("σ (m)")
         .draw()
         .map_err(err)?;
-    for (i, series) in d.kf_sigma.values().enumerate() {
+    // Each curve labelled directly with its keyframe's id, where it starts.
+    for (i, (id, series)) in d.kf_sigma.iter().enumerate() {
         let col = Palette99::pick(i).to_rgba();
         c.draw_series(LineSeries::new(series.iter().copied(), col))
             .map_err(err)?;
+        if let Some(&(t, s)) = series.first() {
+            let style = TextStyle::from(("sans-serif", 13)).color(&col);
+            c.draw_series(std::iter::once(Text::new(format!("kf {id}"), (t, s), style)))
+                .map_err(err)?;
+        }
     }
     Ok(())
 }
