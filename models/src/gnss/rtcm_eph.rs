@@ -113,40 +113,49 @@ pub fn encode_ephemeris(eph: &BroadcastEphemeris) -> Result<Vec<u8>, RtcmEncodeE
         .map_err(RtcmEncodeError::Encode)
 }
 
+/// The fields GPS LNAV (1019) and QZSS (1044) share: the same message
+/// layout, field for field, in types of their own.
+macro_rules! lnav_eph {
+    ($m:expr, $system:expr, $prn:ident, $week:expr) => {{
+        let m = $m;
+        BroadcastEphemeris {
+            system: $system,
+            prn: m.$prn,
+            week: $week,
+            iode: m.iode as u16,
+            iodc: m.iodc,
+            toc_s: m.toc_s as f64,
+            af0_s: m.af0_s,
+            af1: m.af1_s_s as f64,
+            af2_per_s: m.af2_s_s2 as f64,
+            toe_s: m.toe_s as f64,
+            sqrt_a: m.sqrt_a_sqrt_m,
+            e: m.eccentricity,
+            m0_rad: m.m0_sc * SC,
+            delta_n_radps: m.delta_n_sc_s as f64 * SC,
+            omega0_rad: m.omega0_sc * SC,
+            omega_dot_radps: m.omegadot_sc_s * SC,
+            i0_rad: m.i0_sc * SC,
+            idot_radps: m.idot_sc_s * SC,
+            omega_rad: m.omega_sc * SC,
+            cuc_rad: m.cuc_rad as f64,
+            cus_rad: m.cus_rad as f64,
+            crc_m: m.crc_m as f64,
+            crs_m: m.crs_m as f64,
+            cic_rad: m.cic_rad as f64,
+            cis_rad: m.cis_rad as f64,
+            tgd_s: m.tgd_s as f64,
+            health: m.sv_health_ind,
+            ura_index: m.ura_index,
+            fit_interval_4h: m.fit_interval_ind != 0,
+        }
+    }};
+}
+
 /// The ephemeris a decoded 1019 carries (semicircles → radians), with the
 /// full week `week` (1019 has it modulo 1024: the caller resolves it).
 pub fn ephemeris_from_1019(m: &Msg1019T, week: u32) -> BroadcastEphemeris {
-    BroadcastEphemeris {
-        system: System::Gps,
-        prn: m.gps_satellite_id,
-        week,
-        iode: m.iode as u16,
-        iodc: m.iodc,
-        toc_s: m.toc_s as f64,
-        af0_s: m.af0_s,
-        af1: m.af1_s_s as f64,
-        af2_per_s: m.af2_s_s2 as f64,
-        toe_s: m.toe_s as f64,
-        sqrt_a: m.sqrt_a_sqrt_m,
-        e: m.eccentricity,
-        m0_rad: m.m0_sc * SC,
-        delta_n_radps: m.delta_n_sc_s as f64 * SC,
-        omega0_rad: m.omega0_sc * SC,
-        omega_dot_radps: m.omegadot_sc_s * SC,
-        i0_rad: m.i0_sc * SC,
-        idot_radps: m.idot_sc_s * SC,
-        omega_rad: m.omega_sc * SC,
-        cuc_rad: m.cuc_rad as f64,
-        cus_rad: m.cus_rad as f64,
-        crc_m: m.crc_m as f64,
-        crs_m: m.crs_m as f64,
-        cic_rad: m.cic_rad as f64,
-        cis_rad: m.cis_rad as f64,
-        tgd_s: m.tgd_s as f64,
-        health: m.sv_health_ind,
-        ura_index: m.ura_index,
-        fit_interval_4h: m.fit_interval_ind != 0,
-    }
+    lnav_eph!(m, System::Gps, gps_satellite_id, week)
 }
 
 /// The Galileo fields 1045 (F/NAV) and 1046 (I/NAV) share.
@@ -299,37 +308,7 @@ pub fn ephemeris_from_1042(m: &Msg1042T, bdt_week_full: u32) -> BroadcastEphemer
 /// so ephemerides and observations match. QZSS's fit-interval flag means
 /// "more than 2 h" (IS-QZSS-PNT), kept in `fit_interval_4h`.
 pub fn ephemeris_from_1044(m: &Msg1044T, week: u32) -> BroadcastEphemeris {
-    BroadcastEphemeris {
-        system: System::Qzss,
-        prn: m.qzss_satellite_id,
-        week,
-        iode: m.iode as u16,
-        iodc: m.iodc,
-        toc_s: m.toc_s as f64,
-        af0_s: m.af0_s,
-        af1: m.af1_s_s as f64,
-        af2_per_s: m.af2_s_s2 as f64,
-        toe_s: m.toe_s as f64,
-        sqrt_a: m.sqrt_a_sqrt_m,
-        e: m.eccentricity,
-        m0_rad: m.m0_sc * SC,
-        delta_n_radps: m.delta_n_sc_s as f64 * SC,
-        omega0_rad: m.omega0_sc * SC,
-        omega_dot_radps: m.omegadot_sc_s * SC,
-        i0_rad: m.i0_sc * SC,
-        idot_radps: m.idot_sc_s * SC,
-        omega_rad: m.omega_sc * SC,
-        cuc_rad: m.cuc_rad as f64,
-        cus_rad: m.cus_rad as f64,
-        crc_m: m.crc_m as f64,
-        crs_m: m.crs_m as f64,
-        cic_rad: m.cic_rad as f64,
-        cis_rad: m.cis_rad as f64,
-        tgd_s: m.tgd_s as f64,
-        health: m.sv_health_ind,
-        ura_index: m.ura_index,
-        fit_interval_4h: m.fit_interval_ind != 0,
-    }
+    lnav_eph!(m, System::Qzss, qzss_satellite_id, week)
 }
 
 /// Quantises an ephemeris to what its RTCM message can carry (encode, then
