@@ -25,15 +25,6 @@ use crate::estimator::propagate::P as P_OFF;
 use crate::estimator::{ImuState, Mat15};
 use crate::io::mcap_log::{McapLogger, Topic};
 
-/// The time of a record as Foxglove's `{sec, nsec}`.
-pub(super) fn stamp(t_s: f64) -> Stamp {
-    let t = t_s.max(0.0);
-    Stamp {
-        sec: t.floor() as u64,
-        nsec: ((t - t.floor()) * 1e9) as u64,
-    }
-}
-
 /// The static links `map → ned` and `base_link → camera`, to `/tf`.
 pub(super) fn log_static_frames(l: &McapLogger, t_s: f64, T_B_C: &Isometry3<f64>) {
     let h = std::f64::consts::FRAC_1_SQRT_2;
@@ -41,7 +32,7 @@ pub(super) fn log_static_frames(l: &McapLogger, t_s: f64, T_B_C: &Isometry3<f64>
         Topic::Transform,
         t_s,
         &Transform {
-            timestamp: stamp(t_s),
+            timestamp: Stamp::at(t_s),
             parent_frame_id: "map",
             child_frame_id: "ned",
             translation: Xyz { x: 0.0, y: 0.0, z: 0.0 },
@@ -59,7 +50,7 @@ pub(super) fn log_static_frames(l: &McapLogger, t_s: f64, T_B_C: &Isometry3<f64>
         Topic::Transform,
         t_s,
         &Transform {
-            timestamp: stamp(t_s),
+            timestamp: Stamp::at(t_s),
             parent_frame_id: "base_link",
             child_frame_id: "camera",
             translation: Xyz { x: p.x, y: p.y, z: p.z },
@@ -86,11 +77,11 @@ pub(super) fn log_location(l: &McapLogger, t_s: f64, x: &ImuState, cov: &Mat15, 
     let s = ned_to_enu();
     let p_enu = s * cov.fixed_view::<3, 3>(P_OFF, P_OFF) * s.transpose();
     let c: Vec<f64> = (0..9).map(|k| p_enu[(k / 3, k % 3)]).collect();
-    let ts = stamp(t_s);
+    let ts = Stamp::at(t_s);
     l.log(
         Topic::Location,
         t_s,
-        &json!({"timestamp": {"sec": ts.sec, "nsec": ts.nsec}, "frame_id": "base_link",
+        &json!({"timestamp": ts, "frame_id": "base_link",
             "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
             "position_covariance": c, "position_covariance_type": 3}),
     );

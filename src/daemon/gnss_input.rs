@@ -356,13 +356,13 @@ impl GnssIn {
 /// The single-point fix, to `/gnss/fix` (foxglove.LocationFix).
 fn log_fix(l: &McapLogger, t: f64, fix: &SppSolution) {
     let (lat, lon, h) = ecef_to_llh(&fix.r_ecef_m);
-    let tt = t.max(0.0);
+    let ts = super::records::Stamp::at(t);
     // Variance approximated from the residuals and the PDOP.
     let var = (fix.residual_rms_m.max(1.0) * fix.pdop).powi(2) / 3.0;
     l.log(
         Topic::GnssFix,
         t,
-        &json!({"timestamp": {"sec": tt.floor() as u64, "nsec": ((tt - tt.floor()) * 1e9) as u64},
+        &json!({"timestamp": ts,
             "frame_id": "gnss", "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
             "position_covariance": [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var], "position_covariance_type": 1,
             "satellites": fix.sats.len(), "raim": format!("{:?}", fix.raim)}),

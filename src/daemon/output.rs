@@ -87,8 +87,7 @@ impl Fusion {
 /// `/pose` (foxglove.PoseInFrame) and `/tf` (foxglove.FrameTransform).
 fn log_pose(l: &McapLogger, t_s: f64, x: &ImuState) {
     let q = x.q_W_B.coords;
-    let (sec, nsec) = (t_s.floor() as u64, ((t_s - t_s.floor()) * 1e9) as u64);
-    let timestamp = records::Stamp { sec, nsec };
+    let timestamp = super::records::Stamp::at(t_s);
     let position = records::Xyz {
         x: x.p_B_in_W.x,
         y: x.p_B_in_W.y,

@@ -27,6 +27,17 @@ pub struct Stamp {
     pub nsec: u64,
 }
 
+impl Stamp {
+    /// The time `t_s` (s) as Foxglove's `{sec, nsec}`.
+    pub fn at(t_s: f64) -> Self {
+        let t = t_s.max(0.0);
+        Stamp {
+            sec: t.floor() as u64,
+            nsec: ((t - t.floor()) * 1e9) as u64,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Serialize)]
 pub struct Xyz {
     pub x: f64,
