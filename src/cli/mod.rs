@@ -28,24 +28,27 @@ use cmsckf::config::Config;
 
 /// A progress bar with an ETA on stderr when it is a terminal, hidden
 /// otherwise (a journal gets no control codes). `hidden` also hides it.
+/// Without a length it is a spinner until [`bar_style`] is set on it.
 fn progress_bar(len: Option<u64>, what: &str, hidden: bool) -> indicatif::ProgressBar {
     if hidden || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         return indicatif::ProgressBar::hidden();
     }
-    let (bar, template) = match len {
-        Some(n) => (
-            indicatif::ProgressBar::new(n),
-            format!("{what} [{{bar:30}}] {{pos}}/{{len}} · {{elapsed}} · ETA {{eta}} · {{msg}}"),
-        ),
-        None => (
-            indicatif::ProgressBar::new_spinner(),
-            format!("{{spinner}} {what}: {{pos}} ({{per_sec}}) {{elapsed}}"),
-        ),
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(&template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar
+    match len {
+        Some(n) => indicatif::ProgressBar::new(n).with_style(bar_style(what)),
+        None => {
+            let template = format!("{{spinner}} {what}: {{pos}} ({{per_sec}}) {{elapsed}}");
+            indicatif::ProgressBar::new_spinner().with_style(
+                indicatif::ProgressStyle::with_template(&template)
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+            )
+        }
+    }
+}
+
+/// The bar of [`progress_bar`]: position, elapsed time and ETA.
+fn bar_style(what: &str) -> indicatif::ProgressStyle {
+    let template = format!("{what} [{{bar:30}}] {{pos}}/{{len}} · {{elapsed}} · ETA {{eta}} · {{msg}}");
+    indicatif::ProgressStyle::with_template(&template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` or else by `default`.

@@ -46,12 +46,7 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
     let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n, total| {
         if let (Some(t), false) = (total, sized) {
             bar.set_length(t);
-            bar.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "replaying [{bar:30}] {pos}/{len} inputs · {elapsed} · ETA {eta}",
-                )
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-            );
+            bar.set_style(super::bar_style("replaying inputs"));
             sized = true;
         }
         bar.set_position(n);
