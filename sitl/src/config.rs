@@ -15,15 +15,19 @@
 //! - a GNSS receiver reports an epoch 0.2–0.6 s after it
 //!   (`gnss.latency_s`), and measures at its antenna, not at the IMU
 //!   (`gnss.p_A_in_B_m`);
-//! - a multirotor sits on the ground before it takes off (`standstill_s`).
+//! - a multirotor sits on the ground before it takes off (`standstill_s`);
+//! - in the air it never flies its smooth commanded path: gusts push it
+//!   about by decimetres and tilt it by degrees (`[wind]`).
 //!
-//! Setting the latencies, the offset, the lever arm and the standstill to 0
-//! gives back ideal sensors and the historical airborne scenarios.
+//! Setting the latencies, the offset, the lever arm, the standstill and the
+//! gusts to 0 gives back ideal sensors and the historical airborne scenarios.
 
 use serde::{Deserialize, Serialize};
 
 use cmsckf_models::check::{Check, FieldError, Validate};
 use cmsckf_models::sensors::{CameraConfig, ImuConfig};
+
+use crate::trajectory::WindConfig;
 
 /// Simulated feature tracks (a KLT-like front end over a landmark field).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -420,6 +424,8 @@ pub struct SimConfig {
     pub standstill_s: f64,
     /// The mock autopilot's own estimate (`serve`): its errors.
     pub autopilot: AutopilotSimConfig,
+    /// Gusts in the air (`crate::trajectory::wind`).
+    pub wind: WindConfig,
 }
 
 impl SimConfig {
@@ -482,7 +488,8 @@ impl Validate for SimConfig {
         c.range("standstill_s", self.standstill_s, 0.0, 600.0)?;
         self.features.validate(&p("features"))?;
         self.gnss.validate(&p("gnss"))?;
-        self.autopilot.validate(&p("autopilot"))
+        self.autopilot.validate(&p("autopilot"))?;
+        self.wind.validate(&p("wind"))
     }
 }
 

@@ -24,7 +24,7 @@ use crate::config::SimConfig;
 use crate::features::{CameraFrame, FeatureSim, TrackStats};
 use crate::gnss::{GnssEpoch, GnssModel};
 use crate::imu::{gauss3, ImuBias, ImuModel, ImuSample};
-use crate::trajectory::{Trajectory, TrajectoryError, TruthSample};
+use crate::trajectory::{GustField, Trajectory, TrajectoryError, TruthSample};
 use cmsckf_models::camera::Camera;
 use cmsckf_models::gnss::BroadcastEphemeris;
 
@@ -59,7 +59,7 @@ pub struct Dataset {
 /// The RNG stream `stream` of `seed`. Streams: 1 initial biases, 2 IMU
 /// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency, 7 the
 /// mock autopilot's EKF errors (drawn while serving), 8 the base station's
-/// noise and clock, 9 its latency.
+/// noise and clock, 9 its latency, 10 the gusts.
 pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);
@@ -81,7 +81,8 @@ impl Dataset {
         duration_s: Option<f64>,
         cfg: &SimConfig,
     ) -> Result<Self, TrajectoryError> {
-        let traj = Trajectory::from_scenario(scenario, duration_s, cfg.standstill_s)?;
+        let gusts = GustField::new(&cfg.wind, &mut rng_for(seed, 10));
+        let traj = Trajectory::from_scenario(scenario, duration_s, cfg.standstill_s, &gusts)?;
         Ok(Self::from_trajectory(&traj, seed, cfg))
     }
 

@@ -285,7 +285,7 @@ impl FeatureSim {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trajectory::{racetrack, RacetrackParams};
+    use crate::trajectory::{racetrack, GustField, RacetrackParams};
     use cmsckf_models::sensors::CameraConfig;
     use rand::SeedableRng;
 
@@ -298,7 +298,7 @@ mod tests {
             ..Default::default()
         };
         let mut sim = FeatureSim::new(&fc, cam.clone(), 0.0);
-        let tr = racetrack(&RacetrackParams::default(), 140.0, 0.0);
+        let tr = racetrack(&RacetrackParams::default(), 140.0, 0.0, &GustField::default());
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let mut ids_lap1 = std::collections::BTreeSet::new();
         let mut revisits = 0;

@@ -87,14 +87,14 @@ impl ImuModel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trajectory::{racetrack, RacetrackParams};
+    use crate::trajectory::{racetrack, GustField, RacetrackParams};
     use nalgebra::UnitQuaternion;
 
     /// Integrates noise-free IMU samples (biases known, here zero) with RK4
     /// on (q, v, p) and checks the drift against the truth.
     #[test]
     fn integrating_ideal_imu_reproduces_the_trajectory() {
-        let tr = racetrack(&RacetrackParams::default(), 70.0, 0.0);
+        let tr = racetrack(&RacetrackParams::default(), 70.0, 0.0, &GustField::default());
         let g = 9.81;
         let rate = 400.0;
         let dt = 1.0 / rate;

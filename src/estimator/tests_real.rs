@@ -323,36 +323,42 @@ fn standstill_is_held_by_zero_velocity_updates() {
 }
 
 /// The camera–IMU time offset is estimated online (§3b): from a prior of
-/// 0 ± 20 ms, after 20 s of flight it is within 3σ of the simulator's 12 ms
-/// and its σ is below 1.5 ms. (The target, within 1 ms, is not met
-/// on these smooth trajectories: over seeds 1–3 of figure8 and racetrack
-/// σ is 0.9–1.3 ms after 20 s, the error 0.04–2.3 ms.)
+/// 0 ± 20 ms, after 20 s of flight it is within 1 ms of the simulator's
+/// 12 ms (the target), within 3σ, and its σ is below 0.5 ms, on
+/// figure8 and the racetrack in the default light wind. (In calm air, the
+/// historical perfectly smooth paths, σ is 0.9–1.3 ms after 20 s: a path at
+/// constant speed and turn rate shifts every view alike, and only changes of
+/// angular rate show the offset; README, "Time offset".)
 #[test]
 fn time_offset_converges_in_flight() {
-    let (ds, cfg) = super::tests::scenario_for_tests("figure8", 4, 32.0);
-    let takeoff = ds.cfg.standstill_s;
-    let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Compressed, 4);
-    let mut at_20 = None;
-    for k in 0..ds.frames.len() {
-        run.step_frame(k);
-        if at_20.is_none() && run.est.time_s() >= takeoff + 20.0 {
-            at_20 = Some(run.est.time_offset());
+    for (scenario, seed) in [("figure8", 4), ("racetrack", 1)] {
+        let (ds, cfg) = super::tests::scenario_for_tests(scenario, seed, 27.0);
+        let takeoff = ds.cfg.standstill_s;
+        let mut run = crate::eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
+        let mut at_20 = None;
+        for k in 0..ds.frames.len() {
+            run.step_frame(k);
+            if at_20.is_none() && run.est.time_s() >= takeoff + 20.0 {
+                at_20 = Some(run.est.time_offset());
+            }
         }
+        let (td, var) = at_20.expect("20 s of flight");
+        let truth = ds.cfg.camera_time_offset_s;
+        let err = (td - truth).abs();
+        eprintln!(
+            "{scenario}: t_d after 20 s of flight: {:.3} ms ± {:.3} ms (truth {:.1} ms)",
+            td * 1e3,
+            var.sqrt() * 1e3,
+            truth * 1e3
+        );
+        assert!(err < 1e-3, "{scenario}: t_d error {err} s after 20 s");
+        assert!(
+            err < 3.0 * var.sqrt(),
+            "{scenario}: t_d {td} vs {truth}, σ {}",
+            var.sqrt()
+        );
+        assert!(var.sqrt() < 0.5e-3, "{scenario}: σ {}", var.sqrt());
     }
-    let (td, var) = at_20.expect("20 s of flight");
-    let truth = ds.cfg.camera_time_offset_s;
-    eprintln!(
-        "t_d after 20 s of flight: {:.3} ms ± {:.3} ms (truth {:.1} ms)",
-        td * 1e3,
-        var.sqrt() * 1e3,
-        truth * 1e3
-    );
-    assert!(
-        (td - truth).abs() < 3.0 * var.sqrt(),
-        "t_d {td} vs {truth}, σ {}",
-        var.sqrt()
-    );
-    assert!(var.sqrt() < 1.5e-3, "σ {}", var.sqrt());
     let _ = GNSS_COLS;
 }
 
@@ -448,8 +454,8 @@ fn the_epoch_grid_is_learnt_from_the_epochs() {
 /// ±1 rad at up to 0.8 rad/s, translations of ±2 m at up to 3 m/s), written as a
 /// TUM file and flown with the default simulator (12 ms offset, frames
 /// 30–60 ms late). On udel_gore with OpenVINS's simulator settings the same
-/// holds (0.08 ms after 20 s, 3 seeds); the drone scenarios excite it less
-/// (`time_offset_converges_in_flight`).
+/// holds (0.08 ms after 20 s, 3 seeds); the drone scenarios in calm air
+/// excite it less (`time_offset_converges_in_flight`).
 #[test]
 fn time_offset_converges_under_rich_motion() {
     use std::fmt::Write as _;

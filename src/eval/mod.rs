@@ -77,6 +77,8 @@ pub struct FlightResult {
     /// truth (s).
     pub time_offset_s: f64,
     pub time_offset_true_s: f64,
+    /// The time offset's final σ (s).
+    pub time_offset_sigma_s: f64,
     /// Health-check failures (each a reset in the daemon).
     pub resets: u64,
     /// `(t, covariance, state)` normalised differences of compressed from
@@ -406,6 +408,7 @@ fn empty(mode: Mode) -> FlightResult {
         cov_vel: vec![],
         time_offset_s: 0.0,
         time_offset_true_s: 0.0,
+        time_offset_sigma_s: 0.0,
         resets: 0,
         diff_vs_full: Vec::new(),
         frame_us: vec![],
@@ -423,7 +426,9 @@ fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
     r.keyframes = run.est.keyframes().count();
     r.clock_errors = run.clock_errors.clone();
     r.rebase_us = run.rebase_us.clone();
-    r.time_offset_s = run.est.time_offset().0;
+    let (td_s, td_var_s2) = run.est.time_offset();
+    r.time_offset_s = td_s;
+    r.time_offset_sigma_s = td_var_s2.sqrt();
     r.time_offset_true_s = ds.cfg.camera_time_offset_s;
     r.resets = run.resets;
 }

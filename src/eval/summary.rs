@@ -62,6 +62,9 @@ pub struct ModeSummary {
     pub nees_velocity_mean_second_half: f64,
     /// The time offset's final |estimate − truth| (ms), mean over seeds.
     pub time_offset_error_ms: f64,
+    /// Per seed: the time offset's final estimate − truth, and its σ (ms).
+    pub per_seed_time_offset_error_ms: Vec<f64>,
+    pub per_seed_time_offset_sigma_ms: Vec<f64>,
     /// GNSS epochs fused, and refused as late, per flight.
     pub gnss_epochs_fused: f64,
     pub gnss_epochs_late: f64,
@@ -249,6 +252,11 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
             .map(|r| (r.time_offset_s - r.time_offset_true_s).abs() * 1e3)
             .sum::<f64>()
             / n,
+        per_seed_time_offset_error_ms: runs
+            .iter()
+            .map(|r| (r.time_offset_s - r.time_offset_true_s) * 1e3)
+            .collect(),
+        per_seed_time_offset_sigma_ms: runs.iter().map(|r| r.time_offset_sigma_s * 1e3).collect(),
         gnss_epochs_fused: runs.iter().map(|r| r.stats.gnss_epochs_fused as f64).sum::<f64>() / n,
         gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
@@ -372,12 +380,13 @@ impl Evaluation {
             );
         }
         s += &format!(
-            "{:<11} {:>21} {:>21} {:>21} {:>21} {:>9} {:>6} {:>6} {:>6} {:>6}\n",
+            "{:<11} {:>21} {:>21} {:>21} {:>21} {:>16} {:>9} {:>6} {:>6} {:>6} {:>6}\n",
             "NEES",
             "tilt (2) all/2nd",
             "yaw (1) all/2nd",
             "pos (3) all/2nd",
             "vel (3) all/2nd",
+            "in95/t pose/y/p",
             "t_d[ms]",
             "gnss",
             "late",
@@ -387,7 +396,7 @@ impl Evaluation {
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 s += &format!(
-                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>9.2} {:>6} {:>6} {:>6} {:>6}\n",
+                    "{:<11} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>10.2}/{:<10.2} {:>16} {:>9.2} {:>6} {:>6} {:>6} {:>6}\n",
                     m.name(),
                     r.nees_tilt_mean,
                     r.nees_tilt_mean_second_half,
@@ -397,6 +406,10 @@ impl Evaluation {
                     r.nees_position_mean_second_half,
                     r.nees_velocity_mean,
                     r.nees_velocity_mean_second_half,
+                    format!(
+                        "{:.2}/{:.2}/{:.2}",
+                        r.nees_pose_in_bounds_per_time, r.nees_yaw_in_bounds_per_time, r.nees_position_in_bounds_per_time
+                    ),
                     r.time_offset_error_ms,
                     count(r.gnss_epochs_fused),
                     count(r.gnss_epochs_late),

@@ -100,7 +100,12 @@ fn range_rate_is_the_derivative_of_the_pseudorange() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let cfg = noise_free(GnssSimConfig::default());
     let mut m = GnssModel::new(&cfg, &mut rng);
-    let tr = crate::trajectory::racetrack(&crate::trajectory::RacetrackParams::default(), 60.0, 0.0);
+    let tr = crate::trajectory::racetrack(
+        &crate::trajectory::RacetrackParams::default(),
+        60.0,
+        0.0,
+        &Default::default(),
+    );
     let (t, h) = (16.5, 0.01);
     assert!(tr.sample(t).w_B.norm() > 0.1, "not turning at {t} s");
     let [a, mid, b] = [t - h, t, t + h].map(|ti| m.epoch(&tr.sample(ti), &mut rng));

@@ -1,7 +1,8 @@
 //! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME,
 //! GPS_GLOBAL_ORIGIN and GPS_RAW_INT at 1 Hz, ATTITUDE and
 //! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
-//! [`super::autopilot`]) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! [`super::autopilot`]) and SIM_STATE (the truth, as ArduPilot's SITL
+//! sends it, for review) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
 //! the IMU faults applied. GPS_RAW_INT says the autopilot has a 3D fix of
 //! its own (none during a GNSS outage), with its accuracy unknown (0), so
 //! the daemon knows the autopilot's position is not only the echo of its
@@ -17,6 +18,8 @@ use super::fault::{imu_order, Active, FaultKind};
 use super::stream::Streamer;
 use crate::config::GnssSimConfig;
 use crate::imu::ImuSample;
+use crate::trajectory::TruthSample;
+use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
 use cmsckf_models::gnss::{GPS_EPOCH_UNIX_S, GPS_UTC_LEAP_S};
 
 impl Streamer<'_> {
@@ -77,6 +80,7 @@ impl Streamer<'_> {
             vz: v_B_in_W.z as f32,
         }))
         .await;
+        self.send(sim_state(&self.ds.cfg.gnss, &s)).await;
     }
 
     /// One step of the autopilot's EKF at flight time `t`: its errors move
@@ -181,6 +185,41 @@ fn gps_global_origin(g: &GnssSimConfig, boot_us: u64) -> apm::MavMessage {
         longitude: (o[1] * 1e7).round() as i32,
         altitude: (alt_msl_m * 1e3).round() as i32,
         time_usec: boot_us,
+    })
+}
+
+/// The truth as `SIM_STATE`, as ArduPilot's SITL sends it: for review
+/// only (the daemon logs it and never fuses it). Latitude and longitude in
+/// the MAVLink 2 extensions `lat_int`/`lon_int` (degE7) as well as the f32
+/// degrees; the altitude above mean sea level.
+fn sim_state(g: &GnssSimConfig, s: &TruthSample) -> apm::MavMessage {
+    let o = g.origin_llh;
+    let frame = NedFrame::from_llh_deg(o[0], o[1], o[2]);
+    let (lat, lon, h) = ecef_to_llh(&(frame.origin_ecef + frame.R_ecef_ned * s.p_B_in_W));
+    let (lat_deg, lon_deg) = (lat.to_degrees(), lon.to_degrees());
+    let alt_msl_m = cmsckf_models::geoid::msl_from_ellipsoid(lat_deg, lon_deg, h);
+    let q = s.q_W_B;
+    let (roll, pitch, yaw) = q.euler_angles();
+    apm::MavMessage::SIM_STATE(apm::SIM_STATE_DATA {
+        q1: q.w as f32,
+        q2: q.i as f32,
+        q3: q.j as f32,
+        q4: q.k as f32,
+        roll: roll as f32,
+        pitch: pitch as f32,
+        yaw: yaw as f32,
+        xgyro: s.w_B.x as f32,
+        ygyro: s.w_B.y as f32,
+        zgyro: s.w_B.z as f32,
+        lat: lat_deg as f32,
+        lon: lon_deg as f32,
+        alt: alt_msl_m as f32,
+        vn: s.v_B_in_W.x as f32,
+        ve: s.v_B_in_W.y as f32,
+        vd: s.v_B_in_W.z as f32,
+        lat_int: (lat_deg * 1e7).round() as i32,
+        lon_int: (lon_deg * 1e7).round() as i32,
+        ..Default::default()
     })
 }
 

@@ -27,8 +27,10 @@ use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use crate::spline::{PositionSpline, RotationSpline};
 
 mod tum;
+pub mod wind;
 
 pub use tum::from_tum;
+pub use wind::{GustField, WindConfig};
 
 /// Gravity in the NED world frame (m/s²), positive down.
 pub fn gravity_w(g_mps2: f64) -> Vector3<f64> {
@@ -92,12 +94,19 @@ impl Trajectory {
     /// included). `standstill_s` is the time on the ground before an
     /// analytic scenario takes off (0: the historical airborne start); TUM
     /// files ignore it.
-    pub fn from_scenario(name: &str, duration_s: Option<f64>, standstill_s: f64) -> Result<Self, TrajectoryError> {
+    /// `gusts` disturb the analytic scenarios once airborne
+    /// ([`GustField::apply`]); a TUM file is flown as recorded.
+    pub fn from_scenario(
+        name: &str,
+        duration_s: Option<f64>,
+        standstill_s: f64,
+        gusts: &GustField,
+    ) -> Result<Self, TrajectoryError> {
         let d = duration_s.unwrap_or(70.0);
         match name {
-            "racetrack" => Ok(racetrack(&RacetrackParams::default(), d, standstill_s)),
-            "figure8" => Ok(figure8(d, standstill_s)),
-            "hover" => Ok(hover(d, standstill_s)),
+            "racetrack" => Ok(racetrack(&RacetrackParams::default(), d, standstill_s, gusts)),
+            "figure8" => Ok(figure8(d, standstill_s, gusts)),
+            "hover" => Ok(hover(d, standstill_s, gusts)),
             _ => {
                 if let Some(path) = name.strip_prefix("tum:") {
                     from_tum(Path::new(path), duration_s)
@@ -122,13 +131,24 @@ impl Trajectory {
         }
     }
 
-    /// Builds a trajectory from a sampled position function and an attitude
-    /// rule. Control points are taken from `t = -0.2 s` to `duration + 0.3 s`
-    /// so the spline covers `[0, duration]`.
-    fn from_functions(name: &str, duration_s: f64, pos_fn: impl Fn(f64) -> Vector3<f64>, attitude: Attitude) -> Self {
+    /// Builds a trajectory from a sampled position function, disturbed by
+    /// `gusts`, and an attitude rule. Control points are taken from
+    /// `t = -0.2 s` to `duration + 0.3 s` so the spline covers `[0, duration]`.
+    fn from_functions(
+        name: &str,
+        duration_s: f64,
+        pos_fn: impl Fn(f64) -> Vector3<f64>,
+        attitude: Attitude,
+        gusts: &GustField,
+    ) -> Self {
         let n = (duration_s / KNOT_DT_S).ceil() as usize + 6;
         let t0 = -2.0 * KNOT_DT_S;
-        let ctrl: Vec<_> = (0..n).map(|m| pos_fn(t0 + m as f64 * KNOT_DT_S)).collect();
+        let ctrl: Vec<_> = (0..n)
+            .map(|m| {
+                let t = t0 + m as f64 * KNOT_DT_S;
+                gusts.apply(t, pos_fn(t))
+            })
+            .collect();
         let pos = PositionSpline::new(t0, KNOT_DT_S, ctrl);
         // The attitude follows the position spline itself, so the tilt is
         // exactly the one that produces the spline's acceleration.
@@ -242,7 +262,7 @@ impl Default for RacetrackParams {
 /// follow minimum-jerk ramps from 0 to `speed_mps` and `height_m` over
 /// `takeoff_s`. With `standstill_s = 0` it flies at full speed and height
 /// from t = 0.
-pub fn racetrack(p: &RacetrackParams, duration_s: f64, standstill_s: f64) -> Trajectory {
+pub fn racetrack(p: &RacetrackParams, duration_s: f64, standstill_s: f64, gusts: &GustField) -> Trajectory {
     let (a, b) = (p.semi_major_m, p.semi_minor_m);
     let grounded = standstill_s > 0.0;
     let t_go = takeoff_start_s(standstill_s);
@@ -291,7 +311,13 @@ pub fn racetrack(p: &RacetrackParams, duration_s: f64, standstill_s: f64) -> Tra
             -(hgt * ramp(t) + climb * (2.0 * th).sin()),
         )
     };
-    Trajectory::from_functions("racetrack", duration_s, pos, Attitude::FollowHeading { yaw0_rad: 0.0 })
+    Trajectory::from_functions(
+        "racetrack",
+        duration_s,
+        pos,
+        Attitude::FollowHeading { yaw0_rad: 0.0 },
+        gusts,
+    )
 }
 
 /// A lemniscate of Gerono, 60 m × 30 m, one loop every 30 s, with a slow
@@ -301,7 +327,7 @@ pub fn racetrack(p: &RacetrackParams, duration_s: f64, standstill_s: f64) -> Tra
 /// [`takeoff_start_s`] the phase rate and the height follow minimum-jerk
 /// ramps to full over [`TAKEOFF_S`]. With `standstill_s = 0` it flies at
 /// full rate and height from t = 0.
-pub fn figure8(duration_s: f64, standstill_s: f64) -> Trajectory {
+pub fn figure8(duration_s: f64, standstill_s: f64, gusts: &GustField) -> Trajectory {
     let w = 2.0 * std::f64::consts::PI / 30.0;
     let grounded = standstill_s > 0.0;
     let t_go = takeoff_start_s(standstill_s);
@@ -337,6 +363,7 @@ pub fn figure8(duration_s: f64, standstill_s: f64) -> Trajectory {
         Attitude::FollowHeading {
             yaw0_rad: std::f64::consts::FRAC_PI_4,
         },
+        gusts,
     )
 }
 
@@ -363,7 +390,7 @@ fn min_jerk_integral(tau: f64) -> f64 {
 /// and slow yaw turns in between. The ground wait is `standstill_s` (the
 /// climb is commanded from [`takeoff_start_s`]), or the historical 4 s when
 /// `standstill_s` is 0.
-pub fn hover(duration_s: f64, standstill_s: f64) -> Trajectory {
+pub fn hover(duration_s: f64, standstill_s: f64, gusts: &GustField) -> Trajectory {
     // Every waypoint after the ground wait moves with it.
     let shift = if standstill_s > 0.0 {
         takeoff_start_s(standstill_s) - 4.0
@@ -414,6 +441,7 @@ pub fn hover(duration_s: f64, standstill_s: f64) -> Trajectory {
         duration_s,
         move |t| interp(t).0,
         Attitude::Yaw(Box::new(move |t| interp2(t).1)),
+        gusts,
     )
 }
 
@@ -423,7 +451,7 @@ mod tests {
 
     #[test]
     fn racetrack_is_about_a_kilometre_at_fifteen_mps() {
-        let tr = racetrack(&RacetrackParams::default(), 200.0, 0.0);
+        let tr = racetrack(&RacetrackParams::default(), 200.0, 0.0, &GustField::default());
         let mut len = 0.0;
         let mut prev = tr.sample(0.0).p_B_in_W;
         let mut speeds = Vec::new();
@@ -452,12 +480,12 @@ mod tests {
 
     #[test]
     fn banked_turns_and_level_start_for_hover() {
-        let tr = hover(30.0, 0.0);
+        let tr = hover(30.0, 0.0, &GustField::default());
         let s = tr.sample(1.0);
         assert!(s.v_B_in_W.norm() < 1e-9 && s.w_B.norm() < 1e-9);
         let z_b = s.q_W_B * Vector3::z();
         assert!((z_b - Vector3::z()).norm() < 1e-9);
-        let rt = racetrack(&RacetrackParams::default(), 70.0, 0.0);
+        let rt = racetrack(&RacetrackParams::default(), 70.0, 0.0, &GustField::default());
         // In a turn the body tilts into it (the thrust has a horizontal part).
         let mut max_tilt: f64 = 0.0;
         for k in 0..700 {
@@ -500,7 +528,9 @@ mod tests {
     #[test]
     fn no_standstill_is_the_historical_trajectory_bit_for_bit() {
         for (name, t, p, v, a, q, w) in BEFORE_STANDSTILL {
-            let s = Trajectory::from_scenario(name, Some(70.0), 0.0).unwrap().sample(t);
+            let s = Trajectory::from_scenario(name, Some(70.0), 0.0, &GustField::default())
+                .unwrap()
+                .sample(t);
             let c = s.q_W_B.coords;
             let got = [
                 s.p_B_in_W.as_slice(),
@@ -519,7 +549,7 @@ mod tests {
     fn standstill_is_exactly_at_rest_level_on_the_ground_then_takes_off() {
         let standstill_s = 5.0;
         for name in ["racetrack", "figure8", "hover"] {
-            let tr = Trajectory::from_scenario(name, Some(40.0), standstill_s).unwrap();
+            let tr = Trajectory::from_scenario(name, Some(40.0), standstill_s, &GustField::default()).unwrap();
             let mut t = -0.3;
             while t < standstill_s {
                 let s = tr.sample(t);
@@ -537,7 +567,7 @@ mod tests {
         }
         // The racetrack reaches its 15 m/s and its 5 m height after the
         // take-off, and keeps them.
-        let tr = Trajectory::from_scenario("racetrack", Some(70.0), standstill_s).unwrap();
+        let tr = Trajectory::from_scenario("racetrack", Some(70.0), standstill_s, &GustField::default()).unwrap();
         let t_full = takeoff_start_s(standstill_s) + TAKEOFF_S;
         let mut t = t_full;
         while t < 70.0 {
@@ -562,7 +592,7 @@ mod tests {
     fn takeoff_is_smooth() {
         let dt = 1e-3;
         for name in ["racetrack", "figure8", "hover"] {
-            let tr = Trajectory::from_scenario(name, Some(25.0), 5.0).unwrap();
+            let tr = Trajectory::from_scenario(name, Some(25.0), 5.0, &GustField::default()).unwrap();
             let (mut max_jerk, mut max_w_dot, mut max_w) = (0.0f64, 0.0f64, 0.0f64);
             let mut prev = tr.sample(0.0);
             let mut t = dt;

@@ -143,10 +143,12 @@ mod tests {
         std::fs::write(&broken, "0 0 0 0 0 0 0 1\n0.1 0 0 NaN 0 0 0 1\n").unwrap();
         let e = from_tum(&broken, None).unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("non-finite"), "{e}");
-        assert!(Trajectory::from_scenario("zigzag", None, 5.0)
-            .unwrap_err()
-            .to_string()
-            .contains("zigzag"));
+        assert!(
+            Trajectory::from_scenario("zigzag", None, 5.0, &crate::trajectory::GustField::default())
+                .unwrap_err()
+                .to_string()
+                .contains("zigzag")
+        );
     }
 
     /// A TUM file in the format of OpenVINS's trajectories (`t x y z qx qy
