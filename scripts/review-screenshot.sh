@@ -17,5 +17,5 @@ cargo run --release -- demo --log "$out/demo.mcap" --json > "$out/demo.json"
 cargo run --release -- review "$out/demo.mcap" --html "$out/report.html" --json > "$out/review.json"
 # --no-sandbox: root in containers; the page is our own file.
 "$browser" --headless --no-sandbox --disable-gpu --hide-scrollbars \
-  --window-size=1400,4200 --screenshot="$out/report.png" "file://$(realpath "$out/report.html")"
+  --window-size=1400,5000 --screenshot="$out/report.png" "file://$(realpath "$out/report.html")"
 echo "report: $out/report.html  screenshot: $out/report.png"

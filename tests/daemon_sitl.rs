@@ -61,12 +61,18 @@ fn daemon_hovers_without_resets() {
     assert_eq!(report.reset_count, 0, "resets in a hover");
     assert!(report.covariance_ok);
     assert!(report.estimates_received as f64 > 0.9 * 30.0 * (40.0 - 2.0));
+    // The daemon starts from the autopilot's attitude and origin, whose
+    // errors (its EKF's yaw bias, σ 2°) the offline run, started from the
+    // truth, does not have: they shift the whole hover, which the aligned
+    // ATE removes. Seed 3: unaligned 0.81 m, aligned 0.34 m, offline 0.155 m
+    // (0.80, 0.34 and 0.157 m in calm air).
     assert!(
-        report.ate_m <= 2.0 * offline.ate.unaligned_m + 0.5,
-        "daemon ATE {} vs offline {}",
-        report.ate_m,
+        report.ate_aligned_m <= 2.0 * offline.ate.unaligned_m + 0.2,
+        "daemon ATE (aligned) {} vs offline {}",
+        report.ate_aligned_m,
         offline.ate.unaligned_m
     );
+    assert!(report.ate_m < 1.5, "daemon ATE {}", report.ate_m);
 }
 
 #[test]
@@ -270,7 +276,16 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert!(rv.vision_updates > 1000 && rv.gnss_updates > 30 && rv.global_updates > 10 && rv.keyframes >= 7);
     assert!(rv.nis_in_95 > 0.8, "{}", rv.nis_in_95);
     assert!((rv.input_rates_hz["/input/imu"] - 100.0).abs() < 2.0);
-    for f in ["trajectory.png", "figure1.png", "nis.png", "timing.png"] {
+    // The error against the simulator's truth (SIM_STATE), inside the
+    // filter's own 3σ most of the time.
+    let rms = rv.position_error_rms_m.expect("the SITL sends its truth");
+    let within = rv.position_error_within_3sigma.unwrap();
+    eprintln!(
+        "review: position error RMS {rms:.3} m, {:.1} % inside ±3σ",
+        100.0 * within
+    );
+    assert!(rms < 3.0 && within > 0.8, "{rms} {within}");
+    for f in ["trajectory.png", "error.png", "figure1.png", "nis.png", "timing.png"] {
         let b = std::fs::read(plots.join(f)).unwrap();
         assert!(b.len() > 10_000 && b.starts_with(b"\x89PNG"), "{f}");
     }
@@ -279,7 +294,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     let page_path = dir.path().join("report.html");
     cmsckf::review::review_html(&log_path, &page_path, None).unwrap();
     let page = std::fs::read_to_string(&page_path).unwrap();
-    assert_eq!(page.matches("src=\"data:image/png;base64,").count(), 4);
+    assert_eq!(page.matches("src=\"data:image/png;base64,").count(), 5);
     for section in [
         "<h2>Summary</h2>",
         "<h2>Plots</h2>",
@@ -307,10 +322,15 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
 
     // An independent reader (PyPI `mcap`, installed if missing) reads it
     // cleanly.
+    // Every topic and Plot path of the Foxglove layout is in the log.
     common::python_modules(&["mcap", "jsonschema"]);
     let out = Command::new("python3")
         .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
         .arg("--validate")
+        .args([
+            "--layout",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json"),
+        ])
         .arg(&log_path)
         .output()
         .expect("python3 is needed for this test");
@@ -330,5 +350,9 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         .map(|v| v.as_u64().unwrap())
         .sum();
     assert_eq!(py["validated"].as_u64(), Some(total));
+    assert!(py["layout_paths"].as_array().is_some_and(|p| p.len() >= 7), "{py}");
+    for topic in ["/keyframes", "/landmarks", "/location", "/gnss/fix"] {
+        assert!(py["counts"][topic].as_u64().is_some_and(|n| n > 0), "{topic}: {py}");
+    }
     assert_eq!(total, per_topic.values().sum::<u64>());
 }

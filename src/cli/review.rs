@@ -1,5 +1,6 @@
 //! `cmsckf review`: a flight log's summary (see [`cmsckf::review`]) printed
-//! as JSON, with its plots and TUM trajectory written where asked.
+//! as text (or JSON for scripts), with its plots, HTML page and TUM
+//! trajectory written where asked.
 
 use std::path::PathBuf;
 
@@ -8,7 +9,7 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct ReviewArgs {
     input: PathBuf,
-    /// Write trajectory.png, figure1.png, nis.png and timing.png here.
+    /// Write trajectory.png, error.png, figure1.png, nis.png and timing.png here.
     #[arg(long)]
     plots: Option<PathBuf>,
     /// Export the estimated trajectory in TUM format.
@@ -24,8 +25,8 @@ pub struct ReviewArgs {
     json: bool,
 }
 
-/// Runs `cmsckf review` and prints the summary (compact with `--json`,
-/// else pretty, with a note when the log was cut short).
+/// Runs `cmsckf review` and prints the summary (JSON with `--json`, else
+/// aligned text, with a note when the log was cut short).
 pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
     let ReviewArgs {
         input,
@@ -45,7 +46,7 @@ pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
         if s.truncated {
             println!("note: the log ends early (no summary): reviewed up to its last complete chunk");
         }
-        println!("{}", serde_json::to_string_pretty(&s)?);
+        print!("{}", s.text());
         if let Some(p) = plots {
             println!("plots in {}", p.display());
         }

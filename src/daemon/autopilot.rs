@@ -90,6 +90,29 @@ impl Fusion {
                 self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"unix_days": unix_days}));
                 self.unix_days = Some(unix_days);
             }
+            FusionMsg::SimState {
+                lat_deg,
+                lon_deg,
+                alt_m,
+                q_wxyz,
+                v_ned_mps,
+            } => {
+                // A simulator's truth, for review only: also placed in our
+                // world frame once its origin is known (MSL → ellipsoid as
+                // for the origin itself).
+                let p_ned_m = self.gnss.frame.map(|f| {
+                    let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
+                    let r = llh_to_ecef(lat_deg.to_radians(), lon_deg.to_radians(), h_m);
+                    let p = f.R_ecef_ned.transpose() * (r - f.origin_ecef);
+                    [p.x, p.y, p.z]
+                });
+                self.log(
+                    Topic::InputAutopilot,
+                    self.last_imu_t,
+                    &json!({"sim_state": {"lat_deg": lat_deg, "lon_deg": lon_deg, "alt_m": alt_m, "q_wxyz": q_wxyz,
+                        "v_ned_mps": v_ned_mps.as_slice(), "p_ned_m": p_ned_m}}),
+                );
+            }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
                 // Logged for replay, kept as the prior of an in-flight start.
                 self.log(

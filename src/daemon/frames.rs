@@ -14,15 +14,20 @@
 //! (the NED position through the world origin to latitude, longitude and
 //! ellipsoidal height, its covariance rotated to ENU), so the Map panel
 //! draws it beside the single-point fixes of `/gnss/fix`.
+//!
+//! The 3D scene also gets the keyframes (`/keyframes`, every keyframe's
+//! pose in `ned` at each new one) and the landmarks of the tracks fused
+//! (`/landmarks`, a point cloud in `ned`, gathered and logged at most 5 times
+//! a second, at most [`LandmarkCloud::MAX_POINTS`] at a time).
 
-use nalgebra::{Isometry3, Matrix3};
+use nalgebra::{Isometry3, Matrix3, Vector3};
 use serde_json::json;
 
 use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
 
 use super::records::{Quat, Stamp, Transform, Xyz};
 use crate::estimator::propagate::P as P_OFF;
-use crate::estimator::{ImuState, Mat15};
+use crate::estimator::{Estimator, ImuState, Mat15};
 use crate::io::mcap_log::{McapLogger, Topic};
 
 /// The static links `map → ned` and `base_link → camera`, to `/tf`.
@@ -85,6 +90,69 @@ pub(super) fn log_location(l: &McapLogger, t_s: f64, x: &ImuState, cov: &Mat15, 
             "latitude": lat.to_degrees(), "longitude": lon.to_degrees(), "altitude": h,
             "position_covariance": c, "position_covariance_type": 3}),
     );
+}
+
+/// A pose in `ned` as Foxglove's `{position, orientation}`.
+fn pose_json(p: &Vector3<f64>, q: &nalgebra::UnitQuaternion<f64>) -> serde_json::Value {
+    json!({"position": {"x": p.x, "y": p.y, "z": p.z},
+        "orientation": {"x": q.i, "y": q.j, "z": q.k, "w": q.w}})
+}
+
+/// Every keyframe's body pose, to `/keyframes` (`foxglove.PosesInFrame`).
+pub(super) fn log_keyframes(l: &McapLogger, t_s: f64, est: &Estimator) {
+    let poses: Vec<_> = est.keyframes().map(|k| pose_json(&k.p_B_in_W, &k.q_W_B())).collect();
+    l.log(
+        Topic::Keyframes,
+        t_s,
+        &json!({"timestamp": Stamp::at(t_s), "frame_id": "ned", "poses": poses}),
+    );
+}
+
+/// The landmarks of the fused tracks, gathered between logs.
+#[derive(Debug, Default)]
+pub(super) struct LandmarkCloud {
+    /// `x, y, z` (m, NED) as little-endian `f32`, 12 bytes a point.
+    bytes: Vec<u8>,
+    next_log_s: f64,
+}
+
+impl LandmarkCloud {
+    /// The most points one `/landmarks` record carries (36 KB); more in
+    /// one fifth of a second are left out.
+    pub const MAX_POINTS: usize = 3000;
+
+    /// Adds a frame's landmarks and, at most every 0.2 s, logs those
+    /// gathered as a `foxglove.PointCloud` in `ned`.
+    pub fn push(&mut self, l: &McapLogger, t_s: f64, points_W: &[Vector3<f64>]) {
+        for p in points_W {
+            if self.bytes.len() >= 12 * Self::MAX_POINTS {
+                break;
+            }
+            if p.iter().all(|v| v.is_finite()) {
+                for v in p.iter() {
+                    self.bytes.extend_from_slice(&(*v as f32).to_le_bytes());
+                }
+            }
+        }
+        if t_s < self.next_log_s || self.bytes.is_empty() {
+            return;
+        }
+        self.next_log_s = t_s + 0.2;
+        // NumericType FLOAT32 = 7.
+        let fields: Vec<_> = ["x", "y", "z"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| json!({"name": n, "offset": 4 * k, "type": 7}))
+            .collect();
+        l.log(
+            Topic::Landmarks,
+            t_s,
+            &json!({"timestamp": Stamp::at(t_s), "frame_id": "ned",
+                "pose": pose_json(&Vector3::zeros(), &nalgebra::UnitQuaternion::identity()),
+                "point_stride": 12, "fields": fields, "data": crate::io::base64::encode(&self.bytes)}),
+        );
+        self.bytes.clear();
+    }
 }
 
 #[cfg(test)]

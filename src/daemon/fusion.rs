@@ -70,6 +70,8 @@ pub struct Fusion {
     /// restarted is recognised and dropped.
     pub(super) est_gen: u64,
     pub(super) next_state_log: f64,
+    /// Landmarks gathered for the log's `/landmarks`.
+    pub(super) landmarks: super::frames::LandmarkCloud,
     /// The camera's pose in the body frame, for the log's frame tree.
     pub(super) T_B_C: nalgebra::Isometry3<f64>,
     /// Next autopilot time to log the counters at (`/diagnostics`).
@@ -208,6 +210,7 @@ impl Fusion {
             rebase: RebaseExec::for_config(&cfg),
             est_gen: 0,
             next_state_log: f64::NEG_INFINITY,
+            landmarks: Default::default(),
             T_B_C: cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C,
             next_diag_t: f64::NEG_INFINITY,
             est: None,

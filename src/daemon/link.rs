@@ -271,6 +271,7 @@ fn foreign_rejection(msg: &Inbound) -> Option<&'static str> {
         Inbound::GpsGlobalOrigin { .. } => "mavlink_rejected_foreign_origin",
         Inbound::Heartbeat { .. } => "mavlink_heartbeat_other",
         Inbound::LandedState { .. } => "mavlink_rejected_foreign_landed_state",
+        Inbound::SimState { .. } => "mavlink_rejected_foreign_sim_state",
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -329,6 +330,22 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
         Inbound::GpsAccuracy { h_acc_m, v_acc_m } => {
             counters.add("gps_accuracy", 1);
             Some(FusionMsg::GpsAccuracy { h_acc_m, v_acc_m })
+        }
+        Inbound::SimState {
+            lat_deg,
+            lon_deg,
+            alt_m,
+            q_wxyz,
+            v_ned_mps,
+        } => {
+            counters.add("sim_state", 1);
+            Some(FusionMsg::SimState {
+                lat_deg,
+                lon_deg,
+                alt_m,
+                q_wxyz,
+                v_ned_mps,
+            })
         }
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);

@@ -2,6 +2,7 @@
 //! time order, their filter events to the log, and their counters.
 
 use cmsckf_models::gnss::SatMeas;
+use cmsckf_models::stats::chi2_quantile;
 use serde_json::json;
 
 use super::fusion::{Fusion, Pending};
@@ -111,6 +112,7 @@ impl Fusion {
             Ok(rep) => {
                 if let Some(l) = &self.log {
                     log_frame(l, est, t, fr.obs.len(), &rep, elapsed_us);
+                    self.landmarks.push(l, t, &rep.landmarks_W);
                 }
                 counters.add("frames_processed", 1);
                 self.tracker.frame_processed(t);
@@ -139,12 +141,25 @@ impl Fusion {
 /// `/filter/update/vision` and the frame's events: global updates,
 /// keyframes created (`/filter/keyframes`) and promotions.
 fn log_frame(l: &McapLogger, est: &Estimator, t: f64, features: usize, rep: &FrameReport, elapsed_us: f64) {
+    // The frame's NIS per degree of freedom, `Σ NIS / Σ dof`, with the 95%
+    // interval of `χ²(Σ dof) / Σ dof` it lies in when the filter is consistent.
+    let dof: usize = rep.nis.iter().map(|x| x.1).sum();
+    let (nis_per_dof, nis_per_dof_95) = if dof > 0 {
+        let k = dof as f64;
+        (
+            Some(rep.nis.iter().map(|x| x.0).sum::<f64>() / k),
+            Some([chi2_quantile(0.025, dof) / k, chi2_quantile(0.975, dof) / k]),
+        )
+    } else {
+        (None, None)
+    };
     l.log(
         Topic::FilterVision,
         t,
         &json!({
             "t_s": t, "features": features, "tracks_used": rep.tracks_used,
             "rejected": rep.rejected, "nis": rep.nis, "residual_rms": rep.residual_rms,
+            "nis_per_dof": nis_per_dof, "nis_per_dof_95": nis_per_dof_95,
             "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
             "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
             "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
@@ -172,6 +187,7 @@ fn log_frame(l: &McapLogger, est: &Estimator, t: f64, features: usize, rep: &Fra
                         &json!({"t_s": t, "id": id, "p_B_in_W": kf.p_B_in_W.as_slice(), "q_W_B_wxyz": [q.w, q.i, q.j, q.k], "cov_diag": cov}),
                     );
                 }
+                super::frames::log_keyframes(l, t, est);
             }
             FilterEvent::Promoted { keyframes } => l.log(
                 Topic::FilterGlobal,

@@ -126,12 +126,15 @@ fn log_pose(l: &McapLogger, t_s: f64, x: &ImuState) {
 fn log_state(l: &McapLogger, t_s: f64, x: &ImuState, est: &Estimator) {
     let q = x.q_W_B.coords;
     let (clock, _) = est.clock();
+    let cov = est.imu_covariance();
+    let sigma_p_m = [0, 1, 2].map(|k| cov[(P_OFF + k, P_OFF + k)].max(0.0).sqrt());
     l.log(
         Topic::FilterState,
         t_s,
         &json!({"t_s": t_s, "q_W_B_wxyz": [q.w, q.x, q.y, q.z], "v_B_in_W": x.v_B_in_W.as_slice(),
             "p_B_in_W": x.p_B_in_W.as_slice(), "b_g": x.b_g.as_slice(), "b_a": x.b_a.as_slice(),
-            "clock": clock.as_slice(), "cov_diag": est.imu_covariance().diagonal().as_slice()}),
+            "clock": clock.as_slice(), "cov_diag": cov.diagonal().as_slice(),
+            "sigma_p_m": sigma_p_m}),
     );
 }
 

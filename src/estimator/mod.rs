@@ -290,6 +290,9 @@ pub struct FrameReport {
     pub deferred: usize,
     /// Global keyframes made local for this frame's measurements.
     pub promoted: usize,
+    /// The triangulated position of each accepted track's landmark (m,
+    /// world NED), for the log's 3D view.
+    pub landmarks_W: Vec<Vector3<f64>>,
 }
 
 /// A landmark's observations in the window.

@@ -395,6 +395,7 @@ impl Estimator {
             return None;
         }
         report.nis.push((nis, dof));
+        report.landmarks_W.push(p_f);
         if !ks.is_empty() {
             report.loop_closure_tracks += 1;
             let now = self.t_s;

@@ -77,6 +77,16 @@ pub enum Inbound {
         lon_deg: f64,
         alt_m: f64,
     },
+    /// A simulator's truth (`SIM_STATE`, as ArduPilot's SITL and ours send
+    /// it): position (deg, deg, m), attitude (w, x, y, z) and velocity
+    /// (NED, m/s). Only logged, for review against the truth; never fused.
+    SimState {
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+        q_wxyz: [f64; 4],
+        v_ned_mps: Vector3<f64>,
+    },
     /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
     /// for the SITL scorer's own tests).
     Other(&'static str),

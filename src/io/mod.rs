@@ -2,6 +2,7 @@
 //! estimator at the boundary. `mavlink/` is the only module that names
 //! `mavlink::` types; `messages.rs` holds what crosses that boundary.
 
+pub mod base64;
 pub mod feature_pipe;
 pub mod gnss_stream;
 pub mod mavlink;

@@ -9,24 +9,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::ReviewSummary;
-
-/// Standard base64 (RFC 4648, with padding), for the inline images.
-fn base64(bytes: &[u8]) -> String {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
-    for c in bytes.chunks(3) {
-        let n =
-            (u32::from(c[0]) << 16) | (u32::from(*c.get(1).unwrap_or(&0)) << 8) | u32::from(*c.get(2).unwrap_or(&0));
-        for k in 0..4 {
-            if k <= c.len() {
-                out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
-}
+use crate::io::base64::encode as base64;
 
 /// Text made safe for HTML.
 fn esc(s: &str) -> String {
@@ -51,47 +34,16 @@ fn table(title: &str, rows: &[(String, String)]) -> String {
 /// The page for the log `name` with summary `s`, the plots read from
 /// `plots_dir` (the four PNGs of [`super::plots`]).
 pub(super) fn page(name: &str, s: &ReviewSummary, plots_dir: &Path) -> std::io::Result<String> {
-    let summary = [
-        ("log", name.to_string()),
-        ("duration", format!("{:.1} s", s.duration_s)),
-        ("messages", s.messages.to_string()),
-        (
-            "complete",
-            if s.truncated {
-                "no: the writer was killed; read to its last whole chunk (cmsckf log recover repairs the file)".into()
-            } else {
-                "yes".into()
-            },
-        ),
-        ("estimates sent", s.estimates.to_string()),
-        ("vision updates", s.vision_updates.to_string()),
-        ("tracks used", s.tracks_used.to_string()),
-        ("NIS / dof, mean", format!("{:.2}", s.nis_per_dof_mean)),
-        ("NIS inside its 95 % χ² band", format!("{:.1} %", 100.0 * s.nis_in_95)),
-        (
-            "update time p50 / p99 / max",
-            format!(
-                "{:.0} / {:.0} / {:.0} µs",
-                s.update_us_p50, s.update_us_p99, s.update_us_max
-            ),
-        ),
-        ("GNSS updates", s.gnss_updates.to_string()),
-        ("global updates", s.global_updates.to_string()),
-        ("promotions", s.promotions.to_string()),
-        ("keyframes", s.keyframes.to_string()),
-    ]
-    .map(|(k, v)| (k.to_string(), v));
-    let rates: Vec<(String, String)> = s
-        .input_rates_hz
-        .iter()
-        .map(|(k, v)| (k.clone(), format!("{v:.1} Hz")))
-        .collect();
-    let rejected: Vec<(String, String)> = s.rejected.iter().map(|(k, v)| (k.clone(), v.to_string())).collect();
-    let counters: Vec<(String, String)> = s.counters.iter().map(|(k, v)| (k.clone(), v.to_string())).collect();
+    let mut summary = vec![("log".to_string(), name.to_string())];
+    summary.extend(s.rows());
+    let rates = s.rate_rows();
+    let rejected = s.rejected_rows();
+    let counters = s.counter_rows();
 
     let mut figures = String::new();
     for (file, caption) in [
-        ("trajectory.png", "Trajectory from above, to scale: the estimate, its keyframes and the autopilot's own position (in SITL, the truth)"),
+        ("trajectory.png", "Trajectory from above, to scale: the estimate, its keyframes, the GNSS single-point fixes, the autopilot's own position and, from a simulator, the truth"),
+        ("error.png", "Position error against the truth (a simulator's SIM_STATE) or else the autopilot's position, with the filter's ±3σ"),
         ("figure1.png", "The paper's Figure 1: each keyframe's position σ over time; right, one keyframe with the vision, GNSS and global updates marked"),
         ("nis.png", "NIS per update against its 95 % χ² band"),
         ("timing.png", "Estimator time per camera frame"),
@@ -120,25 +72,4 @@ figcaption{{font-size:0.9em;color:#555}}</style></head><body>\
         rejected = table("Rejections, by reason", &rejected),
         counters = table("Every counter at the end of the log", &counters),
     ))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn base64_matches_rfc4648() {
-        // RFC 4648 §10's test vectors.
-        for (i, o) in [
-            ("", ""),
-            ("f", "Zg=="),
-            ("fo", "Zm8="),
-            ("foo", "Zm9v"),
-            ("foob", "Zm9vYg=="),
-            ("fooba", "Zm9vYmE="),
-            ("foobar", "Zm9vYmFy"),
-        ] {
-            assert_eq!(base64(i.as_bytes()), o);
-        }
-    }
 }

@@ -4,13 +4,16 @@
 //! log whose writer was killed (no summary section) is reviewed up to its
 //! last complete chunk, and says so. Plots are PNG through `plotters` with a
 //! bundled font (DejaVu Sans), so no system font libraries are needed:
-//! 1. `trajectory.png`: the estimate from above, to scale, with the keyframes and the
-//!    autopilot's local position (in SITL logs, the ground truth);
-//! 2. `figure1.png`: the paper's Figure 1, the position σ of every keyframe
+//! 1. `trajectory.png`: the estimate from above, to scale, with the keyframes, the
+//!    GNSS single-point fixes, the autopilot's local position and a
+//!    simulator's truth (`SIM_STATE`);
+//! 2. `error.png`: the position error against that truth (else the local
+//!    position) over time, with the filter's ±3σ (`error.rs`);
+//! 3. `figure1.png`: the paper's Figure 1, the position σ of every keyframe
 //!    over time, and a zoom on one keyframe with the vision updates, the GNSS
 //!    corrections and the global (compressed) updates marked;
-//! 3. `nis.png`: per-update NIS/dof with its 95% χ² band;
-//! 4. `timing.png`: a histogram of the estimator time per update.
+//! 4. `nis.png`: per-update NIS/dof with its 95% χ² band;
+//! 5. `timing.png`: a histogram of the estimator time per update.
 //!
 //! With `--html`, [`review_html`] puts all of it on one self-contained page
 //! (`html.rs`).
@@ -23,9 +26,11 @@
 //! segments cover, and the time series keep plausible times only
 //! (`timeline.rs`), so one far-future or backwards record changes neither.
 
+mod error;
 mod html;
 mod plots;
 mod reader;
+mod text;
 mod timeline;
 
 use std::collections::BTreeMap;
@@ -75,6 +80,12 @@ pub struct ReviewSummary {
     pub promotions: u64,
     pub keyframes: u64,
     pub estimates: u64,
+    /// The 3-D RMS of the position error against a simulator's truth
+    /// (`SIM_STATE`) or else the autopilot's local position (m), when the
+    /// log has either.
+    pub position_error_rms_m: Option<f64>,
+    /// The share of those samples with every axis inside ±3σ.
+    pub position_error_within_3sigma: Option<f64>,
     /// Every counter of the daemon at the log's last `/diagnostics` record
     /// (inputs, rejections by reason, drops).
     pub counters: BTreeMap<String, u64>,
@@ -115,6 +126,7 @@ pub fn review(
     let (mut s, d) = reader.finish();
     nis_statistics(&mut s, &d);
     timing_statistics(&mut s, &d);
+    error::error_statistics(&mut s, &d);
 
     if let Some(path) = tum {
         write_tum(path, &d)?;

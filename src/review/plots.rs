@@ -13,19 +13,19 @@ use cmsckf_models::stats::{chi2_quantile, percentile};
 use super::reader::Data;
 
 /// A plotting error as text.
-fn err(x: impl std::fmt::Display) -> String {
+pub(super) fn err(x: impl std::fmt::Display) -> String {
     x.to_string()
 }
 
 /// A drawing area of a PNG file.
-type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
+pub(super) type Area<'b> = DrawingArea<BitMapBackend<'b>, Shift>;
 
 /// A chart drawn on an [`Area`], over `X` × `Y`.
-type Chart<'a, 'b, X, Y> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Y>>;
+pub(super) type Chart<'a, 'b, X, Y> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<X, Y>>;
 
 /// The finite values' span, padded by 5% (at least 1 mm); `(0, 1)` when
 /// there are none.
-fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
+pub(super) fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for x in v.filter(|x| x.is_finite()) {
         lo = lo.min(x);
@@ -40,7 +40,7 @@ fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
 
 /// A captioned chart on `area` over `x` × `y`, with the margins and label
 /// areas every plot here uses.
-fn chart<'a, 'b, X: AsRangedCoord, Y: AsRangedCoord>(
+pub(super) fn chart<'a, 'b, X: AsRangedCoord, Y: AsRangedCoord>(
     area: &'a Area<'b>,
     caption: &str,
     x: X,
@@ -55,10 +55,11 @@ fn chart<'a, 'b, X: AsRangedCoord, Y: AsRangedCoord>(
         .map_err(err)
 }
 
-/// Writes `trajectory.png`, `figure1.png`, `nis.png` and `timing.png` to
-/// `dir`; `keyframe` picks Figure 1's zoom.
+/// Writes `trajectory.png`, `error.png`, `figure1.png`, `nis.png` and
+/// `timing.png` to `dir`; `keyframe` picks Figure 1's zoom.
 pub(super) fn plot_all(dir: &Path, d: &Data, keyframe: Option<u64>) -> Result<(), String> {
     plot_trajectory(dir, d)?;
+    super::error::plot_error(dir, d)?;
     plot_figure1(dir, d, keyframe)?;
     plot_nis(dir, d)?;
     plot_timing(dir, d)
@@ -84,11 +85,11 @@ fn plot_trajectory(dir: &Path, d: &Data) -> Result<(), String> {
     let (w, h) = (900u32, 800u32);
     let root = BitMapBackend::new(&p, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
-    let x = range(d.track.iter().map(|t| t.2).chain(d.autopilot.iter().map(|p| p.1)));
-    let y = range(d.track.iter().map(|t| t.1).chain(d.autopilot.iter().map(|p| p.0)));
+    let x = range(d.track.iter().map(|t| t.2).chain(d.truth.iter().map(|p| p.1[1])));
+    let y = range(d.track.iter().map(|t| t.1).chain(d.truth.iter().map(|p| p.1[0])));
     // The plotting area inside `chart`'s margins, label areas and caption.
     let ((xl, xh), (yl, yh)) = to_scale(x, y, f64::from(w) - 84.0, f64::from(h) - 94.0, 0.15);
-    let mut c = chart(&root, "Trajectory from above (estimate), to scale", xl..xh, yl..yh)?;
+    let mut c = chart(&root, "Trajectory from above, to scale", xl..xh, yl..yh)?;
     c.configure_mesh()
         .x_desc("east (m)")
         .y_desc("north (m)")
@@ -98,11 +99,38 @@ fn plot_trajectory(dir: &Path, d: &Data) -> Result<(), String> {
         .map_err(err)?
         .label("estimate")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+    if !d.truth.is_empty() {
+        c.draw_series(LineSeries::new(
+            d.truth.iter().map(|p| (p.1[1], p.1[0])),
+            BLACK.mix(0.7),
+        ))
+        .map_err(err)?
+        .label("truth (SIM_STATE)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+    }
     if !d.autopilot.is_empty() {
-        c.draw_series(LineSeries::new(d.autopilot.iter().map(|p| (p.1, p.0)), GREEN.mix(0.8)))
-            .map_err(err)?
-            .label("autopilot local position (SITL: ground truth)")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+        c.draw_series(LineSeries::new(
+            d.autopilot.iter().map(|p| (p.1[1], p.1[0])),
+            GREEN.mix(0.8),
+        ))
+        .map_err(err)?
+        .label("autopilot's local position")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+    }
+    // The fixes inside the plotted area (a fix kilometres off would only
+    // shrink the trajectory to a dot).
+    let inside = |e: f64, n: f64| (xl..=xh).contains(&e) && (yl..=yh).contains(&n);
+    if !d.fixes_ne.is_empty() {
+        let orange = RGBColor(230, 120, 0);
+        c.draw_series(
+            d.fixes_ne
+                .iter()
+                .filter(|f| inside(f.1, f.0))
+                .map(move |f| Cross::new((f.1, f.0), 3, orange.stroke_width(1))),
+        )
+        .map_err(err)?
+        .label("GNSS single-point fixes")
+        .legend(move |(x, y)| Cross::new((x + 10, y), 3, orange.stroke_width(1)));
     }
     c.draw_series(d.kf_pos.iter().map(|k| Circle::new((k.1, k.0), 4, RED.filled())))
         .map_err(err)?
@@ -174,15 +202,22 @@ fn plot_keyframe_zoom(area: &Area, d: &Data, id: u64) -> Result<(), String> {
         .y_desc("σ (m)")
         .draw()
         .map_err(err)?;
-    for (ts, col, label) in [(&d.gnss_t, GREEN, "GNSS update"), (&d.global_t, RED, "global update")] {
+    // Updates as short ticks in two bands (GNSS along the bottom, global
+    // updates along the top), not full-height lines: at 1 Hz GNSS those
+    // merged into hatching over the curve.
+    let band = 0.06 * (sh - sl);
+    for (ts, col, label, y0) in [
+        (&d.gnss_t, GREEN, "GNSS update (tick at the bottom)", sl),
+        (&d.global_t, RED, "global update (tick at the top)", sh - band),
+    ] {
         c.draw_series(
             ts.iter()
                 .filter(|t| (tl..=th).contains(*t))
-                .map(|t| PathElement::new(vec![(*t, sl), (*t, sh)], col.mix(0.5))),
+                .map(|t| PathElement::new(vec![(*t, y0), (*t, y0 + band)], col.stroke_width(2))),
         )
         .map_err(err)?
         .label(label)
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col));
+        .legend(move |(x, y)| PathElement::new(vec![(x + 10, y - 5), (x + 10, y + 5)], col.stroke_width(2)));
     }
     c.draw_series(LineSeries::new(series.iter().copied(), &BLACK))
         .map_err(err)?
@@ -190,7 +225,7 @@ fn plot_keyframe_zoom(area: &Area, d: &Data, id: u64) -> Result<(), String> {
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
     c.draw_series(series.iter().map(|p| Circle::new(*p, 2, BLUE.filled())))
         .map_err(err)?
-        .label("after an update")
+        .label("σ after each update")
         .legend(|(x, y)| Circle::new((x + 10, y), 2, BLUE.filled()));
     c.configure_series_labels()
         .border_style(BLACK)

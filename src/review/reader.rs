@@ -14,8 +14,23 @@ use super::ReviewSummary;
 pub(super) struct Data {
     pub track: Vec<(f64, f64, f64, [f64; 4], f64)>, // t, n, e, q(wxyz), d
     pub kf_pos: Vec<(f64, f64)>,
-    /// The autopilot's local position (in SITL, the ground truth).
-    pub autopilot: Vec<(f64, f64)>,
+    /// The autopilot's local position: `t, n, e, d`. Beside an autopilot
+    /// that fuses our output it is largely our own estimate again.
+    pub autopilot: Vec<(f64, [f64; 3])>,
+    /// A simulator's truth (`SIM_STATE`) in our world frame: `t, n, e, d`.
+    pub truth: Vec<(f64, [f64; 3])>,
+    /// The estimate's position σ (north, east, down; m) at each
+    /// `/filter/state` record: `t, σ`.
+    pub sigma_p: Vec<(f64, [f64; 3])>,
+    /// The GNSS single-point fixes in the estimate's NED frame (north,
+    /// east), placed through the world origin that `/location` and
+    /// `/filter/state` give together ([`Data::place_fixes`]).
+    pub fixes_ne: Vec<(f64, f64)>,
+    /// `/gnss/fix` as ECEF (m), until the origin is known.
+    fixes_ecef: Vec<nalgebra::Vector3<f64>>,
+    /// The world origin (ECEF, m) and its NED rotation, from the first
+    /// `/location` record at the time of a `/filter/state` record.
+    origin: Option<cmsckf_models::geodesy::NedFrame>,
     pub kf_sigma: BTreeMap<u64, Vec<(f64, f64)>>,
     pub vision_t: Vec<f64>,
     pub gnss_t: Vec<f64>,
@@ -75,7 +90,12 @@ impl LogReader {
                 }
             }
             "/output/vision_position_estimate" => s.estimates += 1,
-            "/input/mavlink/autopilot" => d.push_autopilot(&v),
+            "/input/mavlink/autopilot" => {
+                d.push_autopilot(t, &v);
+                d.push_truth(t, &v);
+            }
+            "/location" => d.push_location(t, &v),
+            "/gnss/fix" => d.push_fix(&v),
             "/diagnostics" => {
                 // The last record holds every counter at its latest.
                 if let Some(c) = v["counters"].as_object() {
@@ -97,6 +117,7 @@ impl LogReader {
         } = self;
         s.duration_s = timeline.duration_s();
         d.keep_plausible(timeline.plausible_spans_s().as_deref());
+        d.place_fixes();
         for (k, n) in &counts {
             if k.starts_with("/input/") && s.duration_s > 0.0 {
                 s.input_rates_hz.insert(k.clone(), *n as f64 / s.duration_s);
@@ -141,6 +162,9 @@ impl Data {
         }
         let ok = |t: f64| plausible(spans, t);
         self.track.retain(|p| ok(p.0));
+        self.sigma_p.retain(|p| ok(p.0));
+        self.autopilot.retain(|p| ok(p.0));
+        self.truth.retain(|p| ok(p.0));
         for v in self.kf_sigma.values_mut() {
             v.retain(|p| ok(p.0));
         }
@@ -151,7 +175,8 @@ impl Data {
         self.nis.retain(|p| ok(p.0));
     }
 
-    /// A `/filter/state` record: the pose (NaN where a value is missing).
+    /// A `/filter/state` record: the pose (NaN where a value is missing)
+    /// and the position σ (from the covariance's diagonal, `p` at 6..9).
     fn push_state(&mut self, t: f64, v: &Value) {
         let p = &v["p_B_in_W"];
         let q = &v["q_W_B_wxyz"];
@@ -163,6 +188,10 @@ impl Data {
             [f(&q[0]), f(&q[1]), f(&q[2]), f(&q[3])],
             f(&p[2]),
         ));
+        let c = &v["cov_diag"];
+        if c.is_array() {
+            self.sigma_p.push((t, [6, 7, 8].map(|k| f(&c[k]).max(0.0).sqrt())));
+        }
     }
 
     /// A `/filter/keyframes` record: the keyframe's north and east.
@@ -183,12 +212,85 @@ impl Data {
         }
     }
 
-    /// An autopilot record with a local position: its north and east.
-    fn push_autopilot(&mut self, v: &Value) {
+    /// An autopilot record with a local position: its north, east, down.
+    fn push_autopilot(&mut self, t: f64, v: &Value) {
         if let Some(p) = v["local_position"]["p_ned_m"].as_array() {
-            if let (Some(n), Some(e)) = (p[0].as_f64(), p[1].as_f64()) {
-                self.autopilot.push((n, e));
+            if let (Some(n), Some(e), Some(d)) = (p[0].as_f64(), p[1].as_f64(), p[2].as_f64()) {
+                self.autopilot.push((t, [n, e, d]));
             }
         }
+    }
+
+    /// A `SIM_STATE` record placed in our world frame: the truth.
+    fn push_truth(&mut self, t: f64, v: &Value) {
+        if let Some(p) = v["sim_state"]["p_ned_m"].as_array() {
+            if let (Some(n), Some(e), Some(d)) = (p[0].as_f64(), p[1].as_f64(), p[2].as_f64()) {
+                self.truth.push((t, [n, e, d]));
+            }
+        }
+    }
+
+    /// The reference the error is measured against: the simulator's truth
+    /// when the log has it, else the autopilot's local position; with its
+    /// name.
+    pub fn reference(&self) -> (&[(f64, [f64; 3])], &'static str) {
+        if self.truth.is_empty() {
+            (&self.autopilot, "the autopilot's local position")
+        } else {
+            (&self.truth, "the truth (SIM_STATE)")
+        }
+    }
+
+    /// A `/location` record: the fused estimate through the world origin
+    /// `o` (`r = o + R_en(o) p`). Paired with the `/filter/state` record of
+    /// the same time, it gives `o = r − R_en(o) p`, solved by fixed point
+    /// (`R_en` at `r` first; twice is exact to well under a millimetre for
+    /// a flight of kilometres).
+    fn push_location(&mut self, t: f64, v: &Value) {
+        use cmsckf_models::geodesy::{llh_to_ecef, NedFrame};
+        if self.origin.is_some() {
+            return;
+        }
+        let Some(&(ts, n, e, _, d)) = self.track.last() else {
+            return;
+        };
+        let (Some(lat), Some(lon), Some(h)) = (v["latitude"].as_f64(), v["longitude"].as_f64(), v["altitude"].as_f64())
+        else {
+            return;
+        };
+        let p = nalgebra::Vector3::new(n, e, d);
+        if ts != t || !p.iter().all(|x| x.is_finite()) {
+            return;
+        }
+        let r = llh_to_ecef(lat.to_radians(), lon.to_radians(), h);
+        let mut frame = NedFrame::from_ecef(&r);
+        for _ in 0..2 {
+            frame = NedFrame::from_ecef(&(r - frame.R_ecef_ned * p));
+        }
+        self.origin = Some(frame);
+    }
+
+    /// A `/gnss/fix` record, kept as ECEF until the origin is known.
+    fn push_fix(&mut self, v: &Value) {
+        use cmsckf_models::geodesy::llh_to_ecef;
+        if let (Some(lat), Some(lon), Some(h)) =
+            (v["latitude"].as_f64(), v["longitude"].as_f64(), v["altitude"].as_f64())
+        {
+            self.fixes_ecef.push(llh_to_ecef(lat.to_radians(), lon.to_radians(), h));
+        }
+    }
+
+    /// The fixes in the estimate's NED frame, once the origin is known.
+    fn place_fixes(&mut self) {
+        let Some(o) = &self.origin else { return };
+        self.fixes_ne = self
+            .fixes_ecef
+            .iter()
+            .map(|r| {
+                let p = o.R_ecef_ned.transpose() * (r - o.origin_ecef);
+                (p.x, p.y)
+            })
+            .filter(|(n, e)| n.is_finite() && e.is_finite())
+            .collect();
     }
 }

@@ -140,10 +140,11 @@ pub fn fusion_ctx() -> (
     (ctx, out_rx)
 }
 
-/// Makes sure `python3` can import each of `modules` (PyPI names equal to
-/// the import names here: pymavlink, mcap, jsonschema), installing the
+/// Makes sure `python3` can import each of `modules`, installing the
 /// missing ones with pip, so that `cargo test --workspace` needs no set-up
-/// of its own on a fresh machine. Once per test binary.
+/// of its own on a fresh machine. Once per test binary. An entry is the
+/// import name, or `import=pypi` where the two differ
+/// (`foxglove=foxglove-sdk`).
 pub fn python_modules(modules: &[&str]) {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
@@ -153,7 +154,15 @@ pub fn python_modules(modules: &[&str]) {
             .output()
             .is_ok_and(|o| o.status.success())
     };
-    let missing: Vec<&str> = modules.iter().copied().filter(|m| !importable(m)).collect();
+    fn split(m: &str) -> (&str, &str) {
+        m.split_once('=').unwrap_or((m, m))
+    }
+    let missing: Vec<&str> = modules
+        .iter()
+        .map(|m| split(m))
+        .filter(|(m, _)| !importable(m))
+        .map(|(_, pypi)| pypi)
+        .collect();
     if missing.is_empty() {
         return;
     }

@@ -118,6 +118,30 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             v_acc_m: if d.v_acc > 0 { d.v_acc as f64 * 1e-3 } else { f64::NAN },
         },
         M::GPS_RAW_INT(_) => Inbound::Other("GPS_RAW_INT"),
+        // The MAVLink 2 extensions lat_int/lon_int (degE7, about 1 cm) when
+        // set; the f32 degrees (about 0.3 m) otherwise.
+        M::SIM_STATE(d) => {
+            let (lat_deg, lon_deg) = if d.lat_int != 0 || d.lon_int != 0 {
+                (d.lat_int as f64 * 1e-7, d.lon_int as f64 * 1e-7)
+            } else {
+                (d.lat as f64, d.lon as f64)
+            };
+            let q = [d.q1, d.q2, d.q3, d.q4].map(f64::from);
+            let ok = lat_deg.abs() <= 90.0
+                && lon_deg.abs() <= 180.0
+                && (d.alt as f64).is_finite()
+                && q.iter().all(|x| x.is_finite());
+            if !ok {
+                return Err(LinkError::Rejected("sim_state_out_of_range"));
+            }
+            Inbound::SimState {
+                lat_deg,
+                lon_deg,
+                alt_m: d.alt as f64,
+                q_wxyz: q,
+                v_ned_mps: finite3(Vector3::new(d.vn as f64, d.ve as f64, d.vd as f64))?,
+            }
+        }
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
             unix_us: d.time_unix_usec,
             boot_ms: d.time_boot_ms,

@@ -1,0 +1,98 @@
+//! The review as a person reads it in a terminal: the rows of the HTML
+//! page's tables, aligned in two columns, rather than the JSON that scripts
+//! get with `--json`. One list of rows serves both.
+
+use std::fmt::Write as _;
+
+use super::ReviewSummary;
+
+impl ReviewSummary {
+    /// The summary table: `(what, value with its unit)`.
+    pub fn rows(&self) -> Vec<(String, String)> {
+        let s = self;
+        [
+            ("duration", format!("{:.1} s", s.duration_s)),
+            ("messages", s.messages.to_string()),
+            (
+                "complete",
+                if s.truncated {
+                    "no: the writer was killed; read to its last whole chunk (cmsckf log recover repairs the file)"
+                        .into()
+                } else {
+                    "yes".into()
+                },
+            ),
+            ("estimates sent", s.estimates.to_string()),
+            ("vision updates", s.vision_updates.to_string()),
+            ("tracks used", s.tracks_used.to_string()),
+            ("NIS / dof, mean", format!("{:.2}", s.nis_per_dof_mean)),
+            ("NIS inside its 95 % χ² band", format!("{:.1} %", 100.0 * s.nis_in_95)),
+            (
+                "update time p50 / p99 / max",
+                format!(
+                    "{:.0} / {:.0} / {:.0} µs",
+                    s.update_us_p50, s.update_us_p99, s.update_us_max
+                ),
+            ),
+            ("GNSS updates", s.gnss_updates.to_string()),
+            ("global updates", s.global_updates.to_string()),
+            ("promotions", s.promotions.to_string()),
+            ("keyframes", s.keyframes.to_string()),
+            (
+                "position error, RMS (against the truth, else the autopilot's position)",
+                s.position_error_rms_m
+                    .map_or_else(|| "no reference in the log".into(), |v| format!("{v:.3} m")),
+            ),
+            (
+                "samples inside ±3σ on every axis",
+                s.position_error_within_3sigma
+                    .map_or_else(|| "-".into(), |v| format!("{:.1} %", 100.0 * v)),
+            ),
+        ]
+        .map(|(k, v)| (k.to_string(), v))
+        .into_iter()
+        .collect()
+    }
+
+    /// Each input topic's rate.
+    pub fn rate_rows(&self) -> Vec<(String, String)> {
+        self.input_rates_hz
+            .iter()
+            .map(|(k, v)| (k.clone(), format!("{v:.1} Hz")))
+            .collect()
+    }
+
+    /// Every rejection by reason.
+    pub fn rejected_rows(&self) -> Vec<(String, String)> {
+        self.rejected.iter().map(|(k, v)| (k.clone(), v.to_string())).collect()
+    }
+
+    /// Every counter at the end of the log.
+    pub fn counter_rows(&self) -> Vec<(String, String)> {
+        self.counters.iter().map(|(k, v)| (k.clone(), v.to_string())).collect()
+    }
+
+    /// The whole review as aligned text: the summary, the input rates, the
+    /// rejections and the counters.
+    pub fn text(&self) -> String {
+        let mut out = String::new();
+        for (title, rows) in [
+            ("Summary", self.rows()),
+            ("Input rates", self.rate_rows()),
+            ("Rejections, by reason", self.rejected_rows()),
+            ("Every counter at the end of the log", self.counter_rows()),
+        ] {
+            let _ = writeln!(out, "{title}");
+            if rows.is_empty() {
+                let _ = writeln!(out, "  (none)");
+            }
+            let w = rows.iter().map(|r| r.0.chars().count()).max().unwrap_or(0);
+            for (k, v) in &rows {
+                let pad = w - k.chars().count();
+                let _ = writeln!(out, "  {k}{}  {v}", " ".repeat(pad));
+            }
+            out.push('\n');
+        }
+        out
+    }
+}
