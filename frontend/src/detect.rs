@@ -1,0 +1,251 @@
+//! Corner detection over a grid: why this exists is that a filter needs its
+//! features spread across the image (clustered ones constrain the pose
+//! poorly), and a tracker loses features every frame, so new ones are taken
+//! where the image has few, never on top of one already tracked.
+//!
+//! The score is Shi and Tomasi's: the least eigenvalue of the structure
+//! tensor `G = Σ_w ∇I ∇Iᵀ` over a `(2r+1)²` window, whose three sums come
+//! from integral images (`O(1)` a pixel), computed only in the cells that
+//! hold fewer than their share of features. The image is cut into cells,
+//! taken in turns, one corner a cell a round, each cell's best first: local
+//! maxima above `quality × the image's best`, at least `min_distance_px`
+//! from every feature kept or tracked.
+
+use crate::image::Gray;
+
+/// The detector's settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DetectParams {
+    /// Grid cells across and down.
+    pub cells: (usize, usize),
+    /// Shortest distance between two features (px).
+    pub min_distance_px: f32,
+    /// A corner's least eigenvalue must reach this share of the image's
+    /// strongest.
+    pub quality: f32,
+    /// Half the structure tensor's window side (px).
+    pub half_window: usize,
+    /// Pixels at the border never used (the tracker's window must fit).
+    pub border_px: usize,
+}
+
+impl Default for DetectParams {
+    fn default() -> Self {
+        Self {
+            cells: (8, 6),
+            min_distance_px: 15.0,
+            quality: 0.01,
+            half_window: 2,
+            border_px: 10,
+        }
+    }
+}
+
+/// Corners kept per cell before the distance check, best first.
+const CANDIDATES_PER_CELL: usize = 24;
+
+/// Reused buffers: a cell's integral images of the gradient products, the
+/// score map and the candidates.
+#[derive(Clone, Debug, Default)]
+pub struct Detector {
+    sxx: Vec<f32>,
+    sxy: Vec<f32>,
+    syy: Vec<f32>,
+    score: Vec<f32>,
+    candidates: Vec<(f32, u32, u32)>,
+    cell_start: Vec<usize>,
+    cursor: Vec<usize>,
+    count: Vec<usize>,
+}
+
+impl Detector {
+    /// Up to `wanted` new corners of `img`, none within `min_distance_px` of
+    /// `existing` or of each other. Only the cells holding fewer than their
+    /// share of features (`wanted + existing` over the cells) are searched,
+    /// so a frame that lost a few tracks costs a few cells.
+    pub fn detect(&mut self, img: &Gray, existing: &[[f32; 2]], wanted: usize, prm: &DetectParams) -> Vec<[f32; 2]> {
+        let (w, h) = (img.width, img.height);
+        let bd = prm.border_px.max(prm.half_window + 2);
+        if wanted == 0 || w < 2 * bd + 3 || h < 2 * bd + 3 {
+            return Vec::new();
+        }
+        let (cols, rows) = prm.cells;
+        let n_cells = cols * rows;
+        let cell_of = |p: &[f32; 2]| {
+            let cx = ((p[0].max(0.0) as usize) * cols / w).min(cols - 1);
+            let cy = ((p[1].max(0.0) as usize) * rows / h).min(rows - 1);
+            cy * cols + cx
+        };
+        self.count.clear();
+        self.count.resize(n_cells, 0);
+        for p in existing {
+            self.count[cell_of(p)] += 1;
+        }
+        let share = (wanted + existing.len()).div_ceil(n_cells).max(1);
+        self.score.resize(w * h, 0.0);
+        // Each needy cell's best local maxima, best first.
+        self.candidates.clear();
+        self.cell_start.clear();
+        let mut best = 0.0f32;
+        for cy in 0..rows {
+            for cx in 0..cols {
+                self.cell_start.push(self.candidates.len());
+                if self.count[cy * cols + cx] >= share {
+                    continue;
+                }
+                let (x0, x1) = (bd.max(cx * w / cols), (w - bd).min((cx + 1) * w / cols));
+                let (y0, y1) = (bd.max(cy * h / rows), (h - bd).min((cy + 1) * h / rows));
+                if x0 >= x1 || y0 >= y1 {
+                    continue;
+                }
+                self.region_scores(img, (x0, x1), (y0, y1), prm.half_window);
+                let from = self.candidates.len();
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        let s = self.score[y * w + x];
+                        if s > 0.0 && is_local_max(&self.score, w, (x0, x1), (y0, y1), x, y) {
+                            self.candidates.push((s, x as u32, y as u32));
+                        }
+                    }
+                }
+                let cell = &mut self.candidates[from..];
+                if cell.len() > CANDIDATES_PER_CELL {
+                    cell.select_nth_unstable_by(CANDIDATES_PER_CELL, |a, b| b.0.total_cmp(&a.0));
+                }
+                let keep = cell.len().min(CANDIDATES_PER_CELL);
+                cell[..keep].sort_by(|a, b| b.0.total_cmp(&a.0));
+                best = best.max(cell.first().map_or(0.0, |c| c.0));
+                self.candidates.truncate(from + keep);
+            }
+        }
+        self.cell_start.push(self.candidates.len());
+        if best <= 0.0 {
+            return Vec::new();
+        }
+        let threshold = prm.quality * best;
+        let md2 = prm.min_distance_px.max(1.0).powi(2);
+        // Round robin over the cells, one corner a cell a round, so the
+        // corners spread before any cell gets a second.
+        let mut kept: Vec<[f32; 2]> = Vec::new();
+        self.cursor.clear();
+        self.cursor.extend_from_slice(&self.cell_start[..n_cells]);
+        let mut progress = true;
+        while kept.len() < wanted && progress {
+            progress = false;
+            for c in 0..n_cells {
+                if kept.len() == wanted {
+                    break;
+                }
+                if self.count[c] >= share {
+                    continue;
+                }
+                while self.cursor[c] < self.cell_start[c + 1] {
+                    let (sc, x, y) = self.candidates[self.cursor[c]];
+                    self.cursor[c] += 1;
+                    if sc < threshold {
+                        self.cursor[c] = self.cell_start[c + 1];
+                        break;
+                    }
+                    let p = [x as f32, y as f32];
+                    let near = existing.iter().chain(kept.iter()).any(|q| {
+                        let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+                        dx * dx + dy * dy < md2
+                    });
+                    if !near {
+                        kept.push(p);
+                        self.count[c] += 1;
+                        progress = true;
+                        break;
+                    }
+                }
+            }
+        }
+        kept
+    }
+
+    /// The Shi–Tomasi score of every pixel of the region `xs × ys`, from
+    /// integral images of the gradient products over the region grown by
+    /// the window (`O(1)` a pixel).
+    fn region_scores(&mut self, img: &Gray, xs: (usize, usize), ys: (usize, usize), r: usize) {
+        let w = img.width;
+        // The integral images cover [gx0, gx1) × [gy0, gy1).
+        let (gx0, gx1, gy0, gy1) = (xs.0 - r, xs.1 + r, ys.0 - r, ys.1 + r);
+        let iw = gx1 - gx0 + 1;
+        let n = iw * (gy1 - gy0 + 1);
+        for v in [&mut self.sxx, &mut self.sxy, &mut self.syy] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        for y in gy0..gy1 {
+            let (mut rxx, mut rxy, mut ryy) = (0.0f32, 0.0f32, 0.0f32);
+            for x in gx0..gx1 {
+                let ix = 0.5 * (img.px[y * w + x + 1] - img.px[y * w + x - 1]);
+                let iy = 0.5 * (img.px[(y + 1) * w + x] - img.px[(y - 1) * w + x]);
+                rxx += ix * ix;
+                rxy += ix * iy;
+                ryy += iy * iy;
+                let k = (y - gy0 + 1) * iw + (x - gx0 + 1);
+                self.sxx[k] = self.sxx[k - iw] + rxx;
+                self.sxy[k] = self.sxy[k - iw] + rxy;
+                self.syy[k] = self.syy[k - iw] + ryy;
+            }
+        }
+        let box_sum = |s: &[f32], x: usize, y: usize| {
+            // The window centred at (x, y) in integral coordinates.
+            let (x0, y0) = (x - gx0 - r, y - gy0 - r);
+            let (x1, y1) = (x0 + 2 * r + 1, y0 + 2 * r + 1);
+            s[y1 * iw + x1] - s[y0 * iw + x1] - s[y1 * iw + x0] + s[y0 * iw + x0]
+        };
+        for y in ys.0..ys.1 {
+            for x in xs.0..xs.1 {
+                let a = box_sum(&self.sxx, x, y);
+                let b = box_sum(&self.sxy, x, y);
+                let c = box_sum(&self.syy, x, y);
+                let tr = 0.5 * (a + c);
+                self.score[y * w + x] = tr - (tr * tr - (a * c - b * b)).max(0.0).sqrt();
+            }
+        }
+    }
+}
+
+/// Whether the score at `(x, y)` is the largest of its 3×3 neighbourhood
+/// within the region `xs × ys` (whose scores are current).
+fn is_local_max(s: &[f32], w: usize, xs: (usize, usize), ys: (usize, usize), x: usize, y: usize) -> bool {
+    let v = s[y * w + x];
+    for yy in y.saturating_sub(1).max(ys.0)..(y + 2).min(ys.1) {
+        for xx in x.saturating_sub(1).max(xs.0)..(x + 2).min(xs.1) {
+            if (xx, yy) != (x, y) && s[yy * w + xx] > v {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::textured;
+
+    #[test]
+    fn corners_are_spread_and_apart() {
+        let img = textured(752, 480, 3, 0.0, 0.0);
+        let prm = DetectParams::default();
+        let mut d = Detector::default();
+        let existing = [[100.0f32, 100.0f32]];
+        let pts = d.detect(&img, &existing, 150, &prm);
+        assert!(pts.len() >= 120, "{} corners", pts.len());
+        for (i, p) in pts.iter().enumerate() {
+            for q in pts[i + 1..].iter().chain(existing.iter()) {
+                let dist = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt();
+                assert!(dist >= prm.min_distance_px, "{p:?} {q:?}");
+            }
+        }
+        // Every one of the 48 cells gets some.
+        let mut cells = std::collections::BTreeSet::new();
+        for p in &pts {
+            cells.insert(((p[0] as usize) * 8 / 752, (p[1] as usize) * 6 / 480));
+        }
+        assert!(cells.len() >= 44, "{} cells", cells.len());
+    }
+}

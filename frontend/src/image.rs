@@ -1,0 +1,151 @@
+//! Grey images and their pyramids: why this exists is that every stage of
+//! the tracker (corner scores, Lucas–Kanade, the forward–backward check)
+//! reads intensities at sub-pixel positions on several scales, and one small
+//! type with bilinear sampling serves them all without an image library.
+//! Buffers are reused from frame to frame, so tracking allocates nothing per
+//! frame once the first frame has sized them.
+
+/// A grey image, intensities as `f32` in `[0, 255]`, row-major.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gray {
+    pub width: usize,
+    pub height: usize,
+    pub px: Vec<f32>,
+}
+
+impl Gray {
+    /// A `width × height` image of zeros.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            px: vec![0.0; width * height],
+        }
+    }
+
+    /// From 8-bit grey pixels (`bytes.len() == width * height`).
+    pub fn from_u8(width: usize, height: usize, bytes: &[u8]) -> Option<Self> {
+        (bytes.len() == width * height).then(|| Self {
+            width,
+            height,
+            px: bytes.iter().map(|&b| f32::from(b)).collect(),
+        })
+    }
+
+    /// The pixel at integer `(x, y)`, clamped to the border.
+    #[inline]
+    pub fn at(&self, x: isize, y: isize) -> f32 {
+        let xc = x.clamp(0, self.width as isize - 1) as usize;
+        let yc = y.clamp(0, self.height as isize - 1) as usize;
+        self.px[yc * self.width + xc]
+    }
+
+    /// Bilinear sample at `(x, y)` (pixel centres at integers), clamped.
+    #[inline]
+    pub fn sample(&self, x: f32, y: f32) -> f32 {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (xi, yi) = (x0 as isize, y0 as isize);
+        let a = self.at(xi, yi);
+        let b = self.at(xi + 1, yi);
+        let c = self.at(xi, yi + 1);
+        let d = self.at(xi + 1, yi + 1);
+        (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+    }
+
+    /// Whether `(x, y)` lies at least `margin` pixels inside the image.
+    #[inline]
+    pub fn inside(&self, x: f32, y: f32, margin: f32) -> bool {
+        x >= margin && y >= margin && x <= self.width as f32 - 1.0 - margin && y <= self.height as f32 - 1.0 - margin
+    }
+
+    /// Bilinear samples of the `(2r+1)²` window centred at `(x, y)`, row by
+    /// row, into `out`. Every sample of a window shares the same fractional
+    /// offset, so the four weights are computed once; the window (plus one
+    /// pixel) must lie inside the image ([`Gray::inside`] with margin `r + 1`).
+    pub fn window(&self, x: f32, y: f32, r: usize, out: &mut [f32]) {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+        let side = 2 * r + 1;
+        let (xs, ys) = (x0 as usize - r, y0 as usize - r);
+        for j in 0..side {
+            let row0 = &self.px[(ys + j) * self.width + xs..];
+            let row1 = &self.px[(ys + j + 1) * self.width + xs..];
+            let o = &mut out[j * side..(j + 1) * side];
+            for i in 0..side {
+                o[i] = w00 * row0[i] + w10 * row0[i + 1] + w01 * row1[i] + w11 * row1[i + 1];
+            }
+        }
+    }
+
+    /// Writes the image halved in each direction into `out`: each output
+    /// pixel the mean of a 2×2 block (a box filter, enough against
+    /// aliasing for Lucas–Kanade's smooth windows).
+    pub fn half_into(&self, out: &mut Gray) {
+        let (w, h) = (self.width / 2, self.height / 2);
+        out.width = w;
+        out.height = h;
+        out.px.resize(w * h, 0.0);
+        for y in 0..h {
+            let r0 = &self.px[2 * y * self.width..];
+            let r1 = &self.px[(2 * y + 1) * self.width..];
+            for x in 0..w {
+                out.px[y * w + x] = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
+            }
+        }
+    }
+}
+
+/// An image pyramid: level 0 the image, each next level half the size.
+#[derive(Clone, Debug, Default)]
+pub struct Pyramid {
+    pub levels: Vec<Gray>,
+}
+
+impl Pyramid {
+    /// Rebuilds the pyramid of `image` with `n_levels` levels (at least 1),
+    /// reusing this pyramid's buffers.
+    pub fn rebuild(&mut self, image: &Gray, n_levels: usize) {
+        let n = n_levels.max(1);
+        self.levels.resize_with(n, Gray::default);
+        self.levels[0].width = image.width;
+        self.levels[0].height = image.height;
+        self.levels[0].px.clear();
+        self.levels[0].px.extend_from_slice(&image.px);
+        for l in 1..n {
+            let (lower, upper) = self.levels.split_at_mut(l);
+            lower[l - 1].half_into(&mut upper[0]);
+        }
+    }
+
+    /// The pyramid of `image`.
+    pub fn of(image: &Gray, n_levels: usize) -> Self {
+        let mut p = Self::default();
+        p.rebuild(image, n_levels);
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bilinear_sampling_and_halving() {
+        let mut g = Gray::new(4, 4);
+        for y in 0..4 {
+            for x in 0..4 {
+                g.px[y * 4 + x] = (10 * x + y) as f32;
+            }
+        }
+        // A linear image is sampled exactly.
+        assert!((g.sample(1.5, 2.25) - 17.25).abs() < 1e-5);
+        assert_eq!(g.sample(-3.0, 0.0), 0.0);
+        let p = Pyramid::of(&g, 2);
+        assert_eq!((p.levels[1].width, p.levels[1].height), (2, 2));
+        // Mean of (0,0),(1,0),(0,1),(1,1): (0 + 10 + 1 + 11) / 4.
+        assert!((p.levels[1].px[0] - 5.5).abs() < 1e-6);
+        assert!(Gray::from_u8(2, 2, &[1, 2, 3]).is_none());
+    }
+}

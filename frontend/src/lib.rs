@@ -1,0 +1,24 @@
+//! `cmsckf-frontend`: camera images in, feature tracks out on the daemon's
+//! socket. Why it exists: the daemon fuses feature tracks, and a drone with
+//! a real camera needs something that makes them. Pure Rust, no system
+//! libraries, so the README's two commands still set everything up.
+//!
+//! - [`image`]: grey images and pyramids, bilinear sampling;
+//! - [`detect`]: Shi–Tomasi corners over a grid, apart from tracked ones;
+//! - [`klt`]: pyramidal Lucas–Kanade with the forward–backward check;
+//! - [`ransac`]: outliers off the epipolar geometry (8-point, Sampson);
+//! - [`tracker`]: the per-frame pipeline with stable landmark ids;
+//! - [`euroc`]: EuRoC/ASL dataset folders; [`output`]: the socket's lines;
+//! - [`synthetic`]: images with known motion, for tests and benchmarks.
+
+// Names carry their frames (`R_W_C`, `p_C_in_W`), as everywhere here.
+#![allow(non_snake_case)]
+
+pub mod detect;
+pub mod euroc;
+pub mod image;
+pub mod klt;
+pub mod output;
+pub mod ransac;
+pub mod synthetic;
+pub mod tracker;
