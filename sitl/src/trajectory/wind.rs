@@ -48,7 +48,7 @@ impl WindConfig {
     /// Calm air: no gusts.
     pub fn calm() -> Self {
         Self {
-            gust_accel_mps2: 0.3,
+            gust_accel_mps2: 0.0,
             ..Self::default()
         }
     }
