@@ -8,6 +8,7 @@
 //! - [`klt`]: pyramidal Lucas–Kanade with the forward–backward check;
 //! - [`ransac`]: outliers off the epipolar geometry (8-point, Sampson);
 //! - [`tracker`]: the per-frame pipeline with stable landmark ids;
+//! - [`reid`]: old landmarks re-identified by steered BRIEF on keyframes;
 //! - [`euroc`]: EuRoC/ASL dataset folders; [`output`]: the socket's lines;
 //! - [`synthetic`]: images with known motion, for tests and benchmarks.
 
@@ -20,5 +21,6 @@ pub mod image;
 pub mod klt;
 pub mod output;
 pub mod ransac;
+pub mod reid;
 pub mod synthetic;
 pub mod tracker;

@@ -47,6 +47,9 @@ struct Args {
     /// Shortest distance between two features (px).
     #[arg(long, default_value_t = 15.0)]
     min_distance_px: f32,
+    /// Do not re-identify old landmarks.
+    #[arg(long)]
+    no_reid: bool,
 }
 
 fn camera(path: &Option<PathBuf>) -> anyhow::Result<Option<Camera>> {
@@ -91,6 +94,9 @@ fn main() -> anyhow::Result<()> {
         ..TrackerParams::default()
     };
     prm.detect.min_distance_px = args.min_distance_px;
+    if args.no_reid {
+        prm.reid = None;
+    }
     let mut tracker = Tracker::new(prm, cam);
     let (start, t0_ns) = (Instant::now(), frames[0].t_ns);
     let mut busy = Duration::ZERO;
@@ -110,12 +116,13 @@ fn main() -> anyhow::Result<()> {
     sink.flush()?;
     let s = tracker.stats;
     eprintln!(
-        "{} frames, {:.2} ms a frame tracking; features detected {}, lost by Lucas–Kanade {}, by RANSAC {}",
+        "{} frames, {:.2} ms a frame tracking; features detected {}, lost by Lucas–Kanade {}, by RANSAC {}, re-identified {}",
         frames.len(),
         busy.as_secs_f64() * 1e3 / frames.len() as f64,
         s.detected,
         s.lost_klt,
-        s.lost_ransac
+        s.lost_ransac,
+        s.reidentified
     );
     Ok(())
 }

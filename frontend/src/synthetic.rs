@@ -34,7 +34,18 @@ impl SplitMix {
 pub struct Texture {
     waves: Vec<(f64, f64, f64, f64)>,
     blobs: Vec<(f64, f64, f64, f64)>,
+    /// Rectangles `(brightness, x0, y0, x1, y1)`: sharp corners, each a
+    /// unique point (a blob's corner response is a ring).
+    rects: Vec<(f64, f64, f64, f64, f64)>,
+    /// The blobs reaching each cell of a `CELL`-unit grid (from `origin`).
+    grid: Vec<Vec<u32>>,
+    rect_grid: Vec<Vec<u32>>,
+    grid_w: usize,
+    origin: f64,
 }
+
+/// The blob grid's cell side (texture units).
+const CELL: f64 = 32.0;
 
 impl Texture {
     /// A texture over about `extent_px` square, drawn from `seed`.
@@ -62,8 +73,51 @@ impl Texture {
                     2.0 + 4.0 * r.unit(),
                 )
             })
-            .collect();
-        Self { waves, blobs }
+            .collect::<Vec<_>>();
+        let rects = (0..((extent_px * extent_px) / 600.0) as usize)
+            .map(|_| {
+                let (x0, y0) = (extent_px * (2.0 * r.unit() - 0.5), extent_px * (2.0 * r.unit() - 0.5));
+                let sign = if r.unit() < 0.5 { -1.0 } else { 1.0 };
+                (
+                    sign * (25.0 + 40.0 * r.unit()),
+                    x0,
+                    y0,
+                    x0 + 4.0 + 10.0 * r.unit(),
+                    y0 + 4.0 + 10.0 * r.unit(),
+                )
+            })
+            .collect::<Vec<_>>();
+        // Blobs reach 5 s; the grid covers where they can lie.
+        let origin = -0.5 * extent_px - 40.0;
+        let grid_w = ((2.0 * extent_px + 80.0) / CELL).ceil() as usize + 1;
+        let mut grid = vec![Vec::new(); grid_w * grid_w];
+        for (i, &(_, cx, cy, s)) in blobs.iter().enumerate() {
+            let reach = 5.0 * s;
+            let cell = |v: f64| (((v - origin) / CELL).floor().max(0.0) as usize).min(grid_w - 1);
+            for gy in cell(cy - reach)..=cell(cy + reach) {
+                for gx in cell(cx - reach)..=cell(cx + reach) {
+                    grid[gy * grid_w + gx].push(i as u32);
+                }
+            }
+        }
+        let mut rect_grid = vec![Vec::new(); grid_w * grid_w];
+        for (i, &(_, x0, y0, x1, y1)) in rects.iter().enumerate() {
+            let cell = |v: f64| (((v - origin) / CELL).floor().max(0.0) as usize).min(grid_w - 1);
+            for gy in cell(y0 - 2.0)..=cell(y1 + 2.0) {
+                for gx in cell(x0 - 2.0)..=cell(x1 + 2.0) {
+                    rect_grid[gy * grid_w + gx].push(i as u32);
+                }
+            }
+        }
+        Self {
+            waves,
+            blobs,
+            rects,
+            rect_grid,
+            grid,
+            grid_w,
+            origin,
+        }
     }
 
     /// The intensity at texture point `(x, y)`.
@@ -72,11 +126,28 @@ impl Texture {
         for &(a, kx, ky, ph) in &self.waves {
             v += a * (kx * x + ky * y + ph).sin();
         }
-        for &(b, cx, cy, s) in &self.blobs {
+        let (gx, gy) = ((x - self.origin) / CELL, (y - self.origin) / CELL);
+        if gx < 0.0 || gy < 0.0 || gx >= self.grid_w as f64 || gy >= self.grid_w as f64 {
+            return v.clamp(0.0, 255.0);
+        }
+        let cell = gy as usize * self.grid_w + gx as usize;
+        for &i in &self.grid[cell] {
+            let (b, cx, cy, s) = self.blobs[i as usize];
             let d2 = (x - cx).powi(2) + (y - cy).powi(2);
             if d2 < 25.0 * s * s {
                 v += b * (-0.5 * d2 / (s * s)).exp();
             }
+        }
+        // Edges blurred over three texture units (a smoothstep), as optics
+        // blur them, so the images are band-limited and need no anti-aliasing.
+        let ramp = |t: f64| {
+            let u = (t / 3.0 + 0.5).clamp(0.0, 1.0);
+            u * u * (3.0 - 2.0 * u)
+        };
+        for &i in &self.rect_grid[cell] {
+            let (b, x0, y0, x1, y1) = self.rects[i as usize];
+            let inside = ramp(x - x0) * ramp(x1 - x) * ramp(y - y0) * ramp(y1 - y);
+            v += b * inside;
         }
         v.clamp(0.0, 255.0)
     }
@@ -110,24 +181,41 @@ pub fn plane_point(cam: &Camera, R_W_C: &Matrix3<f64>, p_C_in_W: &Vector3<f64>, 
     (t > 0.0).then(|| [p_C_in_W.x + t * d.x, p_C_in_W.y + t * d.y])
 }
 
+/// Every pixel's undistorted normalised coordinates (row-major; `None`
+/// where the model has no inverse): computed once per camera, so rendering
+/// many frames costs a ray–plane intersection a pixel.
+pub fn pixel_rays(cam: &Camera) -> Vec<Option<[f64; 2]>> {
+    let (w, h) = (cam.width_px as usize, cam.height_px as usize);
+    (0..w * h)
+        .map(|k| {
+            cam.undistort(&Vector2::new((k % w) as f64, (k / w) as f64))
+                .map(|x| [x.x, x.y])
+        })
+        .collect()
+}
+
 impl Texture {
     /// The image `cam` takes of the textured ground plane from `R_W_C`,
     /// `p_C_in_W` ([`plane_point`]): physically consistent with the camera
     /// model, distortion included, so a tracker's epipolar check applies.
+    /// `rays` is [`pixel_rays`] of the camera.
     pub fn render_plane(
         &self,
         cam: &Camera,
+        rays: &[Option<[f64; 2]>],
         R_W_C: &Matrix3<f64>,
         p_C_in_W: &Vector3<f64>,
         px_per_m: f64,
     ) -> crate::image::Gray {
         let (w, h) = (cam.width_px as usize, cam.height_px as usize);
         let mut g = crate::image::Gray::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                if let Some(p) = plane_point(cam, R_W_C, p_C_in_W, [x as f64, y as f64]) {
-                    g.px[y * w + x] = self.at(p[0] * px_per_m, p[1] * px_per_m) as f32;
-                }
+        for (k, ray) in rays.iter().enumerate().take(w * h) {
+            let Some(xn) = ray else { continue };
+            let d = R_W_C * Vector3::new(xn[0], xn[1], 1.0);
+            let t = -p_C_in_W.z / d.z;
+            if t > 0.0 && t.is_finite() {
+                let (x, y) = (p_C_in_W.x + t * d.x, p_C_in_W.y + t * d.y);
+                g.px[k] = self.at(x * px_per_m, y * px_per_m) as f32;
             }
         }
         g

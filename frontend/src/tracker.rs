@@ -5,8 +5,9 @@
 //! survivors must agree with one epipolar geometry (`ransac.rs`, on
 //! undistorted normalised coordinates through the project's camera model),
 //! and the image is topped up to `max_features` with new corners where it
-//! has room (`detect.rs`). An id is never reused: a lost feature that is
-//! seen again gets a new one (re-identification is a later stage's job).
+//! has room (`detect.rs`). A lost feature seen again gets a new id, unless
+//! re-identification (`reid.rs`, on every fifth frame) recognises its
+//! landmark and gives it the old one back.
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
@@ -15,6 +16,7 @@ use crate::detect::{DetectParams, Detector};
 use crate::image::{Gray, Pyramid};
 use crate::klt::{track_checked, KltParams, KltScratch};
 use crate::ransac::epipolar_inliers;
+use crate::reid::{Reid, ReidParams};
 
 /// The tracker's settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -27,6 +29,9 @@ pub struct TrackerParams {
     pub detect: DetectParams,
     /// RANSAC's Sampson threshold (px, divided by the focal length).
     pub ransac_threshold_px: f64,
+    /// Re-identification of old landmarks (`None`: off). It needs the
+    /// camera model.
+    pub reid: Option<ReidParams>,
 }
 
 impl Default for TrackerParams {
@@ -37,6 +42,7 @@ impl Default for TrackerParams {
             klt: KltParams::default(),
             detect: DetectParams::default(),
             ransac_threshold_px: 1.0,
+            reid: Some(ReidParams::default()),
         }
     }
 }
@@ -58,6 +64,8 @@ pub struct TrackStats {
     pub lost_klt: u64,
     pub lost_ransac: u64,
     pub detected: u64,
+    /// Features given back an old landmark's id.
+    pub reidentified: u64,
 }
 
 /// The tracker and its reused buffers.
@@ -76,6 +84,7 @@ pub struct Tracker {
     moved: Vec<Feature>,
     existing: Vec<[f32; 2]>,
     frames: u64,
+    reid: Option<Reid>,
     pub stats: TrackStats,
 }
 
@@ -83,6 +92,7 @@ impl Tracker {
     /// A tracker; with `camera`, outliers are rejected on its undistorted
     /// normalised coordinates (without one, nothing is rejected by RANSAC).
     pub fn new(prm: TrackerParams, camera: Option<Camera>) -> Self {
+        let reid = prm.reid.filter(|_| camera.is_some()).map(Reid::new);
         Self {
             prm,
             camera,
@@ -97,6 +107,7 @@ impl Tracker {
             moved: Vec::new(),
             existing: Vec::new(),
             frames: 0,
+            reid,
             stats: TrackStats::default(),
         }
     }
@@ -116,6 +127,7 @@ impl Tracker {
             self.follow();
         }
         self.top_up();
+        self.reidentify();
         std::mem::swap(&mut self.prev, &mut self.next);
         self.frames += 1;
         &self.features
@@ -167,6 +179,18 @@ impl Tracker {
             self.stats.lost_ransac += (before - self.moved.len()) as u64;
         }
         std::mem::swap(&mut self.features, &mut self.moved);
+    }
+
+    /// Old ids back for the features re-identified on a keyframe.
+    fn reidentify(&mut self) {
+        let (Some(reid), Some(cam)) = (self.reid.as_mut(), self.camera.as_ref()) else {
+            return;
+        };
+        let feats: Vec<(u64, f32, f32)> = self.features.iter().map(|f| (f.id, f.u_px, f.v_px)).collect();
+        for (i, old) in reid.process(self.frames, &self.next.levels[0], &feats, cam) {
+            self.features[i].id = old;
+        }
+        self.stats.reidentified = reid.reidentified;
     }
 
     /// New corners where the image has room, up to `max_features`.

@@ -9,7 +9,7 @@
 use std::process::Command;
 
 use cmsckf_frontend::euroc::write_png;
-use cmsckf_frontend::synthetic::{plane_point, Texture};
+use cmsckf_frontend::synthetic::{pixel_rays, plane_point, Texture};
 use cmsckf_models::camera::Camera;
 use cmsckf_models::sensors::CameraConfig;
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -28,6 +28,7 @@ fn tracks_a_euroc_folder_into_protocol_lines() {
     std::fs::create_dir_all(&data).unwrap();
     let tex = Texture::new(4, 1500.0);
     let cam = Camera::from_config(&CameraConfig::default());
+    let rays = pixel_rays(&cam);
     // 100 texture units a metre: the blobs are 2–6 cm (3–9 px) across.
     let px_per_m = 100.0;
     let mut csv = String::from("#timestamp [ns],filename\n");
@@ -36,7 +37,7 @@ fn tracks_a_euroc_folder_into_protocol_lines() {
         let t_ns = 1_403_636_579_763_555_584 + k * 50_000_000;
         write_png(
             &data.join(format!("{t_ns}.png")),
-            &tex.render_plane(&cam, &r, &p, px_per_m),
+            &tex.render_plane(&cam, &rays, &r, &p, px_per_m),
         )
         .unwrap();
         csv += &format!("{t_ns},{t_ns}.png\n");
