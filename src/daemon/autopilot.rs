@@ -90,13 +90,13 @@ impl Fusion {
                 self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"unix_days": unix_days}));
                 self.unix_days = Some(unix_days);
             }
-            FusionMsg::SimState {
+            FusionMsg::SimState(crate::io::messages::SimTruth {
                 lat_deg,
                 lon_deg,
                 alt_m,
                 q_wxyz,
                 v_ned_mps,
-            } => {
+            }) => {
                 // A simulator's truth, for review only: also placed in our
                 // world frame once its origin is known (MSL → ellipsoid as
                 // for the origin itself).

@@ -271,7 +271,7 @@ fn foreign_rejection(msg: &Inbound) -> Option<&'static str> {
         Inbound::GpsGlobalOrigin { .. } => "mavlink_rejected_foreign_origin",
         Inbound::Heartbeat { .. } => "mavlink_heartbeat_other",
         Inbound::LandedState { .. } => "mavlink_rejected_foreign_landed_state",
-        Inbound::SimState { .. } => "mavlink_rejected_foreign_sim_state",
+        Inbound::SimState(_) => "mavlink_rejected_foreign_sim_state",
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -331,21 +331,9 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             counters.add("gps_accuracy", 1);
             Some(FusionMsg::GpsAccuracy { h_acc_m, v_acc_m })
         }
-        Inbound::SimState {
-            lat_deg,
-            lon_deg,
-            alt_m,
-            q_wxyz,
-            v_ned_mps,
-        } => {
+        Inbound::SimState(truth) => {
             counters.add("sim_state", 1);
-            Some(FusionMsg::SimState {
-                lat_deg,
-                lon_deg,
-                alt_m,
-                q_wxyz,
-                v_ned_mps,
-            })
+            Some(FusionMsg::SimState(truth))
         }
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);

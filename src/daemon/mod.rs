@@ -105,13 +105,7 @@ pub enum FusionMsg {
         yaw: f64,
     },
     /// A simulator's truth (`SIM_STATE`): logged for review, never fused.
-    SimState {
-        lat_deg: f64,
-        lon_deg: f64,
-        alt_m: f64,
-        q_wxyz: [f64; 4],
-        v_ned_mps: Vector3<f64>,
-    },
+    SimState(crate::io::messages::SimTruth),
     LocalPosition {
         /// Autopilot boot time of the sample (s).
         t_s: f64,

@@ -12,6 +12,19 @@ pub struct Source {
     pub component: u8,
 }
 
+/// A simulator's truth (`SIM_STATE`, as ArduPilot's SITL and ours send
+/// it): position (deg, deg, m above mean sea level), attitude (w, x, y, z)
+/// and velocity (NED, m/s). Only logged, for review against the truth; never
+/// fused.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimTruth {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    pub alt_m: f64,
+    pub q_wxyz: [f64; 4],
+    pub v_ned_mps: Vector3<f64>,
+}
+
 /// A message from the autopilot, in SI units.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Inbound {
@@ -77,16 +90,8 @@ pub enum Inbound {
         lon_deg: f64,
         alt_m: f64,
     },
-    /// A simulator's truth (`SIM_STATE`, as ArduPilot's SITL and ours send
-    /// it): position (deg, deg, m), attitude (w, x, y, z) and velocity
-    /// (NED, m/s). Only logged, for review against the truth; never fused.
-    SimState {
-        lat_deg: f64,
-        lon_deg: f64,
-        alt_m: f64,
-        q_wxyz: [f64; 4],
-        v_ned_mps: Vector3<f64>,
-    },
+    /// A simulator's truth (`SIM_STATE`): only logged, never fused.
+    SimState(SimTruth),
     /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
     /// for the SITL scorer's own tests).
     Other(&'static str),

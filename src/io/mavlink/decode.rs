@@ -6,7 +6,7 @@ use mavlink::dialects::ardupilotmega as apm;
 use nalgebra::Vector3;
 
 use super::LinkError;
-use crate::io::messages::{AutopilotKind, Inbound};
+use crate::io::messages::{AutopilotKind, Inbound, SimTruth};
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
 const G0: f64 = 9.80665;
@@ -134,13 +134,13 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             if !ok {
                 return Err(LinkError::Rejected("sim_state_out_of_range"));
             }
-            Inbound::SimState {
+            Inbound::SimState(SimTruth {
                 lat_deg,
                 lon_deg,
                 alt_m: d.alt as f64,
                 q_wxyz: q,
                 v_ned_mps: finite3(Vector3::new(d.vn as f64, d.ve as f64, d.vd as f64))?,
-            }
+            })
         }
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
             unix_us: d.time_unix_usec,
