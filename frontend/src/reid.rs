@@ -104,13 +104,18 @@ impl Reid {
         }
     }
 
+    /// Whether `frame` is a keyframe (every `every_frames`-th).
+    pub fn is_keyframe(&self, frame: u64) -> bool {
+        frame.is_multiple_of(self.prm.every_frames)
+    }
+
     /// At every `every_frames`-th frame: describes the features
     /// `(id, u, v)`, matches them against the older keyframes, and returns
     /// `(feature index, old id)` for each feature re-identified (never an id
     /// present in this frame, never two features to one id). The frame is
     /// then stored as a keyframe under the ids it will carry.
     pub fn process(&mut self, frame: u64, img: &Gray, feats: &[(u64, f32, f32)], cam: &Camera) -> Vec<(usize, u64)> {
-        if !frame.is_multiple_of(self.prm.every_frames) || feats.is_empty() {
+        if !self.is_keyframe(frame) || feats.is_empty() {
             return Vec::new();
         }
         box_blur(img, &mut self.blurred, &mut self.row);

@@ -173,7 +173,14 @@ impl Texture {
 /// the camera's own distortion. `None` when its ray misses the plane.
 pub fn plane_point(cam: &Camera, R_W_C: &Matrix3<f64>, p_C_in_W: &Vector3<f64>, uv: [f64; 2]) -> Option<[f64; 2]> {
     let xn = cam.undistort(&Vector2::new(uv[0], uv[1]))?;
-    let d = R_W_C * Vector3::new(xn.x, xn.y, 1.0);
+    ray_on_plane([xn.x, xn.y], R_W_C, p_C_in_W)
+}
+
+/// Where the ray through normalised coordinates `xn` of a camera at
+/// `R_W_C`, `p_C_in_W` meets the plane `z = 0`: `p + t R [xn; 1]` with
+/// `t = −p_z / d_z > 0`. `None` when it runs parallel or away.
+fn ray_on_plane(xn: [f64; 2], R_W_C: &Matrix3<f64>, p_C_in_W: &Vector3<f64>) -> Option<[f64; 2]> {
+    let d = R_W_C * Vector3::new(xn[0], xn[1], 1.0);
     if d.z.abs() < 1e-9 {
         return None;
     }
@@ -211,10 +218,7 @@ impl Texture {
         let mut g = crate::image::Gray::new(w, h);
         for (k, ray) in rays.iter().enumerate().take(w * h) {
             let Some(xn) = ray else { continue };
-            let d = R_W_C * Vector3::new(xn[0], xn[1], 1.0);
-            let t = -p_C_in_W.z / d.z;
-            if t > 0.0 && t.is_finite() {
-                let (x, y) = (p_C_in_W.x + t * d.x, p_C_in_W.y + t * d.y);
+            if let Some([x, y]) = ray_on_plane(*xn, R_W_C, p_C_in_W) {
                 g.px[k] = self.at(x * px_per_m, y * px_per_m) as f32;
             }
         }

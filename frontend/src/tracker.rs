@@ -186,6 +186,10 @@ impl Tracker {
         let (Some(reid), Some(cam)) = (self.reid.as_mut(), self.camera.as_ref()) else {
             return;
         };
+        // Nothing to gather on the frames between keyframes.
+        if !reid.is_keyframe(self.frames) {
+            return;
+        }
         let feats: Vec<(u64, f32, f32)> = self.features.iter().map(|f| (f.id, f.u_px, f.v_px)).collect();
         for (i, old) in reid.process(self.frames, &self.next.levels[0], &feats, cam) {
             self.features[i].id = old;

@@ -247,22 +247,20 @@ impl Data {
     /// (`R_en` at `r` first; twice is exact to well under a millimetre for
     /// a flight of kilometres).
     fn push_location(&mut self, t: f64, v: &Value) {
-        use cmsckf_models::geodesy::{llh_to_ecef, NedFrame};
+        use cmsckf_models::geodesy::NedFrame;
         if self.origin.is_some() {
             return;
         }
         let Some(&(ts, n, e, _, d)) = self.track.last() else {
             return;
         };
-        let (Some(lat), Some(lon), Some(h)) = (v["latitude"].as_f64(), v["longitude"].as_f64(), v["altitude"].as_f64())
-        else {
+        let Some(r) = location_ecef(v) else {
             return;
         };
         let p = nalgebra::Vector3::new(n, e, d);
         if ts != t || !p.iter().all(|x| x.is_finite()) {
             return;
         }
-        let r = llh_to_ecef(lat.to_radians(), lon.to_radians(), h);
         let mut frame = NedFrame::from_ecef(&r);
         for _ in 0..2 {
             frame = NedFrame::from_ecef(&(r - frame.R_ecef_ned * p));
@@ -272,11 +270,8 @@ impl Data {
 
     /// A `/gnss/fix` record, kept as ECEF until the origin is known.
     fn push_fix(&mut self, v: &Value) {
-        use cmsckf_models::geodesy::llh_to_ecef;
-        if let (Some(lat), Some(lon), Some(h)) =
-            (v["latitude"].as_f64(), v["longitude"].as_f64(), v["altitude"].as_f64())
-        {
-            self.fixes_ecef.push(llh_to_ecef(lat.to_radians(), lon.to_radians(), h));
+        if let Some(r) = location_ecef(v) {
+            self.fixes_ecef.push(r);
         }
     }
 
@@ -293,4 +288,18 @@ impl Data {
             .filter(|(n, e)| n.is_finite() && e.is_finite())
             .collect();
     }
+}
+
+/// A `foxglove.LocationFix` record's position as ECEF (m).
+fn location_ecef(v: &Value) -> Option<nalgebra::Vector3<f64>> {
+    let (lat, lon, h) = (
+        v["latitude"].as_f64()?,
+        v["longitude"].as_f64()?,
+        v["altitude"].as_f64()?,
+    );
+    Some(cmsckf_models::geodesy::llh_to_ecef(
+        lat.to_radians(),
+        lon.to_radians(),
+        h,
+    ))
 }
