@@ -23,6 +23,10 @@ pub struct DetectParams {
     /// A corner's least eigenvalue must reach this share of the image's
     /// strongest.
     pub quality: f32,
+    /// And it must reach this, per pixel of the window (grey²/px²): a
+    /// floor above what the camera's noise alone makes (a noise of σ grey
+    /// levels gives about σ²/2), so a flat sky yields no corners.
+    pub min_eigenvalue: f32,
     /// Half the structure tensor's window side (px).
     pub half_window: usize,
     /// Pixels at the border never used (the tracker's window must fit).
@@ -35,6 +39,7 @@ impl Default for DetectParams {
             cells: (8, 6),
             min_distance_px: 15.0,
             quality: 0.01,
+            min_eigenvalue: 8.0,
             half_window: 2,
             border_px: 10,
         }
@@ -122,7 +127,8 @@ impl Detector {
         if best <= 0.0 {
             return Vec::new();
         }
-        let threshold = prm.quality * best;
+        let side = (2 * prm.half_window + 1) as f32;
+        let threshold = (prm.quality * best).max(prm.min_eigenvalue * side * side);
         let md2 = prm.min_distance_px.max(1.0).powi(2);
         // Round robin over the cells, one corner a cell a round, so the
         // corners spread before any cell gets a second.

@@ -9,7 +9,10 @@
 //! - [`ransac`]: outliers off the epipolar geometry (8-point, Sampson);
 //! - [`tracker`]: the per-frame pipeline with stable landmark ids;
 //! - [`reid`]: old landmarks re-identified by steered BRIEF on keyframes;
-//! - [`euroc`]: EuRoC/ASL dataset folders; [`output`]: the socket's lines;
+//! - [`source`]: frames from a EuRoC/ASL folder or a camera socket, and
+//!   their stamps; [`euroc`]: the dataset layout;
+//! - [`run`]: the loop from a source to the daemon's socket; [`output`]:
+//!   the socket's lines;
 //! - [`synthetic`]: images with known motion, for tests and benchmarks.
 
 // Names carry their frames (`R_W_C`, `p_C_in_W`), as everywhere here.
@@ -22,5 +25,7 @@ pub mod klt;
 pub mod output;
 pub mod ransac;
 pub mod reid;
+pub mod run;
+pub mod source;
 pub mod synthetic;
 pub mod tracker;

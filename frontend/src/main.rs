@@ -1,16 +1,17 @@
 //! `cmsckf-frontend`: tracks the features of a camera's images and writes
 //! them, one protocol line a frame, to the daemon's feature socket (or a
-//! file). Image source today: a EuRoC/ASL dataset folder.
+//! file). Image sources: a EuRoC/ASL dataset folder, or a camera process on
+//! a Unix socket (`image_wire` frames; the SITL's renderer is one).
 
-use std::io::Write;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::Parser;
 
+use cmsckf_frontend::run::{run, Sink, SocketSink, WriteSink};
+use cmsckf_frontend::source::{EurocSource, FrameSource, SocketSource, Stamp};
 use cmsckf_frontend::tracker::{Tracker, TrackerParams};
-use cmsckf_frontend::{euroc, output};
 use cmsckf_models::camera::Camera;
 use cmsckf_models::check::Validate;
 use cmsckf_models::sensors::CameraConfig;
@@ -20,8 +21,16 @@ use cmsckf_models::sensors::CameraConfig;
 #[command(version)]
 struct Args {
     /// A EuRoC/ASL dataset folder (the one holding `mav0/`).
+    #[arg(long, required_unless_present = "camera_socket", conflicts_with = "camera_socket")]
+    euroc: Option<PathBuf>,
+    /// A camera process's Unix socket, writing raw grey frames
+    /// (docs/design.md, "Camera images"); waits up to 10 s for it.
     #[arg(long)]
-    euroc: PathBuf,
+    camera_socket: Option<PathBuf>,
+    /// Stamp frames with the source's own time, or with CLOCK_MONOTONIC on
+    /// arrival (then set the daemon's `features.clock = "monotonic"`).
+    #[arg(long, value_enum, default_value_t = Stamp::Source)]
+    stamp: Stamp,
     /// Which camera of the dataset (`mav0/cam<N>`).
     #[arg(long, default_value_t = 0)]
     cam: u32,
@@ -74,18 +83,27 @@ fn camera(path: &Option<PathBuf>) -> anyhow::Result<Option<Camera>> {
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let cam = camera(&args.config)?;
-    let frames = euroc::frames(&args.euroc, args.cam)?;
-    if frames.is_empty() {
-        bail!("'{}' lists no frames", args.euroc.display());
-    }
-    let mut sink: Box<dyn Write> = match (&args.socket, &args.out) {
+    let mut source: Box<dyn FrameSource> = match (&args.euroc, &args.camera_socket) {
+        (Some(root), _) => {
+            let src = EurocSource::open(root, args.cam, args.realtime)?;
+            if src.is_empty() {
+                bail!("'{}' lists no frames", root.display());
+            }
+            Box::new(src)
+        }
+        (None, Some(path)) => {
+            let size = cam.as_ref().map(|c| (c.width_px as usize, c.height_px as usize));
+            Box::new(SocketSource::connect(path, Duration::from_secs(10), size)?)
+        }
+        (None, None) => bail!("give --euroc DIR or --camera-socket PATH"),
+    };
+    let mut sink: Box<dyn Sink> = match (&args.socket, &args.out) {
         (Some(s), _) => Box::new(
-            std::os::unix::net::UnixStream::connect(s)
-                .with_context(|| format!("cannot connect to the daemon's socket '{}'", s.display()))?,
+            SocketSink::connect(s).with_context(|| format!("cannot connect to the daemon's socket '{}'", s.display()))?,
         ),
-        (None, Some(o)) => Box::new(std::io::BufWriter::new(
+        (None, Some(o)) => Box::new(WriteSink(std::io::BufWriter::new(
             std::fs::File::create(o).with_context(|| format!("cannot create '{}'", o.display()))?,
-        )),
+        ))),
         (None, None) => bail!("give --socket (the daemon's features.socket) or --out FILE"),
     };
     let mut prm = TrackerParams {
@@ -98,31 +116,7 @@ fn main() -> anyhow::Result<()> {
         prm.reid = None;
     }
     let mut tracker = Tracker::new(prm, cam);
-    let (start, t0_ns) = (Instant::now(), frames[0].t_ns);
-    let mut busy = Duration::ZERO;
-    for f in &frames {
-        if args.realtime {
-            let due = Duration::from_nanos(f.t_ns - t0_ns);
-            if let Some(wait) = due.checked_sub(start.elapsed()) {
-                std::thread::sleep(wait);
-            }
-        }
-        let img = euroc::read_png(&f.path)?;
-        let t = Instant::now();
-        let feats = tracker.process(&img);
-        busy += t.elapsed();
-        output::write_frame(&mut sink, f.t_ns / 1000, args.cam, feats).context("writing a frame")?;
-    }
-    sink.flush()?;
-    let s = tracker.stats;
-    eprintln!(
-        "{} frames, {:.2} ms a frame tracking; features detected {}, lost by Lucas–Kanade {}, by RANSAC {}, re-identified {}",
-        frames.len(),
-        busy.as_secs_f64() * 1e3 / frames.len() as f64,
-        s.detected,
-        s.lost_klt,
-        s.lost_ransac,
-        s.reidentified
-    );
+    let report = run(source.as_mut(), &mut tracker, sink.as_mut(), args.cam, args.stamp)?;
+    eprintln!("{report}");
     Ok(())
 }

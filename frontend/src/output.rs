@@ -3,18 +3,28 @@
 //! "Feature pipe"), so the front-end needs nothing from the daemon but its
 //! socket path.
 
+use std::fmt::Write as _;
 use std::io::Write;
 
 use crate::tracker::Feature;
 
+/// One frame as the protocol's line (with its newline) into `line`, which
+/// is reused from frame to frame: no allocation once it has grown.
+pub fn frame_line_into(line: &mut String, t_us: u64, cam: u32, features: &[Feature]) {
+    line.clear();
+    // Writing into a String cannot fail.
+    let _ = write!(line, "{{\"v\":1,\"t_us\":{t_us},\"cam\":{cam},\"features\":[");
+    for (i, f) in features.iter().enumerate() {
+        let sep = if i > 0 { "," } else { "" };
+        let _ = write!(line, "{sep}[{},{},{}]", f.id, f.u_px, f.v_px);
+    }
+    line.push_str("]}\n");
+}
+
 /// One frame as the protocol's line (with its newline).
 pub fn frame_line(t_us: u64, cam: u32, features: &[Feature]) -> String {
-    let feats: Vec<serde_json::Value> = features
-        .iter()
-        .map(|f| serde_json::json!([f.id, f64::from(f.u_px), f64::from(f.v_px)]))
-        .collect();
-    let mut s = serde_json::json!({"v": 1, "t_us": t_us, "cam": cam, "features": feats}).to_string();
-    s.push('\n');
+    let mut s = String::new();
+    frame_line_into(&mut s, t_us, cam, features);
     s
 }
 
@@ -38,7 +48,12 @@ mod tests {
         let line = frame_line(1_000_000, 0, &f);
         assert_eq!(
             line,
-            "{\"cam\":0,\"features\":[[7,10.5,20.25]],\"t_us\":1000000,\"v\":1}\n"
+            "{\"v\":1,\"t_us\":1000000,\"cam\":0,\"features\":[[7,10.5,20.25]]}\n"
         );
+        // It is JSON, and an empty frame is too.
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        assert_eq!(v["features"][0][2], 20.25);
+        let empty = frame_line(5, 1, &[]);
+        assert_eq!(serde_json::from_str::<serde_json::Value>(&empty).unwrap()["cam"], 1);
     }
 }

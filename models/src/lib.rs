@@ -13,6 +13,7 @@
 //! - [`geodesy`]: WGS-84, ECEF ↔ geodetic, the local NED frame
 //! - [`gnss`]: GPS time, constellations, broadcast orbits and clocks, the
 //!   troposphere and ionosphere, ephemerides on the RTCM wire
+//! - [`image_wire`]: raw grey images on a byte stream, camera to front-end
 //! - [`magnetic`]: heading from a magnetometer and the WMM declination
 //! - [`stats`]: normal and χ² quantiles for gates and consistency bounds
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
@@ -22,6 +23,7 @@ pub mod check;
 pub mod geodesy;
 pub mod geoid;
 pub mod gnss;
+pub mod image_wire;
 pub mod magnetic;
 pub mod sensors;
 pub mod stats;

@@ -426,6 +426,8 @@ pub struct SimConfig {
     pub autopilot: AutopilotSimConfig,
     /// Gusts in the air (`crate::trajectory::wind`).
     pub wind: WindConfig,
+    /// The rendered camera (`crate::render`, `demo --frontend`).
+    pub render: crate::render::RenderConfig,
 }
 
 impl SimConfig {
@@ -489,7 +491,8 @@ impl Validate for SimConfig {
         self.features.validate(&p("features"))?;
         self.gnss.validate(&p("gnss"))?;
         self.autopilot.validate(&p("autopilot"))?;
-        self.wind.validate(&p("wind"))
+        self.wind.validate(&p("wind"))?;
+        self.render.validate(&p("render"))
     }
 }
 

@@ -59,7 +59,8 @@ pub struct Dataset {
 /// The RNG stream `stream` of `seed`. Streams: 1 initial biases, 2 IMU
 /// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency, 7 the
 /// mock autopilot's EKF errors (drawn while serving), 8 the base station's
-/// noise and clock, 9 its latency, 10 the gusts.
+/// noise and clock, 9 its latency, 10 the gusts, 11 the rendered world's
+/// blocks.
 pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);

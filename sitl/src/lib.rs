@@ -9,6 +9,8 @@
 //! - [`imu`], [`features`], [`gnss`]: truth and noise of each sensor, on the
 //!   shared sensor and Earth models of `cmsckf-models`
 //! - [`rtcm_out`]: the simulated receiver's RTCM3 (MSM7)
+//! - [`render`]: the camera's images of a textured world, with each
+//!   pixel's true world point
 //! - [`dataset`]: a whole flight, and its CSV export
 //! - [`metrics`]: ATE, rotation RMSE, NEES and χ² bounds
 //! - [`serve`]: the mock autopilot and camera front end, with its scoring
@@ -21,6 +23,7 @@ pub mod features;
 pub mod gnss;
 pub mod imu;
 pub mod metrics;
+pub mod render;
 pub mod rtcm_out;
 pub mod serve;
 pub mod spline;

@@ -34,6 +34,25 @@ enum Cmd {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Render the camera's images of a simulated flight as PGM files, and
+    /// time the rendering.
+    Render {
+        /// racetrack | figure8 | hover | tum:<path>
+        #[arg(long, default_value = "racetrack")]
+        scenario: String,
+        #[arg(long, default_value_t = 10.0)]
+        duration_s: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output directory (frames are timed, not written, without it).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write every N-th frame.
+        #[arg(long, default_value_t = 1)]
+        every: usize,
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Act as the autopilot and the camera front end for a running daemon,
     /// then print the score of its estimates.
     Serve {
@@ -118,6 +137,14 @@ fn main() -> anyhow::Result<()> {
             }
             println!("wrote {}", out.display());
         }
+        Cmd::Render {
+            scenario,
+            duration_s,
+            seed,
+            out,
+            every,
+            config,
+        } => render(&scenario, duration_s, seed, out, every.max(1), &load_sim(&config)?)?,
         Cmd::Serve {
             mavlink,
             features,
@@ -163,5 +190,43 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// `cmsckf-sitl render`: every camera frame of the flight rendered, every
+/// `every`-th written to `out` as `<t_us>.pgm`; prints the mean time.
+fn render(scenario: &str, duration_s: f64, seed: u64, out: Option<PathBuf>, every: usize, cfg: &SimConfig) -> anyhow::Result<()> {
+    use std::io::Write;
+    anyhow::ensure!(
+        duration_s.is_finite() && duration_s > 0.0 && duration_s <= 86_400.0,
+        "--duration-s {duration_s} must be in (0, 86400]"
+    );
+    let ds = Dataset::generate(scenario, seed, Some(duration_s), cfg)?;
+    let mut r = cmsckf_sitl::render::Renderer::for_dataset(&ds);
+    if let Some(dir) = &out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let (mut poses, mut img) = (Vec::new(), Vec::new());
+    let start = std::time::Instant::now();
+    for (i, f) in ds.frames.iter().enumerate() {
+        r.exposure_poses(&ds.trajectory, f.t_exposure_s, &mut poses);
+        r.render(&poses, i as u64, &mut img);
+        if let (Some(dir), 0) = (&out, i % every) {
+            let path = dir.join(format!("{:010}.pgm", (f.t_exposure_s * 1e6).round() as u64));
+            let mut file = std::io::BufWriter::new(std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?);
+            write!(file, "P5\n{} {}\n255\n", r.width(), r.height())?;
+            file.write_all(&img)?;
+        }
+    }
+    let n = ds.frames.len().max(1);
+    println!(
+        "{} frames of {}x{} in {:.1} s: {:.1} ms a frame ({} blocks in the world)",
+        ds.frames.len(),
+        r.width(),
+        r.height(),
+        start.elapsed().as_secs_f64(),
+        start.elapsed().as_secs_f64() * 1e3 / n as f64,
+        r.world.blocks.len()
+    );
     Ok(())
 }

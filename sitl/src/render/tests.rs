@@ -1,0 +1,86 @@
+use super::*;
+use crate::config::SimConfig;
+use crate::trajectory::{racetrack, GustField, RacetrackParams};
+
+fn setup(duration_s: f64) -> (crate::trajectory::Trajectory, Renderer) {
+    let traj = racetrack(&RacetrackParams::default(), duration_s, 0.0, &GustField::default());
+    let cfg = SimConfig::new();
+    let world = World::around(&traj, 1);
+    let r = Renderer::new(world, Camera::from_config(&cfg.camera), RenderConfig::default());
+    (traj, r)
+}
+
+#[test]
+fn every_pixels_world_point_projects_back_to_it() {
+    let (traj, r) = setup(10.0);
+    let T_W_C = r.camera_pose(&traj.sample(3.0));
+    let mut hits = 0;
+    for k in 0..400 {
+        let uv = [(k * 37 % 752) as f64 + 0.25, (k * 53 % 480) as f64 + 0.5];
+        let Some(hit) = r.surface_point(&T_W_C, uv) else { continue };
+        hits += 1;
+        let back = r.project(&T_W_C, &hit.p_in_W).expect("a hit is in view");
+        assert!((back[0] - uv[0]).hypot(back[1] - uv[1]) < 1e-6, "{uv:?} -> {back:?}");
+    }
+    assert!(hits > 200, "only {hits} of 400 pixels see a surface");
+}
+
+#[test]
+fn blocks_stand_clear_of_the_path_and_in_view_of_it() {
+    let (traj, r) = setup(70.0);
+    let blocks = &r.world.blocks;
+    assert!(blocks.len() > 100, "{} blocks", blocks.len());
+    for t in (0..700).map(|k| k as f64 * 0.1) {
+        let p = traj.sample(t).p_B_in_W;
+        for b in blocks {
+            let dx = (b.min.x - p.x).max(p.x - b.max.x).max(0.0);
+            let dy = (b.min.y - p.y).max(p.y - b.max.y).max(0.0);
+            assert!(dx.hypot(dy) >= 4.9, "block within {} m of the path at {t} s", dx.hypot(dy));
+        }
+    }
+}
+
+#[test]
+fn images_are_textured_below_the_horizon_deterministic_and_noisy() {
+    let (traj, mut r) = setup(10.0);
+    let T_W_C = r.camera_pose(&traj.sample(2.0));
+    let (mut a, mut b, mut c) = (Vec::new(), Vec::new(), Vec::new());
+    r.render(&[T_W_C], 1, &mut a);
+    r.render(&[T_W_C], 1, &mut b);
+    r.render(&[T_W_C], 2, &mut c);
+    assert_eq!(a.len(), 752 * 480);
+    assert_eq!(a, b, "same pose and seed, same image");
+    let diff: f64 = a.iter().zip(&c).map(|(x, y)| (f64::from(*x) - f64::from(*y)).powi(2)).sum::<f64>() / a.len() as f64;
+    // Two draws of noise with σ = 2 grey levels differ by σ√2 (less the clamp).
+    assert!((diff.sqrt() - 2.0 * 2f64.sqrt()).abs() < 0.3, "noise {:.2}", diff.sqrt());
+    let spread = |rows: std::ops::Range<usize>| {
+        let v: Vec<f64> = rows.flat_map(|y| (0..752).map(move |x| (x, y))).map(|(x, y)| f64::from(a[y * 752 + x])).collect();
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    let (ground, top) = (spread(380..480), spread(0..20));
+    assert!(ground > 15.0, "ground σ {ground:.1} grey levels");
+    assert!(top < ground, "top rows σ {top:.1} against the ground's {ground:.1}");
+}
+
+#[test]
+fn motion_blur_smooths_the_image() {
+    let (traj, r) = setup(10.0);
+    let quiet = RenderConfig {
+        noise_grey: 0.0,
+        ..RenderConfig::default()
+    };
+    let mut r = Renderer::new(r.world, r.cam, quiet);
+    let poses: Vec<_> = (0..4).map(|k| r.camera_pose(&traj.sample(2.0 + 0.01 * k as f64))).collect();
+    let (mut sharp, mut blurred) = (Vec::new(), Vec::new());
+    r.render(&poses[..1], 1, &mut sharp);
+    r.render(&poses, 1, &mut blurred);
+    let grad = |img: &[u8]| -> f64 {
+        // Flying forward, the ground below moves down the image.
+        (380..479)
+            .flat_map(|y| (0..752).map(move |x| (x, y)))
+            .map(|(x, y)| (f64::from(img[(y + 1) * 752 + x]) - f64::from(img[y * 752 + x])).abs())
+            .sum()
+    };
+    assert!(grad(&blurred) < 0.9 * grad(&sharp), "{} vs {}", grad(&blurred), grad(&sharp));
+}
