@@ -37,6 +37,7 @@ fn fly(
                 speedup: 10.0,
                 faults: Vec::new(),
                 gnss_stream: None,
+                camera_socket: None,
             },
             &ds,
         ))

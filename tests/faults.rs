@@ -44,6 +44,7 @@ async fn fly(faults: &[&str], seed: u64, duration_s: f64) -> (Report, RunSummary
             speedup: 10.0,
             faults,
             gnss_stream: None,
+            camera_socket: None,
         },
         &ds,
     )

@@ -54,6 +54,7 @@ async fn fly(seed: u64, mode: Gnss) -> (Report, std::collections::BTreeMap<Strin
             speedup: 10.0,
             faults: Vec::new(),
             gnss_stream: Some(format!("127.0.0.1:{rx_port}")),
+            camera_socket: None,
         },
         &ds,
     )

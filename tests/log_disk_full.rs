@@ -36,6 +36,7 @@ fn a_full_log_disk_is_loud_at_once_and_the_flight_goes_on() {
         speedup: 10.0,
         faults: Vec::new(),
         gnss_stream: None,
+        camera_socket: None,
     };
     let report = tokio::runtime::Runtime::new()
         .unwrap()

@@ -46,6 +46,7 @@ fn sigkill_after_clock_jumps_loses_at_most_about_a_second() {
         speedup: SPEEDUP,
         faults: vec![format!("clock_jump@{REBOOT_S}+1").parse().unwrap()],
         gnss_stream: None,
+        camera_socket: None,
     };
     let start = Instant::now();
     let sitl = std::thread::spawn(move || {

@@ -29,6 +29,7 @@ fn sigkill_leaves_a_readable_log() {
         speedup,
         faults: Vec::new(),
         gnss_stream: None,
+        camera_socket: None,
     };
     let start = Instant::now();
     let sitl = std::thread::spawn(move || {

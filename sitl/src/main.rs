@@ -90,6 +90,12 @@ enum Cmd {
         /// GPS_RTCM_DATA.
         #[arg(long)]
         gnss_stream: Option<String>,
+        /// Render the camera's images and serve them on a Unix listener at
+        /// this path (raw grey, docs/design.md "Camera images") for
+        /// `cmsckf-frontend --camera-socket`, instead of writing the oracle's
+        /// features to the daemon's socket.
+        #[arg(long)]
+        camera_socket: Option<PathBuf>,
         /// Inject a fault: NAME@START+DURATION (s of flight), repeatable.
         #[arg(long = "fault")]
         faults: Vec<cmsckf_sitl::serve::Fault>,
@@ -158,6 +164,7 @@ fn main() -> anyhow::Result<()> {
             min_rate_hz,
             max_latency_ms,
             gnss_stream,
+            camera_socket,
             faults,
         } => {
             anyhow::ensure!(
@@ -177,6 +184,7 @@ fn main() -> anyhow::Result<()> {
                 speedup,
                 faults,
                 gnss_stream,
+                camera_socket,
             };
             let report = rt.block_on(cmsckf_sitl::serve::serve(&opts, &ds))?;
             if json {

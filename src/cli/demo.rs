@@ -1,6 +1,12 @@
 //! `cmsckf demo`: the daemon and the SITL autopilot in one process, talking
 //! over real loopback UDP and a real Unix socket, so that a whole flight can
 //! be watched without hardware. Needs the `sim` feature.
+//!
+//! With `--frontend`, the SITL renders the camera's images instead of
+//! writing the feature oracle's tracks, and `cmsckf-frontend`'s own loop
+//! (on a thread of this process) tracks them from the camera socket and
+//! writes the daemon's feature socket: images → front-end → socket →
+//! daemon → autopilot, each link a real Unix socket or UDP.
 
 use std::path::PathBuf;
 
@@ -16,9 +22,9 @@ use cmsckf::eval;
 pub struct DemoArgs {
     #[arg(long, default_value_t = 70.0)]
     duration_s: f64,
-    /// Replay speed of the SITL autopilot.
-    #[arg(long, default_value_t = 10.0)]
-    speedup: f64,
+    /// Replay speed of the SITL autopilot [default: 10, or 1 with --frontend].
+    #[arg(long)]
+    speedup: Option<f64>,
     #[arg(long, default_value_t = 1)]
     seed: u64,
     #[arg(long, default_value = "racetrack")]
@@ -33,6 +39,10 @@ pub struct DemoArgs {
     /// Print the SITL report as JSON.
     #[arg(long)]
     json: bool,
+    /// Fly on rendered images tracked by cmsckf-frontend instead of the
+    /// feature oracle (camera at 20 Hz at most; speed-up 1 unless given).
+    #[arg(long)]
+    frontend: bool,
     // The help names every fault from the fault list itself.
     #[arg(long = "fault", help = fault_help())]
     faults: Vec<cmsckf_sitl::serve::Fault>,
@@ -60,15 +70,23 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
         config,
         log,
         json,
+        frontend,
         faults,
     } = args;
+    // Rendering runs faster than real time, not ten times faster.
+    let speedup = speedup.unwrap_or(if frontend { 1.0 } else { 10.0 });
     super::init_tracing(if json { "error" } else { "info" });
     super::check_duration(Some(duration_s))?;
     if !(speedup.is_finite() && speedup > 0.0 && speedup <= 1000.0) {
         bail!("--speedup {speedup}: give a factor in (0, 1000]");
     }
     // The feature socket lives in this directory: keep it to the end.
-    let (mut cfg, _socket_dir, port) = loopback_config(&config, &mode, &log)?;
+    let (mut cfg, socket_dir, port) = loopback_config(&config, &mode, &log)?;
+    if frontend && cfg.camera.rate_hz > 20.0 {
+        // The renderer keeps up with 752x480 at 20 Hz on two cores, beside
+        // the front-end and the daemon.
+        cfg.camera.rate_hz = 20.0;
+    }
     let sim = eval::sim_config_for(&cfg);
     // The antenna's place on the airframe is measured and configured; the
     // camera's time offset is not (the filter estimates it).
@@ -89,7 +107,8 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
     // Dropped only at the end, after the printing, with whatever the daemon
     // left running.
     let rt = tokio::runtime::Runtime::new()?;
-    let (out, summary) = fly(&rt, &cfg, port, speedup, faults, &ds)?;
+    let camera_socket = frontend.then(|| socket_dir.path().join("camera.sock"));
+    let (out, summary) = fly(&rt, &cfg, port, speedup, faults, &ds, camera_socket)?;
     if json {
         println!("{out}");
     } else {
@@ -146,7 +165,11 @@ fn fly(
     speedup: f64,
     faults: Vec<cmsckf_sitl::serve::Fault>,
     ds: &cmsckf_sitl::dataset::Dataset,
+    camera_socket: Option<PathBuf>,
 ) -> anyhow::Result<(serde_json::Value, RunSummary)> {
+    let front = camera_socket
+        .as_ref()
+        .map(|cam_sock| spawn_frontend(cam_sock.clone(), cfg.features.socket.clone().into(), &cfg.camera));
     let (report, summary) = rt.block_on(async {
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
         let daemon = tokio::spawn(cmsckf::daemon::run(cfg.clone(), async move {
@@ -160,6 +183,7 @@ fn fly(
             speedup,
             faults,
             gnss_stream: None,
+            camera_socket,
         };
         let report = cmsckf_sitl::serve::serve(&opts, ds).await;
         let _ = stop_tx.send(());
@@ -170,6 +194,42 @@ fn fly(
     let summary = summary?;
     let mut out = serde_json::to_value(&report)?;
     out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
+    if let Some(handle) = front {
+        let r = handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the front-end's thread panicked"))??;
+        out["frontend"] = serde_json::json!({
+            "frames": r.frames,
+            "frames_not_delivered": r.frames_dropped,
+            "frames_out_of_order": r.frames_out_of_order,
+            "ms_per_frame": r.ms_per_frame(),
+            "features_detected": r.tracks.detected,
+            "lost_klt": r.tracks.lost_klt,
+            "lost_ransac": r.tracks.lost_ransac,
+            "reidentified": r.tracks.reidentified,
+        });
+    }
     let summary = summary?;
     Ok((out, summary))
+}
+
+/// Starts `cmsckf-frontend`'s loop on a thread: it connects to the SITL's
+/// camera socket (waiting for it to come up) and to the daemon's feature
+/// socket, and tracks until the camera's stream ends.
+fn spawn_frontend(
+    camera_socket: PathBuf,
+    feature_socket: PathBuf,
+    camera: &cmsckf_models::sensors::CameraConfig,
+) -> std::thread::JoinHandle<anyhow::Result<cmsckf_frontend::run::RunReport>> {
+    use cmsckf_frontend::run::{run, SocketSink};
+    use cmsckf_frontend::source::{SocketSource, Stamp};
+    use cmsckf_frontend::tracker::{Tracker, TrackerParams};
+    let cam = cmsckf_models::camera::Camera::from_config(camera);
+    std::thread::spawn(move || {
+        let size = (cam.width_px as usize, cam.height_px as usize);
+        let mut source = SocketSource::connect(&camera_socket, std::time::Duration::from_secs(10), Some(size))?;
+        let mut sink = SocketSink::connect(&feature_socket)?;
+        let mut tracker = Tracker::new(TrackerParams::default(), Some(cam));
+        Ok(run(&mut source, &mut tracker, &mut sink, 0, Stamp::Source)?)
+    })
 }

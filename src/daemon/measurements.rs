@@ -118,6 +118,10 @@ impl Fusion {
                 self.tracker.frame_processed(t);
                 counters.add("tracks_used", rep.tracks_used as u64);
                 counters.add("global_updates", rep.global_updates as u64);
+                if rep.loop_closure_tracks > 0 {
+                    // Tracks that reached back to a keyframe: revisits.
+                    counters.add("loop_closure_tracks", rep.loop_closure_tracks as u64);
+                }
                 if rep.promoted > 0 {
                     counters.add("keyframes_promoted", rep.promoted as u64);
                 }

@@ -21,13 +21,15 @@
 //! - `autopilot`: the autopilot's own EKF, its errors and how it follows
 //!   the daemon
 //! - `rtcm`: GNSS observations and ephemerides as `GPS_RTCM_DATA`
-//! - `feature_socket`: the camera front end's JSON lines
+//! - `feature_socket`: the camera front end's JSON lines (the oracle)
+//! - `camera`: or the camera's rendered images, for a real front-end
 //! - `fault`: the injectable faults and what each one does
 //! - `receive`: the task answering the daemon and gathering its output
 //! - `clock`: the boot clock on the wire and back to flight time
 //! - `report`: the scoring
 
 mod autopilot;
+mod camera;
 mod clock;
 mod fault;
 mod feature_socket;
@@ -90,6 +92,10 @@ pub struct ServeOptions {
     /// served on a TCP listener at `address` (the daemon's
     /// `gnss.stream = "tcp:…"`), not in `GPS_RTCM_DATA`.
     pub gnss_stream: Option<String>,
+    /// `Some(path)`: the camera's images are rendered and served as raw grey
+    /// on a Unix listener at `path`, for `cmsckf-frontend` to track and
+    /// write to the feature socket; the oracle's features are not sent.
+    pub camera_socket: Option<PathBuf>,
 }
 
 /// Errors that stop the mock autopilot.
@@ -99,6 +105,8 @@ pub enum ServeError {
     Link(String, std::io::Error),
     #[error("GNSS stream listener '{0}': {1}")]
     GnssStream(String, std::io::Error),
+    #[error("camera socket '{0}': {1}")]
+    Camera(PathBuf, std::io::Error),
 }
 
 /// Serves `ds` to the daemon and scores its estimates.
@@ -119,8 +127,15 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
         ),
         None => None,
     };
+    let camera = match &opts.camera_socket {
+        Some(path) => {
+            let order = stream::delivery_order(ds.frames.iter().map(|f| f.t_delivered_s));
+            Some(camera::CameraServer::start(path, ds, &order).map_err(|e| ServeError::Camera(path.clone(), e))?)
+        }
+        None => None,
+    };
     // Stream the flight in time order, paced by the wall clock.
-    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s, inbox.clone(), receiver_port);
+    let mut out = stream::Streamer::new(conn, opts, ds, reboot_s, inbox.clone(), receiver_port, camera);
     out.run(t_start).await;
     // Let the last estimates arrive.
     tokio::time::sleep(Duration::from_millis(300)).await;

@@ -38,6 +38,9 @@ pub(super) struct Streamer<'a> {
     pub(super) sent_wall: Vec<Option<Instant>>,
     /// The connection to the daemon's feature socket.
     pub(super) feat: FeatureSocket<'a>,
+    /// The rendered camera, when a front-end tracks images instead of the
+    /// oracle writing features.
+    pub(super) camera: Option<super::camera::CameraServer>,
     /// Next IMU sample to send.
     pub(super) k_imu: usize,
     /// Camera frames and GNSS epochs (indices into the dataset's) in
@@ -76,8 +79,10 @@ impl<'a> Streamer<'a> {
         reboot_s: Option<f64>,
         inbox: Inbox,
         receiver_port: Option<super::rtcm::ReceiverPort>,
+        camera: Option<super::camera::CameraServer>,
     ) -> Self {
         Self {
+            camera,
             conn,
             opts,
             ds,
@@ -188,7 +193,7 @@ impl<'a> Streamer<'a> {
 }
 
 /// Indices of `times` in increasing time order (ties in index order).
-fn delivery_order(times: impl Iterator<Item = f64>) -> Vec<usize> {
+pub(super) fn delivery_order(times: impl Iterator<Item = f64>) -> Vec<usize> {
     let mut v: Vec<(f64, usize)> = times.enumerate().map(|(i, t)| (t, i)).collect();
     v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     v.into_iter().map(|(_, i)| i).collect()
@@ -200,6 +205,19 @@ impl Streamer<'_> {
     pub(super) async fn send_frame(&mut self, active: &Active<'_>) {
         let Some(f) = self.next_frame() else { return };
         self.k_cam += 1;
+        if let Some(cam) = self.camera.as_mut() {
+            // The camera's own faults: no frames in an outage; a front-end
+            // crash is its connection dropped.
+            if active.has(FaultKind::FrontendRestart) {
+                cam.disconnect();
+            }
+            let deliver = !active.has(FaultKind::CameraOutage) && !active.has(FaultKind::FrontendRestart);
+            let t_us = boot_us(f.t_s, self.reboot_s);
+            if cam.send_next(t_us, deliver).await {
+                self.frames_sent += 1;
+            }
+            return;
+        }
         if active.has(FaultKind::FrontendRestart) {
             // The front end has crashed: no connection, no frames.
             self.feat.disconnect();
