@@ -99,7 +99,8 @@ fn main() -> anyhow::Result<()> {
     };
     let mut sink: Box<dyn Sink> = match (&args.socket, &args.out) {
         (Some(s), _) => Box::new(
-            SocketSink::connect(s).with_context(|| format!("cannot connect to the daemon's socket '{}'", s.display()))?,
+            SocketSink::connect(s)
+                .with_context(|| format!("cannot connect to the daemon's socket '{}'", s.display()))?,
         ),
         (None, Some(o)) => Box::new(WriteSink(std::io::BufWriter::new(
             std::fs::File::create(o).with_context(|| format!("cannot create '{}'", o.display()))?,

@@ -91,7 +91,9 @@ impl EurocSource {
 
 impl FrameSource for EurocSource {
     fn next_frame(&mut self, img: &mut Gray) -> Result<Option<u64>, SourceError> {
-        let Some(f) = self.frames.get(self.next) else { return Ok(None) };
+        let Some(f) = self.frames.get(self.next) else {
+            return Ok(None);
+        };
         self.next += 1;
         if let Some(start) = self.realtime {
             let due = Duration::from_nanos(f.t_ns.saturating_sub(self.frames[0].t_ns));

@@ -165,7 +165,17 @@ fn rendered_tracks_are_scored_against_their_world_points() {
     // (95 %, 1 %) are not met.
     assert!(within(1.0) >= 40.0, "{:.1} % within 1 px", within(1.0));
     assert!(within(2.0) >= 60.0, "{:.1} % within 2 px", within(2.0));
-    assert!(step_rms(0) < 0.6 && step_rms(1) < 0.35, "steps {:.2} / {:.2} px RMS", step_rms(0), step_rms(1));
+    assert!(
+        step_rms(0) < 0.6 && step_rms(1) < 0.35,
+        "steps {:.2} / {:.2} px RMS",
+        step_rms(0),
+        step_rms(1)
+    );
     assert!(sc.reid >= 10, "{} re-identified", sc.reid);
-    assert!(sc.wrong * 3 <= sc.reid, "{} of {} re-identifications wrong", sc.wrong, sc.reid);
+    assert!(
+        sc.wrong * 3 <= sc.reid,
+        "{} of {} re-identifications wrong",
+        sc.wrong,
+        sc.reid
+    );
 }

@@ -98,7 +98,10 @@ mod tests {
         let huge = FrameHeader { width: 100_000, ..h }.encode();
         assert_eq!(
             FrameHeader::decode(&huge),
-            Err(FrameHeaderError::Size { width: 100_000, height: 480 })
+            Err(FrameHeaderError::Size {
+                width: 100_000,
+                height: 480
+            })
         );
         let empty = FrameHeader { height: 0, ..h }.encode();
         assert!(FrameHeader::decode(&empty).is_err());

@@ -45,6 +45,9 @@ pub struct Dataset {
     pub truth: Vec<TruthRow>,
     pub imu: Vec<ImuSample>,
     pub frames: Vec<CameraFrame>,
+    /// Each frame's image file, for a recorded dataset (`euroc:`); empty
+    /// when the camera is simulated (then it is rendered, if served).
+    pub frame_images: Vec<std::path::PathBuf>,
     pub gnss: Vec<GnssEpoch>,
     /// The base station's epochs (`gnss.base.enabled`), delivered late by
     /// its own link, and its antenna position (ECEF, m).
@@ -82,6 +85,9 @@ impl Dataset {
         duration_s: Option<f64>,
         cfg: &SimConfig,
     ) -> Result<Self, TrajectoryError> {
+        if let Some(dir) = scenario.strip_prefix("euroc:") {
+            return crate::euroc::load(std::path::Path::new(dir), cfg);
+        }
         let gusts = GustField::new(&cfg.wind, &mut rng_for(seed, 10));
         let traj = Trajectory::from_scenario(scenario, duration_s, cfg.standstill_s, &gusts)?;
         Ok(Self::from_trajectory(&traj, seed, cfg))
@@ -164,6 +170,7 @@ impl Dataset {
             truth,
             imu,
             frames,
+            frame_images: Vec::new(),
             gnss,
             base_gnss,
             base_arp_ecef_m,

@@ -23,7 +23,7 @@ pub struct ImuSample {
 }
 
 /// The true biases at a sample time.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ImuBias {
     pub b_a: Vector3<f64>,
     pub b_g: Vector3<f64>,

@@ -11,6 +11,7 @@
 //! - [`rtcm_out`]: the simulated receiver's RTCM3 (MSM7)
 //! - [`render`]: the camera's images of a textured world, with each
 //!   pixel's true world point
+//! - [`euroc`]: a EuRoC/ASL folder's IMU, images and truth, to serve
 //! - [`dataset`]: a whole flight, and its CSV export
 //! - [`metrics`]: ATE, rotation RMSE, NEES and χ² bounds
 //! - [`serve`]: the mock autopilot and camera front end, with its scoring
@@ -19,6 +20,7 @@
 
 pub mod config;
 pub mod dataset;
+pub mod euroc;
 pub mod features;
 pub mod gnss;
 pub mod imu;

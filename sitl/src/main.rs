@@ -203,7 +203,14 @@ fn main() -> anyhow::Result<()> {
 
 /// `cmsckf-sitl render`: every camera frame of the flight rendered, every
 /// `every`-th written to `out` as `<t_us>.pgm`; prints the mean time.
-fn render(scenario: &str, duration_s: f64, seed: u64, out: Option<PathBuf>, every: usize, cfg: &SimConfig) -> anyhow::Result<()> {
+fn render(
+    scenario: &str,
+    duration_s: f64,
+    seed: u64,
+    out: Option<PathBuf>,
+    every: usize,
+    cfg: &SimConfig,
+) -> anyhow::Result<()> {
     use std::io::Write;
     anyhow::ensure!(
         duration_s.is_finite() && duration_s > 0.0 && duration_s <= 86_400.0,
@@ -221,7 +228,9 @@ fn render(scenario: &str, duration_s: f64, seed: u64, out: Option<PathBuf>, ever
         r.render(&poses, i as u64, &mut img);
         if let (Some(dir), 0) = (&out, i % every) {
             let path = dir.join(format!("{:010}.pgm", (f.t_exposure_s * 1e6).round() as u64));
-            let mut file = std::io::BufWriter::new(std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?);
+            let mut file = std::io::BufWriter::new(
+                std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?,
+            );
             write!(file, "P5\n{} {}\n255\n", r.width(), r.height())?;
             file.write_all(&img)?;
         }

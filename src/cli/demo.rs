@@ -194,6 +194,9 @@ fn fly(
     let summary = summary?;
     let mut out = serde_json::to_value(&report)?;
     out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
+    if let Ok(s) = &summary {
+        out["daemon_counters"] = serde_json::to_value(&s.counters)?;
+    }
     if let Some(handle) = front {
         let r = handle
             .join()

@@ -17,7 +17,9 @@ fn every_pixels_world_point_projects_back_to_it() {
     let mut hits = 0;
     for k in 0..400 {
         let uv = [(k * 37 % 752) as f64 + 0.25, (k * 53 % 480) as f64 + 0.5];
-        let Some(hit) = r.surface_point(&T_W_C, uv) else { continue };
+        let Some(hit) = r.surface_point(&T_W_C, uv) else {
+            continue;
+        };
         hits += 1;
         let back = r.project(&T_W_C, &hit.p_in_W).expect("a hit is in view");
         assert!((back[0] - uv[0]).hypot(back[1] - uv[1]) < 1e-6, "{uv:?} -> {back:?}");
@@ -35,7 +37,11 @@ fn blocks_stand_clear_of_the_path_and_in_view_of_it() {
         for b in blocks {
             let dx = (b.min.x - p.x).max(p.x - b.max.x).max(0.0);
             let dy = (b.min.y - p.y).max(p.y - b.max.y).max(0.0);
-            assert!(dx.hypot(dy) >= 4.9, "block within {} m of the path at {t} s", dx.hypot(dy));
+            assert!(
+                dx.hypot(dy) >= 4.9,
+                "block within {} m of the path at {t} s",
+                dx.hypot(dy)
+            );
         }
     }
 }
@@ -50,11 +56,23 @@ fn images_are_textured_below_the_horizon_deterministic_and_noisy() {
     r.render(&[T_W_C], 2, &mut c);
     assert_eq!(a.len(), 752 * 480);
     assert_eq!(a, b, "same pose and seed, same image");
-    let diff: f64 = a.iter().zip(&c).map(|(x, y)| (f64::from(*x) - f64::from(*y)).powi(2)).sum::<f64>() / a.len() as f64;
+    let diff: f64 = a
+        .iter()
+        .zip(&c)
+        .map(|(x, y)| (f64::from(*x) - f64::from(*y)).powi(2))
+        .sum::<f64>()
+        / a.len() as f64;
     // Two draws of noise with σ = 2 grey levels differ by σ√2 (less the clamp).
-    assert!((diff.sqrt() - 2.0 * 2f64.sqrt()).abs() < 0.3, "noise {:.2}", diff.sqrt());
+    assert!(
+        (diff.sqrt() - 2.0 * 2f64.sqrt()).abs() < 0.3,
+        "noise {:.2}",
+        diff.sqrt()
+    );
     let spread = |rows: std::ops::Range<usize>| {
-        let v: Vec<f64> = rows.flat_map(|y| (0..752).map(move |x| (x, y))).map(|(x, y)| f64::from(a[y * 752 + x])).collect();
+        let v: Vec<f64> = rows
+            .flat_map(|y| (0..752).map(move |x| (x, y)))
+            .map(|(x, y)| f64::from(a[y * 752 + x]))
+            .collect();
         let m = v.iter().sum::<f64>() / v.len() as f64;
         (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
     };
@@ -71,7 +89,9 @@ fn motion_blur_smooths_the_image() {
         ..RenderConfig::default()
     };
     let mut r = Renderer::new(r.world, r.cam, quiet);
-    let poses: Vec<_> = (0..4).map(|k| r.camera_pose(&traj.sample(2.0 + 0.01 * k as f64))).collect();
+    let poses: Vec<_> = (0..4)
+        .map(|k| r.camera_pose(&traj.sample(2.0 + 0.01 * k as f64)))
+        .collect();
     let (mut sharp, mut blurred) = (Vec::new(), Vec::new());
     r.render(&poses[..1], 1, &mut sharp);
     r.render(&poses, 1, &mut blurred);
@@ -82,5 +102,10 @@ fn motion_blur_smooths_the_image() {
             .map(|(x, y)| (f64::from(img[(y + 1) * 752 + x]) - f64::from(img[y * 752 + x])).abs())
             .sum()
     };
-    assert!(grad(&blurred) < 0.9 * grad(&sharp), "{} vs {}", grad(&blurred), grad(&sharp));
+    assert!(
+        grad(&blurred) < 0.9 * grad(&sharp),
+        "{} vs {}",
+        grad(&blurred),
+        grad(&sharp)
+    );
 }

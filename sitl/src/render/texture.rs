@@ -75,7 +75,9 @@ fn survives(footprint_m: f64, size_m: f64) -> f64 {
 
 impl Texture {
     pub fn new(seed: u64) -> Self {
-        Self { seed: mix(seed.wrapping_add(0x5EED)) }
+        Self {
+            seed: mix(seed.wrapping_add(0x5EED)),
+        }
     }
 
     /// Value noise in `[0, 1]` at lattice coordinates `(x, y)`.

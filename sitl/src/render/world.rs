@@ -73,7 +73,10 @@ impl World {
         let mut r = rng_for(seed, 11);
         let mut blocks = Vec::new();
         for _ in 0..(area / AREA_PER_BLOCK_M2) as usize {
-            let c = [lo[0] + (hi[0] - lo[0]) * r.random::<f64>(), lo[1] + (hi[1] - lo[1]) * r.random::<f64>()];
+            let c = [
+                lo[0] + (hi[0] - lo[0]) * r.random::<f64>(),
+                lo[1] + (hi[1] - lo[1]) * r.random::<f64>(),
+            ];
             let half = [1.0 + 2.5 * r.random::<f64>(), 1.0 + 2.5 * r.random::<f64>()];
             let height = 2.5 + 8.0 * r.random::<f64>();
             let tex_seed = r.random::<u64>();

@@ -4,6 +4,9 @@
 //! go out at their delivery time, stamped with the camera clock's time of
 //! their exposure, exactly as the oracle's feature lines do.
 //!
+//! A recorded dataset (`euroc:`) serves its own images instead, read from
+//! their files in the same way.
+//!
 //! Rendering runs on its own thread, a few frames ahead in delivery order,
 //! so the IMU stream never waits on it while it keeps up. Its buffers
 //! travel back to it for reuse.
@@ -30,10 +33,9 @@ pub(super) struct CameraServer {
     path: PathBuf,
     listener: UnixListener,
     stream: Option<UnixStream>,
-    frames: mpsc::Receiver<Vec<u8>>,
+    /// Each frame's grey bytes, width and height (none: unreadable).
+    frames: mpsc::Receiver<(Vec<u8>, u32, u32)>,
     spent: std_mpsc::Sender<Vec<u8>>,
-    width: u32,
-    height: u32,
     /// Frames the front-end could not take (not connected, or it failed).
     pub(super) undelivered: usize,
 }
@@ -47,20 +49,37 @@ impl CameraServer {
             std::fs::remove_file(path)?;
         }
         let listener = UnixListener::bind(path)?;
-        let mut renderer = Renderer::for_dataset(ds);
-        let (width, height) = (renderer.width() as u32, renderer.height() as u32);
-        let traj = ds.trajectory.clone();
         let times: Vec<f64> = order.iter().map(|&i| ds.frames[i].t_exposure_s).collect();
+        let files: Vec<PathBuf> = order.iter().filter_map(|&i| ds.frame_images.get(i).cloned()).collect();
         let (tx, frames) = mpsc::channel(AHEAD);
         let (spent, recycled) = std_mpsc::channel::<Vec<u8>>();
-        let seed = ds.seed;
-        std::thread::Builder::new().name("sitl-render".into()).spawn(move || {
+        let produce: Box<dyn FnMut(usize, &mut Vec<u8>) -> (u32, u32) + Send> = if files.is_empty() {
+            let mut renderer = Renderer::for_dataset(ds);
+            let traj = ds.trajectory.clone();
+            let seed = ds.seed;
             let mut poses = Vec::new();
-            for (k, t) in times.into_iter().enumerate() {
+            Box::new(move |k, img| {
+                renderer.exposure_poses(&traj, times[k], &mut poses);
+                renderer.render(&poses, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), img);
+                (renderer.width() as u32, renderer.height() as u32)
+            })
+        } else {
+            Box::new(move |k, img| match crate::euroc::read_grey_png(&files[k], img) {
+                Ok(size) => size,
+                Err(e) => {
+                    // An unreadable image is a frame the camera dropped.
+                    eprintln!("camera: {e}");
+                    (0, 0)
+                }
+            })
+        };
+        let n = order.len();
+        let mut produce = produce;
+        std::thread::Builder::new().name("sitl-camera".into()).spawn(move || {
+            for k in 0..n {
                 let mut img = recycled.try_recv().unwrap_or_default();
-                renderer.exposure_poses(&traj, t, &mut poses);
-                renderer.render(&poses, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), &mut img);
-                if tx.blocking_send(img).is_err() {
+                let (w, h) = produce(k, &mut img);
+                if tx.blocking_send((img, w, h)).is_err() {
                     return; // the flight is over
                 }
             }
@@ -71,8 +90,6 @@ impl CameraServer {
             stream: None,
             frames,
             spent,
-            width,
-            height,
             undelivered: 0,
         })
     }
@@ -80,9 +97,11 @@ impl CameraServer {
     /// The next frame in delivery order, rendered, sent stamped `t_us` if
     /// `deliver` (else dropped, as by a camera outage). Whether it went out.
     pub(super) async fn send_next(&mut self, t_us: u64, deliver: bool) -> bool {
-        let Some(img) = self.frames.recv().await else { return false };
+        let Some((img, width, height)) = self.frames.recv().await else {
+            return false;
+        };
         let mut sent = false;
-        if deliver {
+        if deliver && width > 0 {
             if self.stream.is_none() {
                 // A front-end waiting to connect is taken; none is not waited for.
                 if let Ok(Ok((s, _))) = tokio::time::timeout(Duration::ZERO, self.listener.accept()).await {
@@ -90,12 +109,7 @@ impl CameraServer {
                 }
             }
             if let Some(s) = self.stream.as_mut() {
-                let head = FrameHeader {
-                    t_us,
-                    width: self.width,
-                    height: self.height,
-                }
-                .encode();
+                let head = FrameHeader { t_us, width, height }.encode();
                 if s.write_all(&head).await.is_ok() && s.write_all(&img).await.is_ok() {
                     sent = true;
                 } else {

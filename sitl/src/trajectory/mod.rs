@@ -26,7 +26,7 @@ use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 use crate::spline::{PositionSpline, RotationSpline};
 
-mod tum;
+pub(crate) mod tum;
 pub mod wind;
 
 pub use tum::from_tum;
@@ -40,7 +40,7 @@ pub fn gravity_w(g_mps2: f64) -> Vector3<f64> {
 /// Errors from building a trajectory.
 #[derive(Debug, thiserror::Error)]
 pub enum TrajectoryError {
-    #[error("unknown scenario '{0}': expected racetrack, figure8, hover or tum:<path>")]
+    #[error("unknown scenario '{0}': expected racetrack, figure8, hover, tum:<path> or euroc:<dir>")]
     UnknownScenario(String),
     #[error("cannot read TUM trajectory '{path}': {source}")]
     Io { path: PathBuf, source: std::io::Error },

@@ -22,6 +22,18 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
         source,
     })?;
     let rows = parse_tum_rows(path, &text)?;
+    from_rows(format!("tum:{}", path.display()), path, &rows, duration_s)
+}
+
+/// The trajectory through `rows` (poses in a z-up world, times in s), read
+/// from `path` (named in errors), over `duration_s` or their whole span:
+/// time 0 is the first pose.
+pub(crate) fn from_rows(
+    name: String,
+    path: &Path,
+    rows: &[TumRow],
+    duration_s: Option<f64>,
+) -> Result<Trajectory, TrajectoryError> {
     if rows.len() < 10 {
         return Err(TrajectoryError::TooShort {
             path: path.to_path_buf(),
@@ -37,9 +49,9 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
             reason: format!("spans {span:.3} s; at least 1 s is needed"),
         });
     }
-    let (t0, pctrl, qctrl) = tum_control_points(&rows, duration);
+    let (t0, pctrl, qctrl) = tum_control_points(rows, duration);
     Ok(Trajectory {
-        name: format!("tum:{}", path.display()),
+        name,
         duration_s: duration,
         pos: PositionSpline::new(t0, KNOT_DT_S, pctrl),
         rot: RotationSpline::new(t0, KNOT_DT_S, unwrap_quaternions(qctrl)),
@@ -47,7 +59,7 @@ pub fn from_tum(path: &Path, duration_s: Option<f64>) -> Result<Trajectory, Traj
 }
 
 /// One pose of a TUM file: time, position and orientation in the file's world.
-type TumRow = (f64, Vector3<f64>, UnitQuaternion<f64>);
+pub(crate) type TumRow = (f64, Vector3<f64>, UnitQuaternion<f64>);
 
 /// The poses of a TUM file's `text` (comments and blank lines skipped),
 /// checked: 8 finite numbers, a unit quaternion, increasing times.
