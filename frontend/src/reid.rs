@@ -40,6 +40,8 @@ pub struct ReidParams {
     pub ratio: f32,
     /// Matches a keyframe must keep after the epipolar check.
     pub min_matches: usize,
+    /// How far a match may land from the matches' common affine map (px).
+    pub affine_tolerance_px: f64,
 }
 
 impl Default for ReidParams {
@@ -51,6 +53,7 @@ impl Default for ReidParams {
             max_distance: 50,
             ratio: 0.8,
             min_matches: 15,
+            affine_tolerance_px: 25.0,
         }
     }
 }
@@ -164,7 +167,7 @@ impl Reid {
         // then one affine image motion. A match along its epipolar line but
         // elsewhere in the image passes the first (a camera moving along x
         // has rows for epipolar lines); a revisit is from about the same
-        // place, so the second holds to within `AFFINE_TOLERANCE_PX`.
+        // place, so the second holds to within `affine_tolerance_px`.
         let mut verified: Vec<(usize, u64)> = Vec::new();
         for &(_, n) in ranked.iter().take(VERIFIED_KEYFRAMES) {
             let kf = &self.keyframes[n];
@@ -172,7 +175,7 @@ impl Reid {
             let pairs: Vec<_> = m.iter().map(|&(j, k)| (kf.xn[k], xn[j])).collect();
             let pix: Vec<_> = m.iter().map(|&(j, k)| (kf.uv[k], uv[j])).collect();
             epipolar_inliers(&pairs, thr, frame, &mut self.inliers);
-            affine_inliers(&pix, frame, &mut self.affine_ok);
+            affine_inliers(&pix, self.prm.affine_tolerance_px, frame, &mut self.affine_ok);
             let ok = |t: usize| self.inliers[t] && self.affine_ok[t];
             if (0..m.len()).filter(|&t| ok(t)).count() < self.prm.min_matches {
                 continue;
@@ -267,20 +270,18 @@ impl Reid {
 /// Keyframes verified per re-identification, at most.
 const VERIFIED_KEYFRAMES: usize = 4;
 
-/// How far a match may land from the matches' common affine map (px).
-const AFFINE_TOLERANCE_PX: f64 = 25.0;
 
 /// Marks the pixel pairs `(a, b)` that one affine map `b ≈ A a + t` (from
 /// three-pair RANSAC samples, `seed` driven) carries to within
-/// [`AFFINE_TOLERANCE_PX`].
-fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], seed: u64, ok: &mut Vec<bool>) {
+/// `tolerance_px`.
+fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], tolerance_px: f64, seed: u64, ok: &mut Vec<bool>) {
     ok.clear();
     ok.resize(pairs.len(), false);
     if pairs.len() < 3 {
         return;
     }
     let mut rng = SplitMix::new(seed ^ 0xaff1);
-    let t2 = AFFINE_TOLERANCE_PX * AFFINE_TOLERANCE_PX;
+    let t2 = tolerance_px * tolerance_px;
     let mut best: Option<(usize, [f64; 6])> = None;
     for _ in 0..100 {
         let idx: Vec<usize> = (0..3).map(|_| (rng.next_u64() % pairs.len() as u64) as usize).collect();

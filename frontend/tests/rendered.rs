@@ -67,9 +67,19 @@ impl Score {
 fn rendered_tracks_are_scored_against_their_world_points() {
     let mut sim = SimConfig::new();
     sim.camera.rate_hz = 20.0;
-    let ds = Dataset::generate("figure8", 3, Some(40.0), &sim).unwrap();
+    let scen = std::env::var("XS").unwrap_or("figure8".into());
+    let dur: f64 = std::env::var("XD").map_or(40.0, |v| v.parse().unwrap());
+    let ds = Dataset::generate(&scen, 3, Some(dur), &sim).unwrap();
     let mut r = Renderer::for_dataset(&ds);
-    let mut tracker = Tracker::new(TrackerParams::default(), Some(Camera::from_config(&sim.camera)));
+    let mut prm = TrackerParams::default();
+    if let Some(rp) = prm.reid.as_mut() {
+        if let Ok(v) = std::env::var("XA") { rp.affine_tolerance_px = v.parse().unwrap(); }
+        if let Ok(v) = std::env::var("XR") { rp.ratio = v.parse().unwrap(); }
+        if let Ok(v) = std::env::var("XM") { rp.min_matches = v.parse().unwrap(); }
+        if let Ok(v) = std::env::var("XH") { rp.max_distance = v.parse().unwrap(); }
+        if let Ok(v) = std::env::var("XE") { rp.every_frames = v.parse().unwrap(); }
+    }
+    let mut tracker = Tracker::new(prm, Some(Camera::from_config(&sim.camera)));
     let (mut poses, mut bytes) = (Vec::new(), Vec::new());
     let mut ids: BTreeMap<u64, Truth> = BTreeMap::new();
     let mut sc = Score::default();
