@@ -167,10 +167,11 @@ pub fn track_checked(
     prev: &Pyramid,
     next: &Pyramid,
     p: [f32; 2],
+    guess: [f32; 2],
     prm: &KltParams,
     s: &mut KltScratch,
 ) -> Option<[f32; 2]> {
-    let q = track_point(prev, next, p, p, prm, s)?;
+    let q = track_point(prev, next, p, guess, prm, s)?;
     let back = track_point(next, prev, q, p, prm, s)?;
     let fb = ((back[0] - p[0]).powi(2) + (back[1] - p[1]).powi(2)).sqrt();
     (fb <= prm.max_fb_error_px).then_some(q)
@@ -196,7 +197,7 @@ mod tests {
             let (pa, pb) = (Pyramid::of(&a, 4), Pyramid::of(&b, 4));
             let mut worst = 0.0f32;
             for &(x, y) in &[(100.0f32, 90.0f32), (160.0, 120.0), (210.5, 140.25)] {
-                let q = track_checked(&pa, &pb, [x, y], &prm, &mut s).expect("tracked");
+                let q = track_checked(&pa, &pb, [x, y], [x, y], &prm, &mut s).expect("tracked");
                 worst = worst.max(((q[0] - x - dx).powi(2) + (q[1] - y - dy).powi(2)).sqrt());
             }
             assert!(worst < 0.05, "shift ({dx}, {dy}): error {worst} px");

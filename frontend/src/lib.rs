@@ -6,6 +6,7 @@
 //! - [`image`]: grey images and pyramids, bilinear sampling;
 //! - [`detect`]: Shi–Tomasi corners over a grid, apart from tracked ones;
 //! - [`klt`]: pyramidal Lucas–Kanade with the forward–backward check;
+//! - [`affine`]: each track held to its first window by an affine warp;
 //! - [`ransac`]: outliers off the epipolar geometry (8-point, Sampson);
 //! - [`tracker`]: the per-frame pipeline with stable landmark ids;
 //! - [`reid`]: old landmarks re-identified by steered BRIEF on keyframes;
@@ -13,11 +14,13 @@
 //!   their stamps; [`euroc`]: the dataset layout;
 //! - [`run`]: the loop from a source to the daemon's socket; [`output`]:
 //!   the socket's lines;
-//! - [`synthetic`]: images with known motion, for tests and benchmarks.
+//! - [`synthetic`]: images with known motion, for tests and benchmarks;
+//! - `v4l2` (cargo feature `v4l2`): a Video4Linux2 camera as a source.
 
 // Names carry their frames (`R_W_C`, `p_C_in_W`), as everywhere here.
 #![allow(non_snake_case)]
 
+pub mod affine;
 pub mod detect;
 pub mod euroc;
 pub mod image;
@@ -29,3 +32,5 @@ pub mod run;
 pub mod source;
 pub mod synthetic;
 pub mod tracker;
+#[cfg(feature = "v4l2")]
+pub mod v4l2;

@@ -21,12 +21,19 @@ use cmsckf_models::sensors::CameraConfig;
 #[command(version)]
 struct Args {
     /// A EuRoC/ASL dataset folder (the one holding `mav0/`).
-    #[arg(long, required_unless_present = "camera_socket", conflicts_with = "camera_socket")]
+    #[arg(long, conflicts_with = "camera_socket")]
     euroc: Option<PathBuf>,
     /// A camera process's Unix socket, writing raw grey frames
     /// (docs/design.md, "Camera images"); waits up to 10 s for it.
     #[arg(long)]
     camera_socket: Option<PathBuf>,
+    /// A Video4Linux2 camera, e.g. /dev/video0, read at the camera model's
+    /// size in 8-bit grey (or YUYV's luma), stamped with the kernel's
+    /// CLOCK_MONOTONIC capture time: run the daemon with
+    /// `features.clock = "monotonic"`.
+    #[cfg(feature = "v4l2")]
+    #[arg(long, conflicts_with_all = ["euroc", "camera_socket"], requires = "config")]
+    v4l2: Option<PathBuf>,
     /// Stamp frames with the source's own time, or with CLOCK_MONOTONIC on
     /// arrival (then set the daemon's `features.clock = "monotonic"`).
     #[arg(long, value_enum, default_value_t = Stamp::Source)]
@@ -83,19 +90,33 @@ fn camera(path: &Option<PathBuf>) -> anyhow::Result<Option<Camera>> {
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let cam = camera(&args.config)?;
-    let mut source: Box<dyn FrameSource> = match (&args.euroc, &args.camera_socket) {
-        (Some(root), _) => {
+    #[cfg(feature = "v4l2")]
+    let v4l2 = match (&args.v4l2, &cam) {
+        (Some(dev), Some(c)) => Some(cmsckf_frontend::v4l2::V4l2Source::open(
+            dev,
+            c.width_px as u32,
+            c.height_px as u32,
+        )?),
+        _ => None,
+    };
+    #[cfg(not(feature = "v4l2"))]
+    let v4l2: Option<cmsckf_frontend::source::EurocSource> = None;
+    let mut source: Box<dyn FrameSource> = match (v4l2, &args.euroc, &args.camera_socket) {
+        (Some(v), _, _) => Box::new(v),
+        (None, Some(root), _) => {
             let src = EurocSource::open(root, args.cam, args.realtime)?;
             if src.is_empty() {
                 bail!("'{}' lists no frames", root.display());
             }
             Box::new(src)
         }
-        (None, Some(path)) => {
+        (None, None, Some(path)) => {
             let size = cam.as_ref().map(|c| (c.width_px as usize, c.height_px as usize));
             Box::new(SocketSource::connect(path, Duration::from_secs(10), size)?)
         }
-        (None, None) => bail!("give --euroc DIR or --camera-socket PATH"),
+        (None, None, None) => {
+            bail!("give --euroc DIR, --camera-socket PATH or (built with the v4l2 feature) --v4l2 /dev/videoN")
+        }
     };
     let mut sink: Box<dyn Sink> = match (&args.socket, &args.out) {
         (Some(s), _) => Box::new(

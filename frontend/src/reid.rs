@@ -52,8 +52,8 @@ impl Default for ReidParams {
             max_keyframes: 400,
             max_distance: 50,
             ratio: 0.8,
-            min_matches: 15,
-            affine_tolerance_px: 25.0,
+            min_matches: 10,
+            affine_tolerance_px: 10.0,
         }
     }
 }
@@ -269,7 +269,6 @@ impl Reid {
 
 /// Keyframes verified per re-identification, at most.
 const VERIFIED_KEYFRAMES: usize = 4;
-
 
 /// Marks the pixel pairs `(a, b)` that one affine map `b ≈ A a + t` (from
 /// three-pair RANSAC samples, `seed` driven) carries to within

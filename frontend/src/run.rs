@@ -104,13 +104,14 @@ impl std::fmt::Display for RunReport {
         let s = &self.tracks;
         write!(
             f,
-            "{} frames, {:.2} ms a frame tracking, {} not delivered, {} out of order; features detected {}, lost by Lucas–Kanade {}, by RANSAC {}, re-identified {}",
+            "{} frames, {:.2} ms a frame tracking, {} not delivered, {} out of order; features detected {}, lost by Lucas–Kanade {}, by their first window {}, by RANSAC {}, re-identified {}",
             self.frames,
             self.ms_per_frame(),
             self.frames_dropped,
             self.frames_out_of_order,
             s.detected,
             s.lost_klt,
+            s.lost_anchor,
             s.lost_ransac,
             s.reidentified
         )

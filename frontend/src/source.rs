@@ -39,6 +39,8 @@ pub enum SourceError {
     Socket(PathBuf, std::io::Error),
     #[error("camera socket '{0}': {1}")]
     Header(PathBuf, FrameHeaderError),
+    #[error("camera '{0}': {1}")]
+    Device(PathBuf, String),
     #[error("camera socket '{path}': a {got_w}x{got_h} image, but the camera model is {want_w}x{want_h}: give the front-end the camera's own config")]
     Size {
         path: PathBuf,

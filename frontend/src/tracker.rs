@@ -1,8 +1,10 @@
 //! The frame-to-frame tracker: why this exists is to turn a camera's images
 //! into what the daemon's feature socket carries, landmarks with stable ids
 //! and their pixel positions. Each frame: every track is followed by
-//! pyramidal Lucas–Kanade with the forward–backward check (`klt.rs`), the
-//! survivors must agree with one epipolar geometry (`ransac.rs`, on
+//! pyramidal Lucas–Kanade with the forward–backward check (`klt.rs`), then
+//! held to the window it was first seen with through an affine warp, or
+//! dropped once it no longer matches it (`affine.rs`); the survivors must
+//! agree with one epipolar geometry (`ransac.rs`, on
 //! undistorted normalised coordinates through the project's camera model),
 //! and the image is topped up to `max_features` with new corners where it
 //! has room (`detect.rs`). A lost feature seen again gets a new id, unless
@@ -12,6 +14,7 @@
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
+use crate::affine::Anchor;
 use crate::detect::{DetectParams, Detector};
 use crate::image::{Gray, Pyramid};
 use crate::klt::{track_checked, KltParams, KltScratch};
@@ -32,7 +35,15 @@ pub struct TrackerParams {
     /// Re-identification of old landmarks (`None`: off). It needs the
     /// camera model.
     pub reid: Option<ReidParams>,
+    /// Each track is checked against its first window through an affine
+    /// warp (`affine.rs`) and moved to where it fits; it is dropped when
+    /// the residual exceeds this share of the window's spread (`None`:
+    /// frame-to-frame tracking only, which drifts where the image scales).
+    pub max_anchor_residual: Option<f32>,
 }
+
+/// Gauss–Newton steps of the anchor check a frame.
+const ANCHOR_ITERATIONS: usize = 3;
 
 impl Default for TrackerParams {
     fn default() -> Self {
@@ -43,6 +54,7 @@ impl Default for TrackerParams {
             detect: DetectParams::default(),
             ransac_threshold_px: 1.0,
             reid: Some(ReidParams::default()),
+            max_anchor_residual: Some(0.1),
         }
     }
 }
@@ -63,6 +75,8 @@ pub struct Feature {
 pub struct TrackStats {
     pub lost_klt: u64,
     pub lost_ransac: u64,
+    /// Dropped for no longer matching their first window.
+    pub lost_anchor: u64,
     pub detected: u64,
     /// Features given back an old landmark's id.
     pub reidentified: u64,
@@ -85,6 +99,8 @@ pub struct Tracker {
     existing: Vec<[f32; 2]>,
     frames: u64,
     reid: Option<Reid>,
+    /// Each track's window as first seen, and its affine warp since, by id.
+    anchors: std::collections::HashMap<u64, Anchor>,
     pub stats: TrackStats,
 }
 
@@ -108,6 +124,7 @@ impl Tracker {
             existing: Vec::new(),
             frames: 0,
             reid,
+            anchors: Default::default(),
             stats: TrackStats::default(),
         }
     }
@@ -127,10 +144,29 @@ impl Tracker {
             self.follow();
         }
         self.top_up();
+        self.anchor_new();
         self.reidentify();
         std::mem::swap(&mut self.prev, &mut self.next);
         self.frames += 1;
         &self.features
+    }
+
+    /// Stores the window of each feature new in this frame (or without
+    /// one), and forgets those of lost tracks.
+    fn anchor_new(&mut self) {
+        if self.prm.max_anchor_residual.is_none() {
+            return;
+        }
+        let live: std::collections::HashSet<u64> = self.features.iter().map(|f| f.id).collect();
+        self.anchors.retain(|id, _| live.contains(id));
+        let img = &self.next.levels[0];
+        for f in self.features.iter() {
+            if f.age == 0 || !self.anchors.contains_key(&f.id) {
+                if let Some(a) = Anchor::new(img, f.u_px, f.v_px) {
+                    self.anchors.insert(f.id, a);
+                }
+            }
+        }
     }
 
     /// Lucas–Kanade with the forward–backward check, then RANSAC.
@@ -142,10 +178,24 @@ impl Tracker {
                 &self.prev,
                 &self.next,
                 [f.u_px, f.v_px],
+                [f.u_px, f.v_px],
                 &self.prm.klt,
                 &mut self.scratch,
             ) {
                 Some(q) => {
+                    // Held to its first window (affine.rs): corrected, or
+                    // dropped once it no longer looks like it.
+                    let mut q = q;
+                    if let (Some(max), Some(a)) = (self.prm.max_anchor_residual, self.anchors.get_mut(&f.id)) {
+                        match a.refine(&self.next.levels[0], q, ANCHOR_ITERATIONS) {
+                            Some((rq, res)) if (rq[0] - q[0]).hypot(rq[1] - q[1]) < 2.0 && res < max => q = rq,
+                            _ => {
+                                self.stats.lost_anchor += 1;
+                                self.anchors.remove(&f.id);
+                                continue;
+                            }
+                        }
+                    }
                     let moved = Feature {
                         u_px: q[0],
                         v_px: q[1],

@@ -85,7 +85,7 @@ fn endpoint_error_on_middlebury_motorcycle() {
         if !d.is_finite() || d <= 0.0 {
             continue;
         }
-        match track_checked(&pl, &pr, *p, &prm, &mut s) {
+        match track_checked(&pl, &pr, *p, *p, &prm, &mut s) {
             Some(q) => errors.push(((q[0] - (p[0] - d)).powi(2) + (q[1] - p[1]).powi(2)).sqrt()),
             None => lost += 1,
         }
@@ -100,7 +100,7 @@ fn endpoint_error_on_middlebury_motorcycle() {
     for _ in 0..reps {
         let pts = det.detect(&left, &[], 150, &DetectParams::default());
         for p in &pts {
-            let _ = track_checked(&pl, &pr, *p, &prm, &mut s);
+            let _ = track_checked(&pl, &pr, *p, *p, &prm, &mut s);
         }
     }
     eprintln!(

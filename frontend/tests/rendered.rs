@@ -12,14 +12,13 @@
 //!   motion of its world point.
 //!
 //! Issue 22's targets are 95 % of tracks within 1 px and under 1 % of
-//! re-identifications wrong. Measured (README, "Front-end"): far from both.
-//! 47.5 % of 3654 tracks stay within 1 px, 68.6 % within 2 px: the steps are
-//! unbiased but 0.38 px RMS across and 0.22 px down the image, so tracks
-//! random-walk off their points within 10–20 frames (on the fronto-parallel
-//! synthetic plane they stay within 0.05 px a step). 8 of 30
-//! re-identifications land more than 3 px from their landmark. The bounds
-//! below guard today's figures against regression; the targets are the
-//! issue's and still open.
+//! re-identifications wrong. Measured (README, "Front-end"): 94.9 % of 5918
+//! tracks within 1 px (98.0 % within 2 px), just short; 5 of 562
+//! re-identifications wrong (0.9 %). Without the affine check against each
+//! track's first window (`affine.rs`), 47.5 % of tracks stayed within 1 px.
+
+// Names carry their frames (`T_W_C`, `p_in_W`), as everywhere here.
+#![allow(non_snake_case)]
 
 use std::collections::BTreeMap;
 
@@ -30,6 +29,9 @@ use cmsckf_sitl::config::SimConfig;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::render::Renderer;
 use nalgebra::Vector3;
+
+/// The previous frame's camera pose and its features' pixels, by id.
+type PrevFrame = (nalgebra::Isometry3<f64>, BTreeMap<u64, [f64; 2]>);
 
 /// One id's truth: its first world point, the frame it was last seen, and
 /// the largest reprojection error of its current run.
@@ -48,9 +50,8 @@ struct Score {
     reid: usize,
     wrong: usize,
     on_sky: usize,
-    /// Squared step errors (x, y) and their count.
-    step_sq: [f64; 2],
-    steps: usize,
+    /// Each step's error (px): tracked motion less the true motion.
+    steps: Vec<f64>,
 }
 
 impl Score {
@@ -67,23 +68,14 @@ impl Score {
 fn rendered_tracks_are_scored_against_their_world_points() {
     let mut sim = SimConfig::new();
     sim.camera.rate_hz = 20.0;
-    let scen = std::env::var("XS").unwrap_or("figure8".into());
-    let dur: f64 = std::env::var("XD").map_or(40.0, |v| v.parse().unwrap());
-    let ds = Dataset::generate(&scen, 3, Some(dur), &sim).unwrap();
+    let ds = Dataset::generate("figure8", 3, Some(40.0), &sim).unwrap();
     let mut r = Renderer::for_dataset(&ds);
-    let mut prm = TrackerParams::default();
-    if let Some(rp) = prm.reid.as_mut() {
-        if let Ok(v) = std::env::var("XA") { rp.affine_tolerance_px = v.parse().unwrap(); }
-        if let Ok(v) = std::env::var("XR") { rp.ratio = v.parse().unwrap(); }
-        if let Ok(v) = std::env::var("XM") { rp.min_matches = v.parse().unwrap(); }
-        if let Ok(v) = std::env::var("XH") { rp.max_distance = v.parse().unwrap(); }
-        if let Ok(v) = std::env::var("XE") { rp.every_frames = v.parse().unwrap(); }
-    }
+    let prm = TrackerParams::default();
     let mut tracker = Tracker::new(prm, Some(Camera::from_config(&sim.camera)));
     let (mut poses, mut bytes) = (Vec::new(), Vec::new());
     let mut ids: BTreeMap<u64, Truth> = BTreeMap::new();
     let mut sc = Score::default();
-    let mut prev: Option<(nalgebra::Isometry3<f64>, BTreeMap<u64, [f64; 2]>)> = None;
+    let mut prev: Option<PrevFrame> = None;
     for (k, f) in ds.frames.iter().enumerate() {
         r.exposure_poses(&ds.trajectory, f.t_exposure_s, &mut poses);
         r.render(&poses, k as u64, &mut bytes);
@@ -105,10 +97,8 @@ fn rendered_tracks_are_scored_against_their_world_points() {
                     if let Some((T_prev, uv_prev)) = &prev {
                         let (a, b) = (r.project(T_prev, &t.p_in_W), r.project(&T_W_C, &t.p_in_W));
                         if let (Some(a), Some(b), Some(p)) = (a, b, uv_prev.get(&feat.id)) {
-                            for i in 0..2 {
-                                sc.step_sq[i] += ((uv[i] - p[i]) - (b[i] - a[i])).powi(2);
-                            }
-                            sc.steps += 1;
+                            let e = [(uv[0] - p[0]) - (b[0] - a[0]), (uv[1] - p[1]) - (b[1] - a[1])];
+                            sc.steps.push(e[0].hypot(e[1]));
                         }
                     }
                 }
@@ -148,11 +138,12 @@ fn rendered_tracks_are_scored_against_their_world_points() {
     sc.worst.sort_by(f64::total_cmp);
     let pct = |q: f64| sc.worst[((sc.worst.len() - 1) as f64 * q) as usize];
     let within = |px: f64| 100.0 * sc.worst.iter().filter(|&&e| e <= px).count() as f64 / sc.runs as f64;
-    let step_rms = |i: usize| (sc.step_sq[i] / sc.steps as f64).sqrt();
+    sc.steps.sort_by(f64::total_cmp);
+    let step = |q: f64| sc.steps[((sc.steps.len() - 1) as f64 * q) as usize];
     let s = tracker.stats;
     eprintln!(
         "{} frames: {} tracks, {:.1} % within 1 px of their world point all their life, {:.1} % within 2 px \
-         (worst error: median {:.2}, 95th percentile {:.2} px); steps {:.2} px RMS across, {:.2} px down; \
+         (worst error: median {:.2}, 95th percentile {:.2} px); step errors median {:.3}, p90 {:.2}, p99 {:.2} px; \
          {} re-identified, {} of them wrong; {} features seen on the sky; detected {}, lost by Lucas–Kanade {}, \
          by RANSAC {}",
         ds.frames.len(),
@@ -161,8 +152,9 @@ fn rendered_tracks_are_scored_against_their_world_points() {
         within(2.0),
         pct(0.5),
         pct(0.95),
-        step_rms(0),
-        step_rms(1),
+        step(0.5),
+        step(0.9),
+        step(0.99),
         sc.reid,
         sc.wrong,
         sc.on_sky,
@@ -171,19 +163,19 @@ fn rendered_tracks_are_scored_against_their_world_points() {
         s.lost_ransac
     );
     assert!(sc.runs > 1000, "{} tracks", sc.runs);
-    // Regression guards on today's figures (module docs): the targets
-    // (95 %, 1 %) are not met.
-    assert!(within(1.0) >= 40.0, "{:.1} % within 1 px", within(1.0));
-    assert!(within(2.0) >= 60.0, "{:.1} % within 2 px", within(2.0));
+    // The targets are 95 % and under 1 %; today's figures (module docs)
+    // are just short of them, and these bounds hold them there.
+    assert!(within(1.0) >= 94.0, "{:.1} % within 1 px", within(1.0));
+    assert!(within(2.0) >= 97.0, "{:.1} % within 2 px", within(2.0));
     assert!(
-        step_rms(0) < 0.6 && step_rms(1) < 0.35,
-        "steps {:.2} / {:.2} px RMS",
-        step_rms(0),
-        step_rms(1)
+        step(0.5) < 0.1 && step(0.9) < 0.3,
+        "step errors: median {:.3}, p90 {:.2} px",
+        step(0.5),
+        step(0.9)
     );
-    assert!(sc.reid >= 10, "{} re-identified", sc.reid);
+    assert!(sc.reid >= 100, "{} re-identified", sc.reid);
     assert!(
-        sc.wrong * 3 <= sc.reid,
+        sc.wrong * 50 <= sc.reid,
         "{} of {} re-identifications wrong",
         sc.wrong,
         sc.reid

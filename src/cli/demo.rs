@@ -208,6 +208,7 @@ fn fly(
             "ms_per_frame": r.ms_per_frame(),
             "features_detected": r.tracks.detected,
             "lost_klt": r.tracks.lost_klt,
+            "lost_anchor": r.tracks.lost_anchor,
             "lost_ransac": r.tracks.lost_ransac,
             "reidentified": r.tracks.reidentified,
         });

@@ -24,6 +24,10 @@ use cmsckf_models::image_wire::FrameHeader;
 use crate::dataset::Dataset;
 use crate::render::Renderer;
 
+/// Makes frame `k` (in delivery order) into a buffer: its width and
+/// height, or zeros for a frame that could not be made.
+type Producer = Box<dyn FnMut(usize, &mut Vec<u8>) -> (u32, u32) + Send>;
+
 /// Frames rendered ahead of their delivery.
 const AHEAD: usize = 4;
 
@@ -53,7 +57,7 @@ impl CameraServer {
         let files: Vec<PathBuf> = order.iter().filter_map(|&i| ds.frame_images.get(i).cloned()).collect();
         let (tx, frames) = mpsc::channel(AHEAD);
         let (spent, recycled) = std_mpsc::channel::<Vec<u8>>();
-        let produce: Box<dyn FnMut(usize, &mut Vec<u8>) -> (u32, u32) + Send> = if files.is_empty() {
+        let produce: Producer = if files.is_empty() {
             let mut renderer = Renderer::for_dataset(ds);
             let traj = ds.trajectory.clone();
             let seed = ds.seed;
