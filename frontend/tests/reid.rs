@@ -82,9 +82,11 @@ fn old_landmarks_are_recognised_on_the_way_back() {
          Lucas–Kanade {}, by RANSAC {}",
         s.reidentified, s.detected, s.lost_klt, s.lost_ransac
     );
-    // Measured: 18 re-identified, 0 wrong (more than 3 px from their
-    // landmark). Every id that came back is one re-identification.
-    assert!(s.reidentified >= 10, "{} re-identified", s.reidentified);
+    // Measured: 6 re-identified, 0 wrong (more than 3 px from their
+    // landmark); 18 before each track was held to its first window, which
+    // ends tracks sooner (fewer keyframe features to match). Every id that
+    // came back is one re-identification.
+    assert!(s.reidentified >= 5, "{} re-identified", s.reidentified);
     assert_eq!(reappeared as u64, s.reidentified);
     assert!(
         (wrong as f64) < 0.01 * reappeared as f64,
