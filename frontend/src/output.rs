@@ -4,7 +4,6 @@
 //! socket path.
 
 use std::fmt::Write as _;
-use std::io::Write;
 
 use crate::tracker::Feature;
 
@@ -26,11 +25,6 @@ pub fn frame_line(t_us: u64, cam: u32, features: &[Feature]) -> String {
     let mut s = String::new();
     frame_line_into(&mut s, t_us, cam, features);
     s
-}
-
-/// Writes one frame to `w`.
-pub fn write_frame(w: &mut impl Write, t_us: u64, cam: u32, features: &[Feature]) -> std::io::Result<()> {
-    w.write_all(frame_line(t_us, cam, features).as_bytes())
 }
 
 #[cfg(test)]

@@ -101,6 +101,7 @@ pub struct Tracker {
     reid: Option<Reid>,
     /// Each track's window as first seen, and its affine warp since, by id.
     anchors: std::collections::HashMap<u64, Anchor>,
+    live_ids: Vec<u64>,
     pub stats: TrackStats,
 }
 
@@ -125,6 +126,7 @@ impl Tracker {
             frames: 0,
             reid,
             anchors: Default::default(),
+            live_ids: Vec::new(),
             stats: TrackStats::default(),
         }
     }
@@ -157,8 +159,12 @@ impl Tracker {
         if self.prm.max_anchor_residual.is_none() {
             return;
         }
-        let live: std::collections::HashSet<u64> = self.features.iter().map(|f| f.id).collect();
-        self.anchors.retain(|id, _| live.contains(id));
+        // The live ids, sorted into a buffer kept from frame to frame.
+        self.live_ids.clear();
+        self.live_ids.extend(self.features.iter().map(|f| f.id));
+        self.live_ids.sort_unstable();
+        let live = &self.live_ids;
+        self.anchors.retain(|id, _| live.binary_search(id).is_ok());
         let img = &self.next.levels[0];
         for f in self.features.iter() {
             if f.age == 0 || !self.anchors.contains_key(&f.id) {
