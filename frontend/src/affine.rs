@@ -23,7 +23,30 @@ use nalgebra::{Matrix2, Matrix6, Vector2, Vector6};
 use crate::image::Gray;
 
 /// Half the side of the warped window (px).
-pub const HALF: usize = 7;
+pub const HALF: usize = 9;
+
+/// How far above the noise of two images a perfect match's residual may
+/// lie (see [`Anchor::fits`]).
+const NOISE_MARGIN: f32 = 1.2;
+
+/// The side of the first window with its one-pixel ring (px).
+pub const RING_SIDE: usize = 2 * HALF + 3;
+
+/// The window of `img` at `(u, v)` with its one-pixel ring (`RING_SIDE²`,
+/// row by row) as grey bytes, written into `out`, if it fits: a tenth of
+/// an anchor's size, so re-identification can keep one for every landmark
+/// it knows (quantised to grey levels: under 0.3 of RMS error, below any
+/// camera's noise).
+pub fn window_bytes(img: &Gray, u: f32, v: f32, ring: &mut Vec<f32>, out: &mut Vec<u8>) -> bool {
+    if !img.inside(u, v, (HALF + 2) as f32) {
+        return false;
+    }
+    ring.resize(RING_SIDE * RING_SIDE, 0.0);
+    img.window(u, v, HALF + 1, ring);
+    out.clear();
+    out.extend(ring.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8));
+    true
+}
 
 /// A track's first window: its pixels, the steepest-descent images `J`
 /// and `H⁻¹`, and the current warp.
@@ -33,7 +56,8 @@ pub struct Anchor {
     j: Vec<[f32; 6]>,
     h_inv: Matrix6<f32>,
     /// The window's standard deviation (grey levels): residuals are read
-    /// against it, so a check does not depend on the scene's contrast.
+    /// against it, so a check does not depend on the scene's contrast
+    /// (beyond the noise's floor).
     spread: f32,
     /// The warp's linear part (the translation is the feature's position).
     pub a: Matrix2<f32>,
@@ -43,13 +67,28 @@ impl Anchor {
     /// The window of `img` centred at `(u, v)`, or `None` if it does not
     /// fit or is too flat to hold an affine warp.
     pub fn new(img: &Gray, u: f32, v: f32) -> Option<Self> {
-        let r = HALF + 1;
-        if !img.inside(u, v, r as f32 + 1.0) {
+        if !img.inside(u, v, (HALF + 2) as f32) {
             return None;
         }
-        let side = 2 * r + 1;
-        let mut ring = vec![0.0; side * side];
-        img.window(u, v, r, &mut ring);
+        let mut ring = vec![0.0; RING_SIDE * RING_SIDE];
+        img.window(u, v, HALF + 1, &mut ring);
+        Self::from_ring(&ring)
+    }
+
+    /// The anchor of a window kept as grey bytes ([`window_bytes`]), its
+    /// warp the identity: how a re-identified track is checked against
+    /// its landmark's look.
+    pub fn from_window_bytes(bytes: &[u8]) -> Option<Self> {
+        if bytes.len() != RING_SIDE * RING_SIDE {
+            return None;
+        }
+        let ring: Vec<f32> = bytes.iter().map(|&b| f32::from(b)).collect();
+        Self::from_ring(&ring)
+    }
+
+    /// From the first window with its one-pixel ring (`RING_SIDE²`).
+    fn from_ring(ring: &[f32]) -> Option<Self> {
+        let side = RING_SIDE;
         let n = 2 * HALF + 1;
         let (mut t, mut j) = (Vec::with_capacity(n * n), Vec::with_capacity(n * n));
         let mut h = Matrix6::<f32>::zeros();
@@ -81,18 +120,18 @@ impl Anchor {
     }
 
     /// Refines the feature's position `pos` in `img`, starting from the
-    /// current warp: the new position and the residual's RMS as a share of
-    /// the window's own spread (0: a perfect match; 1.4: no better than an
-    /// unrelated window of the same contrast), or `None` if the window
-    /// leaves the image or the warp degenerates.
+    /// current warp: the new position and the residual's RMS (grey levels;
+    /// see [`Anchor::fits`]), or `None` if the window leaves the image or
+    /// the warp degenerates.
     pub fn refine(&mut self, img: &Gray, pos: [f32; 2], iterations: usize) -> Option<([f32; 2], f32)> {
         let mut t = Vector2::new(pos[0], pos[1]);
         let mut a = self.a;
         let n = 2 * HALF + 1;
-        // How far the warped window reaches from its centre (px).
-        let reach = HALF as f32 * a.abs().column_sum().max().max(1.0);
         let mut rms = f32::INFINITY;
         for _ in 0..iterations {
+            // How far the warped window reaches from its centre (px): the
+            // largest row sum of |A| times the window's half side.
+            let reach = HALF as f32 * a.abs().column_sum().max().max(1.0);
             if !img.inside(t.x, t.y, reach + 2.0) {
                 return None;
             }
@@ -103,7 +142,8 @@ impl Anchor {
                     let k = y * n + x;
                     let d = Vector2::new(x as f32 - HALF as f32, y as f32 - HALF as f32);
                     let p = a * d + t;
-                    let e = img.sample(p.x, p.y) - self.t[k];
+                    // Inside: the window's reach was checked above.
+                    let e = img.sample_inside(p.x, p.y) - self.t[k];
                     sq += e * e;
                     let jr = &self.j[k];
                     for i in 0..6 {
@@ -131,7 +171,18 @@ impl Anchor {
             return None;
         }
         self.a = a;
-        Some(([t.x, t.y], rms / self.spread.max(1e-3)))
+        Some(([t.x, t.y], rms))
+    }
+
+    /// Whether a residual RMS `rms` (grey levels) still matches this
+    /// window: below `share` of the window's spread, added in quadrature
+    /// to what the noise of two images alone leaves, `√2 σ` for a noise
+    /// of `noise_grey` (σ) a pixel, with a margin of 1.2. A share of 0.1
+    /// alone would be the noise itself for a window of median contrast
+    /// (a spread of 30 grey levels on the rendered world, noise 2).
+    pub fn fits(&self, rms: f32, share: f32, noise_grey: f32) -> bool {
+        let noise = NOISE_MARGIN * std::f32::consts::SQRT_2 * noise_grey;
+        rms * rms < (share * self.spread).powi(2) + noise * noise
     }
 }
 

@@ -61,7 +61,18 @@ pub struct Detector {
     cell_start: Vec<usize>,
     cursor: Vec<usize>,
     count: Vec<usize>,
+    /// Per cell, the calls it still sits out after a search that found no
+    /// corner above the floor (a patch of sky or a blank wall: searching it
+    /// on every frame would cost as much as a textured cell and yield
+    /// nothing), and the grid and image size this holds for.
+    barren: Vec<u8>,
+    barren_grid: (usize, usize, usize, usize),
+    /// The column sums of the three products, while scoring a region.
+    col: [Vec<f32>; 3],
 }
+
+/// Calls a cell without corners sits out before it is searched again.
+const BARREN_SKIP: u8 = 3;
 
 impl Detector {
     /// Up to `wanted` new corners of `img`, none within `min_distance_px` of
@@ -88,6 +99,13 @@ impl Detector {
         }
         let share = (wanted + existing.len()).div_ceil(n_cells).max(1);
         self.score.resize(w * h, 0.0);
+        if self.barren_grid != (cols, rows, w, h) {
+            self.barren_grid = (cols, rows, w, h);
+            self.barren.clear();
+            self.barren.resize(n_cells, 0);
+        }
+        let side = (2 * prm.half_window + 1) as f32;
+        let floor = prm.min_eigenvalue * side * side;
         // Each needy cell's best local maxima, best first.
         self.candidates.clear();
         self.cell_start.clear();
@@ -95,7 +113,12 @@ impl Detector {
         for cy in 0..rows {
             for cx in 0..cols {
                 self.cell_start.push(self.candidates.len());
-                if self.count[cy * cols + cx] >= share {
+                let c = cy * cols + cx;
+                if self.count[c] >= share {
+                    continue;
+                }
+                if self.barren[c] > 0 {
+                    self.barren[c] -= 1;
                     continue;
                 }
                 let (x0, x1) = (bd.max(cx * w / cols), (w - bd).min((cx + 1) * w / cols));
@@ -119,7 +142,11 @@ impl Detector {
                 }
                 let keep = cell.len().min(CANDIDATES_PER_CELL);
                 cell[..keep].sort_by(|a, b| b.0.total_cmp(&a.0));
-                best = best.max(cell.first().map_or(0.0, |c| c.0));
+                let cell_best = cell.first().map_or(0.0, |c| c.0);
+                if cell_best < floor {
+                    self.barren[c] = BARREN_SKIP;
+                }
+                best = best.max(cell_best);
                 self.candidates.truncate(from + keep);
             }
         }
@@ -127,8 +154,7 @@ impl Detector {
         if best <= 0.0 {
             return Vec::new();
         }
-        let side = (2 * prm.half_window + 1) as f32;
-        let threshold = (prm.quality * best).max(prm.min_eigenvalue * side * side);
+        let threshold = (prm.quality * best).max(floor);
         let md2 = prm.min_distance_px.max(1.0).powi(2);
         // Round robin over the cells, one corner a cell a round, so the
         // corners spread before any cell gets a second.
@@ -169,46 +195,77 @@ impl Detector {
         kept
     }
 
-    /// The Shi–Tomasi score of every pixel of the region `xs × ys`, from
-    /// integral images of the gradient products over the region grown by
-    /// the window (`O(1)` a pixel).
+    /// The Shi–Tomasi score of every pixel of the region `xs × ys`: the
+    /// gradient products over the region grown by the window, their sums
+    /// down each column's `2r + 1` rows kept running from row to row, then
+    /// across `2r + 1` columns (`O(r)` a pixel, every pass along rows, so
+    /// each vectorises).
     fn region_scores(&mut self, img: &Gray, xs: (usize, usize), ys: (usize, usize), r: usize) {
         let w = img.width;
-        // The integral images cover [gx0, gx1) × [gy0, gy1).
+        // The grown region [gx0, gx1) × [gy0, gy1).
         let (gx0, gx1, gy0, gy1) = (xs.0 - r, xs.1 + r, ys.0 - r, ys.1 + r);
-        let iw = gx1 - gx0 + 1;
-        let n = iw * (gy1 - gy0 + 1);
+        let gw = gx1 - gx0;
+        let n = gw * (gy1 - gy0);
         for v in [&mut self.sxx, &mut self.sxy, &mut self.syy] {
             v.clear();
             v.resize(n, 0.0);
         }
+        // The products, row by row of the grown region.
         for y in gy0..gy1 {
-            let (mut rxx, mut rxy, mut ryy) = (0.0f32, 0.0f32, 0.0f32);
-            for x in gx0..gx1 {
-                let ix = 0.5 * (img.px[y * w + x + 1] - img.px[y * w + x - 1]);
-                let iy = 0.5 * (img.px[(y + 1) * w + x] - img.px[(y - 1) * w + x]);
-                rxx += ix * ix;
-                rxy += ix * iy;
-                ryy += iy * iy;
-                let k = (y - gy0 + 1) * iw + (x - gx0 + 1);
-                self.sxx[k] = self.sxx[k - iw] + rxx;
-                self.sxy[k] = self.sxy[k - iw] + rxy;
-                self.syy[k] = self.syy[k - iw] + ryy;
+            let at = y * w + gx0;
+            let (mid, up, down) = (
+                &img.px[at - 1..at + gw + 1],
+                &img.px[at - w..at - w + gw],
+                &img.px[at + w..at + w + gw],
+            );
+            let o = (y - gy0) * gw;
+            let (pxx, pxy, pyy) = (
+                &mut self.sxx[o..o + gw],
+                &mut self.sxy[o..o + gw],
+                &mut self.syy[o..o + gw],
+            );
+            for x in 0..gw {
+                let ix = 0.5 * (mid[x + 2] - mid[x]);
+                let iy = 0.5 * (down[x] - up[x]);
+                pxx[x] = ix * ix;
+                pxy[x] = ix * iy;
+                pyy[x] = iy * iy;
             }
         }
-        let box_sum = |s: &[f32], x: usize, y: usize| {
-            // The window centred at (x, y) in integral coordinates.
-            let (x0, y0) = (x - gx0 - r, y - gy0 - r);
-            let (x1, y1) = (x0 + 2 * r + 1, y0 + 2 * r + 1);
-            s[y1 * iw + x1] - s[y0 * iw + x1] - s[y1 * iw + x0] + s[y0 * iw + x0]
-        };
+        // Column sums over the window's first 2r rows, then slid down.
+        let side = 2 * r + 1;
+        let col = &mut self.col;
+        for (c, buf) in col.iter_mut().zip([&self.sxx, &self.sxy, &self.syy]) {
+            c.clear();
+            c.resize(gw, 0.0);
+            for k in 0..side - 1 {
+                for (s, v) in c.iter_mut().zip(&buf[k * gw..(k + 1) * gw]) {
+                    *s += v;
+                }
+            }
+        }
         for y in ys.0..ys.1 {
-            for x in xs.0..xs.1 {
-                let a = box_sum(&self.sxx, x, y);
-                let b = box_sum(&self.sxy, x, y);
-                let c = box_sum(&self.syy, x, y);
-                let tr = 0.5 * (a + c);
-                self.score[y * w + x] = tr - (tr * tr - (a * c - b * b)).max(0.0).sqrt();
+            let top = y - r - gy0;
+            let (bottom, out) = ((top + side - 1) * gw, &mut self.score[y * w + xs.0..y * w + xs.1]);
+            for (c, buf) in col.iter_mut().zip([&self.sxx, &self.sxy, &self.syy]) {
+                for (s, v) in c.iter_mut().zip(&buf[bottom..bottom + gw]) {
+                    *s += v;
+                }
+            }
+            for (x, o) in out.iter_mut().enumerate() {
+                let (mut a, mut b, mut cc) = (0.0f32, 0.0f32, 0.0f32);
+                for d in 0..side {
+                    a += col[0][x + d];
+                    b += col[1][x + d];
+                    cc += col[2][x + d];
+                }
+                let tr = 0.5 * (a + cc);
+                *o = tr - (tr * tr - (a * cc - b * b)).max(0.0).sqrt();
+            }
+            for (c, buf) in col.iter_mut().zip([&self.sxx, &self.sxy, &self.syy]) {
+                for (s, v) in c.iter_mut().zip(&buf[top * gw..(top + 1) * gw]) {
+                    *s -= v;
+                }
             }
         }
     }

@@ -32,6 +32,19 @@ impl Gray {
         })
     }
 
+    /// Overwrites this image with 8-bit grey pixels, reusing its buffer
+    /// (`bytes.len()` must be `width * height`; false, unchanged, if not).
+    pub fn set_from_u8(&mut self, width: usize, height: usize, bytes: &[u8]) -> bool {
+        if bytes.len() != width * height {
+            return false;
+        }
+        self.width = width;
+        self.height = height;
+        self.px.clear();
+        self.px.extend(bytes.iter().map(|&b| f32::from(b)));
+        true
+    }
+
     /// The pixel at integer `(x, y)`, clamped to the border.
     #[inline]
     pub fn at(&self, x: isize, y: isize) -> f32 {
@@ -53,6 +66,17 @@ impl Gray {
         (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
     }
 
+    /// Bilinear sample at `(x, y)`, which must lie at least one pixel
+    /// inside the image ([`Gray::inside`] with margin 1): no clamping.
+    #[inline]
+    pub fn sample_inside(&self, x: f32, y: f32) -> f32 {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let k = y0 as usize * self.width + x0 as usize;
+        let (r0, r1) = (&self.px[k..k + 2], &self.px[k + self.width..k + self.width + 2]);
+        (r0[0] * (1.0 - fx) + r0[1] * fx) * (1.0 - fy) + (r1[0] * (1.0 - fx) + r1[1] * fx) * fy
+    }
+
     /// Whether `(x, y)` lies at least `margin` pixels inside the image.
     #[inline]
     pub fn inside(&self, x: f32, y: f32, margin: f32) -> bool {
@@ -69,12 +93,14 @@ impl Gray {
         let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
         let side = 2 * r + 1;
         let (xs, ys) = (x0 as usize - r, y0 as usize - r);
-        for j in 0..side {
-            let row0 = &self.px[(ys + j) * self.width + xs..];
-            let row1 = &self.px[(ys + j + 1) * self.width + xs..];
-            let o = &mut out[j * side..(j + 1) * side];
-            for i in 0..side {
-                o[i] = w00 * row0[i] + w10 * row0[i + 1] + w01 * row1[i] + w11 * row1[i + 1];
+        for (j, o) in out[..side * side].chunks_exact_mut(side).enumerate() {
+            // Slices of known length, so the loop runs without bounds
+            // checks (and vectorises).
+            let at = (ys + j) * self.width + xs;
+            let row0 = &self.px[at..at + side + 1];
+            let row1 = &self.px[at + self.width..at + self.width + side + 1];
+            for (i, o) in o.iter_mut().enumerate() {
+                *o = w00 * row0[i] + w10 * row0[i + 1] + w01 * row1[i] + w11 * row1[i + 1];
             }
         }
     }

@@ -58,17 +58,24 @@ pub struct KltScratch {
     moving: Vec<f32>,
 }
 
-/// Tracks `p` (level-0 px) from `prev` to `next`, starting from `guess`;
-/// `None` when a window is flat, leaves the image or does not converge.
+/// A coarse level stops once a step is shorter than this (its own px):
+/// it only has to bring the next finer level inside its basin, which is
+/// a window wide, and the finest level alone sets the precision.
+const COARSE_EPSILON_PX: f32 = 0.1;
+
+/// Tracks `p` (level-0 px) from `prev` to `next`, starting from `guess`,
+/// over the `max_levels` finest levels of the pyramids (at most); `None`
+/// when a window is flat, leaves the image or does not converge.
 pub fn track_point(
     prev: &Pyramid,
     next: &Pyramid,
     p: [f32; 2],
     guess: [f32; 2],
+    max_levels: usize,
     prm: &KltParams,
     s: &mut KltScratch,
 ) -> Option<[f32; 2]> {
-    let n_levels = prev.levels.len().min(next.levels.len());
+    let n_levels = prev.levels.len().min(next.levels.len()).min(max_levels.max(1));
     let r = prm.half_window;
     let side = 2 * r + 1;
     let area = (side * side) as f32;
@@ -149,7 +156,12 @@ pub fn track_point(
             let dy = inv_det * (gxx * by - gxy * bx);
             d[0] += dx;
             d[1] += dy;
-            if dx * dx + dy * dy < prm.epsilon_px * prm.epsilon_px {
+            let eps = if level == 0 {
+                prm.epsilon_px
+            } else {
+                COARSE_EPSILON_PX.max(prm.epsilon_px)
+            };
+            if dx * dx + dy * dy < eps * eps {
                 break;
             }
         }
@@ -161,8 +173,13 @@ pub fn track_point(
     (q[0].is_finite() && q[1].is_finite() && next.levels[0].inside(q[0], q[1], 0.0)).then_some(q)
 }
 
+/// Pyramid levels of the backward track.
+const BACKWARD_LEVELS: usize = 2;
+
 /// Tracks `p` forward and back: the new position when the backward track
-/// returns within `max_fb_error_px` of `p`.
+/// returns within `max_fb_error_px` of `p`. The backward track starts at
+/// `p` itself, so it needs only the two finest levels: a track it accepts
+/// ends within half a pixel of its start, far inside their basin.
 pub fn track_checked(
     prev: &Pyramid,
     next: &Pyramid,
@@ -171,8 +188,8 @@ pub fn track_checked(
     prm: &KltParams,
     s: &mut KltScratch,
 ) -> Option<[f32; 2]> {
-    let q = track_point(prev, next, p, guess, prm, s)?;
-    let back = track_point(next, prev, q, p, prm, s)?;
+    let q = track_point(prev, next, p, guess, usize::MAX, prm, s)?;
+    let back = track_point(next, prev, q, p, BACKWARD_LEVELS, prm, s)?;
     let fb = ((back[0] - p[0]).powi(2) + (back[1] - p[1]).powi(2)).sqrt();
     (fb <= prm.max_fb_error_px).then_some(q)
 }
@@ -203,6 +220,6 @@ mod tests {
             assert!(worst < 0.05, "shift ({dx}, {dy}): error {worst} px");
         }
         let flat = Pyramid::of(&Gray::new(w, h), 3);
-        assert!(track_point(&flat, &flat, [100.0, 100.0], [100.0, 100.0], &prm, &mut s).is_none());
+        assert!(track_point(&flat, &flat, [100.0, 100.0], [100.0, 100.0], 3, &prm, &mut s).is_none());
     }
 }

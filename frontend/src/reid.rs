@@ -1,11 +1,18 @@
 //! Re-identification: why this exists is that a loop closure reaches the
-//! filter only as a landmark id it has seen before. Lucas–Kanade loses a
-//! feature once it leaves the image, and when the drone comes back to the
-//! place, the tracker gives the same point a new id. So every few frames the
-//! tracked features get binary descriptors and are matched against older
-//! keyframes' (not the recent ones, which the tracker already links); a
-//! match that is mutual (each the other's nearest), survives the ratio test
-//! and the keyframe's epipolar check gives the feature back its old id.
+//! filter only as a landmark id it has seen before. The tracker loses a
+//! feature when it leaves the image, is hidden, or no longer matches its
+//! first window; when the landmark is seen again (a moment later, or when
+//! the drone comes back to the place), it is detected under a new id. So
+//! on every frame the new features get binary descriptors and are matched
+//! against stored keyframes: the newest few (a landmark lost a moment
+//! ago) and the older ones whose thumbnails look most like this frame (a
+//! place seen before: the block means of the image on a 32×20 grid,
+//! compared by correlation). A match that is mutual (each the other's
+//! nearest) and survives the ratio test is verified with its keyframe's
+//! other pairs, the tracks both frames share included: one epipolar
+//! geometry and one affine image motion. The tracker then checks it
+//! against the landmark's window as first stored (`affine.rs`), which
+//! moves it onto the landmark's own point, and gives it its old id.
 //!
 //! The descriptor is steered BRIEF, as in ORB: 256 intensity comparisons
 //! between point pairs of a 31×31 patch of a box-blurred image, the pattern
@@ -13,11 +20,12 @@
 //! `atan2(m₀₁, m₁₀)`), so a drone that yawed between its visits still
 //! matches.
 
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
+use crate::affine::window_bytes;
 use crate::image::Gray;
 use crate::ransac::epipolar_inliers;
 use crate::synthetic::SplitMix;
@@ -28,10 +36,22 @@ pub type Descriptor = [u64; 4];
 /// Re-identification's settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ReidParams {
-    /// A keyframe every this many frames.
-    pub every_frames: u64,
-    /// The most recent keyframes not searched (the tracker links those).
-    pub skip_recent: usize,
+    /// A keyframe is stored every this many frames.
+    pub keyframe_every_frames: u64,
+    /// A new feature is searched for on each of its first this many
+    /// frames (a landmark is often detected again a frame or two before
+    /// its descriptor matches).
+    pub search_frames: u32,
+    /// The newest stored keyframes, searched on every frame: a landmark
+    /// lost a moment ago and detected again is found there.
+    pub recent_keyframes: usize,
+    /// The older keyframes searched on every frame: those whose thumbnail
+    /// looks most like this frame's (a place seen before).
+    pub place_keyframes: usize,
+    /// How old (frames) a keyframe must be to be searched as a place: a
+    /// revisit means the drone left and came back, and recent frames look
+    /// alike by their thumbnails (sky above ground) without being one.
+    pub place_min_age_frames: u64,
     /// Keyframes kept, at most (the oldest go first).
     pub max_keyframes: usize,
     /// Largest Hamming distance of a match (of 256 bits).
@@ -47,9 +67,12 @@ pub struct ReidParams {
 impl Default for ReidParams {
     fn default() -> Self {
         Self {
-            every_frames: 5,
-            skip_recent: 6,
-            max_keyframes: 400,
+            keyframe_every_frames: 2,
+            search_frames: 5,
+            recent_keyframes: 3,
+            place_keyframes: 3,
+            place_min_age_frames: 200,
+            max_keyframes: 1000,
             max_distance: 50,
             ratio: 0.8,
             min_matches: 10,
@@ -58,14 +81,18 @@ impl Default for ReidParams {
     }
 }
 
-/// One stored keyframe: its features' ids, normalised coordinates and
-/// descriptors.
+/// One stored keyframe: its features' ids (and, sorted, with their
+/// indices), pixels, normalised coordinates and descriptors, and the
+/// frame's thumbnail.
 #[derive(Clone, Debug)]
 struct Keyframe {
+    frame: u64,
     ids: Vec<u64>,
+    by_id: Vec<(u64, usize)>,
     uv: Vec<[f64; 2]>,
     xn: Vec<[f64; 2]>,
     desc: Vec<Descriptor>,
+    thumb: Vec<f32>,
 }
 
 /// The keyframe database and the steered-BRIEF pattern.
@@ -78,12 +105,48 @@ pub struct Reid {
     row: Vec<f32>,
     inliers: Vec<bool>,
     affine_ok: Vec<bool>,
-    /// Features given back an old id, in all.
-    pub reidentified: u64,
+    /// This keyframe's features, described by [`Reid::candidates`] and
+    /// stored by [`Reid::commit`] under the ids they end up with.
+    pending: Option<Pending>,
+    pending_frame: u64,
+    /// Each landmark's window as first stored (`affine.rs`), for the
+    /// photometric check of a re-identification, with the number of
+    /// stored keyframes that hold its id: at most `max_keyframes ×
+    /// features` windows of 289 bytes, dropped with the last keyframe that
+    /// holds them.
+    windows: HashMap<u64, (Vec<u8>, u32)>,
+    ring: Vec<f32>,
+}
+
+/// A frame being matched: its features' indices in the frame, their
+/// pixels, normalised coordinates and descriptors, and its thumbnail.
+#[derive(Clone, Debug)]
+struct Pending {
+    keep: Vec<usize>,
+    uv: Vec<[f64; 2]>,
+    xn: Vec<[f64; 2]>,
+    desc: Vec<Descriptor>,
+    thumb: Vec<f32>,
 }
 
 /// The patch's half side (px).
 const HALF: i32 = 15;
+
+/// The disc of radius `HALF`: each row's half width, `dy` from `-HALF`.
+const DISC_HALF_WIDTH: [i32; 2 * HALF as usize + 1] = {
+    let mut w = [0i32; 2 * HALF as usize + 1];
+    let mut i = 0;
+    while i < w.len() {
+        let dy = i as i32 - HALF;
+        let mut hw = 0;
+        while (hw + 1) * (hw + 1) + dy * dy <= HALF * HALF {
+            hw += 1;
+        }
+        w[i] = hw;
+        i += 1;
+    }
+    w
+};
 
 impl Reid {
     pub fn new(prm: ReidParams) -> Self {
@@ -103,64 +166,119 @@ impl Reid {
             row: Vec::new(),
             inliers: Vec::new(),
             affine_ok: Vec::new(),
-            reidentified: 0,
+            pending: None,
+            pending_frame: 0,
+            windows: HashMap::new(),
+            ring: Vec::new(),
         }
     }
 
-    /// Whether `frame` is a keyframe (every `every_frames`-th).
+    /// Whether `frame` is stored as a keyframe (every
+    /// `keyframe_every_frames`-th).
     pub fn is_keyframe(&self, frame: u64) -> bool {
-        frame.is_multiple_of(self.prm.every_frames)
+        frame.is_multiple_of(self.prm.keyframe_every_frames.max(1))
     }
 
-    /// At every `every_frames`-th frame: describes the features
-    /// `(id, u, v)`, matches them against the older keyframes, and returns
-    /// `(feature index, old id)` for each feature re-identified (never an id
-    /// present in this frame, never two features to one id). The frame is
-    /// then stored as a keyframe under the ids it will carry.
-    pub fn process(&mut self, frame: u64, img: &Gray, feats: &[(u64, f32, f32)], cam: &Camera) -> Vec<(usize, u64)> {
-        if !self.is_keyframe(frame) || feats.is_empty() {
+    /// On every frame: describes the features `(id, u, v, age)`, matches
+    /// those younger than `search_frames` against the newest keyframes and the
+    /// older ones whose thumbnails look most alike, and returns
+    /// `(feature index, old id)` for each feature recognised (never an id
+    /// present in this frame, never two features to one id). The caller
+    /// checks each against its landmark's first window ([`Reid::window`])
+    /// and then gives the ids the frame ends with to [`Reid::commit`],
+    /// which stores it if it is a keyframe.
+    pub fn candidates(
+        &mut self,
+        frame: u64,
+        img: &Gray,
+        feats: &[(u64, f32, f32, u32)],
+        cam: &Camera,
+    ) -> Vec<(usize, u64)> {
+        self.pending = None;
+        let young = |age: u32| age < self.prm.search_frames;
+        let store = self.is_keyframe(frame);
+        if feats.is_empty() || !(store || feats.iter().any(|f| young(f.3))) {
             return Vec::new();
         }
         box_blur(img, &mut self.blurred, &mut self.row);
-        let mut desc = Vec::with_capacity(feats.len());
-        let mut xn = Vec::with_capacity(feats.len());
-        let mut uv = Vec::with_capacity(feats.len());
-        let mut keep = Vec::with_capacity(feats.len());
-        for (i, &(_, u, v)) in feats.iter().enumerate() {
-            let (Some(d), Some(x)) = (
-                self.describe(u, v),
-                cam.undistort(&Vector2::new(f64::from(u), f64::from(v))),
-            ) else {
+        let mut p = Pending {
+            keep: Vec::with_capacity(feats.len()),
+            uv: Vec::with_capacity(feats.len()),
+            xn: Vec::with_capacity(feats.len()),
+            desc: Vec::with_capacity(feats.len()),
+            thumb: thumbnail(&self.blurred),
+        };
+        // Every feature's pixel and normalised coordinates; descriptors for
+        // the young ones, and on a keyframe for all (it is stored), where a
+        // feature without one (its patch leaves the image) is left out.
+        let mut matchable: Vec<usize> = Vec::new();
+        for (i, &(_, u, v, age)) in feats.iter().enumerate() {
+            let Some(x) = cam.undistort(&Vector2::new(f64::from(u), f64::from(v))) else {
                 continue;
             };
-            desc.push(d);
-            xn.push([x.x, x.y]);
-            uv.push([f64::from(u), f64::from(v)]);
-            keep.push(i);
+            let d = if store || young(age) { self.describe(u, v) } else { None };
+            if store && d.is_none() {
+                continue;
+            }
+            if d.is_some() && young(age) {
+                matchable.push(p.keep.len());
+            }
+            p.desc.push(d.unwrap_or_default());
+            p.xn.push([x.x, x.y]);
+            p.uv.push([f64::from(u), f64::from(v)]);
+            p.keep.push(i);
         }
         let present: BTreeSet<u64> = feats.iter().map(|f| f.0).collect();
         let thr = 1.5 / cam.fx;
-        // Candidate keyframes: the older ones whose mutual matches include
-        // the most features under another id than the keyframe's (matches
-        // under the same id are tracks still alive, nothing to recognise).
-        let searchable = self.keyframes.len().saturating_sub(self.prm.skip_recent);
+        // The keyframes searched: the newest, and the older ones most like
+        // this frame by their thumbnails' correlation.
+        let n_kf = self.keyframes.len();
+        let recent_from = n_kf.saturating_sub(self.prm.recent_keyframes);
+        let mut searched: Vec<usize> = (recent_from..n_kf).collect();
+        let old_enough = frame.saturating_sub(self.prm.place_min_age_frames);
+        let mut alike: Vec<(f32, usize)> = (0..recent_from)
+            .take_while(|&n| self.keyframes[n].frame <= old_enough)
+            .map(|n| (dot(&self.keyframes[n].thumb, &p.thumb), n))
+            .collect();
+        let top = self.prm.place_keyframes.min(alike.len());
+        if top > 0 {
+            alike.select_nth_unstable_by(top - 1, |a, b| b.0.total_cmp(&a.0));
+            searched.extend(alike[..top].iter().map(|&(_, n)| n));
+        }
+        // Each searched keyframe's pairs: the young features' mutual
+        // descriptor matches, and the tracks it shares with this frame
+        // (same id: a correspondence by construction, which holds the
+        // geometric check steady).
         let mut ranked: Vec<(usize, usize)> = Vec::new();
-        let mut matches: Vec<Vec<(usize, usize)>> = Vec::with_capacity(searchable);
-        for (n, kf) in self.keyframes.iter().take(searchable).enumerate() {
-            let mut m = Vec::new();
-            for (j, d) in desc.iter().enumerate() {
-                // Mutual: the keyframe's feature must also find this one.
-                if let Some(k) = self.best_match(d, &kf.desc) {
-                    if self.best_match(&kf.desc[k], &desc) == Some(j) {
-                        m.push((j, k));
+        let mut pairs_of: Vec<(usize, Vec<Pair>)> = Vec::with_capacity(searched.len());
+        for &n in &searched {
+            let kf = &self.keyframes[n];
+            let mut m: Vec<Pair> = Vec::new();
+            for j in 0..p.keep.len() {
+                let id = feats[p.keep[j]].0;
+                if let Ok(at) = kf.by_id.binary_search_by_key(&id, |e| e.0) {
+                    m.push((j, kf.by_id[at].1, false));
+                }
+            }
+            for &j in &matchable {
+                // Mutual: the keyframe's feature must also find this one
+                // (among the young: an older feature on the same landmark
+                // would carry the keyframe's id, present and so refused).
+                let young_desc = matchable.iter().map(|&y| (y, &p.desc[y]));
+                if let Some(k) = self.best_match(&p.desc[j], kf.desc.iter().enumerate()) {
+                    if self.best_match(&kf.desc[k], young_desc) == Some(j) {
+                        m.push((j, k, true));
                     }
                 }
             }
-            let new_ids = m.iter().filter(|(j, k)| feats[keep[*j]].0 != kf.ids[*k]).count();
+            let new_ids = m
+                .iter()
+                .filter(|&&(j, k, by_desc)| by_desc && !present.contains(&kf.ids[k]) && feats[p.keep[j]].0 != kf.ids[k])
+                .count();
             if m.len() >= self.prm.min_matches && new_ids > 0 {
-                ranked.push((new_ids, n));
+                ranked.push((new_ids, pairs_of.len()));
             }
-            matches.push(m);
+            pairs_of.push((n, m));
         }
         ranked.sort_by(|a, b| b.cmp(a));
         // Each of the best few verified on its own: the epipolar geometry,
@@ -169,11 +287,11 @@ impl Reid {
         // has rows for epipolar lines); a revisit is from about the same
         // place, so the second holds to within `affine_tolerance_px`.
         let mut verified: Vec<(usize, u64)> = Vec::new();
-        for &(_, n) in ranked.iter().take(VERIFIED_KEYFRAMES) {
-            let kf = &self.keyframes[n];
-            let m = &matches[n];
-            let pairs: Vec<_> = m.iter().map(|&(j, k)| (kf.xn[k], xn[j])).collect();
-            let pix: Vec<_> = m.iter().map(|&(j, k)| (kf.uv[k], uv[j])).collect();
+        for &(_, r) in ranked.iter().take(VERIFIED_KEYFRAMES) {
+            let (n, m) = &pairs_of[r];
+            let kf = &self.keyframes[*n];
+            let pairs: Vec<_> = m.iter().map(|&(j, k, _)| (kf.xn[k], p.xn[j])).collect();
+            let pix: Vec<_> = m.iter().map(|&(j, k, _)| (kf.uv[k], p.uv[j])).collect();
             epipolar_inliers(&pairs, thr, frame, &mut self.inliers);
             affine_inliers(&pix, self.prm.affine_tolerance_px, frame, &mut self.affine_ok);
             let ok = |t: usize| self.inliers[t] && self.affine_ok[t];
@@ -183,8 +301,8 @@ impl Reid {
             verified.extend(
                 m.iter()
                     .enumerate()
-                    .filter(|&(t, _)| ok(t))
-                    .map(|(_, &(j, k))| (keep[j], kf.ids[k])),
+                    .filter(|&(t, &(_, _, by_desc))| by_desc && ok(t))
+                    .map(|(_, &(j, k, _))| (p.keep[j], kf.ids[k])),
             );
         }
         // One feature per old id, one old id per feature, and no id
@@ -202,25 +320,79 @@ impl Reid {
                 out.push((i, old));
             }
         }
-        self.reidentified += out.len() as u64;
-        let mut ids: Vec<u64> = keep.iter().map(|&i| feats[i].0).collect();
-        for &(i, old) in &out {
-            if let Some(pos) = keep.iter().position(|&k| k == i) {
-                ids[pos] = old;
-            }
-        }
-        self.keyframes.push_back(Keyframe { ids, uv, xn, desc });
-        while self.keyframes.len() > self.prm.max_keyframes {
-            self.keyframes.pop_front();
+        if store {
+            self.pending = Some(p);
+            self.pending_frame = frame;
         }
         out
     }
 
+    /// Landmark `id`'s window as the first stored keyframe holding it saw
+    /// it (`affine::window_bytes`), if one does.
+    pub fn window(&self, id: u64) -> Option<&[u8]> {
+        self.windows.get(&id).map(|(w, _)| w.as_slice())
+    }
+
+    /// Stores the frame last passed to [`Reid::candidates`] (`img`) if a
+    /// keyframe, its features under `ids` (the frame's ids once
+    /// re-identified, by feature index), with the window of each landmark
+    /// new to the store; the oldest keyframe goes when the store is full,
+    /// and with it the windows no other keyframe holds.
+    pub fn commit(&mut self, img: &Gray, ids: &[u64]) {
+        let Some(Pending {
+            keep,
+            uv,
+            xn,
+            desc,
+            thumb,
+        }) = self.pending.take()
+        else {
+            return;
+        };
+        let ids: Vec<u64> = keep.iter().map(|&i| ids.get(i).copied().unwrap_or(u64::MAX)).collect();
+        let mut by_id: Vec<(u64, usize)> = ids.iter().enumerate().map(|(k, &id)| (id, k)).collect();
+        by_id.sort_unstable();
+        // A landmark keeps the window of the first keyframe that held it:
+        // every later re-identification is checked against that one look,
+        // so errors do not pass from one re-identification to the next.
+        let mut bytes = Vec::new();
+        for (&id, p) in ids.iter().zip(&uv) {
+            match self.windows.get_mut(&id) {
+                Some(w) => w.1 += 1,
+                None => {
+                    if window_bytes(img, p[0] as f32, p[1] as f32, &mut self.ring, &mut bytes) {
+                        self.windows.insert(id, (bytes.clone(), 1));
+                    }
+                }
+            }
+        }
+        self.keyframes.push_back(Keyframe {
+            frame: self.pending_frame,
+            ids,
+            by_id,
+            uv,
+            xn,
+            desc,
+            thumb,
+        });
+        while self.keyframes.len() > self.prm.max_keyframes {
+            let Some(old) = self.keyframes.pop_front() else { break };
+            for id in old.ids {
+                if let Some(w) = self.windows.get_mut(&id) {
+                    w.1 -= 1;
+                    if w.1 == 0 {
+                        self.windows.remove(&id);
+                    }
+                }
+            }
+        }
+    }
+
     /// The index of `d`'s match in `set`: the nearest within
     /// `max_distance`, clearly nearer than the second (ratio test).
-    fn best_match(&self, d: &Descriptor, set: &[Descriptor]) -> Option<usize> {
+    fn best_match<'a>(&self, d: &Descriptor, set: impl Iterator<Item = (usize, &'a Descriptor)>) -> Option<usize> {
         let (mut b1, mut b2, mut k1) = (u32::MAX, u32::MAX, 0);
-        for (k, e) in set.iter().enumerate() {
+        for (k, e) in set {
             let dist = (0..4).map(|w| (d[w] ^ e[w]).count_ones()).sum::<u32>();
             if dist < b1 {
                 b2 = b1;
@@ -240,16 +412,21 @@ impl Reid {
         if cx < HALF + 1 || cy < HALF + 1 || cx >= img.width as i32 - HALF - 1 || cy >= img.height as i32 - HALF - 1 {
             return None;
         }
-        // The intensity centroid's angle over the disc of radius HALF.
+        // The intensity centroid's angle over the disc of radius HALF, a
+        // row's run of pixels at a time (`DISC_HALF_WIDTH`): Σ dx·p along
+        // the row, and dy times the row's sum.
         let (mut m10, mut m01) = (0.0f32, 0.0f32);
         for dy in -HALF..=HALF {
-            for dx in -HALF..=HALF {
-                if dx * dx + dy * dy <= HALF * HALF {
-                    let p = img.px[(cy + dy) as usize * img.width + (cx + dx) as usize];
-                    m10 += dx as f32 * p;
-                    m01 += dy as f32 * p;
-                }
+            let hw = DISC_HALF_WIDTH[(dy + HALF) as usize];
+            let at = (cy + dy) as usize * img.width + cx as usize;
+            let row = &img.px[at - hw as usize..=at + hw as usize];
+            let (mut sx, mut sum) = (0.0f32, 0.0f32);
+            for (k, &p) in row.iter().enumerate() {
+                sx += (k as i32 - hw) as f32 * p;
+                sum += p;
             }
+            m10 += sx;
+            m01 += dy as f32 * sum;
         }
         let (s, c) = m01.atan2(m10).sin_cos();
         let at = |x: i8, y: i8| {
@@ -267,8 +444,51 @@ impl Reid {
     }
 }
 
+/// The thumbnail's side in blocks, across and down.
+const THUMB: (usize, usize) = (32, 20);
+
+/// A frame's thumbnail for place recognition: the image's block means on a
+/// `THUMB` grid, less their mean, scaled to unit length (so the dot
+/// product of two is their correlation, whatever the exposure).
+fn thumbnail(img: &Gray) -> Vec<f32> {
+    let (tw, th) = THUMB;
+    let mut t = vec![0.0f32; tw * th];
+    if img.width < tw || img.height < th {
+        return t;
+    }
+    let (bw, bh) = (img.width / tw, img.height / th);
+    for (k, v) in t.iter_mut().enumerate() {
+        let (bx, by) = (k % tw, k / tw);
+        // Every fourth pixel of every fourth row of the block: the image
+        // is blurred already.
+        let (mut sum, mut n) = (0.0f32, 0.0f32);
+        for y in (by * bh..(by + 1) * bh).step_by(4) {
+            for x in (bx * bw..(bx + 1) * bw).step_by(4) {
+                sum += img.px[y * img.width + x];
+                n += 1.0;
+            }
+        }
+        *v = sum / n.max(1.0);
+    }
+    let mean = t.iter().sum::<f32>() / t.len() as f32;
+    t.iter_mut().for_each(|v| *v -= mean);
+    let norm = dot(&t, &t).sqrt();
+    if norm > 0.0 {
+        t.iter_mut().for_each(|v| *v /= norm);
+    }
+    t
+}
+
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// A pair of a frame's feature and a keyframe's, by index, and whether it
+/// is a descriptor match (else the same track in both).
+type Pair = (usize, usize, bool);
+
 /// Keyframes verified per re-identification, at most.
-const VERIFIED_KEYFRAMES: usize = 4;
+const VERIFIED_KEYFRAMES: usize = 2;
 
 /// Marks the pixel pairs `(a, b)` that one affine map `b ≈ A a + t` (from
 /// three-pair RANSAC samples, `seed` driven) carries to within
@@ -311,27 +531,57 @@ fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], tolerance_px: f64, seed: u64, 
 }
 
 /// A 5×5 box blur of `img` into `out`: running sums along rows, then
-/// along columns (the border clamped), `O(1)` a pixel.
+/// down the columns, all columns at once so the image is read row by row
+/// (the border clamped), `O(1)` a pixel.
 fn box_blur(img: &Gray, out: &mut Gray, row: &mut Vec<f32>) {
     let (w, h) = (img.width, img.height);
     out.width = w;
     out.height = h;
     out.px.resize(w * h, 0.0);
-    row.resize(w * h, 0.0);
+    // The row-blurred image, then one row of column sums.
+    row.resize(w * h + w, 0.0);
+    if w == 0 || h == 0 {
+        return;
+    }
+    let (row, sums) = row.split_at_mut(w * h);
     let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
-    for y in 0..h {
-        let r = &img.px[y * w..(y + 1) * w];
-        let mut s: f32 = (-2isize..=2).map(|d| r[clamp(d, w)]).sum();
-        for x in 0..w {
-            row[y * w + x] = s / 5.0;
-            s += r[clamp(x as isize + 3, w)] - r[clamp(x as isize - 2, w)];
+    for (r, o) in img.px.chunks_exact(w).zip(row.chunks_exact_mut(w)) {
+        if w < 6 {
+            let mut s: f32 = (-2isize..=2).map(|d| r[clamp(d, w)]).sum();
+            for (x, o) in o.iter_mut().enumerate() {
+                *o = s / 5.0;
+                s += r[clamp(x as isize + 3, w)] - r[clamp(x as isize - 2, w)];
+            }
+            continue;
+        }
+        // The two columns at each end clamped; between them, five
+        // neighbours always inside.
+        for x in [0, 1, w - 2, w - 1] {
+            o[x] = (-2isize..=2).map(|d| r[clamp(x as isize + d, w)]).sum::<f32>() / 5.0;
+        }
+        for (x, o) in o[2..w - 2].iter_mut().enumerate() {
+            *o = (r[x] + r[x + 1] + r[x + 2] + r[x + 3] + r[x + 4]) / 5.0;
         }
     }
-    for x in 0..w {
-        let mut s: f32 = (-2isize..=2).map(|d| row[clamp(d, h) * w + x]).sum();
-        for y in 0..h {
-            out.px[y * w + x] = s / 5.0;
-            s += row[clamp(y as isize + 3, h) * w + x] - row[clamp(y as isize - 2, h) * w + x];
+    // The column sums of rows y-2..=y+2.
+    sums.fill(0.0);
+    for d in -2isize..=2 {
+        let r = &row[clamp(d, h) * w..][..w];
+        for (s, v) in sums.iter_mut().zip(r) {
+            *s += v;
+        }
+    }
+    for y in 0..h {
+        for (o, s) in out.px[y * w..(y + 1) * w].iter_mut().zip(sums.iter()) {
+            *o = s / 5.0;
+        }
+        let (add, sub) = (clamp(y as isize + 3, h) * w, clamp(y as isize - 2, h) * w);
+        for ((s, a), b) in sums
+            .iter_mut()
+            .zip(row[add..add + w].iter())
+            .zip(row[sub..sub + w].iter())
+        {
+            *s += a - b;
         }
     }
 }
@@ -339,6 +589,14 @@ fn box_blur(img: &Gray, out: &mut Gray, row: &mut Vec<f32>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_disc_rows_hold_exactly_the_disc() {
+        for dy in -HALF..=HALF {
+            let n = (-HALF..=HALF).filter(|dx| dx * dx + dy * dy <= HALF * HALF).count() as i32;
+            assert_eq!(n, 2 * DISC_HALF_WIDTH[(dy + HALF) as usize] + 1, "dy {dy}");
+        }
+    }
 
     #[test]
     fn the_running_blur_is_the_5x5_mean() {

@@ -168,10 +168,8 @@ impl FrameSource for SocketSource {
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(None),
             Err(e) => return Err(io(e)),
         }
-        img.width = h.width as usize;
-        img.height = h.height as usize;
-        img.px.clear();
-        img.px.extend(self.bytes.iter().map(|&b| f32::from(b)));
+        // The header's sides give the byte count just read.
+        img.set_from_u8(h.width as usize, h.height as usize, &self.bytes);
         Ok(Some(h.t_us))
     }
 }

@@ -8,8 +8,8 @@
 //! undistorted normalised coordinates through the project's camera model),
 //! and the image is topped up to `max_features` with new corners where it
 //! has room (`detect.rs`). A lost feature seen again gets a new id, unless
-//! re-identification (`reid.rs`, on every fifth frame) recognises its
-//! landmark and gives it the old one back.
+//! re-identification (`reid.rs`, on every frame for the new features)
+//! recognises its landmark and gives it the old one back.
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
@@ -37,13 +37,31 @@ pub struct TrackerParams {
     pub reid: Option<ReidParams>,
     /// Each track is checked against its first window through an affine
     /// warp (`affine.rs`) and moved to where it fits; it is dropped when
-    /// the residual exceeds this share of the window's spread (`None`:
-    /// frame-to-frame tracking only, which drifts where the image scales).
+    /// the residual exceeds this share of the window's spread, beyond the
+    /// noise's share (`Anchor::fits`; `None`: frame-to-frame tracking
+    /// only, which drifts where the image scales).
     pub max_anchor_residual: Option<f32>,
+    /// The camera's pixel noise (grey levels, one sigma): the anchor
+    /// check allows for it on top of `max_anchor_residual`.
+    pub noise_grey: f32,
 }
 
 /// Gauss–Newton steps of the anchor check a frame.
-const ANCHOR_ITERATIONS: usize = 3;
+const ANCHOR_ITERATIONS: usize = 2;
+
+/// Gauss–Newton steps of a re-identification's check against its
+/// landmark's stored window (from the identity warp), at most.
+const REID_ITERATIONS: usize = 10;
+
+/// How far that check may move a re-identified feature (px).
+const REID_MAX_SHIFT_PX: f32 = 3.0;
+
+/// That check's residual bound, as a multiple of a live track's: a
+/// revisit sees its landmark from further than one frame's motion, and a
+/// look-alike lands far above it (measured on the rendered figure8, with
+/// the bound on the share alone: the candidates' residuals cluster at
+/// 0.1–0.2 of the window's spread).
+const REID_RESIDUAL_FACTOR: f32 = 2.5;
 
 impl Default for TrackerParams {
     fn default() -> Self {
@@ -54,7 +72,8 @@ impl Default for TrackerParams {
             detect: DetectParams::default(),
             ransac_threshold_px: 1.0,
             reid: Some(ReidParams::default()),
-            max_anchor_residual: Some(0.1),
+            max_anchor_residual: Some(0.07),
+            noise_grey: 2.0,
         }
     }
 }
@@ -80,6 +99,8 @@ pub struct TrackStats {
     pub detected: u64,
     /// Features given back an old landmark's id.
     pub reidentified: u64,
+    /// Re-identifications refused by the landmark's stored window.
+    pub reid_refused: u64,
 }
 
 /// The tracker and its reused buffers.
@@ -194,7 +215,12 @@ impl Tracker {
                     let mut q = q;
                     if let (Some(max), Some(a)) = (self.prm.max_anchor_residual, self.anchors.get_mut(&f.id)) {
                         match a.refine(&self.next.levels[0], q, ANCHOR_ITERATIONS) {
-                            Some((rq, res)) if (rq[0] - q[0]).hypot(rq[1] - q[1]) < 2.0 && res < max => q = rq,
+                            Some((rq, res))
+                                if (rq[0] - q[0]).hypot(rq[1] - q[1]) < 2.0
+                                    && a.fits(res, max, self.prm.noise_grey) =>
+                            {
+                                q = rq
+                            }
                             _ => {
                                 self.stats.lost_anchor += 1;
                                 self.anchors.remove(&f.id);
@@ -237,20 +263,51 @@ impl Tracker {
         std::mem::swap(&mut self.features, &mut self.moved);
     }
 
-    /// Old ids back for the features re-identified on a keyframe.
+    /// Old ids back for the features re-identified in this frame. Each
+    /// candidate must also match its landmark's stored window: the affine
+    /// check of `affine.rs`, from the identity and the feature's pixel,
+    /// under twice a live track's residual bound. That moves it onto the
+    /// landmark's own point (a corner detected again lands a pixel or so
+    /// from where it was first seen) and refuses a look-alike. The frame
+    /// is then stored if a keyframe.
     fn reidentify(&mut self) {
         let (Some(reid), Some(cam)) = (self.reid.as_mut(), self.camera.as_ref()) else {
             return;
         };
-        // Nothing to gather on the frames between keyframes.
-        if !reid.is_keyframe(self.frames) {
-            return;
+        let img = &self.next.levels[0];
+        let noise_grey = self.prm.noise_grey;
+        let feats: Vec<_> = self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)).collect();
+        for (i, old) in reid.candidates(self.frames, img, &feats, cam) {
+            let f = self.features[i];
+            let Some(max) = self.prm.max_anchor_residual else {
+                // Without anchors, the descriptors' word is taken.
+                self.features[i].id = old;
+                self.stats.reidentified += 1;
+                continue;
+            };
+            let checked = check_against(reid, old, img, [f.u_px, f.v_px], REID_RESIDUAL_FACTOR * max, noise_grey);
+            match checked {
+                Some(q) => {
+                    self.features[i] = Feature {
+                        id: old,
+                        u_px: q[0],
+                        v_px: q[1],
+                        ..f
+                    };
+                    // From here the track is held to the window it is
+                    // seen with now, at its landmark's point.
+                    self.anchors.remove(&f.id);
+                    if let Some(a) = Anchor::new(img, q[0], q[1]) {
+                        self.anchors.insert(old, a);
+                    }
+                    self.stats.reidentified += 1;
+                }
+                None => self.stats.reid_refused += 1,
+            }
         }
-        let feats: Vec<(u64, f32, f32)> = self.features.iter().map(|f| (f.id, f.u_px, f.v_px)).collect();
-        for (i, old) in reid.process(self.frames, &self.next.levels[0], &feats, cam) {
-            self.features[i].id = old;
-        }
-        self.stats.reidentified = reid.reidentified;
+        self.live_ids.clear();
+        self.live_ids.extend(self.features.iter().map(|f| f.id));
+        reid.commit(img, &self.live_ids);
     }
 
     /// New corners where the image has room, up to `max_features`.
@@ -285,6 +342,16 @@ impl Tracker {
             self.next_id += 1;
         }
     }
+}
+
+/// Landmark `id`'s first stored look (`Reid::window`) matched at `pos` in
+/// `img` by the affine check from the identity: the point it lands on, if
+/// the residual is within `share` (and the noise of `noise_grey`) and the
+/// point within `REID_MAX_SHIFT_PX` of `pos`.
+fn check_against(reid: &Reid, id: u64, img: &Gray, pos: [f32; 2], share: f32, noise_grey: f32) -> Option<[f32; 2]> {
+    let mut a = Anchor::from_window_bytes(reid.window(id)?)?;
+    let (q, res) = a.refine(img, pos, REID_ITERATIONS)?;
+    ((q[0] - pos[0]).hypot(q[1] - pos[1]) < REID_MAX_SHIFT_PX && a.fits(res, share, noise_grey)).then_some(q)
 }
 
 #[cfg(test)]

@@ -34,8 +34,9 @@ fn old_landmarks_are_recognised_on_the_way_back() {
     let rays = pixel_rays(&cam);
     let tex = Texture::new(9, 1500.0);
     let mut tracker = Tracker::new(TrackerParams::default(), Some(cam.clone()));
-    // Each id: its ground point when first seen, and the last frame seen.
-    let mut seen: BTreeMap<u64, ([f64; 2], usize)> = BTreeMap::new();
+    // Each id: its ground point when first seen, the last frame seen, and
+    // whether it was ever more than 3 px from it.
+    let mut seen: BTreeMap<u64, ([f64; 2], usize, bool)> = BTreeMap::new();
     let (mut reappeared, mut wrong, mut missed) = (0usize, 0usize, 0usize);
     let mut outbound: Vec<[f64; 2]> = Vec::new();
     let one_px_m = 3.0 / cam.fx;
@@ -45,15 +46,18 @@ fn old_landmarks_are_recognised_on_the_way_back() {
         for f in tracker.process(&img).to_vec() {
             let g = plane_point(&cam, &r, &p, [f64::from(f.u_px), f64::from(f.v_px)]).unwrap();
             match seen.get_mut(&f.id) {
-                Some((g0, last)) => {
-                    // An id back after an absence: a re-identification.
-                    if *last + 1 < k {
-                        reappeared += 1;
-                        let err = ((g[0] - g0[0]).powi(2) + (g[1] - g0[1]).powi(2)).sqrt();
-                        if err > 3.0 * one_px_m {
-                            wrong += 1;
-                            eprintln!("frame {k}: id {} back {:.1} px from its landmark", f.id, err / one_px_m);
-                        }
+                Some((g0, last, bad)) => {
+                    // An id back after an absence: a re-identification (one
+                    // in the frame that lost it looks unbroken here).
+                    reappeared += usize::from(*last + 1 < k);
+                    // Any sighting of an id more than 3 px from its first
+                    // ground point is a wrong association (a track held
+                    // to its first window stays within a pixel).
+                    let err = ((g[0] - g0[0]).powi(2) + (g[1] - g0[1]).powi(2)).sqrt();
+                    if err > 3.0 * one_px_m && !*bad {
+                        *bad = true;
+                        wrong += 1;
+                        eprintln!("frame {k}: id {} {:.1} px from its landmark", f.id, err / one_px_m);
                     }
                     *last = k;
                 }
@@ -70,26 +74,27 @@ fn old_landmarks_are_recognised_on_the_way_back() {
                     if k < 40 {
                         outbound.push(g);
                     }
-                    seen.insert(f.id, (g, k));
+                    seen.insert(f.id, (g, k, false));
                 }
             }
         }
     }
     let s = tracker.stats;
     eprintln!(
-        "re-identified {} features; {reappeared} ids came back after an absence, {wrong} of them more than 3 px \
-         from their landmark; {missed} new ids on the way back sit on an outbound landmark; detected {}, lost by \
-         Lucas–Kanade {}, by RANSAC {}",
+        "re-identified {} features; {reappeared} ids came back after an absence; {wrong} ids were ever more than \
+         3 px from their landmark; {missed} new ids on the way back sit on an outbound landmark; detected {}, lost \
+         by Lucas–Kanade {}, by RANSAC {}",
         s.reidentified, s.detected, s.lost_klt, s.lost_ransac
     );
-    // Measured: 6 re-identified, 0 wrong (more than 3 px from their
-    // landmark); 18 before each track was held to its first window, which
-    // ends tracks sooner (fewer keyframe features to match). Every id that
-    // came back is one re-identification.
-    assert!(s.reidentified >= 5, "{} re-identified", s.reidentified);
-    assert_eq!(reappeared as u64, s.reidentified);
+    // Measured: 25 re-identified (15 after an absence), 0 ids ever more
+    // than 3 px from their landmark; 60 missed. Every id that came back is one
+    // re-identification; a landmark lost and found in the same frame is
+    // one too, without an absence.
+    assert!(s.reidentified >= 15, "{} re-identified", s.reidentified);
+    assert!(reappeared as u64 <= s.reidentified, "{reappeared} > {}", s.reidentified);
     assert!(
-        (wrong as f64) < 0.01 * reappeared as f64,
-        "{wrong} wrong of {reappeared}"
+        (wrong as f64) < 0.01 * s.reidentified as f64,
+        "{wrong} wrong of {}",
+        s.reidentified
     );
 }

@@ -12,10 +12,12 @@
 //!   motion of its world point.
 //!
 //! Issue 22's targets are 95 % of tracks within 1 px and under 1 % of
-//! re-identifications wrong. Measured (README, "Front-end"): 94.9 % of 5918
-//! tracks within 1 px (98.0 % within 2 px), just short; 5 of 562
-//! re-identifications wrong (0.9 %). Without the affine check against each
-//! track's first window (`affine.rs`), 47.5 % of tracks stayed within 1 px.
+//! re-identifications wrong; the assertions hold them. Measured (README,
+//! "Front-end"): 95.9 % of 7667 tracks within 1 px (98.2 % within 2 px);
+//! 17 of 2414 re-identifications wrong (0.70 %). Without the affine check
+//! against each track's first window (`affine.rs`), 47.5 % of tracks stayed
+//! within 1 px. A run that begins with a re-identification is scored
+//! against the landmark's first world point, like any other.
 
 // Names carry their frames (`T_W_C`, `p_in_W`), as everywhere here.
 #![allow(non_snake_case)]
@@ -40,6 +42,8 @@ struct Truth {
     last: usize,
     worst_px: f64,
     run_len: usize,
+    /// Whether the current run began with a re-identification.
+    from_reid: bool,
 }
 
 #[derive(Default)]
@@ -49,6 +53,9 @@ struct Score {
     worst: Vec<f64>,
     reid: usize,
     wrong: usize,
+    /// Runs that began with a re-identification, and those within 1 px.
+    reid_runs: usize,
+    reid_good_runs: usize,
     on_sky: usize,
     /// Each step's error (px): tracked motion less the true motion.
     steps: Vec<f64>,
@@ -60,6 +67,10 @@ impl Score {
             self.runs += 1;
             self.worst.push(t.worst_px);
             self.good_runs += usize::from(t.worst_px <= 1.0);
+            if t.from_reid {
+                self.reid_runs += 1;
+                self.reid_good_runs += usize::from(t.worst_px <= 1.0);
+            }
         }
     }
 }
@@ -111,6 +122,7 @@ fn rendered_tracks_are_scored_against_their_world_points() {
                     t.worst_px = e;
                     t.run_len = 1;
                     t.last = k;
+                    t.from_reid = true;
                 }
                 None => match r.surface_point(&T_W_C, uv) {
                     Some(hit) => {
@@ -119,6 +131,7 @@ fn rendered_tracks_are_scored_against_their_world_points() {
                             last: k,
                             worst_px: 0.0,
                             run_len: 1,
+                            from_reid: false,
                         };
                         ids.insert(feat.id, t);
                     }
@@ -144,7 +157,7 @@ fn rendered_tracks_are_scored_against_their_world_points() {
     eprintln!(
         "{} frames: {} tracks, {:.1} % within 1 px of their world point all their life, {:.1} % within 2 px \
          (worst error: median {:.2}, 95th percentile {:.2} px); step errors median {:.3}, p90 {:.2}, p99 {:.2} px; \
-         {} re-identified, {} of them wrong; {} features seen on the sky; detected {}, lost by Lucas–Kanade {}, \
+         {} re-identified, {} of them wrong ({} of {} runs that began with one within 1 px); {} features seen on the sky; detected {}, lost by Lucas–Kanade {}, \
          by RANSAC {}",
         ds.frames.len(),
         sc.runs,
@@ -157,15 +170,15 @@ fn rendered_tracks_are_scored_against_their_world_points() {
         step(0.99),
         sc.reid,
         sc.wrong,
+        sc.reid_good_runs,
+        sc.reid_runs,
         sc.on_sky,
         s.detected,
         s.lost_klt,
         s.lost_ransac
     );
     assert!(sc.runs > 1000, "{} tracks", sc.runs);
-    // The targets are 95 % and under 1 %; today's figures (module docs)
-    // are just short of them, and these bounds hold them there.
-    assert!(within(1.0) >= 94.0, "{:.1} % within 1 px", within(1.0));
+    assert!(within(1.0) >= 95.0, "{:.1} % within 1 px", within(1.0));
     assert!(within(2.0) >= 97.0, "{:.1} % within 2 px", within(2.0));
     assert!(
         step(0.5) < 0.1 && step(0.9) < 0.3,
@@ -173,9 +186,9 @@ fn rendered_tracks_are_scored_against_their_world_points() {
         step(0.5),
         step(0.9)
     );
-    assert!(sc.reid >= 100, "{} re-identified", sc.reid);
+    assert!(sc.reid >= 1000, "{} re-identified", sc.reid);
     assert!(
-        sc.wrong * 50 <= sc.reid,
+        sc.wrong * 100 < sc.reid,
         "{} of {} re-identifications wrong",
         sc.wrong,
         sc.reid
