@@ -2,8 +2,9 @@
 //! the tracker (corner scores, Lucas–Kanade, the forward–backward check)
 //! reads intensities at sub-pixel positions on several scales, and one small
 //! type with bilinear sampling serves them all without an image library.
-//! Buffers are reused from frame to frame, so tracking allocates nothing per
-//! frame once the first frame has sized them.
+//! Image buffers are reused from frame to frame, so no image is allocated
+//! per frame once the first frame has sized them (re-identification's
+//! small per-frame lists of matches are the tracker's only allocations).
 
 /// A grey image, intensities as `f32` in `[0, 255]`, row-major.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -153,6 +154,62 @@ impl Pyramid {
     }
 }
 
+/// A 5×5 box blur of `img` into `out`: running sums along rows, then
+/// down the columns, all columns at once so the image is read row by row
+/// (the border clamped), `O(1)` a pixel.
+pub fn box_blur(img: &Gray, out: &mut Gray, row: &mut Vec<f32>) {
+    let (w, h) = (img.width, img.height);
+    out.width = w;
+    out.height = h;
+    out.px.resize(w * h, 0.0);
+    // The row-blurred image, then one row of column sums.
+    row.resize(w * h + w, 0.0);
+    if w == 0 || h == 0 {
+        return;
+    }
+    let (row, sums) = row.split_at_mut(w * h);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    for (r, o) in img.px.chunks_exact(w).zip(row.chunks_exact_mut(w)) {
+        if w < 6 {
+            let mut s: f32 = (-2isize..=2).map(|d| r[clamp(d, w)]).sum();
+            for (x, o) in o.iter_mut().enumerate() {
+                *o = s / 5.0;
+                s += r[clamp(x as isize + 3, w)] - r[clamp(x as isize - 2, w)];
+            }
+            continue;
+        }
+        // The two columns at each end clamped; between them, five
+        // neighbours always inside.
+        for x in [0, 1, w - 2, w - 1] {
+            o[x] = (-2isize..=2).map(|d| r[clamp(x as isize + d, w)]).sum::<f32>() / 5.0;
+        }
+        for (x, o) in o[2..w - 2].iter_mut().enumerate() {
+            *o = (r[x] + r[x + 1] + r[x + 2] + r[x + 3] + r[x + 4]) / 5.0;
+        }
+    }
+    // The column sums of rows y-2..=y+2.
+    sums.fill(0.0);
+    for d in -2isize..=2 {
+        let r = &row[clamp(d, h) * w..][..w];
+        for (s, v) in sums.iter_mut().zip(r) {
+            *s += v;
+        }
+    }
+    for y in 0..h {
+        for (o, s) in out.px[y * w..(y + 1) * w].iter_mut().zip(sums.iter()) {
+            *o = s / 5.0;
+        }
+        let (add, sub) = (clamp(y as isize + 3, h) * w, clamp(y as isize - 2, h) * w);
+        for ((s, a), b) in sums
+            .iter_mut()
+            .zip(row[add..add + w].iter())
+            .zip(row[sub..sub + w].iter())
+        {
+            *s += a - b;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -173,5 +230,21 @@ mod tests {
         // Mean of (0,0),(1,0),(0,1),(1,1): (0 + 10 + 1 + 11) / 4.
         assert!((p.levels[1].px[0] - 5.5).abs() < 1e-6);
         assert!(Gray::from_u8(2, 2, &[1, 2, 3]).is_none());
+    }
+
+    #[test]
+    fn the_running_blur_is_the_5x5_mean() {
+        let g = crate::synthetic::textured(40, 30, 2, 0.0, 0.0);
+        let (mut out, mut row) = (Gray::default(), Vec::new());
+        box_blur(&g, &mut out, &mut row);
+        for &(x, y) in &[(0usize, 0usize), (1, 7), (20, 15), (39, 29)] {
+            let mut s = 0.0;
+            for dy in -2isize..=2 {
+                for dx in -2isize..=2 {
+                    s += g.at(x as isize + dx, y as isize + dy);
+                }
+            }
+            assert!((out.px[y * 40 + x] - s / 25.0).abs() < 1e-3);
+        }
     }
 }

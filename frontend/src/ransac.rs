@@ -13,6 +13,9 @@
 //! to the inlier share seen (`log(1 − 0.99) / log(1 − w⁸)`). A still or
 //! purely rotating camera makes every pair fit some `E`: then nothing is
 //! rejected, as it should be.
+//!
+//! [`affine_inliers`] does the same for one affine image motion (from
+//! three-pair samples), re-identification's second check of a revisit.
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -114,6 +117,46 @@ fn sampson2(e: &Matrix3<f64>, p: &([f64; 2], [f64; 2])) -> f64 {
         f64::INFINITY
     } else {
         num * num / den
+    }
+}
+
+/// Marks the pixel pairs `(a, b)` that one affine map `b ≈ A a + t` (from
+/// three-pair RANSAC samples, `seed` driven) carries to within
+/// `tolerance_px`.
+pub fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], tolerance_px: f64, seed: u64, ok: &mut Vec<bool>) {
+    ok.clear();
+    ok.resize(pairs.len(), false);
+    if pairs.len() < 3 {
+        return;
+    }
+    let mut rng = SplitMix::new(seed ^ 0xaff1);
+    let t2 = tolerance_px * tolerance_px;
+    let mut best: Option<(usize, [f64; 6])> = None;
+    for _ in 0..100 {
+        let idx: Vec<usize> = (0..3).map(|_| (rng.next_u64() % pairs.len() as u64) as usize).collect();
+        if idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] {
+            continue;
+        }
+        // b = [a_x a_y 1] M (two columns), solved from the three pairs.
+        let m = nalgebra::Matrix3::from_fn(|r, c| if c < 2 { pairs[idx[r]].0[c] } else { 1.0 });
+        let Some(inv) = m.try_inverse() else { continue };
+        let bx = inv * nalgebra::Vector3::from_fn(|r, _| pairs[idx[r]].1[0]);
+        let by = inv * nalgebra::Vector3::from_fn(|r, _| pairs[idx[r]].1[1]);
+        let p = [bx[0], bx[1], bx[2], by[0], by[1], by[2]];
+        let fits = |(a, b): &([f64; 2], [f64; 2])| {
+            let (x, y) = (p[0] * a[0] + p[1] * a[1] + p[2], p[3] * a[0] + p[4] * a[1] + p[5]);
+            (x - b[0]).powi(2) + (y - b[1]).powi(2) < t2
+        };
+        let n = pairs.iter().filter(|q| fits(q)).count();
+        if best.is_none_or(|(bn, _)| n > bn) {
+            best = Some((n, p));
+        }
+    }
+    if let Some((_, p)) = best {
+        for (flag, (a, b)) in ok.iter_mut().zip(pairs) {
+            let (x, y) = (p[0] * a[0] + p[1] * a[1] + p[2], p[3] * a[0] + p[4] * a[1] + p[5]);
+            *flag = (x - b[0]).powi(2) + (y - b[1]).powi(2) < t2;
+        }
     }
 }
 

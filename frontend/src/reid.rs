@@ -26,8 +26,8 @@ use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
 use crate::affine::window_bytes;
-use crate::image::Gray;
-use crate::ransac::epipolar_inliers;
+use crate::image::{box_blur, Gray};
+use crate::ransac::{affine_inliers, epipolar_inliers};
 use crate::synthetic::SplitMix;
 
 /// A 256-bit binary descriptor.
@@ -490,102 +490,6 @@ type Pair = (usize, usize, bool);
 /// Keyframes verified per re-identification, at most.
 const VERIFIED_KEYFRAMES: usize = 2;
 
-/// Marks the pixel pairs `(a, b)` that one affine map `b ≈ A a + t` (from
-/// three-pair RANSAC samples, `seed` driven) carries to within
-/// `tolerance_px`.
-fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], tolerance_px: f64, seed: u64, ok: &mut Vec<bool>) {
-    ok.clear();
-    ok.resize(pairs.len(), false);
-    if pairs.len() < 3 {
-        return;
-    }
-    let mut rng = SplitMix::new(seed ^ 0xaff1);
-    let t2 = tolerance_px * tolerance_px;
-    let mut best: Option<(usize, [f64; 6])> = None;
-    for _ in 0..100 {
-        let idx: Vec<usize> = (0..3).map(|_| (rng.next_u64() % pairs.len() as u64) as usize).collect();
-        if idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] {
-            continue;
-        }
-        // b = [a_x a_y 1] M (two columns), solved from the three pairs.
-        let m = nalgebra::Matrix3::from_fn(|r, c| if c < 2 { pairs[idx[r]].0[c] } else { 1.0 });
-        let Some(inv) = m.try_inverse() else { continue };
-        let bx = inv * nalgebra::Vector3::from_fn(|r, _| pairs[idx[r]].1[0]);
-        let by = inv * nalgebra::Vector3::from_fn(|r, _| pairs[idx[r]].1[1]);
-        let p = [bx[0], bx[1], bx[2], by[0], by[1], by[2]];
-        let fits = |(a, b): &([f64; 2], [f64; 2])| {
-            let (x, y) = (p[0] * a[0] + p[1] * a[1] + p[2], p[3] * a[0] + p[4] * a[1] + p[5]);
-            (x - b[0]).powi(2) + (y - b[1]).powi(2) < t2
-        };
-        let n = pairs.iter().filter(|q| fits(q)).count();
-        if best.is_none_or(|(bn, _)| n > bn) {
-            best = Some((n, p));
-        }
-    }
-    if let Some((_, p)) = best {
-        for (flag, (a, b)) in ok.iter_mut().zip(pairs) {
-            let (x, y) = (p[0] * a[0] + p[1] * a[1] + p[2], p[3] * a[0] + p[4] * a[1] + p[5]);
-            *flag = (x - b[0]).powi(2) + (y - b[1]).powi(2) < t2;
-        }
-    }
-}
-
-/// A 5×5 box blur of `img` into `out`: running sums along rows, then
-/// down the columns, all columns at once so the image is read row by row
-/// (the border clamped), `O(1)` a pixel.
-fn box_blur(img: &Gray, out: &mut Gray, row: &mut Vec<f32>) {
-    let (w, h) = (img.width, img.height);
-    out.width = w;
-    out.height = h;
-    out.px.resize(w * h, 0.0);
-    // The row-blurred image, then one row of column sums.
-    row.resize(w * h + w, 0.0);
-    if w == 0 || h == 0 {
-        return;
-    }
-    let (row, sums) = row.split_at_mut(w * h);
-    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
-    for (r, o) in img.px.chunks_exact(w).zip(row.chunks_exact_mut(w)) {
-        if w < 6 {
-            let mut s: f32 = (-2isize..=2).map(|d| r[clamp(d, w)]).sum();
-            for (x, o) in o.iter_mut().enumerate() {
-                *o = s / 5.0;
-                s += r[clamp(x as isize + 3, w)] - r[clamp(x as isize - 2, w)];
-            }
-            continue;
-        }
-        // The two columns at each end clamped; between them, five
-        // neighbours always inside.
-        for x in [0, 1, w - 2, w - 1] {
-            o[x] = (-2isize..=2).map(|d| r[clamp(x as isize + d, w)]).sum::<f32>() / 5.0;
-        }
-        for (x, o) in o[2..w - 2].iter_mut().enumerate() {
-            *o = (r[x] + r[x + 1] + r[x + 2] + r[x + 3] + r[x + 4]) / 5.0;
-        }
-    }
-    // The column sums of rows y-2..=y+2.
-    sums.fill(0.0);
-    for d in -2isize..=2 {
-        let r = &row[clamp(d, h) * w..][..w];
-        for (s, v) in sums.iter_mut().zip(r) {
-            *s += v;
-        }
-    }
-    for y in 0..h {
-        for (o, s) in out.px[y * w..(y + 1) * w].iter_mut().zip(sums.iter()) {
-            *o = s / 5.0;
-        }
-        let (add, sub) = (clamp(y as isize + 3, h) * w, clamp(y as isize - 2, h) * w);
-        for ((s, a), b) in sums
-            .iter_mut()
-            .zip(row[add..add + w].iter())
-            .zip(row[sub..sub + w].iter())
-        {
-            *s += a - b;
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -595,22 +499,6 @@ mod tests {
         for dy in -HALF..=HALF {
             let n = (-HALF..=HALF).filter(|dx| dx * dx + dy * dy <= HALF * HALF).count() as i32;
             assert_eq!(n, 2 * DISC_HALF_WIDTH[(dy + HALF) as usize] + 1, "dy {dy}");
-        }
-    }
-
-    #[test]
-    fn the_running_blur_is_the_5x5_mean() {
-        let g = crate::synthetic::textured(40, 30, 2, 0.0, 0.0);
-        let (mut out, mut row) = (Gray::default(), Vec::new());
-        box_blur(&g, &mut out, &mut row);
-        for &(x, y) in &[(0usize, 0usize), (1, 7), (20, 15), (39, 29)] {
-            let mut s = 0.0;
-            for dy in -2isize..=2 {
-                for dx in -2isize..=2 {
-                    s += g.at(x as isize + dx, y as isize + dy);
-                }
-            }
-            assert!((out.px[y * 40 + x] - s / 25.0).abs() < 1e-3);
         }
     }
 }
