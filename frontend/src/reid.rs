@@ -112,7 +112,7 @@ pub struct Reid {
     /// Each landmark's window as first stored (`affine.rs`), for the
     /// photometric check of a re-identification, with the number of
     /// stored keyframes that hold its id: at most `max_keyframes ×
-    /// features` windows of 289 bytes, dropped with the last keyframe that
+    /// features` windows of 441 bytes (21²), dropped with the last keyframe that
     /// holds them.
     windows: HashMap<u64, (Vec<u8>, u32)>,
     ring: Vec<f32>,
