@@ -38,13 +38,22 @@ pub const RING_SIDE: usize = 2 * HALF + 3;
 /// it knows (quantised to grey levels: under 0.3 of RMS error, below any
 /// camera's noise).
 pub fn window_bytes(img: &Gray, u: f32, v: f32, ring: &mut Vec<f32>, out: &mut Vec<u8>) -> bool {
+    if !sample_ring(img, u, v, ring) {
+        return false;
+    }
+    out.clear();
+    out.extend(ring.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8));
+    true
+}
+
+/// The window of `img` at `(u, v)` with its one-pixel ring (`RING_SIDE²`,
+/// row by row) into `ring`, if it fits in the image.
+fn sample_ring(img: &Gray, u: f32, v: f32, ring: &mut Vec<f32>) -> bool {
     if !img.inside(u, v, (HALF + 2) as f32) {
         return false;
     }
     ring.resize(RING_SIDE * RING_SIDE, 0.0);
     img.window(u, v, HALF + 1, ring);
-    out.clear();
-    out.extend(ring.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8));
     true
 }
 
@@ -67,11 +76,10 @@ impl Anchor {
     /// The window of `img` centred at `(u, v)`, or `None` if it does not
     /// fit or is too flat to hold an affine warp.
     pub fn new(img: &Gray, u: f32, v: f32) -> Option<Self> {
-        if !img.inside(u, v, (HALF + 2) as f32) {
+        let mut ring = Vec::new();
+        if !sample_ring(img, u, v, &mut ring) {
             return None;
         }
-        let mut ring = vec![0.0; RING_SIDE * RING_SIDE];
-        img.window(u, v, HALF + 1, &mut ring);
         Self::from_ring(&ring)
     }
 

@@ -4,8 +4,9 @@
 //! where the image has few, never on top of one already tracked.
 //!
 //! The score is Shi and Tomasi's: the least eigenvalue of the structure
-//! tensor `G = Σ_w ∇I ∇Iᵀ` over a `(2r+1)²` window, whose three sums come
-//! from integral images (`O(1)` a pixel), computed only in the cells that
+//! tensor `G = Σ_w ∇I ∇Iᵀ` over a `(2r+1)²` window, whose three sums are
+//! box sums of the gradient products (running down the columns, then
+//! across), computed only in the cells that
 //! hold fewer than their share of features. The image is cut into cells,
 //! taken in turns, one corner a cell a round, each cell's best first: local
 //! maxima above `quality × the image's best`, at least `min_distance_px`
@@ -49,8 +50,8 @@ impl Default for DetectParams {
 /// Corners kept per cell before the distance check, best first.
 const CANDIDATES_PER_CELL: usize = 24;
 
-/// Reused buffers: a cell's integral images of the gradient products, the
-/// score map and the candidates.
+/// Reused buffers: a cell's gradient products, the score map and the
+/// candidates.
 #[derive(Clone, Debug, Default)]
 pub struct Detector {
     sxx: Vec<f32>,

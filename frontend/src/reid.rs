@@ -108,7 +108,6 @@ pub struct Reid {
     /// This keyframe's features, described by [`Reid::candidates`] and
     /// stored by [`Reid::commit`] under the ids they end up with.
     pending: Option<Pending>,
-    pending_frame: u64,
     /// Each landmark's window as first stored (`affine.rs`), for the
     /// photometric check of a re-identification, with the number of
     /// stored keyframes that hold its id: at most `max_keyframes ×
@@ -118,10 +117,11 @@ pub struct Reid {
     ring: Vec<f32>,
 }
 
-/// A frame being matched: its features' indices in the frame, their
-/// pixels, normalised coordinates and descriptors, and its thumbnail.
+/// A frame being matched: its number, its features' indices in the frame,
+/// their pixels, normalised coordinates and descriptors, and its thumbnail.
 #[derive(Clone, Debug)]
 struct Pending {
+    frame: u64,
     keep: Vec<usize>,
     uv: Vec<[f64; 2]>,
     xn: Vec<[f64; 2]>,
@@ -167,7 +167,6 @@ impl Reid {
             inliers: Vec::new(),
             affine_ok: Vec::new(),
             pending: None,
-            pending_frame: 0,
             windows: HashMap::new(),
             ring: Vec::new(),
         }
@@ -184,7 +183,7 @@ impl Reid {
     /// older ones whose thumbnails look most alike, and returns
     /// `(feature index, old id)` for each feature recognised (never an id
     /// present in this frame, never two features to one id). The caller
-    /// checks each against its landmark's first window ([`Reid::window`])
+    /// checks each against its landmark's stored window ([`Reid::window`])
     /// and then gives the ids the frame ends with to [`Reid::commit`],
     /// which stores it if it is a keyframe.
     pub fn candidates(
@@ -202,6 +201,7 @@ impl Reid {
         }
         box_blur(img, &mut self.blurred, &mut self.row);
         let mut p = Pending {
+            frame,
             keep: Vec::with_capacity(feats.len()),
             uv: Vec::with_capacity(feats.len()),
             xn: Vec::with_capacity(feats.len()),
@@ -322,7 +322,6 @@ impl Reid {
         }
         if store {
             self.pending = Some(p);
-            self.pending_frame = frame;
         }
         out
     }
@@ -340,6 +339,7 @@ impl Reid {
     /// and with it the windows no other keyframe holds.
     pub fn commit(&mut self, img: &Gray, ids: &[u64]) {
         let Some(Pending {
+            frame,
             keep,
             uv,
             xn,
@@ -367,7 +367,7 @@ impl Reid {
             }
         }
         self.keyframes.push_back(Keyframe {
-            frame: self.pending_frame,
+            frame,
             ids,
             by_id,
             uv,

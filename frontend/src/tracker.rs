@@ -123,6 +123,8 @@ pub struct Tracker {
     /// Each track's window as first seen, and its affine warp since, by id.
     anchors: std::collections::HashMap<u64, Anchor>,
     live_ids: Vec<u64>,
+    /// This frame's features as re-identification takes them.
+    reid_feats: Vec<(u64, f32, f32, u32)>,
     pub stats: TrackStats,
 }
 
@@ -148,6 +150,7 @@ impl Tracker {
             reid,
             anchors: Default::default(),
             live_ids: Vec::new(),
+            reid_feats: Vec::new(),
             stats: TrackStats::default(),
         }
     }
@@ -266,7 +269,8 @@ impl Tracker {
     /// Old ids back for the features re-identified in this frame. Each
     /// candidate must also match its landmark's stored window: the affine
     /// check of `affine.rs`, from the identity and the feature's pixel,
-    /// under twice a live track's residual bound. That moves it onto the
+    /// under `REID_RESIDUAL_FACTOR` times a live track's residual bound.
+    /// That moves it onto the
     /// landmark's own point (a corner detected again lands a pixel or so
     /// from where it was first seen) and refuses a look-alike. The frame
     /// is then stored if a keyframe.
@@ -276,8 +280,10 @@ impl Tracker {
         };
         let img = &self.next.levels[0];
         let noise_grey = self.prm.noise_grey;
-        let feats: Vec<_> = self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)).collect();
-        for (i, old) in reid.candidates(self.frames, img, &feats, cam) {
+        self.reid_feats.clear();
+        self.reid_feats
+            .extend(self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)));
+        for (i, old) in reid.candidates(self.frames, img, &self.reid_feats, cam) {
             let f = self.features[i];
             let Some(max) = self.prm.max_anchor_residual else {
                 // Without anchors, the descriptors' word is taken.
