@@ -53,9 +53,9 @@ fn rendered(c: &mut Criterion) {
     });
     let s = tracker.stats;
     eprintln!(
-        "racetrack: {k} frames, {} detected, {} re-identified ({} refused by their first window), lost {} by \
-         Lucas–Kanade, {} by the first-window check, {} by RANSAC",
-        s.detected, s.reidentified, s.reid_refused, s.lost_klt, s.lost_anchor, s.lost_ransac
+        "racetrack: {k} frames, {} detected, {} re-identified ({} refused by their first window), {} found again \
+         where a recognised place put them, lost {} by Lucas–Kanade, {} by the first-window check, {} by RANSAC",
+        s.detected, s.reidentified, s.reid_refused, s.reacquired, s.lost_klt, s.lost_anchor, s.lost_ransac
     );
 }
 

@@ -14,6 +14,14 @@
 //! against the landmark's window as first stored (`affine.rs`), which
 //! moves it onto the landmark's own point, and gives it its old id.
 //!
+//! A recognised place also predicts where its other landmarks are now
+//! (`predict`: each moved with its nearest verified pairs), and the tracker
+//! looks for them there with their stored windows. Detection alone picks
+//! whichever corners score best, and on a revisit those are seldom the ones
+//! the place's keyframes hold: on the rendered racetrack, of the landmarks
+//! a daemon keyframe held, more were seen again on the next lap under
+//! other ids than under their own, until this.
+//!
 //! The descriptor is steered BRIEF, as in ORB: 256 intensity comparisons
 //! between point pairs of a 31×31 patch of a box-blurred image, the pattern
 //! turned by the patch's orientation (the angle of its intensity centroid,
@@ -115,6 +123,8 @@ pub struct Reid {
     /// holds them.
     windows: HashMap<u64, (Vec<u8>, u32)>,
     ring: Vec<f32>,
+    /// See [`Reid::predicted`].
+    predicted: Vec<(u64, [f32; 2])>,
 }
 
 /// A frame being matched: its number, its features' indices in the frame,
@@ -169,6 +179,7 @@ impl Reid {
             pending: None,
             windows: HashMap::new(),
             ring: Vec::new(),
+            predicted: Vec::new(),
         }
     }
 
@@ -250,6 +261,7 @@ impl Reid {
         // (same id: a correspondence by construction, which holds the
         // geometric check steady).
         let mut ranked: Vec<(usize, usize)> = Vec::new();
+        let mut places: Vec<(usize, usize)> = Vec::new();
         let mut pairs_of: Vec<(usize, Vec<Pair>)> = Vec::with_capacity(searched.len());
         for &n in &searched {
             let kf = &self.keyframes[n];
@@ -278,16 +290,30 @@ impl Reid {
             if m.len() >= self.prm.min_matches && new_ids > 0 {
                 ranked.push((new_ids, pairs_of.len()));
             }
+            // The place that shares the most pairs with this frame, ids
+            // already given back or not: its other landmarks are predicted.
+            if n < recent_from && m.len() >= self.prm.min_matches {
+                places.push((m.len(), pairs_of.len()));
+            }
             pairs_of.push((n, m));
         }
         ranked.sort_by(|a, b| b.cmp(a));
+        ranked.truncate(VERIFIED_KEYFRAMES);
+        places.sort_by(|a, b| b.cmp(a));
+        for &(_, r) in places.iter().take(PREDICTED_PLACES) {
+            if !ranked.iter().any(|x| x.1 == r) {
+                ranked.push((0, r));
+            }
+        }
+
         // Each of the best few verified on its own: the epipolar geometry,
         // then one affine image motion. A match along its epipolar line but
         // elsewhere in the image passes the first (a camera moving along x
         // has rows for epipolar lines); a revisit is from about the same
         // place, so the second holds to within `affine_tolerance_px`.
         let mut verified: Vec<(usize, u64)> = Vec::new();
-        for &(_, r) in ranked.iter().take(VERIFIED_KEYFRAMES) {
+        self.predicted.clear();
+        for &(_, r) in &ranked {
             let (n, m) = &pairs_of[r];
             let kf = &self.keyframes[*n];
             let pairs: Vec<_> = m.iter().map(|&(j, k, _)| (kf.xn[k], p.xn[j])).collect();
@@ -304,6 +330,12 @@ impl Reid {
                     .filter(|&(t, &(_, _, by_desc))| by_desc && ok(t))
                     .map(|(_, &(j, k, _))| (p.keep[j], kf.ids[k])),
             );
+            // A place seen before: its other landmarks, where its verified
+            // pairs say they are now.
+            if *n < recent_from {
+                let pix_ok: Vec<_> = (0..m.len()).filter(|&t| ok(t)).map(|t| pix[t]).collect();
+                predict(kf, &pix_ok, &present, &mut self.predicted);
+            }
         }
         // One feature per old id, one old id per feature, and no id
         // already in the frame.
@@ -324,6 +356,14 @@ impl Reid {
             self.pending = Some(p);
         }
         out
+    }
+
+    /// The landmarks of the places recognised by the last
+    /// [`Reid::candidates`] that this frame does not hold, each with the
+    /// pixel where it should be now (`predict`): the tracker looks for each
+    /// there with its stored window, and takes it back if it is found.
+    pub fn predicted(&self) -> &[(u64, [f32; 2])] {
+        &self.predicted
     }
 
     /// Landmark `id`'s window as the first stored keyframe holding it saw
@@ -444,6 +484,48 @@ impl Reid {
     }
 }
 
+/// How many verified pairs nearest a landmark (in the keyframe's image)
+/// carry it into this frame, and how far the farthest of them may be (px):
+/// the image motion of a revisit varies across the image with depth, and
+/// the nearest pairs share the landmark's.
+const PREDICT_PAIRS: usize = 3;
+const PREDICTED_PLACES: usize = 2;
+const PREDICT_REACH_PX: f64 = 120.0;
+
+/// Appends to `out` each landmark of `kf` absent from this frame
+/// (`present`), with where it should be now: its keyframe pixel moved by
+/// the mean motion of the `PREDICT_PAIRS` verified pairs `pix` (keyframe
+/// pixel, this frame's pixel) nearest it, all within `PREDICT_REACH_PX`.
+fn predict(kf: &Keyframe, pix: &[([f64; 2], [f64; 2])], present: &BTreeSet<u64>, out: &mut Vec<(u64, [f32; 2])>) {
+    if pix.len() < PREDICT_PAIRS {
+        return;
+    }
+    let mut near: Vec<(f64, usize)> = Vec::with_capacity(pix.len());
+    for (k, &id) in kf.ids.iter().enumerate() {
+        if present.contains(&id) || out.iter().any(|o| o.0 == id) {
+            continue;
+        }
+        let a = kf.uv[k];
+        near.clear();
+        near.extend(
+            pix.iter()
+                .enumerate()
+                .map(|(t, p)| ((p.0[0] - a[0]).hypot(p.0[1] - a[1]), t)),
+        );
+        near.select_nth_unstable_by(PREDICT_PAIRS - 1, |x, y| x.0.total_cmp(&y.0));
+        let nearest = &near[..PREDICT_PAIRS];
+        if nearest.iter().any(|x| x.0 > PREDICT_REACH_PX) {
+            continue;
+        }
+        let mut d = [0.0f64; 2];
+        for &(_, t) in nearest {
+            d[0] += (pix[t].1[0] - pix[t].0[0]) / PREDICT_PAIRS as f64;
+            d[1] += (pix[t].1[1] - pix[t].0[1]) / PREDICT_PAIRS as f64;
+        }
+        out.push((id, [(a[0] + d[0]) as f32, (a[1] + d[1]) as f32]));
+    }
+}
+
 /// The thumbnail's side in blocks, across and down.
 const THUMB: (usize, usize) = (32, 20);
 
@@ -500,5 +582,44 @@ mod tests {
             let n = (-HALF..=HALF).filter(|dx| dx * dx + dy * dy <= HALF * HALF).count() as i32;
             assert_eq!(n, 2 * DISC_HALF_WIDTH[(dy + HALF) as usize] + 1, "dy {dy}");
         }
+    }
+
+    /// A place's landmarks absent from the frame are carried by the mean
+    /// motion of their nearest verified pairs; those present, and those
+    /// with no pair within reach, are not predicted.
+    #[test]
+    fn absent_landmarks_move_with_their_nearest_pairs() {
+        let uv = vec![
+            [100.0, 100.0],
+            [120.0, 100.0],
+            [100.0, 120.0],
+            [110.0, 110.0],
+            [400.0, 300.0],
+            [115.0, 105.0],
+        ];
+        let ids: Vec<u64> = vec![1, 2, 3, 4, 5, 6];
+        let kf = Keyframe {
+            frame: 0,
+            by_id: ids.iter().enumerate().map(|(k, &id)| (id, k)).collect(),
+            ids,
+            xn: vec![[0.0; 2]; uv.len()],
+            desc: vec![[0; 4]; uv.len()],
+            uv: uv.clone(),
+            thumb: Vec::new(),
+        };
+        // Pairs 1-3 moved by (+10, -5), 4 by (+13, -5): the nearest three
+        // to landmark 6 are 2, 4 and 1 or 3.
+        let pix: Vec<_> = (0..4)
+            .map(|k| (uv[k], [uv[k][0] + if k == 3 { 13.0 } else { 10.0 }, uv[k][1] - 5.0]))
+            .collect();
+        let present: BTreeSet<u64> = [1, 2, 3, 4].into_iter().collect();
+        let mut out = Vec::new();
+        predict(&kf, &pix, &present, &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(out[0].0, 6);
+        assert!(
+            (out[0].1[0] - 126.0).abs() < 1e-4 && (out[0].1[1] - 100.0).abs() < 1e-4,
+            "{out:?}"
+        );
     }
 }

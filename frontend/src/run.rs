@@ -104,7 +104,7 @@ impl std::fmt::Display for RunReport {
         let s = &self.tracks;
         write!(
             f,
-            "{} frames, {:.2} ms a frame tracking, {} not delivered, {} out of order; features detected {}, lost by Lucas–Kanade {}, by their first window {}, by RANSAC {}, re-identified {}",
+            "{} frames, {:.2} ms a frame tracking, {} not delivered, {} out of order; features detected {}, lost by Lucas–Kanade {}, by their first window {}, by RANSAC {}, re-identified {} (refused by their landmark's window {}), landmarks of recognised places found again {}",
             self.frames,
             self.ms_per_frame(),
             self.frames_dropped,
@@ -113,7 +113,9 @@ impl std::fmt::Display for RunReport {
             s.lost_klt,
             s.lost_anchor,
             s.lost_ransac,
-            s.reidentified
+            s.reidentified,
+            s.reid_refused,
+            s.reacquired
         )
     }
 }

@@ -9,14 +9,23 @@
 //! and the image is topped up to `max_features` with new corners where it
 //! has room (`detect.rs`). A lost feature seen again gets a new id, unless
 //! re-identification (`reid.rs`, on every frame for the new features)
-//! recognises its landmark and gives it the old one back.
+//! recognises its landmark and gives it the old one back. When it
+//! recognises a place flown before, the place's other landmarks are looked
+//! for where it puts them and brought back too (`Tracker::reacquire`).
+//!
+//! The first-window checks (the anchors, and re-identification's stored
+//! windows) read a smoothed copy of the frame (`Gray::smooth_into`): a
+//! camera draws an edge over about two pixels, and bilinear sampling of it
+//! at a sub-pixel shift misses by several grey levels, which on the
+//! rendered racetrack alone failed three in four new features on the far
+//! ground at their first check (measured at the true correspondence).
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
 use crate::affine::Anchor;
 use crate::detect::{DetectParams, Detector};
-use crate::image::{Gray, Pyramid};
+use crate::image::{Gray, Pyramid, SMOOTH_NOISE_FACTOR};
 use crate::klt::{track_checked, KltParams, KltScratch};
 use crate::ransac::epipolar_inliers;
 use crate::reid::{Reid, ReidParams};
@@ -61,7 +70,11 @@ const REID_MAX_SHIFT_PX: f32 = 3.0;
 /// look-alike lands far above it (measured on the rendered figure8, with
 /// the bound on the share alone: the candidates' residuals cluster at
 /// 0.1–0.2 of the window's spread).
-const REID_RESIDUAL_FACTOR: f32 = 2.5;
+const REID_RESIDUAL_FACTOR: f32 = 1.6;
+
+/// How near a re-acquired landmark must land to a young feature to be
+/// taken for the same point (px).
+const SAME_POINT_PX: f32 = 1.5;
 
 impl Default for TrackerParams {
     fn default() -> Self {
@@ -101,6 +114,9 @@ pub struct TrackStats {
     pub reidentified: u64,
     /// Re-identifications refused by the landmark's stored window.
     pub reid_refused: u64,
+    /// Landmarks of a recognised place found again where it put them
+    /// (`Tracker::reacquire`).
+    pub reacquired: u64,
 }
 
 /// The tracker and its reused buffers.
@@ -110,6 +126,10 @@ pub struct Tracker {
     camera: Option<Camera>,
     prev: Pyramid,
     next: Pyramid,
+    /// This frame smoothed (`Gray::smooth_into`): what the anchors and the
+    /// stored windows of re-identification are cut from and matched in.
+    smooth: Gray,
+    smooth_row: Vec<f32>,
     features: Vec<Feature>,
     next_id: u64,
     detector: Detector,
@@ -138,6 +158,8 @@ impl Tracker {
             camera,
             prev: Pyramid::default(),
             next: Pyramid::default(),
+            smooth: Gray::default(),
+            smooth_row: Vec::new(),
             features: Vec::new(),
             next_id: 0,
             detector: Detector::default(),
@@ -158,6 +180,9 @@ impl Tracker {
     /// Tracks into `image` and returns this frame's features.
     pub fn process(&mut self, image: &Gray) -> &[Feature] {
         self.next.rebuild(image, self.prm.pyramid_levels);
+        if self.prm.max_anchor_residual.is_some() {
+            image.smooth_into(&mut self.smooth, &mut self.smooth_row);
+        }
         let size_changed = self
             .prev
             .levels
@@ -189,7 +214,7 @@ impl Tracker {
         self.live_ids.sort_unstable();
         let live = &self.live_ids;
         self.anchors.retain(|id, _| live.binary_search(id).is_ok());
-        let img = &self.next.levels[0];
+        let img = &self.smooth;
         for f in self.features.iter() {
             if f.age == 0 || !self.anchors.contains_key(&f.id) {
                 if let Some(a) = Anchor::new(img, f.u_px, f.v_px) {
@@ -217,10 +242,10 @@ impl Tracker {
                     // dropped once it no longer looks like it.
                     let mut q = q;
                     if let (Some(max), Some(a)) = (self.prm.max_anchor_residual, self.anchors.get_mut(&f.id)) {
-                        match a.refine(&self.next.levels[0], q, ANCHOR_ITERATIONS) {
+                        match a.refine(&self.smooth, q, ANCHOR_ITERATIONS) {
                             Some((rq, res))
                                 if (rq[0] - q[0]).hypot(rq[1] - q[1]) < 2.0
-                                    && a.fits(res, max, self.prm.noise_grey) =>
+                                    && a.fits(res, max, SMOOTH_NOISE_FACTOR * self.prm.noise_grey) =>
                             {
                                 q = rq
                             }
@@ -279,7 +304,8 @@ impl Tracker {
             return;
         };
         let img = &self.next.levels[0];
-        let noise_grey = self.prm.noise_grey;
+        let smooth = &self.smooth;
+        let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
         self.reid_feats.clear();
         self.reid_feats
             .extend(self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)));
@@ -291,7 +317,14 @@ impl Tracker {
                 self.stats.reidentified += 1;
                 continue;
             };
-            let checked = check_against(reid, old, img, [f.u_px, f.v_px], REID_RESIDUAL_FACTOR * max, noise_grey);
+            let checked = check_against(
+                reid,
+                old,
+                smooth,
+                [f.u_px, f.v_px],
+                REID_RESIDUAL_FACTOR * max,
+                noise_grey,
+            );
             match checked {
                 Some(q) => {
                     self.features[i] = Feature {
@@ -303,7 +336,7 @@ impl Tracker {
                     // From here the track is held to the window it is
                     // seen with now, at its landmark's point.
                     self.anchors.remove(&f.id);
-                    if let Some(a) = Anchor::new(img, q[0], q[1]) {
+                    if let Some(a) = Anchor::new(smooth, q[0], q[1]) {
                         self.anchors.insert(old, a);
                     }
                     self.stats.reidentified += 1;
@@ -311,9 +344,68 @@ impl Tracker {
                 None => self.stats.reid_refused += 1,
             }
         }
+        if let Some(max) = self.prm.max_anchor_residual {
+            self.reacquire(max);
+        }
+        let Some(reid) = self.reid.as_mut() else { return };
         self.live_ids.clear();
         self.live_ids.extend(self.features.iter().map(|f| f.id));
-        reid.commit(img, &self.live_ids);
+        reid.commit(&self.smooth, &self.live_ids);
+    }
+
+    /// The landmarks of a recognised place that this frame does not hold
+    /// (`Reid::predicted`), each looked for where the place's verified
+    /// pairs put it, with its stored window (`check_against`, bound
+    /// `max` times `REID_RESIDUAL_FACTOR`). One found where no feature is
+    /// joins the frame; one found on a young feature (the same point,
+    /// within `SAME_POINT_PX`) gives it its id; one found beside an older
+    /// feature is left. This is what brings a place's landmarks back on a
+    /// revisit: detection picks whichever corners score best, and those are
+    /// seldom the ones the place's keyframes hold.
+    fn reacquire(&mut self, max: f32) {
+        let Some(reid) = self.reid.as_ref() else { return };
+        let search_frames = self.prm.reid.map_or(0, |r| r.search_frames);
+        let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
+        let min_distance = self.prm.detect.min_distance_px;
+        for &(id, q0) in reid.predicted() {
+            if self.features.iter().any(|f| f.id == id) {
+                continue;
+            }
+            let Some(q) = check_against(reid, id, &self.smooth, q0, REID_RESIDUAL_FACTOR * max, noise_grey) else {
+                continue;
+            };
+            let nearest = self
+                .features
+                .iter()
+                .enumerate()
+                .map(|(i, f)| ((f.u_px - q[0]).hypot(f.v_px - q[1]), i))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let at = match nearest {
+                Some((d, i)) if d < SAME_POINT_PX && self.features[i].age < search_frames => Some(i),
+                Some((d, _)) if d < min_distance => continue,
+                _ => None,
+            };
+            let f = Feature {
+                id,
+                u_px: q[0],
+                v_px: q[1],
+                age: 0,
+            };
+            match at {
+                Some(i) => {
+                    self.anchors.remove(&self.features[i].id);
+                    self.features[i] = Feature {
+                        age: self.features[i].age,
+                        ..f
+                    };
+                }
+                None => self.features.push(f),
+            }
+            if let Some(a) = Anchor::new(&self.smooth, q[0], q[1]) {
+                self.anchors.insert(id, a);
+            }
+            self.stats.reacquired += 1;
+        }
     }
 
     /// New corners where the image has room, up to `max_features`.

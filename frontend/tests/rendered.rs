@@ -13,8 +13,8 @@
 //!
 //! Issue 22's targets are 95 % of tracks within 1 px and under 1 % of
 //! re-identifications wrong; the assertions hold them. Measured (README,
-//! "Front-end"): 95.9 % of 7667 tracks within 1 px (98.2 % within 2 px);
-//! 17 of 2414 re-identifications wrong (0.70 %). Without the affine check
+//! "Front-end"): 95.9 % of 9074 tracks within 1 px (98.2 % within 2 px);
+//! 12 of 1651 re-identifications wrong (0.73 %). Without the affine check
 //! against each track's first window (`affine.rs`), 47.5 % of tracks stayed
 //! within 1 px. A run that begins with a re-identification is scored
 //! against the landmark's first world point, like any other.

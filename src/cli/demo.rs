@@ -211,6 +211,8 @@ fn fly(
             "lost_anchor": r.tracks.lost_anchor,
             "lost_ransac": r.tracks.lost_ransac,
             "reidentified": r.tracks.reidentified,
+            "reid_refused": r.tracks.reid_refused,
+            "reacquired": r.tracks.reacquired,
         });
     }
     let summary = summary?;
