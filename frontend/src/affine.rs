@@ -20,7 +20,7 @@
 
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector6};
 
-use crate::image::Gray;
+use crate::image::{dot, Gray};
 
 /// Half the side of the warped window (px).
 pub const HALF: usize = 9;
@@ -32,6 +32,9 @@ const NOISE_MARGIN: f32 = 1.2;
 /// The side of the first window with its one-pixel ring (px).
 pub const RING_SIDE: usize = 2 * HALF + 3;
 
+/// The window's pixel count, `(2 HALF + 1)²`.
+const N: usize = (2 * HALF + 1) * (2 * HALF + 1);
+
 /// The window of `img` at `(u, v)` with its one-pixel ring (`RING_SIDE²`,
 /// row by row) as grey bytes, written into `out`, if it fits: a tenth of
 /// an anchor's size, so re-identification can keep one for every landmark
@@ -42,7 +45,9 @@ pub fn window_bytes(img: &Gray, u: f32, v: f32, ring: &mut Vec<f32>, out: &mut V
         return false;
     }
     out.clear();
-    out.extend(ring.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8));
+    // Rounded to the nearest level: the values are in [0, 255], so adding
+    // a half and truncating is the rounding (without a call to `roundf`).
+    out.extend(ring.iter().map(|&v| (v.clamp(0.0, 255.0) + 0.5) as u8));
     true
 }
 
@@ -58,11 +63,26 @@ fn sample_ring(img: &Gray, u: f32, v: f32, ring: &mut Vec<f32>) -> bool {
 }
 
 /// A track's first window: its pixels, the steepest-descent images `J`
-/// and `H⁻¹`, and the current warp.
+/// and `H⁻¹`, and the current warp. Its buffers are refilled in place
+/// ([`Anchor::reset_at`], [`Anchor::reset_from_window_bytes`]), so a
+/// tracker that keeps its anchors allocates none per frame.
 #[derive(Clone, Debug)]
 pub struct Anchor {
+    /// The window with its ring, as last sampled (scratch of the refill).
+    ring: Vec<f32>,
+    /// `T(x)`, row by row (`N`).
     t: Vec<f32>,
-    j: Vec<[f32; 6]>,
+    /// The six steepest-descent images `J_i(x)`, one after the other
+    /// (`6 N`): laid out by parameter, so each sum over the window reads
+    /// one contiguous run.
+    j: Vec<f32>,
+    /// The residual image `I(W(x)) − T(x)` of the last step, and where
+    /// each of its samples was taken: the index of the pixel left of and
+    /// above the point, and the point's fractions past it (scratch).
+    e: Vec<f32>,
+    at: Vec<i32>,
+    fx: Vec<f32>,
+    fy: Vec<f32>,
     h_inv: Matrix6<f32>,
     /// The window's standard deviation (grey levels): residuals are read
     /// against it, so a check does not depend on the scene's contrast
@@ -72,59 +92,117 @@ pub struct Anchor {
     pub a: Matrix2<f32>,
 }
 
+impl Default for Anchor {
+    /// An empty anchor, to be filled by a reset.
+    fn default() -> Self {
+        Self {
+            ring: Vec::new(),
+            t: Vec::new(),
+            j: Vec::new(),
+            e: Vec::new(),
+            at: Vec::new(),
+            fx: Vec::new(),
+            fy: Vec::new(),
+            h_inv: Matrix6::zeros(),
+            spread: 0.0,
+            a: Matrix2::identity(),
+        }
+    }
+}
+
 impl Anchor {
     /// The window of `img` centred at `(u, v)`, or `None` if it does not
     /// fit or is too flat to hold an affine warp.
     pub fn new(img: &Gray, u: f32, v: f32) -> Option<Self> {
-        let mut ring = Vec::new();
-        if !sample_ring(img, u, v, &mut ring) {
-            return None;
-        }
-        Self::from_ring(&ring)
+        let mut a = Self::default();
+        a.reset_at(img, u, v).then_some(a)
     }
 
     /// The anchor of a window kept as grey bytes ([`window_bytes`]), its
     /// warp the identity: how a re-identified track is checked against
     /// its landmark's look.
     pub fn from_window_bytes(bytes: &[u8]) -> Option<Self> {
-        if bytes.len() != RING_SIDE * RING_SIDE {
-            return None;
-        }
-        let ring: Vec<f32> = bytes.iter().map(|&b| f32::from(b)).collect();
-        Self::from_ring(&ring)
+        let mut a = Self::default();
+        a.reset_from_window_bytes(bytes).then_some(a)
     }
 
-    /// From the first window with its one-pixel ring (`RING_SIDE²`).
-    fn from_ring(ring: &[f32]) -> Option<Self> {
+    /// [`Anchor::new`] into this anchor's buffers: false (the anchor
+    /// unusable until the next reset) if the window does not fit or is
+    /// too flat.
+    pub fn reset_at(&mut self, img: &Gray, u: f32, v: f32) -> bool {
+        let mut ring = std::mem::take(&mut self.ring);
+        let ok = sample_ring(img, u, v, &mut ring) && self.reset_from_ring(&ring);
+        self.ring = ring;
+        ok
+    }
+
+    /// [`Anchor::from_window_bytes`] into this anchor's buffers.
+    pub fn reset_from_window_bytes(&mut self, bytes: &[u8]) -> bool {
+        if bytes.len() != RING_SIDE * RING_SIDE {
+            return false;
+        }
+        let mut ring = std::mem::take(&mut self.ring);
+        ring.clear();
+        ring.extend(bytes.iter().map(|&b| f32::from(b)));
+        let ok = self.reset_from_ring(&ring);
+        self.ring = ring;
+        ok
+    }
+
+    /// From the first window with its one-pixel ring (`RING_SIDE²`): `T`,
+    /// the central-difference gradients, `J = [T_x x, T_x y, T_y x, T_y y,
+    /// T_x, T_y]` and `H = Σ Jᵀ J` (its 21 distinct entries, each a sum
+    /// over the window).
+    fn reset_from_ring(&mut self, ring: &[f32]) -> bool {
         let side = RING_SIDE;
         let n = 2 * HALF + 1;
-        let (mut t, mut j) = (Vec::with_capacity(n * n), Vec::with_capacity(n * n));
-        let mut h = Matrix6::<f32>::zeros();
-        for y in 0..n {
-            for x in 0..n {
-                let c = (y + 1) * side + x + 1;
-                let (gx, gy) = (
-                    0.5 * (ring[c + 1] - ring[c - 1]),
-                    0.5 * (ring[c + side] - ring[c - side]),
+        self.t.resize(N, 0.0);
+        self.j.resize(6 * N, 0.0);
+        self.e.resize(N, 0.0);
+        self.at.resize(N, 0);
+        self.fx.resize(N, 0.0);
+        self.fy.resize(N, 0.0);
+        self.a = Matrix2::identity();
+        {
+            let (j0, rest) = self.j.split_at_mut(N);
+            let (j1, rest) = rest.split_at_mut(N);
+            let (j2, rest) = rest.split_at_mut(N);
+            let (j3, rest) = rest.split_at_mut(N);
+            let (j4, j5) = rest.split_at_mut(N);
+            for y in 0..n {
+                let dy = y as f32 - HALF as f32;
+                let (up, mid, down) = (
+                    &ring[y * side..][..side],
+                    &ring[(y + 1) * side..][..side],
+                    &ring[(y + 2) * side..][..side],
                 );
-                let (dx, dy) = (x as f32 - HALF as f32, y as f32 - HALF as f32);
-                let row = [gx * dx, gx * dy, gy * dx, gy * dy, gx, gy];
-                let jv = Vector6::from_row_slice(&row);
-                h += jv * jv.transpose();
-                t.push(ring[c]);
-                j.push(row);
+                for x in 0..n {
+                    let k = y * n + x;
+                    let dx = x as f32 - HALF as f32;
+                    let (gx, gy) = (0.5 * (mid[x + 2] - mid[x]), 0.5 * (down[x + 1] - up[x + 1]));
+                    self.t[k] = mid[x + 1];
+                    j0[k] = gx * dx;
+                    j1[k] = gx * dy;
+                    j2[k] = gy * dx;
+                    j3[k] = gy * dy;
+                    j4[k] = gx;
+                    j5[k] = gy;
+                }
             }
         }
-        let h_inv = h.try_inverse()?;
-        let mean = t.iter().sum::<f32>() / t.len() as f32;
-        let spread = (t.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / t.len() as f32).sqrt();
-        Some(Self {
-            t,
-            j,
-            h_inv,
-            spread,
-            a: Matrix2::identity(),
-        })
+        let mut h = Matrix6::<f32>::zeros();
+        for r in 0..6 {
+            for c in r..6 {
+                let v = dot(&self.j[r * N..(r + 1) * N], &self.j[c * N..(c + 1) * N]);
+                h[(r, c)] = v;
+                h[(c, r)] = v;
+            }
+        }
+        let Some(h_inv) = h.try_inverse() else { return false };
+        self.h_inv = h_inv;
+        let mean = self.t.iter().sum::<f32>() / N as f32;
+        self.spread = (self.t.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / N as f32).sqrt();
+        true
     }
 
     /// Refines the feature's position `pos` in `img`, starting from the
@@ -136,6 +214,9 @@ impl Anchor {
         let mut a = self.a;
         let n = 2 * HALF + 1;
         let mut rms = f32::INFINITY;
+        if self.t.len() != N {
+            return None;
+        }
         for _ in 0..iterations {
             // How far the warped window reaches from its centre (px): the
             // largest row sum of |A| times the window's half side.
@@ -143,23 +224,38 @@ impl Anchor {
             if !img.inside(t.x, t.y, reach + 2.0) {
                 return None;
             }
-            let mut b = Vector6::<f32>::zeros();
-            let mut sq = 0.0f32;
+            // The residual image e(x) = I(W(x)) − T(x), W(x) = A x + t
+            // (inside: the window's reach was checked above). First where
+            // each sample falls, row by row (arithmetic alone, so it
+            // vectorises; the points are positive, so truncation is the
+            // floor), then the bilinear samples.
+            let w = img.width as i32;
             for y in 0..n {
+                let dy = y as f32 - HALF as f32;
+                let (ox, oy) = (a[(0, 1)] * dy + t.x, a[(1, 1)] * dy + t.y);
+                let row = y * n..(y + 1) * n;
+                let (at, fx, fy) = (&mut self.at[row.clone()], &mut self.fx[row.clone()], &mut self.fy[row]);
                 for x in 0..n {
-                    let k = y * n + x;
-                    let d = Vector2::new(x as f32 - HALF as f32, y as f32 - HALF as f32);
-                    let p = a * d + t;
-                    // Inside: the window's reach was checked above.
-                    let e = img.sample_inside(p.x, p.y) - self.t[k];
-                    sq += e * e;
-                    let jr = &self.j[k];
-                    for i in 0..6 {
-                        b[i] += jr[i] * e;
-                    }
+                    let dx = x as f32 - HALF as f32;
+                    let (px, py) = (a[(0, 0)] * dx + ox, a[(1, 0)] * dx + oy);
+                    let (xi, yi) = (px as i32, py as i32);
+                    at[x] = yi * w + xi;
+                    fx[x] = px - xi as f32;
+                    fy[x] = py - yi as f32;
                 }
             }
-            rms = (sq / (n * n) as f32).sqrt();
+            let w = img.width;
+            for ((((e, &tv), &at), &fx), &fy) in
+                self.e.iter_mut().zip(&self.t).zip(&self.at).zip(&self.fx).zip(&self.fy)
+            {
+                let p = &img.px[at as usize..at as usize + w + 2];
+                let top = p[0] + fx * (p[1] - p[0]);
+                let bottom = p[w] + fx * (p[w + 1] - p[w]);
+                *e = top + fy * (bottom - top) - tv;
+            }
+            // b = Σ Jᵀ e, one contiguous sum per parameter.
+            let b = Vector6::from_fn(|i, _| dot(&self.j[i * N..(i + 1) * N], &self.e));
+            rms = (dot(&self.e, &self.e) / N as f32).sqrt();
             let dp = self.h_inv * b;
             let dm = Matrix2::new(1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
             let dm_inv = dm.try_inverse()?;

@@ -70,6 +70,8 @@ pub struct Detector {
     barren_grid: (usize, usize, usize, usize),
     /// The column sums of the three products, while scoring a region.
     col: [Vec<f32>; 3],
+    /// A row's window sums of the three products.
+    win: [Vec<f32>; 3],
 }
 
 /// Calls a cell without corners sits out before it is searched again.
@@ -132,7 +134,10 @@ impl Detector {
                 for y in y0..y1 {
                     for x in x0..x1 {
                         let s = self.score[y * w + x];
-                        if s > 0.0 && is_local_max(&self.score, w, (x0, x1), (y0, y1), x, y) {
+                        // Below the floor a corner is never kept (the
+                        // threshold is at least the floor), so it is not
+                        // even a candidate.
+                        if s > 0.0 && s >= floor && is_local_max(&self.score, w, (x0, x1), (y0, y1), x, y) {
                             self.candidates.push((s, x as u32, y as u32));
                         }
                     }
@@ -253,13 +258,20 @@ impl Detector {
                     *s += v;
                 }
             }
-            for (x, o) in out.iter_mut().enumerate() {
-                let (mut a, mut b, mut cc) = (0.0f32, 0.0f32, 0.0f32);
+            // The window sums across, one offset at a time over the whole
+            // row (so each pass vectorises), then the least eigenvalue.
+            let len = out.len();
+            for (wv, c) in self.win.iter_mut().zip(col.iter()) {
+                wv.clear();
+                wv.resize(len, 0.0);
                 for d in 0..side {
-                    a += col[0][x + d];
-                    b += col[1][x + d];
-                    cc += col[2][x + d];
+                    for (s, v) in wv.iter_mut().zip(&c[d..d + len]) {
+                        *s += v;
+                    }
                 }
+            }
+            let [wa, wb, wc] = &self.win;
+            for (((o, &a), &b), &cc) in out.iter_mut().zip(wa).zip(wb).zip(wc) {
                 let tr = 0.5 * (a + cc);
                 *o = tr - (tr * tr - (a * cc - b * b)).max(0.0).sqrt();
             }

@@ -71,9 +71,11 @@ impl Gray {
     /// inside the image ([`Gray::inside`] with margin 1): no clamping.
     #[inline]
     pub fn sample_inside(&self, x: f32, y: f32) -> f32 {
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let k = y0 as usize * self.width + x0 as usize;
+        // Both are positive here, so truncation is the floor (and costs no
+        // call to `floorf` on a CPU without SSE4.1).
+        let (x0, y0) = (x as usize, y as usize);
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let k = y0 * self.width + x0;
         let (r0, r1) = (&self.px[k..k + 2], &self.px[k + self.width..k + self.width + 2]);
         (r0[0] * (1.0 - fx) + r0[1] * fx) * (1.0 - fy) + (r1[0] * (1.0 - fx) + r1[1] * fx) * fy
     }
@@ -89,11 +91,12 @@ impl Gray {
     /// offset, so the four weights are computed once; the window (plus one
     /// pixel) must lie inside the image ([`Gray::inside`] with margin `r + 1`).
     pub fn window(&self, x: f32, y: f32, r: usize, out: &mut [f32]) {
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
+        // Inside, so positive: truncation is the floor.
+        let (x0, y0) = (x as usize, y as usize);
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
         let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
         let side = 2 * r + 1;
-        let (xs, ys) = (x0 as usize - r, y0 as usize - r);
+        let (xs, ys) = (x0 - r, y0 - r);
         for (j, o) in out[..side * side].chunks_exact_mut(side).enumerate() {
             // Slices of known length, so the loop runs without bounds
             // checks (and vectorises).
@@ -146,27 +149,55 @@ impl Gray {
             return;
         }
         // Rows into `out`, then columns in place a row at a time, the row
-        // above (as the row pass left it) kept aside in `row`.
+        // above (as the row pass left it) kept aside in `row`. Each pass
+        // runs over slices of equal length, so it vectorises.
         for (r, o) in self.px.chunks_exact(w).zip(out.px.chunks_exact_mut(w)) {
-            for (x, o) in o.iter_mut().enumerate() {
-                let (a, c) = (r[x.saturating_sub(1)], r[(x + 1).min(w - 1)]);
-                *o = 0.25 * a + 0.5 * r[x] + 0.25 * c;
+            let clamped = |x: usize| 0.25 * r[x.saturating_sub(1)] + 0.5 * r[x] + 0.25 * r[(x + 1).min(w - 1)];
+            o[0] = clamped(0);
+            o[w - 1] = clamped(w - 1);
+            if w > 2 {
+                for (((o, &a), &b), &c) in o[1..w - 1].iter_mut().zip(&r[..w - 2]).zip(&r[1..w - 1]).zip(&r[2..]) {
+                    *o = 0.25 * a + 0.5 * b + 0.25 * c;
+                }
             }
         }
         row.clear();
         row.extend_from_slice(&out.px[..w]);
         for y in 0..h {
-            // The row below is still as the row pass left it (the last
-            // row is its own below).
-            let below_at = (y + 1).min(h - 1) * w;
-            for (x, above) in row.iter_mut().enumerate() {
-                let here = out.px[y * w + x];
-                let below = out.px[below_at + x];
-                out.px[y * w + x] = 0.25 * *above + 0.5 * here + 0.25 * below;
-                *above = here;
+            let (head, tail) = out.px.split_at_mut((y + 1) * w);
+            let here = &mut head[y * w..];
+            if y + 1 < h {
+                // The row below is still as the row pass left it.
+                let (here, above, below) = (&mut here[..w], &mut row[..w], &tail[..w]);
+                for x in 0..w {
+                    let v = here[x];
+                    here[x] = 0.25 * above[x] + 0.5 * v + 0.25 * below[x];
+                    above[x] = v;
+                }
+            } else {
+                // The last row is its own below.
+                for (o, &above) in here.iter_mut().zip(row.iter()) {
+                    let v = *o;
+                    *o = 0.25 * above + 0.5 * v + 0.25 * v;
+                }
             }
         }
     }
+}
+
+/// `Σ aᵢ bᵢ` over eight running sums, so the loop vectorises (a float sum
+/// kept in one accumulator cannot be reordered by the compiler).
+#[inline]
+pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum();
+    for (x, y) in ca.zip(cb) {
+        for i in 0..8 {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    acc.iter().sum::<f32>() + tail
 }
 
 /// An image pyramid: level 0 the image, each next level half the size.
@@ -228,8 +259,11 @@ pub fn box_blur(img: &Gray, out: &mut Gray, row: &mut Vec<f32>) {
         for x in [0, 1, w - 2, w - 1] {
             o[x] = (-2isize..=2).map(|d| r[clamp(x as isize + d, w)]).sum::<f32>() / 5.0;
         }
+        // Five shifted runs of equal length, so the pass vectorises.
+        let n = w - 4;
+        let (r0, r1, r2, r3, r4) = (&r[..n], &r[1..n + 1], &r[2..n + 2], &r[3..n + 3], &r[4..n + 4]);
         for (x, o) in o[2..w - 2].iter_mut().enumerate() {
-            *o = (r[x] + r[x + 1] + r[x + 2] + r[x + 3] + r[x + 4]) / 5.0;
+            *o = (r0[x] + r1[x] + r2[x] + r3[x] + r4[x]) / 5.0;
         }
     }
     // The column sums of rows y-2..=y+2.

@@ -17,7 +17,7 @@
 //! and refuses a track that does not return within `max_fb_error_px` of
 //! where it started (Kalal et al., 2010).
 
-use crate::image::Pyramid;
+use crate::image::{dot, Pyramid};
 
 /// The tracker's settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -105,21 +105,25 @@ pub fn track_point(
         // The template with a one-pixel ring, and its central differences.
         i_img.window(px, py, r + 1, &mut s.ring);
         let rs = side + 2;
-        let (mut gxx, mut gxy, mut gyy) = (0.0f32, 0.0f32, 0.0f32);
         for j in 0..side {
+            let (up, mid, down) = (
+                &s.ring[j * rs..][..rs],
+                &s.ring[(j + 1) * rs..][..rs],
+                &s.ring[(j + 2) * rs..][..rs],
+            );
+            let k = j * side;
+            let (t, gx, gy) = (
+                &mut s.template[k..k + side],
+                &mut s.gx[k..k + side],
+                &mut s.gy[k..k + side],
+            );
             for i in 0..side {
-                let c = (j + 1) * rs + i + 1;
-                let ix = 0.5 * (s.ring[c + 1] - s.ring[c - 1]);
-                let iy = 0.5 * (s.ring[c + rs] - s.ring[c - rs]);
-                let k = j * side + i;
-                s.template[k] = s.ring[c];
-                s.gx[k] = ix;
-                s.gy[k] = iy;
-                gxx += ix * ix;
-                gxy += ix * iy;
-                gyy += iy * iy;
+                t[i] = mid[i + 1];
+                gx[i] = 0.5 * (mid[i + 2] - mid[i]);
+                gy[i] = 0.5 * (down[i + 1] - up[i + 1]);
             }
         }
+        let (gxx, gxy, gyy) = (dot(&s.gx, &s.gx), dot(&s.gx, &s.gy), dot(&s.gy, &s.gy));
         // Least eigenvalue of the 2×2 structure tensor, per pixel.
         let tr = 0.5 * (gxx + gyy);
         let det = gxx * gyy - gxy * gxy;
@@ -145,12 +149,12 @@ pub fn track_point(
                 break;
             }
             j_img.window(qx, qy, r, &mut s.moving);
-            let (mut bx, mut by) = (0.0f32, 0.0f32);
-            for k in 0..side * side {
-                let e = s.template[k] - s.moving[k];
-                bx += e * s.gx[k];
-                by += e * s.gy[k];
+            // The residual in place of the moving window, then
+            // b = Σ e ∇I as two sums that vectorise.
+            for (m, &t) in s.moving.iter_mut().zip(&s.template) {
+                *m = t - *m;
             }
+            let (bx, by) = (dot(&s.moving, &s.gx), dot(&s.moving, &s.gy));
             // δ = G⁻¹ b.
             let dx = inv_det * (gyy * bx - gxy * by);
             let dy = inv_det * (gxx * by - gxy * bx);

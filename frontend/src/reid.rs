@@ -34,7 +34,7 @@ use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
 use crate::affine::window_bytes;
-use crate::image::{box_blur, Gray};
+use crate::image::{box_blur, dot, Gray};
 use crate::ransac::{affine_inliers, epipolar_inliers};
 use crate::synthetic::SplitMix;
 
@@ -107,7 +107,12 @@ struct Keyframe {
 #[derive(Clone, Debug)]
 pub struct Reid {
     prm: ReidParams,
-    pattern: Vec<[i8; 4]>,
+    /// The pattern's point pairs by coordinate (`x₀, y₀, x₁, y₁`, 256
+    /// each), so turning all of them is one pass that vectorises.
+    pattern: [Vec<f32>; 4],
+    /// Each pair's two points as offsets in the image, once turned
+    /// (scratch of [`Reid::describe`]).
+    offsets: [Vec<i32>; 2],
     keyframes: VecDeque<Keyframe>,
     blurred: Gray,
     row: Vec<f32>,
@@ -142,6 +147,19 @@ struct Pending {
 /// The patch's half side (px).
 const HALF: i32 = 15;
 
+/// A row's pixel offsets from the patch centre, `-HALF..=HALF`, and as
+/// many ones: the weights of the centroid's two sums.
+const DX: [f32; 2 * HALF as usize + 1] = {
+    let mut d = [0.0f32; 2 * HALF as usize + 1];
+    let mut i = 0;
+    while i < d.len() {
+        d[i] = i as f32 - HALF as f32;
+        i += 1;
+    }
+    d
+};
+const ONES: [f32; 2 * HALF as usize + 1] = [1.0; 2 * HALF as usize + 1];
+
 /// The disc of radius `HALF`: each row's half width, `dy` from `-HALF`.
 const DISC_HALF_WIDTH: [i32; 2 * HALF as usize + 1] = {
     let mut w = [0i32; 2 * HALF as usize + 1];
@@ -167,10 +185,16 @@ impl Reid {
             let v = ((r.unit() + r.unit() - 1.0) * 11.0).round() as i8;
             v.clamp(-11, 11)
         };
-        let pattern = (0..256).map(|_| [c(), c(), c(), c()]).collect();
+        let mut pattern: [Vec<f32>; 4] = Default::default();
+        for _ in 0..256 {
+            for p in pattern.iter_mut() {
+                p.push(f32::from(c()));
+            }
+        }
         Self {
             prm,
             pattern,
+            offsets: [vec![0; 256], vec![0; 256]],
             keyframes: VecDeque::new(),
             blurred: Gray::default(),
             row: Vec::new(),
@@ -205,7 +229,8 @@ impl Reid {
         cam: &Camera,
     ) -> Vec<(usize, u64)> {
         self.pending = None;
-        let young = |age: u32| age < self.prm.search_frames;
+        let search_frames = self.prm.search_frames;
+        let young = |age: u32| age < search_frames;
         let store = self.is_keyframe(frame);
         if feats.is_empty() || !(store || feats.iter().any(|f| young(f.3))) {
             return Vec::new();
@@ -446,9 +471,11 @@ impl Reid {
     }
 
     /// The steered-BRIEF descriptor at `(u, v)`, if its patch fits.
-    fn describe(&self, u: f32, v: f32) -> Option<Descriptor> {
+    fn describe(&mut self, u: f32, v: f32) -> Option<Descriptor> {
         let img = &self.blurred;
-        let (cx, cy) = (u.round() as i32, v.round() as i32);
+        // Rounded to the nearest pixel by adding a half and truncating
+        // (a position outside the image is refused below either way).
+        let (cx, cy) = ((u + 0.5) as i32, (v + 0.5) as i32);
         if cx < HALF + 1 || cy < HALF + 1 || cx >= img.width as i32 - HALF - 1 || cy >= img.height as i32 - HALF - 1 {
             return None;
         }
@@ -460,24 +487,30 @@ impl Reid {
             let hw = DISC_HALF_WIDTH[(dy + HALF) as usize];
             let at = (cy + dy) as usize * img.width + cx as usize;
             let row = &img.px[at - hw as usize..=at + hw as usize];
-            let (mut sx, mut sum) = (0.0f32, 0.0f32);
-            for (k, &p) in row.iter().enumerate() {
-                sx += (k as i32 - hw) as f32 * p;
-                sum += p;
-            }
-            m10 += sx;
-            m01 += dy as f32 * sum;
+            let xs = &DX[(HALF - hw) as usize..=(HALF + hw) as usize];
+            m10 += dot(row, xs);
+            m01 += dy as f32 * dot(row, &ONES[..row.len()]);
         }
         let (s, c) = m01.atan2(m10).sin_cos();
-        let at = |x: i8, y: i8| {
-            let (x, y) = (f32::from(x), f32::from(y));
-            let (rx, ry) = ((c * x - s * y).round() as i32, (s * x + c * y).round() as i32);
-            img.px[(cy + ry) as usize * img.width + (cx + rx) as usize]
-        };
+        // Each pair's points turned by the angle, rounded to the nearest
+        // pixel (the turned offsets lie within ±16, so shifted by 32.5
+        // they are positive and truncation is the rounding, without a
+        // call to `roundf`), as offsets in the image.
+        let w = img.width as i32;
+        let round = |v: f32| (v + 32.5) as i32 - 32;
+        let [x0, y0, x1, y1] = &self.pattern;
+        let [o0, o1] = &mut self.offsets;
+        for (o, (x, y)) in [(&mut *o0, (x0, y0)), (&mut *o1, (x1, y1))] {
+            for ((o, &x), &y) in o.iter_mut().zip(x.iter()).zip(y.iter()) {
+                *o = round(s * x + c * y) * w + round(c * x - s * y);
+            }
+        }
+        let centre = cy * w + cx;
         let mut d = [0u64; 4];
-        for (k, p) in self.pattern.iter().enumerate() {
-            if at(p[0], p[1]) < at(p[2], p[3]) {
-                d[k / 64] |= 1 << (k % 64);
+        for (word, (a, b)) in d.iter_mut().zip(o0.chunks_exact(64).zip(o1.chunks_exact(64))) {
+            for (bit, (&a, &b)) in a.iter().zip(b).enumerate() {
+                let (pa, pb) = (img.px[(centre + a) as usize], img.px[(centre + b) as usize]);
+                *word |= u64::from(pa < pb) << bit;
             }
         }
         Some(d)
@@ -559,10 +592,6 @@ fn thumbnail(img: &Gray) -> Vec<f32> {
         t.iter_mut().for_each(|v| *v /= norm);
     }
     t
-}
-
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// A pair of a frame's feature and a keyframe's, by index, and whether it

@@ -142,6 +142,11 @@ pub struct Tracker {
     reid: Option<Reid>,
     /// Each track's window as first seen, and its affine warp since, by id.
     anchors: std::collections::HashMap<u64, Anchor>,
+    /// Anchors of lost tracks, kept for their buffers: a new track's
+    /// anchor is refilled from one, so none is allocated per frame.
+    spare: Vec<Anchor>,
+    /// The anchor a stored window is checked with (`check_against`).
+    check: Anchor,
     live_ids: Vec<u64>,
     /// This frame's features as re-identification takes them.
     reid_feats: Vec<(u64, f32, f32, u32)>,
@@ -171,6 +176,8 @@ impl Tracker {
             frames: 0,
             reid,
             anchors: Default::default(),
+            spare: Vec::new(),
+            check: Anchor::default(),
             live_ids: Vec::new(),
             reid_feats: Vec::new(),
             stats: TrackStats::default(),
@@ -213,14 +220,34 @@ impl Tracker {
         self.live_ids.extend(self.features.iter().map(|f| f.id));
         self.live_ids.sort_unstable();
         let live = &self.live_ids;
-        self.anchors.retain(|id, _| live.binary_search(id).is_ok());
-        let img = &self.smooth;
-        for f in self.features.iter() {
+        let spare = &mut self.spare;
+        for (_, a) in self.anchors.extract_if(|id, _| live.binary_search(id).is_err()) {
+            spare.push(a);
+        }
+        for k in 0..self.features.len() {
+            let f = self.features[k];
             if f.age == 0 || !self.anchors.contains_key(&f.id) {
-                if let Some(a) = Anchor::new(img, f.u_px, f.v_px) {
-                    self.anchors.insert(f.id, a);
-                }
+                self.anchor_at(f.id, [f.u_px, f.v_px]);
             }
+        }
+    }
+
+    /// Track `id`'s anchor: the smoothed frame's window at `q`, in a spare
+    /// anchor's buffers (none if the window does not fit or is flat).
+    fn anchor_at(&mut self, id: u64, q: [f32; 2]) {
+        self.drop_anchor(id);
+        let mut a = self.spare.pop().unwrap_or_default();
+        if a.reset_at(&self.smooth, q[0], q[1]) {
+            self.anchors.insert(id, a);
+        } else {
+            self.spare.push(a);
+        }
+    }
+
+    /// Forgets track `id`'s anchor, keeping its buffers.
+    fn drop_anchor(&mut self, id: u64) {
+        if let Some(a) = self.anchors.remove(&id) {
+            self.spare.push(a);
         }
     }
 
@@ -251,7 +278,9 @@ impl Tracker {
                             }
                             _ => {
                                 self.stats.lost_anchor += 1;
-                                self.anchors.remove(&f.id);
+                                if let Some(a) = self.anchors.remove(&f.id) {
+                                    self.spare.push(a);
+                                }
                                 continue;
                             }
                         }
@@ -318,6 +347,7 @@ impl Tracker {
                 continue;
             };
             let checked = check_against(
+                &mut self.check,
                 reid,
                 old,
                 smooth,
@@ -335,9 +365,16 @@ impl Tracker {
                     };
                     // From here the track is held to the window it is
                     // seen with now, at its landmark's point.
-                    self.anchors.remove(&f.id);
-                    if let Some(a) = Anchor::new(smooth, q[0], q[1]) {
-                        self.anchors.insert(old, a);
+                    if let Some(a) = self.anchors.remove(&f.id) {
+                        self.spare.push(a);
+                    }
+                    let mut a = self.spare.pop().unwrap_or_default();
+                    if a.reset_at(smooth, q[0], q[1]) {
+                        if let Some(old_a) = self.anchors.insert(old, a) {
+                            self.spare.push(old_a);
+                        }
+                    } else {
+                        self.spare.push(a);
                     }
                     self.stats.reidentified += 1;
                 }
@@ -363,7 +400,13 @@ impl Tracker {
     /// revisit: detection picks whichever corners score best, and those are
     /// seldom the ones the place's keyframes hold.
     fn reacquire(&mut self, max: f32) {
-        let Some(reid) = self.reid.as_ref() else { return };
+        // Taken out for the while, so the anchors can be refilled.
+        let Some(reid) = self.reid.take() else { return };
+        self.reacquire_from(&reid, max);
+        self.reid = Some(reid);
+    }
+
+    fn reacquire_from(&mut self, reid: &Reid, max: f32) {
         let search_frames = self.prm.reid.map_or(0, |r| r.search_frames);
         let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
         let min_distance = self.prm.detect.min_distance_px;
@@ -371,7 +414,15 @@ impl Tracker {
             if self.features.iter().any(|f| f.id == id) {
                 continue;
             }
-            let Some(q) = check_against(reid, id, &self.smooth, q0, REID_RESIDUAL_FACTOR * max, noise_grey) else {
+            let Some(q) = check_against(
+                &mut self.check,
+                reid,
+                id,
+                &self.smooth,
+                q0,
+                REID_RESIDUAL_FACTOR * max,
+                noise_grey,
+            ) else {
                 continue;
             };
             let nearest = self
@@ -393,7 +444,7 @@ impl Tracker {
             };
             match at {
                 Some(i) => {
-                    self.anchors.remove(&self.features[i].id);
+                    self.drop_anchor(self.features[i].id);
                     self.features[i] = Feature {
                         age: self.features[i].age,
                         ..f
@@ -401,9 +452,7 @@ impl Tracker {
                 }
                 None => self.features.push(f),
             }
-            if let Some(a) = Anchor::new(&self.smooth, q[0], q[1]) {
-                self.anchors.insert(id, a);
-            }
+            self.anchor_at(id, q);
             self.stats.reacquired += 1;
         }
     }
@@ -443,11 +492,21 @@ impl Tracker {
 }
 
 /// Landmark `id`'s first stored look (`Reid::window`) matched at `pos` in
-/// `img` by the affine check from the identity: the point it lands on, if
+/// `img` by the affine check from the identity (in `a`'s buffers): the point it lands on, if
 /// the residual is within `share` (and the noise of `noise_grey`) and the
 /// point within `REID_MAX_SHIFT_PX` of `pos`.
-fn check_against(reid: &Reid, id: u64, img: &Gray, pos: [f32; 2], share: f32, noise_grey: f32) -> Option<[f32; 2]> {
-    let mut a = Anchor::from_window_bytes(reid.window(id)?)?;
+fn check_against(
+    a: &mut Anchor,
+    reid: &Reid,
+    id: u64,
+    img: &Gray,
+    pos: [f32; 2],
+    share: f32,
+    noise_grey: f32,
+) -> Option<[f32; 2]> {
+    if !a.reset_from_window_bytes(reid.window(id)?) {
+        return None;
+    }
     let (q, res) = a.refine(img, pos, REID_ITERATIONS)?;
     ((q[0] - pos[0]).hypot(q[1] - pos[1]) < REID_MAX_SHIFT_PX && a.fits(res, share, noise_grey)).then_some(q)
 }
