@@ -20,7 +20,7 @@
 
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector6};
 
-use crate::image::{dot, Gray};
+use crate::image::{dot, sum, Gray};
 
 /// Half the side of the warped window (px).
 pub const HALF: usize = 9;
@@ -169,6 +169,8 @@ impl Anchor {
             let (j2, rest) = rest.split_at_mut(N);
             let (j3, rest) = rest.split_at_mut(N);
             let (j4, j5) = rest.split_at_mut(N);
+            // Row by row, over slices of the row's length (so each pass
+            // vectorises).
             for y in 0..n {
                 let dy = y as f32 - HALF as f32;
                 let (up, mid, down) = (
@@ -176,17 +178,20 @@ impl Anchor {
                     &ring[(y + 1) * side..][..side],
                     &ring[(y + 2) * side..][..side],
                 );
+                let row = y * n..(y + 1) * n;
+                let t = &mut self.t[row.clone()];
+                let (j0, j1, j2) = (&mut j0[row.clone()], &mut j1[row.clone()], &mut j2[row.clone()]);
+                let (j3, j4, j5) = (&mut j3[row.clone()], &mut j4[row.clone()], &mut j5[row]);
                 for x in 0..n {
-                    let k = y * n + x;
                     let dx = x as f32 - HALF as f32;
                     let (gx, gy) = (0.5 * (mid[x + 2] - mid[x]), 0.5 * (down[x + 1] - up[x + 1]));
-                    self.t[k] = mid[x + 1];
-                    j0[k] = gx * dx;
-                    j1[k] = gx * dy;
-                    j2[k] = gy * dx;
-                    j3[k] = gy * dy;
-                    j4[k] = gx;
-                    j5[k] = gy;
+                    t[x] = mid[x + 1];
+                    j0[x] = gx * dx;
+                    j1[x] = gx * dy;
+                    j2[x] = gy * dx;
+                    j3[x] = gy * dy;
+                    j4[x] = gx;
+                    j5[x] = gy;
                 }
             }
         }
@@ -200,8 +205,12 @@ impl Anchor {
         }
         let Some(h_inv) = h.try_inverse() else { return false };
         self.h_inv = h_inv;
-        let mean = self.t.iter().sum::<f32>() / N as f32;
-        self.spread = (self.t.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / N as f32).sqrt();
+        // The spread, about the mean (the residual buffer as scratch).
+        let mean = sum(&self.t) / N as f32;
+        for (e, &t) in self.e.iter_mut().zip(&self.t) {
+            *e = t - mean;
+        }
+        self.spread = (dot(&self.e, &self.e) / N as f32).sqrt();
         true
     }
 

@@ -72,6 +72,10 @@ pub struct Detector {
     col: [Vec<f32>; 3],
     /// A row's window sums of the three products.
     win: [Vec<f32>; 3],
+    /// Over a region, each score's 3×3 neighbourhood's largest (within
+    /// the region), and the rows' maxima of three on the way.
+    max3: Vec<f32>,
+    rowmax: Vec<f32>,
 }
 
 /// Calls a cell without corners sits out before it is searched again.
@@ -131,14 +135,17 @@ impl Detector {
                 }
                 self.region_scores(img, (x0, x1), (y0, y1), prm.half_window);
                 let from = self.candidates.len();
+                self.region_maxima(w, (x0, x1), (y0, y1));
+                let rw = x1 - x0;
                 for y in y0..y1 {
-                    for x in x0..x1 {
-                        let s = self.score[y * w + x];
-                        // Below the floor a corner is never kept (the
-                        // threshold is at least the floor), so it is not
-                        // even a candidate.
-                        if s > 0.0 && s >= floor && is_local_max(&self.score, w, (x0, x1), (y0, y1), x, y) {
-                            self.candidates.push((s, x as u32, y as u32));
+                    let (row, max3) = (&self.score[y * w + x0..][..rw], &self.max3[(y - y0) * rw..][..rw]);
+                    for (x, (&s, &m)) in row.iter().zip(max3).enumerate() {
+                        // A local maximum: no neighbour greater. Below the
+                        // floor a corner is never kept (the threshold is
+                        // at least the floor), so it is not even a
+                        // candidate.
+                        if s > 0.0 && s >= floor && s >= m {
+                            self.candidates.push((s, (x0 + x) as u32, y as u32));
                         }
                     }
                 }
@@ -284,24 +291,83 @@ impl Detector {
     }
 }
 
-/// Whether the score at `(x, y)` is the largest of its 3×3 neighbourhood
-/// within the region `xs × ys` (whose scores are current).
-fn is_local_max(s: &[f32], w: usize, xs: (usize, usize), ys: (usize, usize), x: usize, y: usize) -> bool {
-    let v = s[y * w + x];
-    for yy in y.saturating_sub(1).max(ys.0)..(y + 2).min(ys.1) {
-        for xx in x.saturating_sub(1).max(xs.0)..(x + 2).min(xs.1) {
-            if (xx, yy) != (x, y) && s[yy * w + xx] > v {
-                return false;
+impl Detector {
+    /// Into `max3`, the largest score of each pixel's 3×3 neighbourhood
+    /// within the region `xs × ys` (whose scores are current), row by row
+    /// of the region: the maxima of three along each row, then of three of
+    /// those down each column, each pass over whole rows (so it vectorises).
+    fn region_maxima(&mut self, w: usize, xs: (usize, usize), ys: (usize, usize)) {
+        let (rw, rh) = (xs.1 - xs.0, ys.1 - ys.0);
+        self.rowmax.clear();
+        self.rowmax.resize(rw * rh, 0.0);
+        self.max3.clear();
+        self.max3.resize(rw * rh, 0.0);
+        for y in 0..rh {
+            let r = &self.score[(ys.0 + y) * w + xs.0..][..rw];
+            let m = &mut self.rowmax[y * rw..][..rw];
+            max_of_three(r, m);
+        }
+        for y in 0..rh {
+            let here = &self.rowmax[y * rw..][..rw];
+            let up = &self.rowmax[y.saturating_sub(1) * rw..][..rw];
+            let down = &self.rowmax[(y + 1).min(rh - 1) * rw..][..rw];
+            let o = &mut self.max3[y * rw..][..rw];
+            for x in 0..rw {
+                o[x] = here[x].max(up[x]).max(down[x]);
             }
         }
     }
-    true
+}
+
+/// Each element's largest of itself and its two neighbours along `r`
+/// (one at each end), into `m`.
+fn max_of_three(r: &[f32], m: &mut [f32]) {
+    let n = r.len();
+    match n {
+        0 => {}
+        1 => m[0] = r[0],
+        _ => {
+            m[0] = r[0].max(r[1]);
+            m[n - 1] = r[n - 1].max(r[n - 2]);
+            for (((o, &a), &b), &c) in m[1..n - 1].iter_mut().zip(&r[..n - 2]).zip(&r[1..n - 1]).zip(&r[2..]) {
+                *o = a.max(b).max(c);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::synthetic::textured;
+
+    /// The separable 3×3 maximum finds exactly the scores with no greater
+    /// neighbour inside the region (ties included, borders clamped to it).
+    #[test]
+    fn region_maxima_are_the_local_maxima() {
+        let (w, h) = (23usize, 17usize);
+        let mut rng = crate::synthetic::SplitMix::new(3);
+        // Few levels, so ties occur.
+        let mut d = Detector {
+            score: (0..w * h).map(|_| (rng.unit() * 6.0).floor() as f32).collect(),
+            ..Default::default()
+        };
+        let (xs, ys) = ((2usize, 19usize), (1usize, 15usize));
+        d.region_maxima(w, xs, ys);
+        let rw = xs.1 - xs.0;
+        for y in ys.0..ys.1 {
+            for x in xs.0..xs.1 {
+                let v = d.score[y * w + x];
+                let mut local = true;
+                for yy in y.saturating_sub(1).max(ys.0)..(y + 2).min(ys.1) {
+                    for xx in x.saturating_sub(1).max(xs.0)..(x + 2).min(xs.1) {
+                        local &= d.score[yy * w + xx] <= v;
+                    }
+                }
+                assert_eq!(v >= d.max3[(y - ys.0) * rw + x - xs.0], local, "({x}, {y})");
+            }
+        }
+    }
 
     #[test]
     fn corners_are_spread_and_apart() {

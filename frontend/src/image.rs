@@ -103,8 +103,29 @@ impl Gray {
             let at = (ys + j) * self.width + xs;
             let row0 = &self.px[at..at + side + 1];
             let row1 = &self.px[at + self.width..at + self.width + side + 1];
-            for (i, o) in o.iter_mut().enumerate() {
-                *o = w00 * row0[i] + w10 * row0[i + 1] + w01 * row1[i] + w11 * row1[i + 1];
+            let at = |o: &mut [f32], i: usize| {
+                o[i] = w00 * row0[i] + w10 * row0[i + 1] + w01 * row1[i] + w11 * row1[i + 1];
+            };
+            if side < 4 {
+                (0..side).for_each(|i| at(o, i));
+                continue;
+            }
+            // Blocks of four (one vector each), the last one overlapping
+            // the one before when the side is not a multiple of four, so
+            // no pixel is left to a scalar tail.
+            let block = |o: &mut [f32], i: usize| {
+                let (o, a, b) = (&mut o[i..i + 4], &row0[i..i + 5], &row1[i..i + 5]);
+                for k in 0..4 {
+                    o[k] = w00 * a[k] + w10 * a[k + 1] + w01 * b[k] + w11 * b[k + 1];
+                }
+            };
+            let mut i = 0;
+            while i + 4 <= side {
+                block(o, i);
+                i += 4;
+            }
+            if i < side {
+                block(o, side - 4);
             }
         }
     }
@@ -118,10 +139,12 @@ impl Gray {
         out.height = h;
         out.px.resize(w * h, 0.0);
         for y in 0..h {
-            let r0 = &self.px[2 * y * self.width..];
-            let r1 = &self.px[(2 * y + 1) * self.width..];
+            // Slices of known length, so the loop vectorises.
+            let r0 = &self.px[2 * y * self.width..][..2 * w];
+            let r1 = &self.px[(2 * y + 1) * self.width..][..2 * w];
+            let o = &mut out.px[y * w..(y + 1) * w];
             for x in 0..w {
-                out.px[y * w + x] = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
+                o[x] = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
             }
         }
     }
@@ -195,6 +218,20 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
     for (x, y) in ca.zip(cb) {
         for i in 0..8 {
             acc[i] += x[i] * y[i];
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
+/// `Σ aᵢ` over eight running sums (see [`dot`]).
+#[inline]
+pub fn sum(a: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let c = a.chunks_exact(8);
+    let tail: f32 = c.remainder().iter().sum();
+    for x in c {
+        for i in 0..8 {
+            acc[i] += x[i];
         }
     }
     acc.iter().sum::<f32>() + tail
