@@ -6,7 +6,7 @@
 //!   racetrack at 20 Hz (15 m/s over the textured ground and blocks), 10 s
 //!   of it after the take-off, played in a loop: each pass is a lap flown
 //!   again, so re-identification finds revisits and its store fills (to
-//!   its bound of 400 keyframes), as in a long flight. The conversion of
+//!   its bound of 1000 keyframes after about 2000 frames), as in a long flight. The conversion of
 //!   each frame from 8-bit bytes is timed too, as the run loop does it.
 //! - `tracker/plane`: a textured plane panning 3 px a frame, back and forth.
 //! - The parts: the pyramid, and detection of 150 corners on an empty image.
