@@ -87,10 +87,26 @@ impl Detector {
     /// share of features (`wanted + existing` over the cells) are searched,
     /// so a frame that lost a few tracks costs a few cells.
     pub fn detect(&mut self, img: &Gray, existing: &[[f32; 2]], wanted: usize, prm: &DetectParams) -> Vec<[f32; 2]> {
+        let mut kept = Vec::new();
+        self.detect_into(img, existing, wanted, prm, &mut kept);
+        kept
+    }
+
+    /// [`Detector::detect`] into `kept` (cleared first), a buffer the
+    /// caller keeps, so a frame allocates nothing.
+    pub fn detect_into(
+        &mut self,
+        img: &Gray,
+        existing: &[[f32; 2]],
+        wanted: usize,
+        prm: &DetectParams,
+        kept: &mut Vec<[f32; 2]>,
+    ) {
+        kept.clear();
         let (w, h) = (img.width, img.height);
         let bd = prm.border_px.max(prm.half_window + 2);
         if wanted == 0 || w < 2 * bd + 3 || h < 2 * bd + 3 {
-            return Vec::new();
+            return;
         }
         let (cols, rows) = prm.cells;
         let n_cells = cols * rows;
@@ -165,13 +181,12 @@ impl Detector {
         }
         self.cell_start.push(self.candidates.len());
         if best <= 0.0 {
-            return Vec::new();
+            return;
         }
         let threshold = (prm.quality * best).max(floor);
         let md2 = prm.min_distance_px.max(1.0).powi(2);
         // Round robin over the cells, one corner a cell a round, so the
         // corners spread before any cell gets a second.
-        let mut kept: Vec<[f32; 2]> = Vec::new();
         self.cursor.clear();
         self.cursor.extend_from_slice(&self.cell_start[..n_cells]);
         let mut progress = true;
@@ -205,7 +220,6 @@ impl Detector {
                 }
             }
         }
-        kept
     }
 
     /// The Shi–Tomasi score of every pixel of the region `xs × ys`: the

@@ -3,8 +3,10 @@
 //! reads intensities at sub-pixel positions on several scales, and one small
 //! type with bilinear sampling serves them all without an image library.
 //! Image buffers are reused from frame to frame, so no image is allocated
-//! per frame once the first frame has sized them (re-identification's
-//! small per-frame lists of matches are the tracker's only allocations).
+//! per frame once the first frame has sized them; the tracker's other lists
+//! are kept the same way (`frontend/tests/no_alloc.rs` counts a lap of the
+//! rendered racetrack at no allocation once re-identification's store is
+//! full).
 
 /// A grey image, intensities as `f32` in `[0, 255]`, row-major.
 #[derive(Clone, Debug, Default, PartialEq)]

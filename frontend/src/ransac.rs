@@ -133,7 +133,10 @@ pub fn affine_inliers(pairs: &[([f64; 2], [f64; 2])], tolerance_px: f64, seed: u
     let t2 = tolerance_px * tolerance_px;
     let mut best: Option<(usize, [f64; 6])> = None;
     for _ in 0..100 {
-        let idx: Vec<usize> = (0..3).map(|_| (rng.next_u64() % pairs.len() as u64) as usize).collect();
+        let mut idx = [0usize; 3];
+        for i in idx.iter_mut() {
+            *i = (rng.next_u64() % pairs.len() as u64) as usize;
+        }
         if idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] {
             continue;
         }

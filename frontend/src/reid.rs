@@ -28,12 +28,12 @@
 //! `atan2(m₀₁, m₁₀)`), so a drone that yawed between its visits still
 //! matches.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::collections::{HashMap, VecDeque};
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
-use crate::affine::window_bytes;
+use crate::affine::{window_bytes, RING_SIDE};
 use crate::image::{box_blur, dot, Gray};
 use crate::ransac::{affine_inliers, epipolar_inliers};
 use crate::synthetic::SplitMix;
@@ -92,7 +92,7 @@ impl Default for ReidParams {
 /// One stored keyframe: its features' ids (and, sorted, with their
 /// indices), pixels, normalised coordinates and descriptors, and the
 /// frame's thumbnail.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 struct Keyframe {
     frame: u64,
     ids: Vec<u64>,
@@ -118,30 +118,66 @@ pub struct Reid {
     row: Vec<f32>,
     inliers: Vec<bool>,
     affine_ok: Vec<bool>,
-    /// This keyframe's features, described by [`Reid::candidates`] and
-    /// stored by [`Reid::commit`] under the ids they end up with.
-    pending: Option<Pending>,
+    /// This frame's features, described by [`Reid::candidates`] and, if
+    /// it is a keyframe (`pending_frame`), stored by [`Reid::commit`]
+    /// under the ids they end up with.
+    pending: Pending,
+    pending_frame: Option<u64>,
+    /// The last keyframe to leave the store: its lists hold the next one
+    /// stored.
+    spare_keyframe: Option<Keyframe>,
+    /// See [`Reid::found`].
+    found: Vec<(usize, u64)>,
+    scratch: Scratch,
     /// Each landmark's window as first stored (`affine.rs`), for the
-    /// photometric check of a re-identification, with the number of
-    /// stored keyframes that hold its id: at most `max_keyframes ×
-    /// features` windows of 441 bytes (21²), dropped with the last keyframe that
-    /// holds them.
-    windows: HashMap<u64, (Vec<u8>, u32)>,
+    /// photometric check of a re-identification: its slot in
+    /// `window_slots` and the number of stored keyframes that hold its id.
+    /// At most `max_keyframes × features` windows of 441 bytes (21²),
+    /// each dropped with the last keyframe that holds it.
+    windows: HashMap<u64, (u32, u32)>,
+    /// The windows, one slot of `WINDOW_BYTES` after another in one
+    /// buffer; the slots of dropped windows (`free_slots`) take the next
+    /// ones, so the buffer grows only to the most windows ever held.
+    window_slots: Vec<u8>,
+    free_slots: Vec<u32>,
+    /// A window being cut (scratch of [`Reid::commit`]).
+    window: Vec<u8>,
     ring: Vec<f32>,
     /// See [`Reid::predicted`].
     predicted: Vec<(u64, [f32; 2])>,
 }
 
-/// A frame being matched: its number, its features' indices in the frame,
-/// their pixels, normalised coordinates and descriptors, and its thumbnail.
-#[derive(Clone, Debug)]
+/// A frame being matched: its features' indices in the frame, their
+/// pixels, normalised coordinates and descriptors, and its thumbnail.
+#[derive(Clone, Debug, Default)]
 struct Pending {
-    frame: u64,
     keep: Vec<usize>,
     uv: Vec<[f64; 2]>,
     xn: Vec<[f64; 2]>,
     desc: Vec<Descriptor>,
     thumb: Vec<f32>,
+}
+
+/// The lists one [`Reid::candidates`] call builds, kept from call to call.
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    /// The young features that have a descriptor (indices into the
+    /// pending frame).
+    matchable: Vec<usize>,
+    /// The frame's ids, sorted.
+    present: Vec<u64>,
+    searched: Vec<usize>,
+    alike: Vec<(f32, usize)>,
+    ranked: Vec<(usize, usize)>,
+    places: Vec<(usize, usize)>,
+    /// Per searched keyframe (the first `searched.len()`): its index and
+    /// its pairs with this frame.
+    pairs_of: Vec<(usize, Vec<Pair>)>,
+    pairs: Vec<([f64; 2], [f64; 2])>,
+    pix: Vec<([f64; 2], [f64; 2])>,
+    pix_ok: Vec<([f64; 2], [f64; 2])>,
+    verified: Vec<(usize, u64)>,
+    near: Vec<(f64, usize)>,
 }
 
 /// The patch's half side (px).
@@ -200,7 +236,14 @@ impl Reid {
             row: Vec::new(),
             inliers: Vec::new(),
             affine_ok: Vec::new(),
-            pending: None,
+            pending: Pending::default(),
+            pending_frame: None,
+            spare_keyframe: None,
+            window_slots: Vec::new(),
+            free_slots: Vec::new(),
+            window: Vec::new(),
+            found: Vec::new(),
+            scratch: Scratch::default(),
             windows: HashMap::new(),
             ring: Vec::new(),
             predicted: Vec::new(),
@@ -215,39 +258,42 @@ impl Reid {
 
     /// On every frame: describes the features `(id, u, v, age)`, matches
     /// those younger than `search_frames` against the newest keyframes and the
-    /// older ones whose thumbnails look most alike, and returns
+    /// older ones whose thumbnails look most alike, and finds
     /// `(feature index, old id)` for each feature recognised (never an id
-    /// present in this frame, never two features to one id). The caller
-    /// checks each against its landmark's stored window ([`Reid::window`])
-    /// and then gives the ids the frame ends with to [`Reid::commit`],
-    /// which stores it if it is a keyframe.
-    pub fn candidates(
-        &mut self,
-        frame: u64,
-        img: &Gray,
-        feats: &[(u64, f32, f32, u32)],
-        cam: &Camera,
-    ) -> Vec<(usize, u64)> {
-        self.pending = None;
+    /// present in this frame, never two features to one id), read with
+    /// [`Reid::found`]. The caller checks each against its landmark's
+    /// stored window ([`Reid::window`]) and then gives the ids the frame
+    /// ends with to [`Reid::commit`], which stores it if it is a keyframe.
+    /// Every list it builds is a buffer kept from call to call, so once
+    /// they have grown a frame allocates nothing.
+    pub fn candidates(&mut self, frame: u64, img: &Gray, feats: &[(u64, f32, f32, u32)], cam: &Camera) {
+        self.pending_frame = None;
+        self.found.clear();
+        self.predicted.clear();
         let search_frames = self.prm.search_frames;
         let young = |age: u32| age < search_frames;
         let store = self.is_keyframe(frame);
         if feats.is_empty() || !(store || feats.iter().any(|f| young(f.3))) {
-            return Vec::new();
+            return;
         }
         box_blur(img, &mut self.blurred, &mut self.row);
-        let mut p = Pending {
-            frame,
-            keep: Vec::with_capacity(feats.len()),
-            uv: Vec::with_capacity(feats.len()),
-            xn: Vec::with_capacity(feats.len()),
-            desc: Vec::with_capacity(feats.len()),
-            thumb: thumbnail(&self.blurred),
-        };
+        let mut p = std::mem::take(&mut self.pending);
+        p.keep.clear();
+        p.uv.clear();
+        p.xn.clear();
+        p.desc.clear();
+        // Lists that came back from the store may be short of this frame.
+        let cap = feats.len().max(KEYFRAME_CAPACITY);
+        p.keep.reserve(cap);
+        p.uv.reserve(cap);
+        p.xn.reserve(cap);
+        p.desc.reserve(cap);
+        thumbnail(&self.blurred, &mut p.thumb);
         // Every feature's pixel and normalised coordinates; descriptors for
         // the young ones, and on a keyframe for all (it is stored), where a
         // feature without one (its patch leaves the image) is left out.
-        let mut matchable: Vec<usize> = Vec::new();
+        let mut sc = std::mem::take(&mut self.scratch);
+        sc.matchable.clear();
         for (i, &(_, u, v, age)) in feats.iter().enumerate() {
             let Some(x) = cam.undistort(&Vector2::new(f64::from(u), f64::from(v))) else {
                 continue;
@@ -257,51 +303,62 @@ impl Reid {
                 continue;
             }
             if d.is_some() && young(age) {
-                matchable.push(p.keep.len());
+                sc.matchable.push(p.keep.len());
             }
             p.desc.push(d.unwrap_or_default());
             p.xn.push([x.x, x.y]);
             p.uv.push([f64::from(u), f64::from(v)]);
             p.keep.push(i);
         }
-        let present: BTreeSet<u64> = feats.iter().map(|f| f.0).collect();
+        sc.present.clear();
+        sc.present.extend(feats.iter().map(|f| f.0));
+        sc.present.sort_unstable();
+        let present = &sc.present;
+        let is_present = |id: &u64| present.binary_search(id).is_ok();
         let thr = 1.5 / cam.fx;
         // The keyframes searched: the newest, and the older ones most like
         // this frame by their thumbnails' correlation.
         let n_kf = self.keyframes.len();
         let recent_from = n_kf.saturating_sub(self.prm.recent_keyframes);
-        let mut searched: Vec<usize> = (recent_from..n_kf).collect();
+        sc.searched.clear();
+        sc.searched.extend(recent_from..n_kf);
         let old_enough = frame.saturating_sub(self.prm.place_min_age_frames);
-        let mut alike: Vec<(f32, usize)> = (0..recent_from)
-            .take_while(|&n| self.keyframes[n].frame <= old_enough)
-            .map(|n| (dot(&self.keyframes[n].thumb, &p.thumb), n))
-            .collect();
-        let top = self.prm.place_keyframes.min(alike.len());
+        sc.alike.clear();
+        sc.alike.extend(
+            (0..recent_from)
+                .take_while(|&n| self.keyframes[n].frame <= old_enough)
+                .map(|n| (dot(&self.keyframes[n].thumb, &p.thumb), n)),
+        );
+        let top = self.prm.place_keyframes.min(sc.alike.len());
         if top > 0 {
-            alike.select_nth_unstable_by(top - 1, |a, b| b.0.total_cmp(&a.0));
-            searched.extend(alike[..top].iter().map(|&(_, n)| n));
+            sc.alike.select_nth_unstable_by(top - 1, |a, b| b.0.total_cmp(&a.0));
+            sc.searched.extend(sc.alike[..top].iter().map(|&(_, n)| n));
         }
         // Each searched keyframe's pairs: the young features' mutual
         // descriptor matches, and the tracks it shares with this frame
         // (same id: a correspondence by construction, which holds the
         // geometric check steady).
-        let mut ranked: Vec<(usize, usize)> = Vec::new();
-        let mut places: Vec<(usize, usize)> = Vec::new();
-        let mut pairs_of: Vec<(usize, Vec<Pair>)> = Vec::with_capacity(searched.len());
-        for &n in &searched {
+        sc.ranked.clear();
+        sc.places.clear();
+        if sc.pairs_of.len() < sc.searched.len() {
+            sc.pairs_of.resize_with(sc.searched.len(), Default::default);
+        }
+        for (r, &n) in sc.searched.iter().enumerate() {
             let kf = &self.keyframes[n];
-            let mut m: Vec<Pair> = Vec::new();
+            let (kf_at, m) = &mut sc.pairs_of[r];
+            *kf_at = n;
+            m.clear();
             for j in 0..p.keep.len() {
                 let id = feats[p.keep[j]].0;
                 if let Ok(at) = kf.by_id.binary_search_by_key(&id, |e| e.0) {
                     m.push((j, kf.by_id[at].1, false));
                 }
             }
-            for &j in &matchable {
+            for &j in &sc.matchable {
                 // Mutual: the keyframe's feature must also find this one
                 // (among the young: an older feature on the same landmark
                 // would carry the keyframe's id, present and so refused).
-                let young_desc = matchable.iter().map(|&y| (y, &p.desc[y]));
+                let young_desc = sc.matchable.iter().map(|&y| (y, &p.desc[y]));
                 if let Some(k) = self.best_match(&p.desc[j], kf.desc.iter().enumerate()) {
                     if self.best_match(&kf.desc[k], young_desc) == Some(j) {
                         m.push((j, k, true));
@@ -310,24 +367,23 @@ impl Reid {
             }
             let new_ids = m
                 .iter()
-                .filter(|&&(j, k, by_desc)| by_desc && !present.contains(&kf.ids[k]) && feats[p.keep[j]].0 != kf.ids[k])
+                .filter(|&&(j, k, by_desc)| by_desc && !is_present(&kf.ids[k]) && feats[p.keep[j]].0 != kf.ids[k])
                 .count();
             if m.len() >= self.prm.min_matches && new_ids > 0 {
-                ranked.push((new_ids, pairs_of.len()));
+                sc.ranked.push((new_ids, r));
             }
             // The place that shares the most pairs with this frame, ids
             // already given back or not: its other landmarks are predicted.
             if n < recent_from && m.len() >= self.prm.min_matches {
-                places.push((m.len(), pairs_of.len()));
+                sc.places.push((m.len(), r));
             }
-            pairs_of.push((n, m));
         }
-        ranked.sort_by(|a, b| b.cmp(a));
-        ranked.truncate(VERIFIED_KEYFRAMES);
-        places.sort_by(|a, b| b.cmp(a));
-        for &(_, r) in places.iter().take(PREDICTED_PLACES) {
-            if !ranked.iter().any(|x| x.1 == r) {
-                ranked.push((0, r));
+        sc.ranked.sort_by(|a, b| b.cmp(a));
+        sc.ranked.truncate(VERIFIED_KEYFRAMES);
+        sc.places.sort_by(|a, b| b.cmp(a));
+        for &(_, r) in sc.places.iter().take(PREDICTED_PLACES) {
+            if !sc.ranked.iter().any(|x| x.1 == r) {
+                sc.ranked.push((0, r));
             }
         }
 
@@ -336,20 +392,21 @@ impl Reid {
         // elsewhere in the image passes the first (a camera moving along x
         // has rows for epipolar lines); a revisit is from about the same
         // place, so the second holds to within `affine_tolerance_px`.
-        let mut verified: Vec<(usize, u64)> = Vec::new();
-        self.predicted.clear();
-        for &(_, r) in &ranked {
-            let (n, m) = &pairs_of[r];
+        sc.verified.clear();
+        for &(_, r) in &sc.ranked {
+            let (n, m) = &sc.pairs_of[r];
             let kf = &self.keyframes[*n];
-            let pairs: Vec<_> = m.iter().map(|&(j, k, _)| (kf.xn[k], p.xn[j])).collect();
-            let pix: Vec<_> = m.iter().map(|&(j, k, _)| (kf.uv[k], p.uv[j])).collect();
-            epipolar_inliers(&pairs, thr, frame, &mut self.inliers);
-            affine_inliers(&pix, self.prm.affine_tolerance_px, frame, &mut self.affine_ok);
+            sc.pairs.clear();
+            sc.pairs.extend(m.iter().map(|&(j, k, _)| (kf.xn[k], p.xn[j])));
+            sc.pix.clear();
+            sc.pix.extend(m.iter().map(|&(j, k, _)| (kf.uv[k], p.uv[j])));
+            epipolar_inliers(&sc.pairs, thr, frame, &mut self.inliers);
+            affine_inliers(&sc.pix, self.prm.affine_tolerance_px, frame, &mut self.affine_ok);
             let ok = |t: usize| self.inliers[t] && self.affine_ok[t];
             if (0..m.len()).filter(|&t| ok(t)).count() < self.prm.min_matches {
                 continue;
             }
-            verified.extend(
+            sc.verified.extend(
                 m.iter()
                     .enumerate()
                     .filter(|&(t, &(_, _, by_desc))| by_desc && ok(t))
@@ -358,29 +415,30 @@ impl Reid {
             // A place seen before: its other landmarks, where its verified
             // pairs say they are now.
             if *n < recent_from {
-                let pix_ok: Vec<_> = (0..m.len()).filter(|&t| ok(t)).map(|t| pix[t]).collect();
-                predict(kf, &pix_ok, &present, &mut self.predicted);
+                sc.pix_ok.clear();
+                sc.pix_ok.extend((0..m.len()).filter(|&t| ok(t)).map(|t| sc.pix[t]));
+                predict(kf, &sc.pix_ok, present, &mut sc.near, &mut self.predicted);
             }
         }
         // One feature per old id, one old id per feature, and no id
-        // already in the frame.
-        let mut taken = BTreeMap::new();
-        let mut relabelled = BTreeSet::new();
-        let mut out = Vec::new();
-        for (i, old) in verified {
-            if feats[i].0 != old
-                && !present.contains(&old)
-                && !relabelled.contains(&i)
-                && taken.insert(old, i).is_none()
-            {
-                relabelled.insert(i);
-                out.push((i, old));
+        // already in the frame (`found` holds the old ids taken, and each
+        // feature is relabelled at most once: both checked on it).
+        for &(i, old) in &sc.verified {
+            if feats[i].0 != old && !is_present(&old) && !self.found.iter().any(|&(fi, fo)| fi == i || fo == old) {
+                self.found.push((i, old));
             }
         }
+        self.scratch = sc;
+        self.pending = p;
         if store {
-            self.pending = Some(p);
+            self.pending_frame = Some(frame);
         }
-        out
+    }
+
+    /// The features recognised by the last [`Reid::candidates`]:
+    /// `(feature index, old id)`.
+    pub fn found(&self) -> &[(usize, u64)] {
+        &self.found
     }
 
     /// The landmarks of the places recognised by the last
@@ -394,62 +452,78 @@ impl Reid {
     /// Landmark `id`'s window as the first stored keyframe holding it saw
     /// it (`affine::window_bytes`), if one does.
     pub fn window(&self, id: u64) -> Option<&[u8]> {
-        self.windows.get(&id).map(|(w, _)| w.as_slice())
+        let &(slot, _) = self.windows.get(&id)?;
+        self.window_slots
+            .get(slot as usize * WINDOW_BYTES..(slot as usize + 1) * WINDOW_BYTES)
     }
 
     /// Stores the frame last passed to [`Reid::candidates`] (`img`) if a
     /// keyframe, its features under `ids` (the frame's ids once
     /// re-identified, by feature index), with the window of each landmark
     /// new to the store; the oldest keyframe goes when the store is full,
-    /// and with it the windows no other keyframe holds.
+    /// and with it the windows no other keyframe holds. A keyframe's
+    /// lists are taken from the one that left the store, and a window's
+    /// slot from one dropped, so a full store allocates only when it
+    /// holds more windows than ever before (its buffers then grow by
+    /// doubling).
     pub fn commit(&mut self, img: &Gray, ids: &[u64]) {
-        let Some(Pending {
-            frame,
-            keep,
-            uv,
-            xn,
-            desc,
-            thumb,
-        }) = self.pending.take()
-        else {
+        let Some(frame) = self.pending_frame.take() else {
             return;
         };
-        let ids: Vec<u64> = keep.iter().map(|&i| ids.get(i).copied().unwrap_or(u64::MAX)).collect();
-        let mut by_id: Vec<(u64, usize)> = ids.iter().enumerate().map(|(k, &id)| (id, k)).collect();
-        by_id.sort_unstable();
+        let mut kf = self.spare_keyframe.take().unwrap_or_default();
+        let p = &mut self.pending;
+        kf.frame = frame;
+        kf.ids.clear();
+        kf.ids.reserve(p.keep.len().max(KEYFRAME_CAPACITY));
+        kf.by_id.clear();
+        kf.by_id.reserve(p.keep.len().max(KEYFRAME_CAPACITY));
+        kf.ids
+            .extend(p.keep.iter().map(|&i| ids.get(i).copied().unwrap_or(u64::MAX)));
+        kf.by_id.clear();
+        kf.by_id.extend(kf.ids.iter().enumerate().map(|(k, &id)| (id, k)));
+        kf.by_id.sort_unstable();
+        std::mem::swap(&mut kf.uv, &mut p.uv);
+        std::mem::swap(&mut kf.xn, &mut p.xn);
+        std::mem::swap(&mut kf.desc, &mut p.desc);
+        std::mem::swap(&mut kf.thumb, &mut p.thumb);
         // A landmark keeps the window of the first keyframe that held it:
         // every later re-identification is checked against that one look,
         // so errors do not pass from one re-identification to the next.
-        let mut bytes = Vec::new();
-        for (&id, p) in ids.iter().zip(&uv) {
+        for (&id, q) in kf.ids.iter().zip(&kf.uv) {
             match self.windows.get_mut(&id) {
                 Some(w) => w.1 += 1,
                 None => {
-                    if window_bytes(img, p[0] as f32, p[1] as f32, &mut self.ring, &mut bytes) {
-                        self.windows.insert(id, (bytes.clone(), 1));
+                    if window_bytes(img, q[0] as f32, q[1] as f32, &mut self.ring, &mut self.window)
+                        && self.window.len() == WINDOW_BYTES
+                    {
+                        let slot = match self.free_slots.pop() {
+                            Some(slot) => slot,
+                            None => {
+                                self.window_slots.resize(self.window_slots.len() + WINDOW_BYTES, 0);
+                                (self.window_slots.len() / WINDOW_BYTES - 1) as u32
+                            }
+                        };
+                        let at = slot as usize * WINDOW_BYTES;
+                        self.window_slots[at..at + WINDOW_BYTES].copy_from_slice(&self.window);
+                        self.windows.insert(id, (slot, 1));
                     }
                 }
             }
         }
-        self.keyframes.push_back(Keyframe {
-            frame,
-            ids,
-            by_id,
-            uv,
-            xn,
-            desc,
-            thumb,
-        });
+        self.keyframes.push_back(kf);
         while self.keyframes.len() > self.prm.max_keyframes {
             let Some(old) = self.keyframes.pop_front() else { break };
-            for id in old.ids {
-                if let Some(w) = self.windows.get_mut(&id) {
+            for id in &old.ids {
+                if let Some(w) = self.windows.get_mut(id) {
                     w.1 -= 1;
                     if w.1 == 0 {
-                        self.windows.remove(&id);
+                        if let Some((slot, _)) = self.windows.remove(id) {
+                            self.free_slots.push(slot);
+                        }
                     }
                 }
             }
+            self.spare_keyframe = Some(old);
         }
     }
 
@@ -529,13 +603,19 @@ const PREDICT_REACH_PX: f64 = 120.0;
 /// (`present`), with where it should be now: its keyframe pixel moved by
 /// the mean motion of the `PREDICT_PAIRS` verified pairs `pix` (keyframe
 /// pixel, this frame's pixel) nearest it, all within `PREDICT_REACH_PX`.
-fn predict(kf: &Keyframe, pix: &[([f64; 2], [f64; 2])], present: &BTreeSet<u64>, out: &mut Vec<(u64, [f32; 2])>) {
+/// `present` is sorted; `near` is scratch.
+fn predict(
+    kf: &Keyframe,
+    pix: &[([f64; 2], [f64; 2])],
+    present: &[u64],
+    near: &mut Vec<(f64, usize)>,
+    out: &mut Vec<(u64, [f32; 2])>,
+) {
     if pix.len() < PREDICT_PAIRS {
         return;
     }
-    let mut near: Vec<(f64, usize)> = Vec::with_capacity(pix.len());
     for (k, &id) in kf.ids.iter().enumerate() {
-        if present.contains(&id) || out.iter().any(|o| o.0 == id) {
+        if present.binary_search(&id).is_ok() || out.iter().any(|o| o.0 == id) {
             continue;
         }
         let a = kf.uv[k];
@@ -565,11 +645,12 @@ const THUMB: (usize, usize) = (32, 20);
 /// A frame's thumbnail for place recognition: the image's block means on a
 /// `THUMB` grid, less their mean, scaled to unit length (so the dot
 /// product of two is their correlation, whatever the exposure).
-fn thumbnail(img: &Gray) -> Vec<f32> {
+fn thumbnail(img: &Gray, t: &mut Vec<f32>) {
     let (tw, th) = THUMB;
-    let mut t = vec![0.0f32; tw * th];
+    t.clear();
+    t.resize(tw * th, 0.0);
     if img.width < tw || img.height < th {
-        return t;
+        return;
     }
     let (bw, bh) = (img.width / tw, img.height / th);
     for (k, v) in t.iter_mut().enumerate() {
@@ -587,16 +668,24 @@ fn thumbnail(img: &Gray) -> Vec<f32> {
     }
     let mean = t.iter().sum::<f32>() / t.len() as f32;
     t.iter_mut().for_each(|v| *v -= mean);
-    let norm = dot(&t, &t).sqrt();
+    let norm = dot(t, t).sqrt();
     if norm > 0.0 {
         t.iter_mut().for_each(|v| *v /= norm);
     }
-    t
 }
 
 /// A pair of a frame's feature and a keyframe's, by index, and whether it
 /// is a descriptor match (else the same track in both).
 type Pair = (usize, usize, bool);
+
+/// A stored window's size: the anchor's window with its ring.
+const WINDOW_BYTES: usize = RING_SIDE * RING_SIDE;
+
+/// The features a keyframe's lists are made room for: they pass from the
+/// frame being matched to the store and, when a keyframe leaves it, back,
+/// so each list is grown to this once and then reused (at 150 features a
+/// frame, and past it only for a frame with more).
+const KEYFRAME_CAPACITY: usize = 256;
 
 /// Keyframes verified per re-identification, at most.
 const VERIFIED_KEYFRAMES: usize = 2;
@@ -641,9 +730,9 @@ mod tests {
         let pix: Vec<_> = (0..4)
             .map(|k| (uv[k], [uv[k][0] + if k == 3 { 13.0 } else { 10.0 }, uv[k][1] - 5.0]))
             .collect();
-        let present: BTreeSet<u64> = [1, 2, 3, 4].into_iter().collect();
+        let present = [1, 2, 3, 4];
         let mut out = Vec::new();
-        predict(&kf, &pix, &present, &mut out);
+        predict(&kf, &pix, &present, &mut Vec::new(), &mut out);
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(out[0].0, 6);
         assert!(

@@ -138,6 +138,8 @@ pub struct Tracker {
     inliers: Vec<bool>,
     moved: Vec<Feature>,
     existing: Vec<[f32; 2]>,
+    /// This frame's new corners (`Detector::detect_into`).
+    new_corners: Vec<[f32; 2]>,
     frames: u64,
     reid: Option<Reid>,
     /// Each track's window as first seen, and its affine warp since, by id.
@@ -173,6 +175,7 @@ impl Tracker {
             inliers: Vec::new(),
             moved: Vec::new(),
             existing: Vec::new(),
+            new_corners: Vec::new(),
             frames: 0,
             reid,
             anchors: Default::default(),
@@ -338,7 +341,9 @@ impl Tracker {
         self.reid_feats.clear();
         self.reid_feats
             .extend(self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)));
-        for (i, old) in reid.candidates(self.frames, img, &self.reid_feats, cam) {
+        reid.candidates(self.frames, img, &self.reid_feats, cam);
+        let reid = &*reid;
+        for &(i, old) in reid.found() {
             let f = self.features[i];
             let Some(max) = self.prm.max_anchor_residual else {
                 // Without anchors, the descriptors' word is taken.
@@ -475,11 +480,15 @@ impl Tracker {
         let mut prm = self.prm.detect;
         prm.min_distance_px /= scale;
         prm.border_px = prm.border_px.div_ceil(1 << level);
-        let new = self
-            .detector
-            .detect(&self.next.levels[level], &self.existing, wanted, &prm);
-        self.stats.detected += new.len() as u64;
-        for p in new {
+        self.detector.detect_into(
+            &self.next.levels[level],
+            &self.existing,
+            wanted,
+            &prm,
+            &mut self.new_corners,
+        );
+        self.stats.detected += self.new_corners.len() as u64;
+        for &p in &self.new_corners {
             self.features.push(Feature {
                 id: self.next_id,
                 u_px: p[0] * scale,
