@@ -118,14 +118,6 @@ impl Anchor {
         a.reset_at(img, u, v).then_some(a)
     }
 
-    /// The anchor of a window kept as grey bytes ([`window_bytes`]), its
-    /// warp the identity: how a re-identified track is checked against
-    /// its landmark's look.
-    pub fn from_window_bytes(bytes: &[u8]) -> Option<Self> {
-        let mut a = Self::default();
-        a.reset_from_window_bytes(bytes).then_some(a)
-    }
-
     /// [`Anchor::new`] into this anchor's buffers: false (the anchor
     /// unusable until the next reset) if the window does not fit or is
     /// too flat.
@@ -136,7 +128,10 @@ impl Anchor {
         ok
     }
 
-    /// [`Anchor::from_window_bytes`] into this anchor's buffers.
+    /// The anchor of a window kept as grey bytes ([`window_bytes`]), its
+    /// warp the identity, in this anchor's buffers: how a re-identified
+    /// track is checked against its landmark's look. False (the anchor
+    /// unusable until the next reset) as for [`Anchor::reset_at`].
     pub fn reset_from_window_bytes(&mut self, bytes: &[u8]) -> bool {
         if bytes.len() != RING_SIDE * RING_SIDE {
             return false;
@@ -253,14 +248,10 @@ impl Anchor {
                     fy[x] = py - yi as f32;
                 }
             }
-            let w = img.width;
             for ((((e, &tv), &at), &fx), &fy) in
                 self.e.iter_mut().zip(&self.t).zip(&self.at).zip(&self.fx).zip(&self.fy)
             {
-                let p = &img.px[at as usize..at as usize + w + 2];
-                let top = p[0] + fx * (p[1] - p[0]);
-                let bottom = p[w] + fx * (p[w + 1] - p[w]);
-                *e = top + fy * (bottom - top) - tv;
+                *e = img.sample_at(at as usize, fx, fy) - tv;
             }
             // b = Σ Jᵀ e, one contiguous sum per parameter.
             let b = Vector6::from_fn(|i, _| dot(&self.j[i * N..(i + 1) * N], &self.e));

@@ -303,9 +303,7 @@ impl Detector {
             }
         }
     }
-}
 
-impl Detector {
     /// Into `max3`, the largest score of each pixel's 3×3 neighbourhood
     /// within the region `xs × ys` (whose scores are current), row by row
     /// of the region: the maxima of three along each row, then of three of

@@ -69,17 +69,19 @@ impl Gray {
         (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
     }
 
-    /// Bilinear sample at `(x, y)`, which must lie at least one pixel
-    /// inside the image ([`Gray::inside`] with margin 1): no clamping.
+    /// Bilinear sample at the pixel of index `k` (row-major) moved by the
+    /// fractions `fx, fy` in `[0, 1)` right and down: the pixel right of
+    /// it and the two below must exist (a point at least one pixel inside
+    /// the image, [`Gray::inside`] with margin 1, has them). No clamping:
+    /// callers that place many samples compute `k` and the fractions in a
+    /// pass of their own.
     #[inline]
-    pub fn sample_inside(&self, x: f32, y: f32) -> f32 {
-        // Both are positive here, so truncation is the floor (and costs no
-        // call to `floorf` on a CPU without SSE4.1).
-        let (x0, y0) = (x as usize, y as usize);
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let k = y0 * self.width + x0;
-        let (r0, r1) = (&self.px[k..k + 2], &self.px[k + self.width..k + self.width + 2]);
-        (r0[0] * (1.0 - fx) + r0[1] * fx) * (1.0 - fy) + (r1[0] * (1.0 - fx) + r1[1] * fx) * fy
+    pub fn sample_at(&self, k: usize, fx: f32, fy: f32) -> f32 {
+        let w = self.width;
+        let p = &self.px[k..k + w + 2];
+        let top = p[0] + fx * (p[1] - p[0]);
+        let bottom = p[w] + fx * (p[w + 1] - p[w]);
+        top + fy * (bottom - top)
     }
 
     /// Whether `(x, y)` lies at least `margin` pixels inside the image.

@@ -9,7 +9,8 @@
 //! - [`affine`]: each track held to its first window by an affine warp;
 //! - [`ransac`]: outliers off the epipolar geometry (8-point, Sampson);
 //! - [`tracker`]: the per-frame pipeline with stable landmark ids;
-//! - [`reid`]: old landmarks re-identified by steered BRIEF on keyframes;
+//! - [`reid`]: old landmarks re-identified by steered BRIEF ([`brief`]) on
+//!   keyframes, checked against their first look ([`landmark_windows`]);
 //! - [`source`]: frames from a EuRoC/ASL folder or a camera socket, and
 //!   their stamps; [`euroc`]: the dataset layout;
 //! - [`run`]: the loop from a source to the daemon's socket; [`output`]:
@@ -21,10 +22,12 @@
 #![allow(non_snake_case)]
 
 pub mod affine;
+pub mod brief;
 pub mod detect;
 pub mod euroc;
 pub mod image;
 pub mod klt;
+pub mod landmark_windows;
 pub mod output;
 pub mod ransac;
 pub mod reid;

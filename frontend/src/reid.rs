@@ -22,24 +22,18 @@
 //! a daemon keyframe held, more were seen again on the next lap under
 //! other ids than under their own, until this.
 //!
-//! The descriptor is steered BRIEF, as in ORB: 256 intensity comparisons
-//! between point pairs of a 31×31 patch of a box-blurred image, the pattern
-//! turned by the patch's orientation (the angle of its intensity centroid,
-//! `atan2(m₀₁, m₁₀)`), so a drone that yawed between its visits still
-//! matches.
+//! The descriptors are steered BRIEF (`brief.rs`); each landmark's first
+//! stored look is kept by `landmark_windows.rs`.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 
 use cmsckf_models::camera::Camera;
 use nalgebra::Vector2;
 
-use crate::affine::{window_bytes, RING_SIDE};
-use crate::image::{box_blur, dot, Gray};
+use crate::brief::{best_match, Brief, Descriptor};
+use crate::image::{dot, Gray};
+use crate::landmark_windows::LandmarkWindows;
 use crate::ransac::{affine_inliers, epipolar_inliers};
-use crate::synthetic::SplitMix;
-
-/// A 256-bit binary descriptor.
-pub type Descriptor = [u64; 4];
 
 /// Re-identification's settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -103,19 +97,12 @@ struct Keyframe {
     thumb: Vec<f32>,
 }
 
-/// The keyframe database and the steered-BRIEF pattern.
+/// The keyframe database.
 #[derive(Clone, Debug)]
 pub struct Reid {
     prm: ReidParams,
-    /// The pattern's point pairs by coordinate (`x₀, y₀, x₁, y₁`, 256
-    /// each), so turning all of them is one pass that vectorises.
-    pattern: [Vec<f32>; 4],
-    /// Each pair's two points as offsets in the image, once turned
-    /// (scratch of [`Reid::describe`]).
-    offsets: [Vec<i32>; 2],
+    brief: Brief,
     keyframes: VecDeque<Keyframe>,
-    blurred: Gray,
-    row: Vec<f32>,
     inliers: Vec<bool>,
     affine_ok: Vec<bool>,
     /// This frame's features, described by [`Reid::candidates`] and, if
@@ -129,20 +116,9 @@ pub struct Reid {
     /// See [`Reid::found`].
     found: Vec<(usize, u64)>,
     scratch: Scratch,
-    /// Each landmark's window as first stored (`affine.rs`), for the
-    /// photometric check of a re-identification: its slot in
-    /// `window_slots` and the number of stored keyframes that hold its id.
-    /// At most `max_keyframes × features` windows of 441 bytes (21²),
-    /// each dropped with the last keyframe that holds it.
-    windows: HashMap<u64, (u32, u32)>,
-    /// The windows, one slot of `WINDOW_BYTES` after another in one
-    /// buffer; the slots of dropped windows (`free_slots`) take the next
-    /// ones, so the buffer grows only to the most windows ever held.
-    window_slots: Vec<u8>,
-    free_slots: Vec<u32>,
-    /// A window being cut (scratch of [`Reid::commit`]).
-    window: Vec<u8>,
-    ring: Vec<f32>,
+    /// Each landmark's window as first stored, for the photometric check
+    /// of a re-identification, held while a stored keyframe holds its id.
+    windows: LandmarkWindows,
     /// See [`Reid::predicted`].
     predicted: Vec<(u64, [f32; 2])>,
 }
@@ -180,72 +156,20 @@ struct Scratch {
     near: Vec<(f64, usize)>,
 }
 
-/// The patch's half side (px).
-const HALF: i32 = 15;
-
-/// A row's pixel offsets from the patch centre, `-HALF..=HALF`, and as
-/// many ones: the weights of the centroid's two sums.
-const DX: [f32; 2 * HALF as usize + 1] = {
-    let mut d = [0.0f32; 2 * HALF as usize + 1];
-    let mut i = 0;
-    while i < d.len() {
-        d[i] = i as f32 - HALF as f32;
-        i += 1;
-    }
-    d
-};
-const ONES: [f32; 2 * HALF as usize + 1] = [1.0; 2 * HALF as usize + 1];
-
-/// The disc of radius `HALF`: each row's half width, `dy` from `-HALF`.
-const DISC_HALF_WIDTH: [i32; 2 * HALF as usize + 1] = {
-    let mut w = [0i32; 2 * HALF as usize + 1];
-    let mut i = 0;
-    while i < w.len() {
-        let dy = i as i32 - HALF;
-        let mut hw = 0;
-        while (hw + 1) * (hw + 1) + dy * dy <= HALF * HALF {
-            hw += 1;
-        }
-        w[i] = hw;
-        i += 1;
-    }
-    w
-};
-
 impl Reid {
     pub fn new(prm: ReidParams) -> Self {
-        // 256 point pairs, Gaussian-ish around the centre (the sum of two
-        // uniforms), inside the patch once turned.
-        let mut r = SplitMix::new(0x5eed);
-        let mut c = || {
-            let v = ((r.unit() + r.unit() - 1.0) * 11.0).round() as i8;
-            v.clamp(-11, 11)
-        };
-        let mut pattern: [Vec<f32>; 4] = Default::default();
-        for _ in 0..256 {
-            for p in pattern.iter_mut() {
-                p.push(f32::from(c()));
-            }
-        }
         Self {
             prm,
-            pattern,
-            offsets: [vec![0; 256], vec![0; 256]],
+            brief: Brief::new(),
             keyframes: VecDeque::new(),
-            blurred: Gray::default(),
-            row: Vec::new(),
             inliers: Vec::new(),
             affine_ok: Vec::new(),
             pending: Pending::default(),
             pending_frame: None,
             spare_keyframe: None,
-            window_slots: Vec::new(),
-            free_slots: Vec::new(),
-            window: Vec::new(),
             found: Vec::new(),
             scratch: Scratch::default(),
-            windows: HashMap::new(),
-            ring: Vec::new(),
+            windows: LandmarkWindows::default(),
             predicted: Vec::new(),
         }
     }
@@ -276,7 +200,7 @@ impl Reid {
         if feats.is_empty() || !(store || feats.iter().any(|f| young(f.3))) {
             return;
         }
-        box_blur(img, &mut self.blurred, &mut self.row);
+        self.brief.set_image(img);
         let mut p = std::mem::take(&mut self.pending);
         p.keep.clear();
         p.uv.clear();
@@ -288,7 +212,7 @@ impl Reid {
         p.uv.reserve(cap);
         p.xn.reserve(cap);
         p.desc.reserve(cap);
-        thumbnail(&self.blurred, &mut p.thumb);
+        thumbnail(self.brief.blurred(), &mut p.thumb);
         // Every feature's pixel and normalised coordinates; descriptors for
         // the young ones, and on a keyframe for all (it is stored), where a
         // feature without one (its patch leaves the image) is left out.
@@ -298,7 +222,11 @@ impl Reid {
             let Some(x) = cam.undistort(&Vector2::new(f64::from(u), f64::from(v))) else {
                 continue;
             };
-            let d = if store || young(age) { self.describe(u, v) } else { None };
+            let d = if store || young(age) {
+                self.brief.describe(u, v)
+            } else {
+                None
+            };
             if store && d.is_none() {
                 continue;
             }
@@ -359,8 +287,9 @@ impl Reid {
                 // (among the young: an older feature on the same landmark
                 // would carry the keyframe's id, present and so refused).
                 let young_desc = sc.matchable.iter().map(|&y| (y, &p.desc[y]));
-                if let Some(k) = self.best_match(&p.desc[j], kf.desc.iter().enumerate()) {
-                    if self.best_match(&kf.desc[k], young_desc) == Some(j) {
+                let (max_d, ratio) = (self.prm.max_distance, self.prm.ratio);
+                if let Some(k) = best_match(&p.desc[j], kf.desc.iter().enumerate(), max_d, ratio) {
+                    if best_match(&kf.desc[k], young_desc, max_d, ratio) == Some(j) {
                         m.push((j, k, true));
                     }
                 }
@@ -452,9 +381,7 @@ impl Reid {
     /// Landmark `id`'s window as the first stored keyframe holding it saw
     /// it (`affine::window_bytes`), if one does.
     pub fn window(&self, id: u64) -> Option<&[u8]> {
-        let &(slot, _) = self.windows.get(&id)?;
-        self.window_slots
-            .get(slot as usize * WINDOW_BYTES..(slot as usize + 1) * WINDOW_BYTES)
+        self.windows.get(id)
     }
 
     /// Stores the frame last passed to [`Reid::candidates`] (`img`) if a
@@ -462,10 +389,9 @@ impl Reid {
     /// re-identified, by feature index), with the window of each landmark
     /// new to the store; the oldest keyframe goes when the store is full,
     /// and with it the windows no other keyframe holds. A keyframe's
-    /// lists are taken from the one that left the store, and a window's
-    /// slot from one dropped, so a full store allocates only when it
-    /// holds more windows than ever before (its buffers then grow by
-    /// doubling).
+    /// lists are taken from the one that left the store (and a window's
+    /// slot from one dropped, `LandmarkWindows`), so a full store
+    /// allocates only when it holds more windows than ever before.
     pub fn commit(&mut self, img: &Gray, ids: &[u64]) {
         let Some(frame) = self.pending_frame.take() else {
             return;
@@ -475,11 +401,10 @@ impl Reid {
         kf.frame = frame;
         kf.ids.clear();
         kf.ids.reserve(p.keep.len().max(KEYFRAME_CAPACITY));
-        kf.by_id.clear();
-        kf.by_id.reserve(p.keep.len().max(KEYFRAME_CAPACITY));
         kf.ids
             .extend(p.keep.iter().map(|&i| ids.get(i).copied().unwrap_or(u64::MAX)));
         kf.by_id.clear();
+        kf.by_id.reserve(p.keep.len().max(KEYFRAME_CAPACITY));
         kf.by_id.extend(kf.ids.iter().enumerate().map(|(k, &id)| (id, k)));
         kf.by_id.sort_unstable();
         std::mem::swap(&mut kf.uv, &mut p.uv);
@@ -490,104 +415,16 @@ impl Reid {
         // every later re-identification is checked against that one look,
         // so errors do not pass from one re-identification to the next.
         for (&id, q) in kf.ids.iter().zip(&kf.uv) {
-            match self.windows.get_mut(&id) {
-                Some(w) => w.1 += 1,
-                None => {
-                    if window_bytes(img, q[0] as f32, q[1] as f32, &mut self.ring, &mut self.window)
-                        && self.window.len() == WINDOW_BYTES
-                    {
-                        let slot = match self.free_slots.pop() {
-                            Some(slot) => slot,
-                            None => {
-                                self.window_slots.resize(self.window_slots.len() + WINDOW_BYTES, 0);
-                                (self.window_slots.len() / WINDOW_BYTES - 1) as u32
-                            }
-                        };
-                        let at = slot as usize * WINDOW_BYTES;
-                        self.window_slots[at..at + WINDOW_BYTES].copy_from_slice(&self.window);
-                        self.windows.insert(id, (slot, 1));
-                    }
-                }
-            }
+            self.windows.hold(id, img, [q[0] as f32, q[1] as f32]);
         }
         self.keyframes.push_back(kf);
         while self.keyframes.len() > self.prm.max_keyframes {
             let Some(old) = self.keyframes.pop_front() else { break };
-            for id in &old.ids {
-                if let Some(w) = self.windows.get_mut(id) {
-                    w.1 -= 1;
-                    if w.1 == 0 {
-                        if let Some((slot, _)) = self.windows.remove(id) {
-                            self.free_slots.push(slot);
-                        }
-                    }
-                }
+            for &id in &old.ids {
+                self.windows.release(id);
             }
             self.spare_keyframe = Some(old);
         }
-    }
-
-    /// The index of `d`'s match in `set`: the nearest within
-    /// `max_distance`, clearly nearer than the second (ratio test).
-    fn best_match<'a>(&self, d: &Descriptor, set: impl Iterator<Item = (usize, &'a Descriptor)>) -> Option<usize> {
-        let (mut b1, mut b2, mut k1) = (u32::MAX, u32::MAX, 0);
-        for (k, e) in set {
-            let dist = (0..4).map(|w| (d[w] ^ e[w]).count_ones()).sum::<u32>();
-            if dist < b1 {
-                b2 = b1;
-                b1 = dist;
-                k1 = k;
-            } else if dist < b2 {
-                b2 = dist;
-            }
-        }
-        (b1 <= self.prm.max_distance && (b1 as f32) < self.prm.ratio * b2 as f32).then_some(k1)
-    }
-
-    /// The steered-BRIEF descriptor at `(u, v)`, if its patch fits.
-    fn describe(&mut self, u: f32, v: f32) -> Option<Descriptor> {
-        let img = &self.blurred;
-        // Rounded to the nearest pixel by adding a half and truncating
-        // (a position outside the image is refused below either way).
-        let (cx, cy) = ((u + 0.5) as i32, (v + 0.5) as i32);
-        if cx < HALF + 1 || cy < HALF + 1 || cx >= img.width as i32 - HALF - 1 || cy >= img.height as i32 - HALF - 1 {
-            return None;
-        }
-        // The intensity centroid's angle over the disc of radius HALF, a
-        // row's run of pixels at a time (`DISC_HALF_WIDTH`): Σ dx·p along
-        // the row, and dy times the row's sum.
-        let (mut m10, mut m01) = (0.0f32, 0.0f32);
-        for dy in -HALF..=HALF {
-            let hw = DISC_HALF_WIDTH[(dy + HALF) as usize];
-            let at = (cy + dy) as usize * img.width + cx as usize;
-            let row = &img.px[at - hw as usize..=at + hw as usize];
-            let xs = &DX[(HALF - hw) as usize..=(HALF + hw) as usize];
-            m10 += dot(row, xs);
-            m01 += dy as f32 * dot(row, &ONES[..row.len()]);
-        }
-        let (s, c) = m01.atan2(m10).sin_cos();
-        // Each pair's points turned by the angle, rounded to the nearest
-        // pixel (the turned offsets lie within ±16, so shifted by 32.5
-        // they are positive and truncation is the rounding, without a
-        // call to `roundf`), as offsets in the image.
-        let w = img.width as i32;
-        let round = |v: f32| (v + 32.5) as i32 - 32;
-        let [x0, y0, x1, y1] = &self.pattern;
-        let [o0, o1] = &mut self.offsets;
-        for (o, (x, y)) in [(&mut *o0, (x0, y0)), (&mut *o1, (x1, y1))] {
-            for ((o, &x), &y) in o.iter_mut().zip(x.iter()).zip(y.iter()) {
-                *o = round(s * x + c * y) * w + round(c * x - s * y);
-            }
-        }
-        let centre = cy * w + cx;
-        let mut d = [0u64; 4];
-        for (word, (a, b)) in d.iter_mut().zip(o0.chunks_exact(64).zip(o1.chunks_exact(64))) {
-            for (bit, (&a, &b)) in a.iter().zip(b).enumerate() {
-                let (pa, pb) = (img.px[(centre + a) as usize], img.px[(centre + b) as usize]);
-                *word |= u64::from(pa < pb) << bit;
-            }
-        }
-        Some(d)
     }
 }
 
@@ -678,9 +515,6 @@ fn thumbnail(img: &Gray, t: &mut Vec<f32>) {
 /// is a descriptor match (else the same track in both).
 type Pair = (usize, usize, bool);
 
-/// A stored window's size: the anchor's window with its ring.
-const WINDOW_BYTES: usize = RING_SIDE * RING_SIDE;
-
 /// The features a keyframe's lists are made room for: they pass from the
 /// frame being matched to the store and, when a keyframe leaves it, back,
 /// so each list is grown to this once and then reused (at 150 features a
@@ -693,14 +527,6 @@ const VERIFIED_KEYFRAMES: usize = 2;
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_disc_rows_hold_exactly_the_disc() {
-        for dy in -HALF..=HALF {
-            let n = (-HALF..=HALF).filter(|dx| dx * dx + dy * dy <= HALF * HALF).count() as i32;
-            assert_eq!(n, 2 * DISC_HALF_WIDTH[(dy + HALF) as usize] + 1, "dy {dy}");
-        }
-    }
 
     /// A place's landmarks absent from the frame are carried by the mean
     /// motion of their nearest verified pairs; those present, and those

@@ -258,7 +258,8 @@ impl Tracker {
     fn follow(&mut self) {
         self.moved.clear();
         self.pairs.clear();
-        for f in &self.features {
+        for k in 0..self.features.len() {
+            let f = self.features[k];
             match track_checked(
                 &self.prev,
                 &self.next,
@@ -281,9 +282,7 @@ impl Tracker {
                             }
                             _ => {
                                 self.stats.lost_anchor += 1;
-                                if let Some(a) = self.anchors.remove(&f.id) {
-                                    self.spare.push(a);
-                                }
+                                self.drop_anchor(f.id);
                                 continue;
                             }
                         }
@@ -292,7 +291,7 @@ impl Tracker {
                         u_px: q[0],
                         v_px: q[1],
                         age: f.age + 1,
-                        ..*f
+                        ..f
                     };
                     if let Some(cam) = &self.camera {
                         let a = cam.undistort(&Vector2::new(f64::from(f.u_px), f64::from(f.v_px)));
@@ -332,17 +331,19 @@ impl Tracker {
     /// from where it was first seen) and refuses a look-alike. The frame
     /// is then stored if a keyframe.
     fn reidentify(&mut self) {
-        let (Some(reid), Some(cam)) = (self.reid.as_mut(), self.camera.as_ref()) else {
-            return;
-        };
-        let img = &self.next.levels[0];
-        let smooth = &self.smooth;
-        let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
+        // Taken out for the while, so the anchors can be refilled.
+        let Some(mut reid) = self.reid.take() else { return };
+        self.reidentify_with(&mut reid);
+        self.reid = Some(reid);
+    }
+
+    fn reidentify_with(&mut self, reid: &mut Reid) {
+        let Some(cam) = self.camera.as_ref() else { return };
         self.reid_feats.clear();
         self.reid_feats
             .extend(self.features.iter().map(|f| (f.id, f.u_px, f.v_px, f.age)));
-        reid.candidates(self.frames, img, &self.reid_feats, cam);
-        let reid = &*reid;
+        reid.candidates(self.frames, &self.next.levels[0], &self.reid_feats, cam);
+        let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
         for &(i, old) in reid.found() {
             let f = self.features[i];
             let Some(max) = self.prm.max_anchor_residual else {
@@ -355,7 +356,7 @@ impl Tracker {
                 &mut self.check,
                 reid,
                 old,
-                smooth,
+                &self.smooth,
                 [f.u_px, f.v_px],
                 REID_RESIDUAL_FACTOR * max,
                 noise_grey,
@@ -370,26 +371,16 @@ impl Tracker {
                     };
                     // From here the track is held to the window it is
                     // seen with now, at its landmark's point.
-                    if let Some(a) = self.anchors.remove(&f.id) {
-                        self.spare.push(a);
-                    }
-                    let mut a = self.spare.pop().unwrap_or_default();
-                    if a.reset_at(smooth, q[0], q[1]) {
-                        if let Some(old_a) = self.anchors.insert(old, a) {
-                            self.spare.push(old_a);
-                        }
-                    } else {
-                        self.spare.push(a);
-                    }
+                    self.drop_anchor(f.id);
+                    self.anchor_at(old, q);
                     self.stats.reidentified += 1;
                 }
                 None => self.stats.reid_refused += 1,
             }
         }
         if let Some(max) = self.prm.max_anchor_residual {
-            self.reacquire(max);
+            self.reacquire(reid, max);
         }
-        let Some(reid) = self.reid.as_mut() else { return };
         self.live_ids.clear();
         self.live_ids.extend(self.features.iter().map(|f| f.id));
         reid.commit(&self.smooth, &self.live_ids);
@@ -404,14 +395,7 @@ impl Tracker {
     /// feature is left. This is what brings a place's landmarks back on a
     /// revisit: detection picks whichever corners score best, and those are
     /// seldom the ones the place's keyframes hold.
-    fn reacquire(&mut self, max: f32) {
-        // Taken out for the while, so the anchors can be refilled.
-        let Some(reid) = self.reid.take() else { return };
-        self.reacquire_from(&reid, max);
-        self.reid = Some(reid);
-    }
-
-    fn reacquire_from(&mut self, reid: &Reid, max: f32) {
+    fn reacquire(&mut self, reid: &Reid, max: f32) {
         let search_frames = self.prm.reid.map_or(0, |r| r.search_frames);
         let noise_grey = SMOOTH_NOISE_FACTOR * self.prm.noise_grey;
         let min_distance = self.prm.detect.min_distance_px;
