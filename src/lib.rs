@@ -6,6 +6,7 @@
 //!   `src/estimator/README.md`
 //! - [`config`]: the configuration, matching `config/default.toml`
 //! - [`eval`]: offline evaluation on the simulator (`cmsckf evaluate`)
+//! - [`counters`]: every counted reason, as a type
 //! - [`daemon`]: the tasks of `cmsckf run`; [`io`]: the MAVLink link and the
 //!   feature socket; [`gnss`]: RTCM3 input; [`status`]: the state the
 //!   autopilot sees in `HEARTBEAT`
@@ -15,6 +16,7 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the equations
 
 pub mod config;
+pub mod counters;
 pub mod daemon;
 pub mod estimator;
 #[cfg(feature = "sim")]

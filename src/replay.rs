@@ -14,18 +14,18 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 use serde::Serialize;
-use serde_json::Value;
 use tokio::sync::mpsc;
 
 use crate::config::{Config, FeatureClock};
-use crate::daemon::{Ctx, Fusion, FusionMsg, RtcmStream};
+use crate::counters::Counters;
+use crate::daemon::{Ctx, Fusion, FusionMsg};
 use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mcap_log::McapLogger;
-use crate::io::messages::Outbound;
-use crate::io::Counters;
+use crate::io::mcap_log::input::{check_format, AutopilotRecord, InputRecord, RecordError};
+use crate::io::mcap_log::{McapLogger, Topic};
+use crate::io::messages::{Outbound, SimTruth};
 
 /// Errors of a replay.
 #[derive(Debug, thiserror::Error)]
@@ -40,6 +40,8 @@ pub enum ReplayError {
     Config(#[from] crate::config::ConfigError),
     #[error(transparent)]
     Log(#[from] crate::io::mcap_log::LogError),
+    #[error("'{0}': {1}")]
+    Format(String, RecordError),
 }
 
 /// Inputs per batch handed from the reading thread to the fusion loop.
@@ -55,6 +57,8 @@ pub struct ReplayReport {
     pub flight_s: f64,
     pub wall_s: f64,
     pub realtime_factor: f64,
+    /// Input records that did not parse, skipped (each named in a warning).
+    pub malformed_inputs: u64,
 }
 
 /// The config stored in a log's `cmsckf` metadata record.
@@ -63,6 +67,8 @@ pub fn logged_config(bytes: &[u8], name: &str) -> Result<Config, ReplayError> {
         let Ok(rec) = rec else { break };
         if let mcap::records::Record::Metadata(m) = rec {
             if m.name == "cmsckf" {
+                check_format(m.metadata.get("log_format").map(String::as_str))
+                    .map_err(|e| ReplayError::Format(name.into(), e))?;
                 if let Some(t) = m.metadata.get("config_toml") {
                     return Ok(Config::from_toml(t, name)?);
                 }
@@ -72,113 +78,78 @@ pub fn logged_config(bytes: &[u8], name: &str) -> Result<Config, ReplayError> {
     Err(ReplayError::NoConfig(name.into()))
 }
 
-fn v3(v: &Value) -> Option<Vector3<f64>> {
-    let a = v.as_array()?;
-    Some(Vector3::new(
-        a.first()?.as_f64()?,
-        a.get(1)?.as_f64()?,
-        a.get(2)?.as_f64()?,
-    ))
-}
-
 /// Turns one logged input back into what the fusion loop received.
-fn to_msg(topic: &str, v: &Value, normaliser: &Normaliser) -> Option<FusionMsg> {
-    Some(match topic {
-        "/input/imu" => FusionMsg::Imu(ImuMeas {
-            t_s: v["t_us"].as_u64()? as f64 * 1e-6,
-            accel_mps2: v3(&v["accel_mps2"])?,
-            gyro_radps: v3(&v["gyro_radps"])?,
+fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
+    let v3 = Vector3::from;
+    match rec {
+        InputRecord::Imu(r) => FusionMsg::Imu(ImuMeas {
+            t_s: r.t_us as f64 * 1e-6,
+            accel_mps2: v3(r.accel_mps2),
+            gyro_radps: v3(r.gyro_radps),
         }),
-        "/input/features" => {
+        InputRecord::Features(r) => {
             let fr = FeatureFrame {
                 // The clock is already mapped: replay runs in autopilot time.
-                t_us: v["t_ap_us"].as_i64()?.max(0) as u64,
-                cam: v["cam"].as_u64()? as u32,
-                features: v["features"]
-                    .as_array()?
-                    .iter()
-                    .filter_map(|f| Some((f[0].as_u64()?, f[1].as_f64()?, f[2].as_f64()?)))
-                    .collect(),
+                t_us: r.t_ap_us.max(0) as u64,
+                cam: r.cam,
+                features: r.features.into_owned(),
             };
             // As the daemon does where a frame arrives: here, on the reader's thread.
             let norm = normaliser.frame(&fr.features);
             FusionMsg::Frame(fr, norm)
         }
-        "/input/rebase_installed" => FusionMsg::RebaseInstalled {
-            seq: v["seq"].as_u64()?,
+        InputRecord::RebaseInstalled(r) => FusionMsg::RebaseInstalled { seq: r.seq },
+        InputRecord::Rtcm(r) => FusionMsg::Rtcm {
+            bytes: r.bytes.into_owned(),
+            stream: r.stream,
         },
-        "/input/rtcm" => FusionMsg::Rtcm {
-            bytes: v["bytes"]
-                .as_array()?
-                .iter()
-                .filter_map(|b| b.as_u64().map(|x| x as u8))
-                .collect(),
-            // Logs from before the stream was recorded: the link's vehicle.
-            stream: match v["stream"].as_str() {
-                Some("receiver") => RtcmStream::Receiver,
-                Some("link_other") => RtcmStream::LinkOther,
-                _ => RtcmStream::LinkVehicle,
+        InputRecord::SystemTime(r) => FusionMsg::SystemTime {
+            unix_us: r.unix_us,
+            boot_ms: r.boot_ms,
+        },
+        InputRecord::Autopilot(a) => match a {
+            AutopilotRecord::Attitude([roll, pitch, yaw]) => FusionMsg::Attitude { roll, pitch, yaw },
+            AutopilotRecord::Magnetometer(m) => FusionMsg::Magnetometer { mag_B: v3(m) },
+            AutopilotRecord::Armed(a) => FusionMsg::VehicleState {
+                armed: Some(a),
+                on_ground: None,
+                kind: None,
             },
+            AutopilotRecord::OnGround(g) => FusionMsg::VehicleState {
+                armed: None,
+                on_ground: Some(g),
+                kind: None,
+            },
+            AutopilotRecord::Autopilot(k) => FusionMsg::VehicleState {
+                armed: None,
+                on_ground: None,
+                kind: Some(k),
+            },
+            AutopilotRecord::UnixDays(unix_days) => FusionMsg::Date { unix_days },
+            // Unknown accuracies are logged as null (NaN).
+            AutopilotRecord::GpsAccuracy([h, v]) => FusionMsg::GpsAccuracy {
+                h_acc_m: h.unwrap_or(f64::NAN),
+                v_acc_m: v.unwrap_or(f64::NAN),
+            },
+            AutopilotRecord::LocalPosition(l) => FusionMsg::LocalPosition {
+                t_s: l.t_s,
+                p_ned_m: v3(l.p_ned_m),
+                v_ned_mps: v3(l.v_ned_mps),
+            },
+            AutopilotRecord::Origin([lat_deg, lon_deg, alt_m]) => FusionMsg::Origin {
+                lat_deg,
+                lon_deg,
+                alt_m,
+            },
+            AutopilotRecord::SimState(s) => FusionMsg::SimState(SimTruth {
+                lat_deg: s.lat_deg,
+                lon_deg: s.lon_deg,
+                alt_m: s.alt_m,
+                q_wxyz: s.q_wxyz,
+                v_ned_mps: v3(s.v_ned_mps),
+            }),
         },
-        "/input/mavlink/system_time" => FusionMsg::SystemTime {
-            unix_us: v["unix_us"].as_u64()?,
-            boot_ms: v["boot_ms"].as_u64()? as u32,
-        },
-        "/input/mavlink/autopilot" => {
-            if let Some(a) = v.get("attitude_rad") {
-                let a = v3(a)?;
-                FusionMsg::Attitude {
-                    roll: a.x,
-                    pitch: a.y,
-                    yaw: a.z,
-                }
-            } else if let Some(m) = v.get("mag_B") {
-                FusionMsg::Magnetometer { mag_B: v3(m)? }
-            } else if let Some(a) = v.get("armed") {
-                FusionMsg::VehicleState {
-                    armed: Some(a.as_bool()?),
-                    on_ground: None,
-                    kind: None,
-                }
-            } else if let Some(g) = v.get("on_ground") {
-                FusionMsg::VehicleState {
-                    armed: None,
-                    on_ground: Some(g.as_bool()?),
-                    kind: None,
-                }
-            } else if let Some(k) = v.get("autopilot") {
-                FusionMsg::VehicleState {
-                    armed: None,
-                    on_ground: None,
-                    kind: Some(serde_json::from_value(k.clone()).ok()?),
-                }
-            } else if let Some(d) = v.get("unix_days") {
-                FusionMsg::Date { unix_days: d.as_i64()? }
-            } else if let Some(g) = v.get("gps_accuracy_m") {
-                let g = g.as_array()?;
-                // Unknown accuracies are logged as null (NaN).
-                FusionMsg::GpsAccuracy {
-                    h_acc_m: g.first()?.as_f64().unwrap_or(f64::NAN),
-                    v_acc_m: g.get(1)?.as_f64().unwrap_or(f64::NAN),
-                }
-            } else if let Some(l) = v.get("local_position") {
-                FusionMsg::LocalPosition {
-                    // Logs before the time was recorded: no carrying forward.
-                    t_s: l["t_s"].as_f64().unwrap_or(f64::NAN),
-                    p_ned_m: v3(&l["p_ned_m"])?,
-                    v_ned_mps: v3(&l["v_ned_mps"])?,
-                }
-            } else {
-                let o = v3(&v["origin"])?;
-                FusionMsg::Origin {
-                    lat_deg: o.x,
-                    lon_deg: o.y,
-                    alt_m: o.z,
-                }
-            }
-        }
-        _ => return None,
-    })
+    }
 }
 
 /// The number of inputs in a log, from its summary's statistics (`None`
@@ -190,7 +161,7 @@ fn input_total(bytes: &[u8]) -> Option<u64> {
         summary
             .channels
             .iter()
-            .filter(|(_, c)| c.topic.starts_with("/input/"))
+            .filter(|(_, c)| Topic::from_name(&c.topic).is_some_and(Topic::is_input))
             .filter_map(|(id, _)| stats.channel_message_counts.get(id))
             .sum(),
     )
@@ -228,8 +199,8 @@ pub fn replay(
     // JSON) runs on a thread of its own, a batch at a time, so the fusion
     // loop here does nothing but fuse; the order is kept.
     let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Vec<FusionMsg>>(REPLAY_QUEUE_BATCHES);
-    std::thread::scope(|scope| {
-        scope.spawn(move || read_inputs(stream, &normaliser, batch_tx));
+    let malformed = std::thread::scope(|scope| {
+        let reader = scope.spawn(move || read_inputs(stream, &normaliser, batch_tx));
         for batch in batch_rx {
             for msg in batch {
                 tally.fuse(msg, &mut fusion, &ctx, &mut out_rx);
@@ -238,9 +209,12 @@ pub fn replay(
                 }
             }
         }
+        reader.join().unwrap_or(0)
     });
     fusion.finish_log(&ctx.counters);
-    Ok(tally.report(start.elapsed().as_secs_f64()))
+    let mut report = tally.report(start.elapsed().as_secs_f64());
+    report.malformed_inputs = malformed;
+    Ok(report)
 }
 
 /// The config to replay under: `config`, else the log's own; then `mode`
@@ -260,31 +234,39 @@ fn replay_config(bytes: &[u8], name: &str, mode: Option<Mode>, config: Option<Co
 /// The reading thread: turns the log's inputs back into fusion messages, in
 /// order, and sends them in batches of [`REPLAY_BATCH`] until the log ends
 /// (or the fusion loop hangs up).
-fn read_inputs(stream: mcap::MessageStream, normaliser: &Normaliser, batch_tx: SyncSender<Vec<FusionMsg>>) {
+fn read_inputs(stream: mcap::MessageStream, normaliser: &Normaliser, batch_tx: SyncSender<Vec<FusionMsg>>) -> u64 {
+    let mut malformed = 0u64;
+    let malformed = &mut malformed;
     let mut batch = Vec::with_capacity(REPLAY_BATCH);
     for m in stream {
         // A log cut short ends the replay at its last whole chunk.
         let Ok(m) = m else { break };
-        if !m.channel.topic.starts_with("/input/") {
-            continue;
-        }
-        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+        let Some(topic) = Topic::from_name(&m.channel.topic).filter(|t| t.is_input()) else {
             continue;
         };
-        let Some(msg) = to_msg(&m.channel.topic, &v, normaliser) else {
-            continue;
+        let rec = match InputRecord::parse(topic, &m.data) {
+            Ok(rec) => rec,
+            Err(e) => {
+                // Counted in the report; the replay goes on without it.
+                *malformed += 1;
+                if *malformed <= 10 {
+                    tracing::warn!(error = %e, "input record skipped");
+                }
+                continue;
+            }
         };
-        batch.push(msg);
+        batch.push(to_msg(rec, normaliser));
         if batch.len() == REPLAY_BATCH {
             let full = std::mem::replace(&mut batch, Vec::with_capacity(REPLAY_BATCH));
             if batch_tx.send(full).is_err() {
-                return;
+                return *malformed;
             }
         }
     }
     if !batch.is_empty() {
         let _ = batch_tx.send(batch);
     }
+    *malformed
 }
 
 /// What the fusion loop counts: inputs in, estimates out, and the span of
@@ -337,6 +319,7 @@ impl Tally {
             flight_s: flight,
             wall_s: wall,
             realtime_factor: if wall > 0.0 { flight / wall } else { 0.0 },
+            malformed_inputs: 0,
         }
     }
 }

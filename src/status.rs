@@ -11,7 +11,7 @@
 
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 
-use crate::io::Counters;
+use crate::counters::Counters;
 
 /// Why the daemon is degraded: bit `1 << reason as u32` of [`Status::degraded`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -114,25 +114,6 @@ impl Status {
 
 /// How long a transient reason stays set (s of autopilot time).
 const HOLD_S: f64 = 2.0;
-/// Counters of rejected outside input.
-fn is_input_rejection(name: &str) -> bool {
-    name.starts_with("mavlink_rejected_")
-        || name.starts_with("feature_line_")
-        || name.starts_with("rtcm_fragment_")
-        || matches!(
-            name,
-            "imu_time_backwards"
-                | "imu_time_outlier"
-                | "system_time_outlier"
-                | "feature_time_implausible"
-                | "imu_rejected"
-                | "feature_time_backwards"
-                | "feature_non_finite"
-                | "frame_rejected"
-                | "rtcm_crc_failure"
-        )
-}
-
 /// The fusion thread's side: held reasons and input freshness, in
 /// autopilot time.
 #[derive(Clone, Debug)]
@@ -221,7 +202,7 @@ impl Tracker {
             return;
         }
         self.next_check_t = t_s + 0.1;
-        let rejections = counters.sum_matching(is_input_rejection);
+        let rejections = counters.input_rejections();
         if rejections > self.rejections {
             self.hold(Degraded::InputRejected, t_s);
         }
@@ -265,7 +246,7 @@ mod tests {
         t.update(1.5, true, &c, &s);
         assert_eq!(describe(s.degraded()), "camera_stale");
         t.frame_processed(1.55);
-        c.add("rtcm_crc_failure", 1);
+        c.add(crate::counters::Counter::RtcmCrcFailure, 1);
         t.update(1.6, true, &c, &s);
         assert_eq!(describe(s.degraded()), "input_rejected");
         t.frame_processed(3.7);

@@ -51,7 +51,7 @@ fn seventy_seconds_blind_grow_the_covariance_and_lose_no_imu() {
             }
         }
     }
-    let c = |k: &str| ctx.counters.get(k);
+    let c = |k: &str| ctx.counters.get_by_name(k);
     assert_eq!(c("imu_rejected"), 0, "the IMU buffer overflowed");
     assert_eq!(c("filter_reset"), 0);
     let at = |t: f64| {

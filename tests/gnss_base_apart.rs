@@ -8,6 +8,7 @@
 //! rover's id announcing an antenna position (MT1005) as only a base does.
 
 use cmsckf::config::Config;
+use cmsckf::counters::{Counter, Counters};
 use cmsckf::daemon::{Fusion, FusionMsg, RtcmStream};
 use cmsckf_sitl::dataset::Dataset;
 use rtcm_rs::msg::Msg1005T;
@@ -20,7 +21,7 @@ const ROVER: u16 = 7;
 
 /// Epochs completed as the rover's, and the counters, after `epochs` of
 /// RTCM by `stream` under `rover_station_id` (after `first`, if any).
-fn feed(rover_station_id: u16, stream: RtcmStream, first: Option<Vec<u8>>, station_id: u16) -> cmsckf::io::Counters {
+fn feed(rover_station_id: u16, stream: RtcmStream, first: Option<Vec<u8>>, station_id: u16) -> Counters {
     let mut cfg = Config::default();
     cfg.gnss.rover_station_id = rover_station_id;
     let ds = Dataset::generate("racetrack", 1, Some(12.0), &cmsckf::eval::sim_config_for(&cfg)).unwrap();
@@ -57,34 +58,37 @@ fn station_position(id: u16) -> Vec<u8> {
 fn only_the_rovers_own_observations_are_fused() {
     // The rover's id on the vehicle's link: the rover's (12 epochs at 1 Hz).
     let c = feed(ROVER, RtcmStream::LinkVehicle, None, ROVER);
-    let n = c.get("gnss_rover_msm_from_link");
+    let n = c.get(Counter::GnssRoverMsmFromLink);
     assert!(n >= 12, "{:?}", c.snapshot());
-    assert!(c.get("gnss_epochs") >= 12);
-    assert_eq!(c.get("gnss_base_msm_from_link"), 0);
+    assert!(c.get(Counter::GnssEpochs) >= 12);
+    assert_eq!(c.get(Counter::GnssBaseMsmFromLink), 0);
 
     // Another station on the same link: a base's, kept apart.
     let c = feed(ROVER, RtcmStream::LinkVehicle, None, 759);
-    assert_eq!((c.get("gnss_epochs"), c.get("gnss_rover_msm_from_link")), (0, 0));
-    assert_eq!(c.get("gnss_base_msm_from_link"), n);
+    assert_eq!(
+        (c.get(Counter::GnssEpochs), c.get(Counter::GnssRoverMsmFromLink)),
+        (0, 0)
+    );
+    assert_eq!(c.get(Counter::GnssBaseMsmFromLink), n);
 
     // No rover id configured: nothing on the link is the rover's.
     let c = feed(0, RtcmStream::LinkVehicle, None, ROVER);
-    assert_eq!(c.get("gnss_epochs"), 0);
-    assert_eq!(c.get("gnss_base_msm_from_link"), n);
+    assert_eq!(c.get(Counter::GnssEpochs), 0);
+    assert_eq!(c.get(Counter::GnssBaseMsmFromLink), n);
 
     // The rover's id from a ground station's system: a base's.
     let c = feed(ROVER, RtcmStream::LinkOther, None, ROVER);
-    assert_eq!(c.get("gnss_epochs"), 0);
-    assert_eq!(c.get("gnss_base_msm_from_ground_station"), n);
+    assert_eq!(c.get(Counter::GnssEpochs), 0);
+    assert_eq!(c.get(Counter::GnssBaseMsmFromGroundStation), n);
 
     // The rover's id announcing its antenna position: it is a base.
     let c = feed(ROVER, RtcmStream::LinkVehicle, Some(station_position(ROVER)), ROVER);
-    assert_eq!(c.get("gnss_epochs"), 0, "{:?}", c.snapshot());
-    assert_eq!(c.get("gnss_rover_id_is_a_base"), 1);
-    assert_eq!(c.get("gnss_base_station_position"), 1);
+    assert_eq!(c.get(Counter::GnssEpochs), 0, "{:?}", c.snapshot());
+    assert_eq!(c.get(Counter::GnssRoverIdIsABase), 1);
+    assert_eq!(c.get(Counter::GnssBaseStationPosition), 1);
 
     // The receiver wired to the companion is the rover, whatever its id.
     let c = feed(0, RtcmStream::Receiver, None, 759);
-    assert!(c.get("gnss_epochs") >= 12);
-    assert_eq!(c.get("gnss_rover_msm_from_receiver"), n);
+    assert!(c.get(Counter::GnssEpochs) >= 12);
+    assert_eq!(c.get(Counter::GnssRoverMsmFromReceiver), n);
 }

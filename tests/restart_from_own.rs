@@ -13,12 +13,12 @@
 mod common;
 
 use cmsckf::config::{Config, GnssSource};
+use cmsckf::counters::{Counter, Counters};
 use cmsckf::daemon::{Fusion, FusionMsg};
 use cmsckf::estimator::frontend::Normaliser;
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::feature_pipe::FeatureFrame;
 use cmsckf::io::messages::Outbound;
-use cmsckf::io::Counters;
 use cmsckf_sitl::dataset::Dataset;
 use nalgebra::Vector3;
 
@@ -138,7 +138,7 @@ fn a_restart_starts_from_our_own_estimate_without_a_gap() {
     // what the restarted one is held to.
     let calm = fly(&ds, &cfg, false);
     let Flight { counters, estimates } = fly(&ds, &cfg, true);
-    let c = |k: &str| counters.get(k);
+    let c = |k: &str| counters.get_by_name(k);
 
     let resets = c("filter_reset");
     let t_reset = estimates
@@ -178,7 +178,7 @@ fn a_restart_starts_from_our_own_estimate_without_a_gap() {
         t_reset.0
     );
     assert!(after > 200, "no estimates after the restart");
-    assert_eq!(calm.counters.get("filter_reset"), 0);
+    assert_eq!(calm.counters.get(Counter::FilterReset), 0);
     // Near the truth, nowhere near the echo 30 m off: after the restart the
     // filter flies on visual-inertial alone (no GNSS here), so its drift
     // starts again from the carried estimate (seed 4 in the default wind:

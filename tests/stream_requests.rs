@@ -4,6 +4,7 @@
 
 mod common;
 
+use cmsckf::counters::Counter;
 use std::time::{Duration, Instant};
 
 use common::autopilot::{heartbeat, MavPeer};
@@ -53,5 +54,12 @@ async fn a_stream_that_stops_is_asked_for_again() {
         requests.iter().any(|&r| (3.5..7.0).contains(&r)),
         "not asked again after it stopped: {requests:?}"
     );
-    assert!(summary.counters.get("stream_requested_again").copied().unwrap_or(0) >= 1);
+    assert!(
+        summary
+            .counters
+            .get(Counter::StreamRequestedAgain.as_str())
+            .copied()
+            .unwrap_or(0)
+            >= 1
+    );
 }

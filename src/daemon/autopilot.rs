@@ -6,14 +6,13 @@
 
 use cmsckf_models::geodesy::{ecef_to_llh, llh_to_ecef, NedFrame};
 use cmsckf_models::geoid;
-use serde_json::json;
 use tokio::sync::mpsc;
 
 use super::fusion::Fusion;
 use super::FusionMsg;
-use crate::io::mcap_log::Topic;
+use crate::counters::{Counter, Counters};
+use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, LocalPositionRecord, SimStateRecord, SystemTimeRecord};
 use crate::io::messages::Outbound;
-use crate::io::Counters;
 
 /// Magnetometer readings kept for the compass yaw (10 Hz: about 1 s).
 pub(super) const MAG_READINGS: usize = 10;
@@ -41,11 +40,7 @@ impl Fusion {
     pub(super) fn on_autopilot(&mut self, msg: FusionMsg, counters: &Counters) {
         match msg {
             FusionMsg::Attitude { roll, pitch, yaw } => {
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"attitude_rad": [roll, pitch, yaw]}),
-                );
+                self.log_autopilot(AutopilotRecord::Attitude([roll, pitch, yaw]));
                 self.attitude = Some((roll, pitch, yaw))
             }
             FusionMsg::LocalPosition {
@@ -53,41 +48,37 @@ impl Fusion {
                 p_ned_m,
                 v_ned_mps,
             } => {
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"local_position": {"t_s": t_s, "p_ned_m": p_ned_m.as_slice(), "v_ned_mps": v_ned_mps.as_slice()}}),
-                );
+                self.log_autopilot(AutopilotRecord::LocalPosition(LocalPositionRecord {
+                    t_s,
+                    p_ned_m: p_ned_m.into(),
+                    v_ned_mps: v_ned_mps.into(),
+                }));
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
             FusionMsg::Magnetometer { mag_B } => {
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"mag_B": mag_B.as_slice()}),
-                );
+                self.log_autopilot(AutopilotRecord::Magnetometer(mag_B.into()));
                 if self.mag_B.len() == MAG_READINGS {
                     self.mag_B.pop_front();
                 }
                 self.mag_B.push_back(mag_B);
             }
             FusionMsg::VehicleState { armed, on_ground, kind } => {
-                if kind.is_some() && kind != self.autopilot_kind {
-                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"autopilot": kind}));
+                if let Some(k) = kind.filter(|k| Some(*k) != self.autopilot_kind) {
+                    self.log_autopilot(AutopilotRecord::Autopilot(k));
                     self.autopilot_kind = kind;
                 }
                 // Logged on change only (the HEARTBEAT comes every second).
-                if armed.is_some() && armed != self.armed {
-                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"armed": armed}));
+                if let Some(a) = armed.filter(|a| Some(*a) != self.armed) {
+                    self.log_autopilot(AutopilotRecord::Armed(a));
                     self.armed = armed;
                 }
-                if on_ground.is_some() && on_ground != self.on_ground {
-                    self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"on_ground": on_ground}));
+                if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
+                    self.log_autopilot(AutopilotRecord::OnGround(g));
                     self.on_ground = on_ground;
                 }
             }
             FusionMsg::Date { unix_days } => {
-                self.log(Topic::InputAutopilot, self.last_imu_t, &json!({"unix_days": unix_days}));
+                self.log_autopilot(AutopilotRecord::UnixDays(unix_days));
                 self.unix_days = Some(unix_days);
             }
             FusionMsg::SimState(crate::io::messages::SimTruth {
@@ -106,28 +97,27 @@ impl Fusion {
                     let p = f.R_ecef_ned.transpose() * (r - f.origin_ecef);
                     [p.x, p.y, p.z]
                 });
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"sim_state": {"lat_deg": lat_deg, "lon_deg": lon_deg, "alt_m": alt_m, "q_wxyz": q_wxyz,
-                        "v_ned_mps": v_ned_mps.as_slice(), "p_ned_m": p_ned_m}}),
-                );
+                self.log_autopilot(AutopilotRecord::SimState(SimStateRecord {
+                    lat_deg,
+                    lon_deg,
+                    alt_m,
+                    q_wxyz,
+                    v_ned_mps: v_ned_mps.into(),
+                    p_ned_m,
+                }));
             }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
                 // Logged for replay, kept as the prior of an in-flight start.
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"gps_accuracy_m": [h_acc_m, v_acc_m]}),
-                );
+                self.log_autopilot(AutopilotRecord::GpsAccuracy(
+                    [h_acc_m, v_acc_m].map(|a| a.is_finite().then_some(a)),
+                ));
                 self.gps_accuracy = (h_acc_m.is_finite() && v_acc_m.is_finite()).then_some((h_acc_m, v_acc_m));
                 self.autopilot_fix_t = Some(self.last_imu_t);
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
-                self.log(
-                    Topic::InputSystemTime,
+                self.log_input(
                     boot_ms as f64 * 1e-3,
-                    &json!({"unix_us": unix_us, "boot_ms": boot_ms}),
+                    &InputRecord::SystemTime(SystemTimeRecord { unix_us, boot_ms }),
                 );
                 match self
                     .unix_minus_boot
@@ -135,7 +125,7 @@ impl Fusion {
                 {
                     Some(offset_s) => self.gnss.unix_minus_boot_s = Some(offset_s),
                     None => {
-                        counters.add("system_time_outlier", 1);
+                        counters.add(Counter::SystemTimeOutlier, 1);
                         tracing::warn!(reason = "system_time_outlier", unix_us, boot_ms, "SYSTEM_TIME rejected");
                     }
                 }
@@ -145,29 +135,25 @@ impl Fusion {
                 lon_deg,
                 alt_m,
             } => {
-                self.log(
-                    Topic::InputAutopilot,
-                    self.last_imu_t,
-                    &json!({"origin": [lat_deg, lon_deg, alt_m]}),
-                );
+                self.log_autopilot(AutopilotRecord::Origin([lat_deg, lon_deg, alt_m]));
                 // MAVLink gives the origin's altitude above mean sea level;
                 // our frame is on the ellipsoid (EGM96, §geoid).
                 let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
                 match self.gnss.frame {
                     None => {
                         self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
-                        counters.add("gnss_origin_from_autopilot", 1);
+                        counters.add(Counter::GnssOriginFromAutopilot, 1);
                     }
                     Some(ours) if !self.origin.settled => {
                         let theirs = llh_to_ecef(lat_deg.to_radians(), lon_deg.to_radians(), h_m);
                         let off_m = (theirs - ours.origin_ecef).norm();
                         if off_m <= ORIGIN_MATCH_M {
-                            counters.add("gps_origin_confirmed", 1);
+                            counters.add(Counter::GpsOriginConfirmed, 1);
                             self.log_text(2, self.last_imu_t, "the autopilot took our origin");
                         } else {
                             // An autopilot sets its origin once: its GNSS
                             // (or a ground station) came first.
-                            counters.add("gps_origin_mismatch", 1);
+                            counters.add(Counter::GpsOriginMismatch, 1);
                             let text = format!(
                                 "the autopilot's EKF origin is {off_m:.1} m from ours: its global positions \
                                  of our estimates will be off by that"
@@ -192,6 +178,11 @@ impl Fusion {
         }
     }
 
+    /// What the autopilot said, logged at the last IMU sample's time.
+    fn log_autopilot(&self, rec: AutopilotRecord) {
+        self.log_input(self.last_imu_t, &InputRecord::Autopilot(rec));
+    }
+
     /// Whether a zero-velocity update may be taken: on the ground, by the
     /// autopilot's landed state, else by its being disarmed; with neither
     /// known (an autopilot that says nothing), by the IMU and camera alone.
@@ -212,7 +203,7 @@ impl Fusion {
         }
         if self.origin.tries == ORIGIN_TRIES {
             self.origin.settled = true;
-            counters.add("gps_origin_unconfirmed", 1);
+            counters.add(Counter::GpsOriginUnconfirmed, 1);
             let text = "the autopilot never reported our origin back (GPS_GLOBAL_ORIGIN)";
             tracing::warn!(reason = "gps_origin_unconfirmed", "{text}");
             self.log_text(3, t_s, text);
@@ -231,7 +222,7 @@ impl Fusion {
             if out.try_send(msg).is_ok() {
                 self.origin.tries += 1;
                 self.origin.next_t_s = t_s + ORIGIN_RESEND_S;
-                counters.add("gps_origin_sent", 1);
+                counters.add(Counter::GpsOriginSent, 1);
             }
         }
     }

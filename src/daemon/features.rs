@@ -14,9 +14,9 @@ use tokio::task::JoinHandle;
 
 use super::{FusionMsg, FRAMES_IN_FLIGHT};
 use crate::config::Config;
+use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::Normaliser;
 use crate::io::feature_pipe::{self, FeatureFrame, FeatureSocket};
-use crate::io::Counters;
 
 /// `features.idle_timeout_s`'s default, for a config that skipped validation.
 const DEFAULT_IDLE_TIMEOUT_S: u64 = 5;
@@ -57,14 +57,14 @@ pub(super) fn spawn(
                 f = frame_rx.recv() => match f {
                     Some(f) => {
                         if queued.load(Ordering::Relaxed) >= FRAMES_IN_FLIGHT {
-                            counters.add("fusion_frames_full", 1);
+                            counters.add(Counter::FusionFramesFull, 1);
                             continue;
                         }
                         let norm = normaliser.frame(&f.features);
                         queued.fetch_add(1, Ordering::Relaxed);
                         if fusion_tx.try_send(FusionMsg::Frame(f, norm)).is_err() {
                             queued.fetch_sub(1, Ordering::Relaxed);
-                            counters.add("fusion_queue_full", 1);
+                            counters.add(Counter::FusionQueueFull, 1);
                         }
                     }
                     None => return,

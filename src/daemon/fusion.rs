@@ -5,6 +5,7 @@
 //! has one restart path (reboot, IMU gap, divergence; `Fusion::restart` in
 //! `init.rs`, beside the starts it leads to).
 
+use std::borrow::Cow;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
@@ -20,14 +21,15 @@ use super::gnss_input::GnssIn;
 use super::init::{Carried, GoodEstimates, RECENT_IMU_S};
 use super::rebase::{InstallSite, RebaseExec};
 use super::time_guard::{SteadyValue, TimeGuard, Verdict};
-use super::{records, FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
+use super::{FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
 use crate::config::{Config, FeatureClock};
+use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, ImuMeas};
 use crate::io::feature_pipe::FeatureFrame;
+use crate::io::mcap_log::input::{FeaturesRecord, ImuRecord, InputRecord, RtcmRecord};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::{AutopilotKind, Outbound};
-use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
 
 /// IMU samples in a row that must agree on a jump of their clock (a reboot,
@@ -261,16 +263,16 @@ impl Fusion {
         let dropped = l.dropped();
         match l.finish() {
             Ok(s) => {
-                counters.add("log_messages", s.messages);
-                counters.add("log_chunks", s.chunks);
+                counters.add(Counter::LogMessages, s.messages);
+                counters.add(Counter::LogChunks, s.chunks);
             }
             Err(e) => {
-                counters.add("log_error", 1);
+                counters.add(Counter::LogError, 1);
                 tracing::error!(error = %e, "the MCAP log could not be finished");
             }
         }
         if dropped > 0 {
-            counters.add("log_dropped", dropped);
+            counters.add(Counter::LogDropped, dropped);
             tracing::error!(
                 dropped,
                 "ALARM: MCAP log records were dropped (writer could not keep up)"
@@ -295,10 +297,12 @@ impl Fusion {
                 self.rebase.on_installed(seq, site, &ctx.counters);
             }
             FusionMsg::Rtcm { bytes, stream } => {
-                self.log(
-                    Topic::InputRtcm,
+                self.log_input(
                     self.last_imu_t,
-                    &json!({ "bytes": bytes, "stream": stream.name() }),
+                    &InputRecord::Rtcm(RtcmRecord {
+                        bytes: Cow::Borrowed(&bytes),
+                        stream,
+                    }),
                 );
                 self.on_rtcm(&bytes, stream, &ctx.counters)
             }
@@ -327,7 +331,7 @@ impl Fusion {
         // position in the filter is now off by that fix's error (§7).
         if let (Some(sigma_m), Some(est)) = (self.gnss.origin_fix_sigma_m.take(), self.est.as_mut()) {
             if est.add_world_offset_variance(sigma_m * sigma_m) {
-                counters.add("prior_from_fix", 1);
+                counters.add(Counter::PriorFromFix, 1);
             }
         }
     }
@@ -340,32 +344,31 @@ impl Fusion {
             FeatureClock::Monotonic => {
                 let off = ctx.mono_offset_us.load(Ordering::Relaxed);
                 if off == i64::MIN {
-                    ctx.counters.add("feature_no_timesync", 1);
+                    ctx.counters.add(Counter::FeatureNoTimesync, 1);
                     return;
                 }
                 fr.t_us as i64 + off
             }
         };
         let t = t_ap_us as f64 * 1e-6;
-        self.log(
-            Topic::InputFeatures,
+        self.log_input(
             t,
-            &records::Features {
+            &InputRecord::Features(FeaturesRecord {
                 t_us: fr.t_us,
                 t_ap_us,
                 cam: fr.cam,
-                features: &fr.features,
-            },
+                features: Cow::Borrowed(&fr.features),
+            }),
         );
         // Judged against the autopilot's clock (the IMU's), so that one
         // far-off stamp is rejected and never becomes the reference.
         if !self.last_imu_t.is_finite() {
             // Nothing to judge it by, and nothing to fuse it with yet.
-            ctx.counters.add("feature_before_imu", 1);
+            ctx.counters.add(Counter::FeatureBeforeImu, 1);
             return;
         }
         if !(t <= self.last_imu_t + FRAME_MAX_LEAD_S && t >= self.last_imu_t - FRAME_MAX_LAG_S) {
-            ctx.counters.add("feature_time_implausible", 1);
+            ctx.counters.add(Counter::FeatureTimeImplausible, 1);
             tracing::warn!(
                 reason = "feature_time_implausible",
                 t_s = t,
@@ -375,7 +378,7 @@ impl Fusion {
             return;
         }
         if t <= self.last_frame_t {
-            ctx.counters.add("feature_time_backwards", 1);
+            ctx.counters.add(Counter::FeatureTimeBackwards, 1);
             tracing::warn!(
                 reason = "feature_time_backwards",
                 t_s = t,
@@ -394,25 +397,24 @@ impl Fusion {
     /// restarts the filter. Then the sample is fused, and the status and
     /// diagnostics follow it.
     fn on_imu_msg(&mut self, m: ImuMeas, ctx: &Ctx) {
-        self.log(
-            Topic::InputImu,
+        self.log_input(
             m.t_s,
-            &records::Imu {
+            &InputRecord::Imu(ImuRecord {
                 t_us: (m.t_s * 1e6).round() as u64,
-                accel_mps2: m.accel_mps2.as_slice(),
-                gyro_radps: m.gyro_radps.as_slice(),
-            },
+                accel_mps2: m.accel_mps2.into(),
+                gyro_radps: m.gyro_radps.into(),
+            }),
         );
         match self.imu_clock.check(m.t_s) {
             Verdict::Next => {}
             Verdict::Stale => {
-                ctx.counters.add("imu_time_backwards", 1);
+                ctx.counters.add(Counter::ImuTimeBackwards, 1);
                 return;
             }
             Verdict::Outlier => {
                 // One sample off the autopilot's clock (or the first of a
                 // jump not yet confirmed): never the new reference.
-                ctx.counters.add("imu_time_outlier", 1);
+                ctx.counters.add(Counter::ImuTimeOutlier, 1);
                 tracing::warn!(
                     reason = "imu_time_outlier",
                     t_s = m.t_s,
@@ -424,7 +426,7 @@ impl Fusion {
             Verdict::Jump { from_s } if m.t_s < from_s => {
                 // The autopilot's boot clock restarted (a reboot), as
                 // several samples in a row agree: start over.
-                ctx.counters.add("autopilot_clock_reset", 1);
+                ctx.counters.add(Counter::AutopilotClockReset, 1);
                 tracing::error!(
                     from_s,
                     to_s = m.t_s,
@@ -436,7 +438,7 @@ impl Fusion {
         }
         if self.est.is_some() && m.t_s - self.last_imu_t > MAX_IMU_GAP_S {
             // Seconds without IMU: the motion in between is unknown.
-            ctx.counters.add("imu_gap_restart", 1);
+            ctx.counters.add(Counter::ImuGapRestart, 1);
             tracing::error!(
                 gap_s = m.t_s - self.last_imu_t,
                 "IMU gap too long: resetting the filter"
@@ -446,12 +448,12 @@ impl Fusion {
         if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.2 {
             self.tracker.hold(Degraded::ImuGap, m.t_s);
             if m.t_s - self.last_imu_t > 0.5 {
-                ctx.counters.add("imu_gap", 1);
+                ctx.counters.add(Counter::ImuGap, 1);
                 tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
             }
         }
         self.last_imu_t = m.t_s;
-        ctx.counters.add("imu_samples", 1);
+        ctx.counters.add(Counter::ImuSamples, 1);
         while self
             .recent_imu
             .front()
@@ -473,6 +475,11 @@ impl Fusion {
             self.next_diag_t = m.t_s + 1.0;
             self.log_diagnostics(m.t_s, &ctx.counters, st.degraded());
         }
+    }
+
+    /// An input, as the fusion loop consumed it (what replay feeds back).
+    pub(super) fn log_input(&self, t_s: f64, rec: &InputRecord<'_>) {
+        self.log(rec.topic(), t_s, rec);
     }
 
     pub(super) fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
@@ -522,7 +529,7 @@ impl Fusion {
     pub(super) fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
         if self.pending.len() == PENDING_FRAMES {
             self.pending.pop_front();
-            counters.add("pending_overflow", 1);
+            counters.add(Counter::PendingOverflow, 1);
         }
         let at = self.pending.partition_point(|(u, _)| *u <= t);
         self.pending.insert(at, (t, item));
@@ -540,7 +547,7 @@ impl Fusion {
             return;
         };
         if est.add_imu(m).is_err() {
-            counters.add("imu_rejected", 1);
+            counters.add(Counter::ImuRejected, 1);
         }
         self.emit_output(m, counters, out);
         let zupt_allowed = self.zupt_allowed();
@@ -561,7 +568,7 @@ impl Fusion {
         // divergence is caught as soon as a vision one).
         let Some(est) = self.est.as_ref() else { return };
         if let Err(why) = est.check_health() {
-            counters.add("filter_reset", 1);
+            counters.add(Counter::FilterReset, 1);
             tracing::error!(reason = %why, "filter unhealthy: resetting");
             self.restart(m.t_s, &why, Restart::Unhealthy, out);
         } else if m.t_s - self.tracker.last_aided_s() < GOOD_AIDED_S {

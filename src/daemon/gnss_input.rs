@@ -12,13 +12,13 @@ use tokio::task::JoinHandle;
 
 use super::{DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
+use crate::counters::{Counter, Counters};
 use crate::estimator::Estimator;
 use crate::gnss::dgnss::{self, CodeModel};
 use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use crate::gnss::spp::{SppOptions, SppSolution};
 use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver, StreamDecoder};
 use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::Counters;
 
 /// The stream reader's task and its forwarder's.
 pub(super) type StreamTasks = (JoinHandle<()>, JoinHandle<()>);
@@ -45,7 +45,7 @@ pub(super) fn spawn_stream(
             tokio::select! {
                 b = rx.recv() => match b {
                     Some(bytes) => if fwd_tx.try_send(FusionMsg::Rtcm { bytes, stream: RtcmStream::Receiver }).is_err() {
-                        counters2.add("fusion_queue_full", 1)
+                        counters2.add(Counter::FusionQueueFull, 1)
                     },
                     None => return,
                 },
@@ -152,7 +152,7 @@ impl GnssIn {
     fn is_rovers(&mut self, m: &GnssMessage, stream: RtcmStream, counters: &Counters) -> bool {
         match m {
             GnssMessage::Station { station_id, arp_ecef_m } => {
-                counters.add("gnss_base_station_position", 1);
+                counters.add(Counter::GnssBaseStationPosition, 1);
                 if self.bases.len() < MAX_BASES && !self.bases.iter().any(|(id, _)| id == station_id) {
                     self.bases.push((*station_id, *arp_ecef_m));
                     let (lat, lon, h) = ecef_to_llh(&nalgebra::Vector3::from(*arp_ecef_m));
@@ -165,7 +165,7 @@ impl GnssIn {
                         "a base station announces itself (MT1005/1006): its observations are kept apart"
                     );
                     if *station_id == self.rover_station_id {
-                        counters.add("gnss_rover_id_is_a_base", 1);
+                        counters.add(Counter::GnssRoverIdIsABase, 1);
                         tracing::warn!(
                             station_id,
                             reason = "gnss_rover_id_is_a_base",
@@ -190,10 +190,10 @@ impl GnssIn {
                 };
                 counters.add(
                     match (rovers, stream) {
-                        (true, RtcmStream::Receiver) => "gnss_rover_msm_from_receiver",
-                        (true, _) => "gnss_rover_msm_from_link",
-                        (false, RtcmStream::LinkOther) => "gnss_base_msm_from_ground_station",
-                        (false, _) => "gnss_base_msm_from_link",
+                        (true, RtcmStream::Receiver) => Counter::GnssRoverMsmFromReceiver,
+                        (true, _) => Counter::GnssRoverMsmFromLink,
+                        (false, RtcmStream::LinkOther) => Counter::GnssBaseMsmFromGroundStation,
+                        (false, _) => Counter::GnssBaseMsmFromLink,
                     },
                     1,
                 );
@@ -231,9 +231,9 @@ impl GnssIn {
         self.msgs = msgs;
         let epochs: Vec<_> = self.epochs.drain(..).collect();
         for ep in epochs {
-            counters.add("gnss_epochs", 1);
+            counters.add(Counter::GnssEpochs, 1);
             let Some(offset) = self.unix_minus_boot_s else {
-                counters.add("gnss_no_system_time", 1);
+                counters.add(Counter::GnssNoSystemTime, 1);
                 continue;
             };
             let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
@@ -270,7 +270,7 @@ impl GnssIn {
                     CodeModel::Single,
                 );
                 if let Err(e) = &c {
-                    counters.add("gnss_dgnss_unavailable", 1);
+                    counters.add(Counter::GnssDgnssUnavailable, 1);
                     tracing::debug!(reason = %e, "no differential codes for this epoch");
                 }
                 c.ok().filter(|c| !c.is_empty())
@@ -287,7 +287,7 @@ impl GnssIn {
             let obs = ep.sats.iter().map(RawSat::from_obs);
             return crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
         };
-        counters.add("gnss_dgnss_epochs", 1);
+        counters.add(Counter::GnssDgnssEpochs, 1);
         let obs = ep.sats.iter().map(RawSat::from_obs).filter_map(|s| {
             let c = corr.iter().find(|(k, _)| *k == (s.system, s.prn))?.1;
             Some(RawSat {
@@ -328,12 +328,12 @@ impl GnssIn {
             rtcm_failures += self.stream_dec.rtcm.stats.crc_failures - stream_before;
         }
         if rtcm_failures > 0 {
-            counters.add("rtcm_crc_failure", rtcm_failures);
+            counters.add(Counter::RtcmCrcFailure, rtcm_failures);
             tracing::warn!(reason = "rtcm_crc_failure", "RTCM frame with a bad CRC skipped");
         }
         let ubx_failures = self.stream_dec.ubx.stats.checksum_failures - ubx_before;
         if ubx_failures > 0 {
-            counters.add("ubx_checksum_failure", ubx_failures);
+            counters.add(Counter::UbxChecksumFailure, ubx_failures);
             tracing::warn!(reason = "ubx_checksum_failure", "UBX frame with a bad checksum skipped");
         }
     }
@@ -348,7 +348,7 @@ impl GnssIn {
             let origin = fix.r_ecef_m - r * est.imu_state().p_B_in_W;
             self.frame = Some(NedFrame::from_ecef(&origin));
             self.origin_fix_sigma_m = Some(fix.pdop.max(1.0) * self.pseudorange_sigma_m);
-            counters.add("gnss_origin_from_fix", 1);
+            counters.add(Counter::GnssOriginFromFix, 1);
         }
     }
 }

@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use crate::counters::{Counter, Counters};
 use crate::io::messages::{self as mav, Outbound};
-use crate::io::Counters;
 use crate::status::{self, Degraded, Status};
 
 /// The status task: HEARTBEAT at 1 Hz and at once on a change, with the
@@ -89,11 +89,11 @@ pub(super) fn spawn_periodic(
             // and again when it stops for STREAM_STALE_TICKS seconds (a
             // rebooted autopilot forgets the rates it was asked for).
             let wanted = [
-                ("imu_highres", mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
-                ("attitude", mav::MSG_ID_ATTITUDE, 100_000.0),
-                ("system_time", mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
-                ("local_position", mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
-                ("extended_sys_state", mav::MSG_ID_EXTENDED_SYS_STATE, 500_000.0),
+                (Counter::ImuHighres, mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
+                (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0),
+                (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
+                (Counter::LocalPosition, mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
+                (Counter::ExtendedSysState, mav::MSG_ID_EXTENDED_SYS_STATE, 500_000.0),
             ];
             for (k, (counter, id, interval)) in wanted.into_iter().enumerate() {
                 let count = counters.get(counter);
@@ -104,8 +104,8 @@ pub(super) fn spawn_periodic(
                 }
                 if count == 0 || seen[k].1 >= STREAM_STALE_TICKS {
                     if count > 0 && seen[k].1 == STREAM_STALE_TICKS {
-                        counters.add("stream_requested_again", 1);
-                        tracing::warn!(stream = counter, "a stream stopped: asking for it again");
+                        counters.add(Counter::StreamRequestedAgain, 1);
+                        tracing::warn!(stream = %counter, "a stream stopped: asking for it again");
                     }
                     let _ = out_tx.try_send(Outbound::SetMessageInterval {
                         message_id: id,

@@ -27,10 +27,10 @@ use super::fusion::Fusion;
 use super::rebase::RebaseExec;
 use super::Restart;
 use crate::config::YawSource;
+use crate::counters::{Counter, Counters};
 use crate::estimator::propagate::{BA, BG, P as P_OFF, TH, V};
 use crate::estimator::{attitude_from_static, Estimator, ImuMeas, ImuState, Mat15};
 use crate::io::messages::Outbound;
-use crate::io::Counters;
 use crate::status::Degraded;
 
 /// Our last estimate is carried into a restart for at most this long (s of
@@ -201,7 +201,7 @@ impl Fusion {
             let _ = est.add_imu(*s);
         }
         est.start_health_grace(m.t_s);
-        counters.add("init_from_carried_estimate", 1);
+        counters.add(Counter::InitFromCarriedEstimate, 1);
         self.in_place_t = Some(m.t_s);
         self.install_filter(est, m.t_s, false, counters);
         true
@@ -336,7 +336,14 @@ impl Fusion {
         self.tracker.filter_started(t_s);
         self.static_buf.clear();
         self.pending.retain(|(t, _)| *t >= t_s);
-        counters.add(if is_static { "init_static" } else { "init_in_flight" }, 1);
+        counters.add(
+            if is_static {
+                Counter::InitStatic
+            } else {
+                Counter::InitInFlight
+            },
+            1,
+        );
         self.log_text(
             2,
             t_s,

@@ -13,11 +13,11 @@ use tokio::task::JoinHandle;
 
 use super::{signing_key, DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
+use crate::counters::{Counter, Counters};
 use crate::estimator::ImuMeas;
 use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::mavlink::{self as mav, Link};
 use crate::io::messages::{Inbound, Outbound, Source};
-use crate::io::Counters;
 
 /// Opens the link to the autopilot (warning when it listens on an open
 /// network without signing).
@@ -137,52 +137,52 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
                     continue;
                 }
                 Ok(mav::Received::Reconnected) => {
-                    r.counters.add("mavlink_reconnected", 1);
+                    r.counters.add(Counter::MavlinkReconnected, 1);
                     tracing::warn!("MAVLink link opened again");
                     continue;
                 }
                 Ok(mav::Received::PeerLearned(addr)) => {
-                    r.counters.add("mavlink_autopilot_address_learned", 1);
+                    r.counters.add(Counter::MavlinkAutopilotAddressLearned, 1);
                     tracing::info!(%addr, "autopilot's address learned from its HEARTBEAT");
                     continue;
                 }
                 Err(mav::LinkError::Io(e)) => {
-                    r.counters.add("mavlink_io_error", 1);
+                    r.counters.add(Counter::MavlinkIoError, 1);
                     tracing::warn!(error = %e, "MAVLink link error");
                     tokio::time::sleep(Duration::from_millis(200)).await;
                     continue;
                 }
                 Err(mav::LinkError::Parse(e)) => {
-                    r.counters.add("mavlink_undecodable", 1);
+                    r.counters.add(Counter::MavlinkUndecodable, 1);
                     if warn.allow() {
                         tracing::warn!(reason = "mavlink_undecodable", "{e}");
                     }
                     continue;
                 }
                 Err(mav::LinkError::Rejected(why)) => {
-                    r.counters.add(rejected_counter(why), 1);
+                    r.counters.add(why, 1);
                     if warn.allow() {
-                        tracing::warn!(reason = why, "MAVLink message rejected");
+                        tracing::warn!(reason = %why, "MAVLink message rejected");
                     }
                     continue;
                 }
             };
             if gap > 0 {
-                r.counters.add("mavlink_frames_lost_or_corrupt", gap as u64);
+                r.counters.add(Counter::MavlinkFramesLostOrCorrupt, gap as u64);
                 tracing::warn!(
                     frames = gap,
                     reason = "mavlink_frames_lost_or_corrupt",
                     "sequence gap: frames lost or dropped as corrupt (bad CRC, unknown id)"
                 );
             }
-            r.counters.add("mavlink_messages", 1);
+            r.counters.add(Counter::MavlinkMessages, 1);
             if src != st.autopilot {
                 if let Some(why) = foreign_rejection(&msg) {
                     // Sensor and time messages from anyone but the autopilot
                     // are never acted on.
                     r.counters.add(why, 1);
                     tracing::warn!(
-                        reason = why,
+                        reason = %why,
                         system = src.system,
                         component = src.component,
                         "MAVLink message rejected"
@@ -192,12 +192,12 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
             }
             if let Some(m) = magnetometer(&msg, &mut st) {
                 if r.fusion_tx.try_send(m).is_err() {
-                    r.counters.add("fusion_queue_full", 1);
+                    r.counters.add(Counter::FusionQueueFull, 1);
                 }
             }
             if let Some(m) = to_fusion(msg, src, &mut st, &r) {
                 if r.fusion_tx.try_send(m).is_err() {
-                    r.counters.add("fusion_queue_full", 1);
+                    r.counters.add(Counter::FusionQueueFull, 1);
                 }
             }
         }
@@ -206,18 +206,6 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
 
 /// The counter of a link rejection (static names: a flood of rejected
 /// frames allocates nothing).
-fn rejected_counter(why: &'static str) -> &'static str {
-    match why {
-        "non_finite" => "mavlink_rejected_non_finite",
-        "imu_out_of_range" => "mavlink_rejected_imu_out_of_range",
-        "unsigned" => "mavlink_rejected_unsigned",
-        "bad_signature" => "mavlink_rejected_bad_signature",
-        "garbage_datagram" => "mavlink_rejected_garbage_datagram",
-        "autopilot_id_from_other_address" => "mavlink_rejected_autopilot_id_from_other_address",
-        _ => "mavlink_rejected_other",
-    }
-}
-
 /// At most `WARN_PER_S` rejection warnings a second in the journal (a flood
 /// is counted whole, but not written out line by line); how many were held
 /// back is said with the next one let through.
@@ -260,18 +248,18 @@ impl WarnLimit {
 /// Why a message from someone other than the autopilot is not taken: the
 /// sensor and time messages only the autopilot may send (`None`: anyone may
 /// send it, such as a ground station's RTCM corrections or HEARTBEAT).
-fn foreign_rejection(msg: &Inbound) -> Option<&'static str> {
+fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
     Some(match msg {
-        Inbound::Imu { .. } => "mavlink_rejected_foreign_imu",
-        Inbound::Attitude { .. } => "mavlink_rejected_foreign_attitude",
-        Inbound::LocalPosition { .. } => "mavlink_rejected_foreign_local_position",
-        Inbound::GpsAccuracy { .. } => "mavlink_rejected_foreign_gps",
-        Inbound::SystemTime { .. } => "mavlink_rejected_foreign_system_time",
-        Inbound::Timesync { .. } => "mavlink_rejected_foreign_timesync",
-        Inbound::GpsGlobalOrigin { .. } => "mavlink_rejected_foreign_origin",
-        Inbound::Heartbeat { .. } => "mavlink_heartbeat_other",
-        Inbound::LandedState { .. } => "mavlink_rejected_foreign_landed_state",
-        Inbound::SimState(_) => "mavlink_rejected_foreign_sim_state",
+        Inbound::Imu { .. } => Counter::MavlinkRejectedForeignImu,
+        Inbound::Attitude { .. } => Counter::MavlinkRejectedForeignAttitude,
+        Inbound::LocalPosition { .. } => Counter::MavlinkRejectedForeignLocalPosition,
+        Inbound::GpsAccuracy { .. } => Counter::MavlinkRejectedForeignGps,
+        Inbound::SystemTime { .. } => Counter::MavlinkRejectedForeignSystemTime,
+        Inbound::Timesync { .. } => Counter::MavlinkRejectedForeignTimesync,
+        Inbound::GpsGlobalOrigin { .. } => Counter::MavlinkRejectedForeignOrigin,
+        Inbound::Heartbeat { .. } => Counter::MavlinkHeartbeatOther,
+        Inbound::LandedState { .. } => Counter::MavlinkRejectedForeignLandedState,
+        Inbound::SimState(_) => Counter::MavlinkRejectedForeignSimState,
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -290,9 +278,9 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
         } => {
             counters.add(
                 match kind {
-                    "highres" => "imu_highres",
-                    "scaled" => "imu_scaled",
-                    _ => "imu_raw",
+                    "highres" => Counter::ImuHighres,
+                    "scaled" => Counter::ImuScaled,
+                    _ => Counter::ImuRaw,
                 },
                 1,
             );
@@ -308,7 +296,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             yaw_rad,
             ..
         } => {
-            counters.add("attitude", 1);
+            counters.add(Counter::Attitude, 1);
             Some(FusionMsg::Attitude {
                 roll: roll_rad,
                 pitch: pitch_rad,
@@ -320,7 +308,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             p_ned_m,
             v_ned_mps,
         } => {
-            counters.add("local_position", 1);
+            counters.add(Counter::LocalPosition, 1);
             Some(FusionMsg::LocalPosition {
                 t_s: t_boot_ms as f64 * 1e-3,
                 p_ned_m,
@@ -328,11 +316,11 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             })
         }
         Inbound::GpsAccuracy { h_acc_m, v_acc_m } => {
-            counters.add("gps_accuracy", 1);
+            counters.add(Counter::GpsAccuracy, 1);
             Some(FusionMsg::GpsAccuracy { h_acc_m, v_acc_m })
         }
         Inbound::SimState(truth) => {
-            counters.add("sim_state", 1);
+            counters.add(Counter::SimState, 1);
             Some(FusionMsg::SimState(truth))
         }
         Inbound::Timesync { tc1_ns, ts1_ns } => {
@@ -346,7 +334,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             None
         }
         Inbound::Heartbeat { armed, kind } => {
-            counters.add("heartbeat_in", 1);
+            counters.add(Counter::HeartbeatIn, 1);
             Some(FusionMsg::VehicleState {
                 armed: Some(armed),
                 on_ground: None,
@@ -354,7 +342,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             })
         }
         Inbound::LandedState { on_ground } => {
-            counters.add("extended_sys_state", 1);
+            counters.add(Counter::ExtendedSysState, 1);
             Some(FusionMsg::VehicleState {
                 armed: None,
                 on_ground,
@@ -362,11 +350,11 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             })
         }
         Inbound::SystemTime { unix_us, boot_ms } => {
-            counters.add("system_time", 1);
+            counters.add(Counter::SystemTime, 1);
             // Unix time 0: the autopilot does not know the time yet (no
             // GPS); its boot time alone maps nothing.
             if unix_us == 0 {
-                counters.add("system_time_unset", 1);
+                counters.add(Counter::SystemTimeUnset, 1);
                 return None;
             }
             Some(FusionMsg::SystemTime { unix_us, boot_ms })
@@ -376,7 +364,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             lon_deg,
             alt_m,
         } => {
-            counters.add("gps_global_origin", 1);
+            counters.add(Counter::GpsGlobalOrigin, 1);
             Some(FusionMsg::Origin {
                 lat_deg,
                 lon_deg,
@@ -405,13 +393,13 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
         if (0..1_000_000_000).contains(&rtt) {
             let offset_us = (tc1_ns - (ts1_ns + now_ns) / 2) / 1000;
             r.mono_offset_us.store(offset_us, Ordering::Relaxed);
-            r.counters.add("timesync", 1);
+            r.counters.add(Counter::Timesync, 1);
         }
         return;
     }
     let offset_us = r.mono_offset_us.load(Ordering::Relaxed);
     if offset_us == i64::MIN {
-        r.counters.add("timesync_request_unanswered", 1);
+        r.counters.add(Counter::TimesyncRequestUnanswered, 1);
         return;
     }
     let reply = Outbound::TimesyncReply {
@@ -419,9 +407,9 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
         ts1_ns,
     };
     if r.out_tx.try_send(reply).is_ok() {
-        r.counters.add("timesync_reply", 1);
+        r.counters.add(Counter::TimesyncReply, 1);
     } else {
-        r.counters.add("output_queue_full", 1);
+        r.counters.add(Counter::OutputQueueFull, 1);
     }
 }
 
@@ -431,37 +419,37 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
 fn on_rtcm_fragment(flags: u8, data: &[u8], src: Source, st: &mut RxState, r: &Receive) {
     let counters = &r.counters;
     if !st.reasm.contains_key(&src) && st.reasm.len() >= MAX_RTCM_SOURCES {
-        counters.add("rtcm_sources_full", 1);
+        counters.add(Counter::RtcmSourcesFull, 1);
         return;
     }
     let mut got = st.reasm.entry(src).or_default().push(flags, data);
     loop {
         match got {
             Reassembled::Message(m) => {
-                counters.add("rtcm_messages", 1);
-                counters.add("rtcm_bytes", m.len() as u64);
+                counters.add(Counter::RtcmMessages, 1);
+                counters.add(Counter::RtcmBytes, m.len() as u64);
                 // Every stream goes on, told apart: only the vehicle's own
                 // may hold the rover's observations (by their station id).
                 let stream = if src.system == st.vehicle {
                     RtcmStream::LinkVehicle
                 } else {
-                    counters.add("rtcm_other_source", 1);
+                    counters.add(Counter::RtcmOtherSource, 1);
                     RtcmStream::LinkOther
                 };
                 if r.fusion_tx.try_send(FusionMsg::Rtcm { bytes: m, stream }).is_err() {
-                    counters.add("fusion_queue_full", 1);
+                    counters.add(Counter::FusionQueueFull, 1);
                 }
                 break;
             }
             Reassembled::Pending => break,
             Reassembled::Rejected(why) => {
                 counters.add(why, 1);
-                tracing::warn!(reason = why, "RTCM fragment rejected");
+                tracing::warn!(reason = %why, "RTCM fragment rejected");
                 break;
             }
             Reassembled::Dropped { reason, then } => {
                 counters.add(reason, 1);
-                tracing::warn!(reason, "RTCM sequence dropped: a fragment is missing");
+                tracing::warn!(reason = %reason, "RTCM sequence dropped: a fragment is missing");
                 got = *then;
             }
         }
@@ -479,12 +467,12 @@ pub(super) fn spawn_sender(
             match link.send(&m).await {
                 Ok(true) => {
                     if m.is_estimate() {
-                        counters.add("estimates_sent", 1);
+                        counters.add(Counter::EstimatesSent, 1);
                     }
                 }
-                Ok(false) => counters.add("mavlink_send_no_autopilot", 1),
+                Ok(false) => counters.add(Counter::MavlinkSendNoAutopilot, 1),
                 Err(e) => {
-                    counters.add("mavlink_send_error", 1);
+                    counters.add(Counter::MavlinkSendError, 1);
                     tracing::debug!(error = %e, "send failed");
                 }
             }

@@ -7,10 +7,10 @@ use serde_json::json;
 
 use super::fusion::{Fusion, Pending};
 use super::rebase::dispatch_rebase;
+use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, FilterEvent, FrameReport};
 use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::Counters;
 
 impl Fusion {
     /// The measurements now covered by IMU (up to `t_imu_s`), in time order.
@@ -36,7 +36,7 @@ impl Fusion {
             };
             let Some(est) = self.est.as_ref() else { return };
             if is_frame && t_fused < est.time_s() {
-                counters.add("feature_late", 1);
+                counters.add(Counter::FeatureLate, 1);
                 continue;
             }
             match item {
@@ -65,25 +65,25 @@ impl Fusion {
                         }),
                     );
                 }
-                counters.add("gnss_epochs_fused", 1);
+                counters.add(Counter::GnssEpochsFused, 1);
                 self.tracker.gnss_fused(t);
-                let codes_rejected = ["gnss_pseudorange_chi2", "gnss_pseudorange_outlier"]
+                let codes_rejected = [Counter::GnssPseudorangeChi2, Counter::GnssPseudorangeOutlier]
                     .iter()
                     .filter_map(|k| rep.rejected.get(k))
                     .sum::<u64>();
                 self.tracker.gnss_codes_rejected(t, codes_rejected);
-                counters.add("gnss_pseudoranges_used", rep.pseudoranges_used as u64);
-                counters.add("gnss_range_rates_used", rep.range_rates_used as u64);
+                counters.add(Counter::GnssPseudorangesUsed, rep.pseudoranges_used as u64);
+                counters.add(Counter::GnssRangeRatesUsed, rep.range_rates_used as u64);
                 for (k, v) in &rep.rejected {
-                    counters.add(k, *v);
+                    counters.add(*k, *v);
                 }
             }
             Err(e @ crate::estimator::InputError::GnssLate { .. }) => {
-                counters.add("gnss_late", 1);
+                counters.add(Counter::GnssLate, 1);
                 tracing::warn!(reason = "gnss_late", error = %e, "GNSS epoch too late to fuse");
             }
             Err(e) => {
-                counters.add("gnss_rejected", 1);
+                counters.add(Counter::GnssRejected, 1);
                 tracing::warn!(error = %e, "GNSS epoch rejected");
             }
         }
@@ -94,10 +94,10 @@ impl Fusion {
     fn fuse_frame(&mut self, t: f64, fr: &NormFrame, counters: &Counters) {
         let rej = fr.rejects;
         for (name, n) in [
-            ("feature_non_finite", rej.non_finite),
-            ("feature_outside_image", rej.outside_image),
-            ("feature_undistort_failed", rej.undistort_failed),
-            ("feature_duplicate_id", rej.duplicate_id),
+            (Counter::FeatureNonFinite, rej.non_finite),
+            (Counter::FeatureOutsideImage, rej.outside_image),
+            (Counter::FeatureUndistortFailed, rej.undistort_failed),
+            (Counter::FeatureDuplicateId, rej.duplicate_id),
         ] {
             if n > 0 {
                 counters.add(name, n);
@@ -114,28 +114,28 @@ impl Fusion {
                     log_frame(l, est, t, fr.obs.len(), &rep, elapsed_us);
                     self.landmarks.push(l, t, &rep.landmarks_W);
                 }
-                counters.add("frames_processed", 1);
+                counters.add(Counter::FramesProcessed, 1);
                 self.tracker.frame_processed(t);
-                counters.add("tracks_used", rep.tracks_used as u64);
-                counters.add("global_updates", rep.global_updates as u64);
+                counters.add(Counter::TracksUsed, rep.tracks_used as u64);
+                counters.add(Counter::GlobalUpdates, rep.global_updates as u64);
                 if rep.loop_closure_tracks > 0 {
                     // Tracks that reached back to a keyframe: revisits.
-                    counters.add("loop_closure_tracks", rep.loop_closure_tracks as u64);
+                    counters.add(Counter::LoopClosureTracks, rep.loop_closure_tracks as u64);
                 }
                 if rep.promoted > 0 {
-                    counters.add("keyframes_promoted", rep.promoted as u64);
+                    counters.add(Counter::KeyframesPromoted, rep.promoted as u64);
                 }
                 if rep.deferred > 0 {
                     // Loop-closure observations left for a later track while
                     // a rebase was computing the global part.
-                    counters.add("loop_closure_deferred", rep.deferred as u64);
+                    counters.add(Counter::LoopClosureDeferred, rep.deferred as u64);
                 }
                 for (k, v) in &rep.rejected {
-                    counters.add(&format!("track_rejected_{k}"), *v);
+                    counters.add(k.counter(), *v);
                 }
             }
             Err(e) => {
-                counters.add("frame_rejected", 1);
+                counters.add(Counter::FrameRejected, 1);
                 tracing::warn!(error = %e, "frame rejected");
             }
         }

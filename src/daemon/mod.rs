@@ -48,13 +48,14 @@ use nalgebra::Vector3;
 use tokio::sync::{mpsc, watch};
 
 use crate::config::{Config, GnssSource};
+use crate::counters::Counters;
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::ImuMeas;
 use crate::io::feature_pipe::{self, FeatureFrame};
 use crate::io::mavlink as mav;
 use crate::io::mcap_log::{LogAlarm, McapLogger};
+pub use crate::io::messages::RtcmStream;
 use crate::io::messages::{AutopilotKind, Outbound};
-use crate::io::Counters;
 use crate::status::Status;
 
 pub use fusion::{Ctx, Fusion};
@@ -164,34 +165,6 @@ pub enum FusionMsg {
     RebaseInstalled {
         seq: u64,
     },
-}
-
-/// Where RTCM reached the daemon, and so what its observations may be.
-/// `GPS_RTCM_DATA` normally carries a base station's corrections to the
-/// autopilot; a receiver wired to the companion is the rover itself.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum RtcmStream {
-    /// The receiver on the companion (`gnss.source = "stream"`): the
-    /// rover's own, whatever its station id.
-    Receiver,
-    /// `GPS_RTCM_DATA` from the vehicle's system id: the rover's only when
-    /// its station id is `gnss.rover_station_id` (and it announces no
-    /// antenna position, as a base does); else a base station's.
-    LinkVehicle,
-    /// `GPS_RTCM_DATA` from another system (a ground station injecting a
-    /// base's corrections): never the rover's.
-    LinkOther,
-}
-
-impl RtcmStream {
-    /// The name logged for replay.
-    pub fn name(self) -> &'static str {
-        match self {
-            RtcmStream::Receiver => "receiver",
-            RtcmStream::LinkVehicle => "link_vehicle",
-            RtcmStream::LinkOther => "link_other",
-        }
-    }
 }
 
 /// Bound of the fusion input channel (≈ 8 s of 1 kHz IMU).

@@ -16,12 +16,12 @@ use tokio::sync::mpsc;
 use super::fusion::Fusion;
 use super::records;
 use crate::config::{OutputMessage, PoseCovariance, YawSource};
+use crate::counters::{Counter, Counters};
 use crate::estimator::math::skew;
 use crate::estimator::propagate::{BG, P as P_OFF, TH, V};
 use crate::estimator::{Estimator, ImuMeas, ImuState, Mat15};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::{AutopilotKind, Outbound};
-use crate::io::Counters;
 
 impl Fusion {
     /// Sends the estimate at the configured rate of autopilot time, predicted
@@ -78,7 +78,7 @@ impl Fusion {
         }
         for o in outputs(&snap, self.cfg.output.message) {
             if out.try_send(o).is_err() {
-                counters.add("output_queue_full", 1);
+                counters.add(Counter::OutputQueueFull, 1);
             }
         }
     }

@@ -6,12 +6,11 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use serde_json::json;
-
 use crate::config::Config;
+use crate::counters::{Counter, Counters};
 use crate::estimator::{Estimator, RebaseJob, RebaseResult};
-use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::Counters;
+use crate::io::mcap_log::input::{InputRecord, RebaseRecord};
+use crate::io::mcap_log::McapLogger;
 
 /// What the rebase thread is asked to do.
 pub(super) enum RebaseWork {
@@ -103,7 +102,7 @@ impl RebaseExec {
             match est.as_deref_mut() {
                 Some(est) if gen == site.est_gen => match est.install_rebase(res) {
                     Ok(job) => {
-                        counters.add("rebases_installed", 1);
+                        counters.add(Counter::RebasesInstalled, 1);
                         if let Some(job) = job {
                             // If the worker is gone the job is freed here.
                             let _ = tx.send(RebaseWork::Free(job));
@@ -111,19 +110,20 @@ impl RebaseExec {
                         if let Some(l) = site.log {
                             // With the worker's wall time for the job (replay
                             // reads only the sequence number).
-                            l.log(
-                                Topic::InputRebase,
-                                site.t_s,
-                                &json!({"seq": seq, "compute_ms": compute_ms, "global_keyframes": est.n_global_keyframes()}),
-                            );
+                            let rec = InputRecord::RebaseInstalled(RebaseRecord {
+                                seq,
+                                compute_ms: Some(compute_ms),
+                                global_keyframes: Some(est.n_global_keyframes()),
+                            });
+                            l.log(rec.topic(), site.t_s, &rec);
                         }
                     }
                     Err(e) => {
-                        counters.add("rebase_stale", 1);
+                        counters.add(Counter::RebaseStale, 1);
                         tracing::warn!(error = %e, "rebase result not installed");
                     }
                 },
-                _ => counters.add("rebase_stale", 1),
+                _ => counters.add(Counter::RebaseStale, 1),
             }
         }
     }
@@ -134,10 +134,15 @@ impl RebaseExec {
         if let RebaseExec::Logged { held } = self {
             if let (Some(res), Some(est)) = (held.take(), site.est) {
                 if let Some(l) = site.log {
-                    l.log(Topic::InputRebase, site.t_s, &json!({ "seq": seq }));
+                    let rec = InputRecord::RebaseInstalled(RebaseRecord {
+                        seq,
+                        compute_ms: None,
+                        global_keyframes: None,
+                    });
+                    l.log(rec.topic(), site.t_s, &rec);
                 }
                 if est.install_rebase(res).is_ok() {
-                    counters.add("rebases_installed", 1);
+                    counters.add(Counter::RebasesInstalled, 1);
                 }
             }
         }
@@ -151,14 +156,14 @@ pub(super) fn dispatch_rebase(rebase: &mut RebaseExec, est_gen: u64, est: &mut E
     let Some(job) = est.take_rebase_job() else {
         return;
     };
-    counters.add("rebases_started", 1);
+    counters.add(Counter::RebasesStarted, 1);
     // A job not handed to the worker runs here and now.
     let here = match rebase {
         RebaseExec::Thread { tx, .. } => match tx.send(RebaseWork::Run(est_gen, job)) {
             Ok(()) => None,
             Err(std::sync::mpsc::SendError(work)) => {
                 // The worker is gone: compute it here rather than never.
-                counters.add("rebase_thread_lost", 1);
+                counters.add(Counter::RebaseThreadLost, 1);
                 match work {
                     RebaseWork::Run(_, job) => Some(job),
                     RebaseWork::Free(_) => None,

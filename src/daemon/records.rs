@@ -1,25 +1,10 @@
-//! The log records of the channels written at IMU or camera rate, serialised
-//! straight from borrowed data: building a `serde_json::Value` first costs
-//! an allocation per field and per feature. The JSON is that of the
-//! channels' schemas (`io::mcap_log`).
+//! The log records of the output channels written at IMU or camera rate
+//! (poses, transforms, the estimate sent), serialised straight from
+//! borrowed data: building a `serde_json::Value` first costs an allocation
+//! per field. The JSON is that of the channels' schemas (`io::mcap_log`);
+//! the inputs' records are `io::mcap_log::input`.
 
 use serde::Serialize;
-
-#[derive(Serialize)]
-pub struct Imu<'a> {
-    pub t_us: u64,
-    pub accel_mps2: &'a [f64],
-    pub gyro_radps: &'a [f64],
-}
-
-#[derive(Serialize)]
-pub struct Features<'a> {
-    pub t_us: u64,
-    pub t_ap_us: i64,
-    pub cam: u32,
-    /// `[landmark_id, u_px, v_px]` each.
-    pub features: &'a [(u64, f64, f64)],
-}
 
 #[derive(Clone, Copy, Serialize)]
 pub struct Stamp {

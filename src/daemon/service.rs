@@ -13,7 +13,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::FusionMsg;
-use crate::io::Counters;
+use crate::counters::{Counter, Counters};
 
 /// Says `READY=1` and spawns the watchdog pinger (a task that ends at once
 /// when no watchdog is set). `progress` counts the inputs the fusion thread
@@ -38,13 +38,13 @@ pub(super) fn spawn_notifier(
             let now = progress.load(Ordering::Relaxed);
             let waiting = fusion_tx.upgrade().map_or(0, |tx| tx.max_capacity() - tx.capacity());
             if now == last && waiting > 0 {
-                counters.add("watchdog_withheld", 1);
+                counters.add(Counter::WatchdogWithheld, 1);
                 tracing::error!(waiting, "the fusion thread takes no input: the watchdog is not pinged");
                 continue;
             }
             last = now;
             if sd_notify::notify(&[NotifyState::Watchdog]).is_ok() {
-                counters.add("watchdog_pings", 1);
+                counters.add(Counter::WatchdogPings, 1);
             }
         }
         let _ = sd_notify::notify(&[NotifyState::Stopping]);

@@ -11,8 +11,8 @@ use tokio::task::JoinHandle;
 
 use super::FusionMsg;
 use crate::config::Config;
+use crate::counters::{Counter, Counters};
 use crate::io::mavlink::Link;
-use crate::io::Counters;
 use crate::status::{Degraded, Status};
 
 /// An autopilot heard but without IMU this long after the start is warned
@@ -52,9 +52,9 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
             if silent >= down_after && down_since.is_none() {
                 down_since = Some(silent);
                 w.status.set_io(Degraded::LinkDown, true);
-                w.counters.add("link_down", 1);
+                w.counters.add(Counter::LinkDown, 1);
                 if link.forget_peer() {
-                    w.counters.add("mavlink_autopilot_address_stale", 1);
+                    w.counters.add(Counter::MavlinkAutopilotAddressStale, 1);
                 }
                 if heard.is_none() {
                     tracing::error!(
@@ -73,7 +73,7 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
             } else if silent < down_after && down_since.is_some() {
                 down_since = None;
                 w.status.set_io(Degraded::LinkDown, false);
-                w.counters.add("link_up", 1);
+                w.counters.add(Counter::LinkUp, 1);
                 tracing::warn!("MAVLink link up again");
                 let _ = w.fusion_tx.try_send(FusionMsg::LinkState {
                     up: true,
@@ -81,10 +81,12 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
                 });
             }
             // Heard, but no IMU: the stream requests go unanswered.
-            let imu = w.counters.get("imu_highres") + w.counters.get("imu_scaled") + w.counters.get("imu_raw");
+            let imu = w.counters.get(Counter::ImuHighres)
+                + w.counters.get(Counter::ImuScaled)
+                + w.counters.get(Counter::ImuRaw);
             if !imu_warned && heard.is_some() && imu == 0 && w.start.elapsed() > IMU_EXPECTED_WITHIN {
                 imu_warned = true;
-                w.counters.add("autopilot_sends_no_imu", 1);
+                w.counters.add(Counter::AutopilotSendsNoImu, 1);
                 tracing::error!(
                     %address,
                     "the autopilot on {address} sends no IMU (HIGHRES_IMU, SCALED_IMU or RAW_IMU) although asked: \

@@ -6,6 +6,7 @@
 //! [`Estimator::ekf_update`]; nothing else writes `P` except the compressed
 //! machinery of `compressed/`, which owns the global part.
 
+use crate::counters::Counter;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::math::{self, exp_so3};
@@ -171,7 +172,7 @@ impl Estimator {
         let hp = h_times(self.P.select_rows(cols));
         let s = hp.select_columns(cols) * h.transpose() + DMatrix::identity(m, m);
         let Some(solver) = math::LowerSolver::cholesky(s) else {
-            *self.stats.rejected.entry("update_not_pd").or_default() += 1;
+            *self.stats.rejected.entry(Counter::UpdateNotPd).or_default() += 1;
             return;
         };
         // S = L Lᵀ. One blocked solve of L X = [H P | H Φ̃ | r] gives

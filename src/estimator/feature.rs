@@ -2,6 +2,7 @@
 //! Jacobians, and the projection onto the left null space of `H_f`
 //! (README.md §3).
 
+use crate::counters::Counter;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, Vector2, Vector3};
 
 use super::math::skew;
@@ -36,8 +37,9 @@ pub struct Obs {
     pub W: Matrix2<f64>,
 }
 
-/// Why a track was not used.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+/// Why a track was not used. Ordered by name, as the log's `rejected`
+/// objects list them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Reject {
     TooFewObservations,
     NonFinite,
@@ -57,6 +59,36 @@ impl Reject {
             Reject::NotConverged => "not_converged",
             Reject::Chi2 => "chi2",
         }
+    }
+
+    /// The daemon's counter of tracks rejected for this reason.
+    pub fn counter(self) -> Counter {
+        match self {
+            Reject::TooFewObservations => Counter::TrackRejectedTooFewObservations,
+            Reject::NonFinite => Counter::TrackRejectedNonFinite,
+            Reject::PoorParallax => Counter::TrackRejectedPoorParallax,
+            Reject::BadDepth => Counter::TrackRejectedBadDepth,
+            Reject::NotConverged => Counter::TrackRejectedNotConverged,
+            Reject::Chi2 => Counter::TrackRejectedChi2,
+        }
+    }
+}
+
+impl PartialOrd for Reject {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Reject {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.name().cmp(other.name())
+    }
+}
+
+impl serde::Serialize for Reject {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
     }
 }
 

@@ -15,6 +15,7 @@
 //! is refused and counted as `gnss_late`. Everything here involves only
 //! local states, so in compressed mode it is a local update.
 
+use crate::counters::Counter;
 use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector, SMatrix, Vector3};
@@ -35,7 +36,7 @@ use super::{
 pub struct GnssReport {
     pub pseudoranges_used: usize,
     pub range_rates_used: usize,
-    pub rejected: BTreeMap<&'static str, u64>,
+    pub rejected: BTreeMap<Counter, u64>,
     /// `(prn, pseudorange residual m, range-rate residual m/s)` before the update.
     pub residuals: Vec<(u8, Option<f64>, Option<f64>)>,
     pub clock_initialised: bool,
@@ -63,7 +64,7 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 }
 
 /// Counts a rejected GNSS measurement in the epoch's report and the stats.
-fn reject(rep: &mut GnssReport, st: &mut Stats, why: &'static str) {
+fn reject(rep: &mut GnssReport, st: &mut Stats, why: Counter) {
     *rep.rejected.entry(why).or_default() += 1;
     *st.rejected.entry(why).or_default() += 1;
 }
@@ -172,7 +173,7 @@ impl Estimator {
             rep.late_s = (self.t_s - t_s).max(0.0);
             EpochStates::Clone(i)
         } else if !t_s.is_finite() || t_s >= self.t_s {
-            self.advance_to(t_s, "gnss_time_invalid")?;
+            self.advance_to(t_s, Counter::GnssTimeInvalid)?;
             EpochStates::Live
         } else if !self.clock_initialised && self.t_s - t_s <= self.s.gnss_max_delay_s {
             // The very first epoch has no clone (no grid yet): it only sets
@@ -185,7 +186,7 @@ impl Estimator {
             self.init_clock_states(frame, sats, &nom, &mut rep);
             return Ok(rep);
         } else {
-            *self.stats.rejected.entry("gnss_late").or_default() += 1;
+            *self.stats.rejected.entry(Counter::GnssLate).or_default() += 1;
             self.stats.gnss_epochs_late += 1;
             return Err(InputError::GnssLate {
                 t_s,
@@ -251,8 +252,8 @@ impl Estimator {
         // Again: the clock may just have been set.
         let (nom, cols, f) = self.epoch_states(states, t_s);
         let mut rows = self.gnss_rows(frame, sats, &nom, &cols, rep);
-        let pr_rejected = rep.rejected.get("gnss_pseudorange_chi2").copied().unwrap_or(0)
-            + rep.rejected.get("gnss_pseudorange_outlier").copied().unwrap_or(0);
+        let pr_rejected = rep.rejected.get(&Counter::GnssPseudorangeChi2).copied().unwrap_or(0)
+            + rep.rejected.get(&Counter::GnssPseudorangeOutlier).copied().unwrap_or(0);
         self.monitor.push_gnss(rep.pseudoranges_used, pr_rejected as usize);
         if rows.is_empty() {
             return false;
@@ -468,7 +469,7 @@ impl Estimator {
         rows: &mut Vec<GnssRow>,
     ) {
         if pred.elevation_rad < self.s.elevation_mask_deg.to_radians() {
-            reject(rep, &mut self.stats, "gnss_below_mask");
+            reject(rep, &mut self.stats, Counter::GnssBelowMask);
             return;
         }
         let sin_el = pred.elevation_rad.sin().max(0.1);
@@ -487,12 +488,12 @@ impl Estimator {
             let r = z - pred.pseudorange_m;
             res.1 = Some(r);
             if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * sigma) {
-                reject(rep, &mut self.stats, "gnss_pseudorange_outlier");
+                reject(rep, &mut self.stats, Counter::GnssPseudorangeOutlier);
             } else if let Some(row) = gated(&pred.h_pseudorange, r, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.pseudoranges_used += 1;
             } else {
-                reject(rep, &mut self.stats, "gnss_pseudorange_chi2");
+                reject(rep, &mut self.stats, Counter::GnssPseudorangeChi2);
             }
         }
         if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {
@@ -503,7 +504,7 @@ impl Estimator {
                 rows.push(row);
                 rep.range_rates_used += 1;
             } else {
-                reject(rep, &mut self.stats, "gnss_range_rate_chi2");
+                reject(rep, &mut self.stats, Counter::GnssRangeRateChi2);
             }
         }
         rep.residuals.push(res);

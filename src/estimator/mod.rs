@@ -39,6 +39,7 @@ pub mod settings;
 mod snapshot;
 mod zupt;
 
+use crate::counters::Counter;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use compressed::Global;
@@ -48,6 +49,7 @@ use cmsckf_models::gnss::System;
 use nalgebra::{DMatrix, Matrix6, UnitQuaternion, Vector3};
 
 use covariance::position_sigma_m;
+pub use feature::Reject;
 pub use frontend::NormObs;
 pub use gnss_update::{GnssReport, GNSS_CLONE_DIM};
 use math::exp_so3;
@@ -211,7 +213,7 @@ pub struct Stats {
     pub imu_samples: u64,
     pub frames: u64,
     pub tracks_used: u64,
-    pub rejected: BTreeMap<&'static str, u64>,
+    pub rejected: BTreeMap<Counter, u64>,
     pub updates: u64,
     pub loop_closure_updates: u64,
     pub global_updates: u64,
@@ -278,7 +280,7 @@ pub enum FilterEvent {
 pub struct FrameReport {
     pub events: Vec<FilterEvent>,
     pub tracks_used: usize,
-    pub rejected: BTreeMap<&'static str, u64>,
+    pub rejected: BTreeMap<Reject, u64>,
     /// NIS of each accepted track with its degrees of freedom.
     pub nis: Vec<(f64, usize)>,
     pub residual_rms: f64,

@@ -6,6 +6,7 @@
 //! a landmark held by a keyframe also constrains that keyframe (§4); in
 //! compressed mode a global keyframe is first made local (§5 P1–P3).
 
+use crate::counters::Counter;
 use std::collections::BTreeSet;
 
 use nalgebra::{DMatrix, DVector, Matrix3};
@@ -39,8 +40,8 @@ struct GateCache {
 
 /// Counts a rejected track in the frame's report and the filter's stats.
 fn reject(rep: &mut FrameReport, st: &mut Stats, r: Reject) {
-    *rep.rejected.entry(r.name()).or_default() += 1;
-    *st.rejected.entry(r.name()).or_default() += 1;
+    *rep.rejected.entry(r).or_default() += 1;
+    *st.rejected.entry(r.counter()).or_default() += 1;
 }
 
 impl Estimator {
@@ -50,7 +51,7 @@ impl Estimator {
     /// just past) that time must have been added.
     pub fn process_frame(&mut self, t_cam_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
         let t_s = t_cam_s + self.t_d_s;
-        self.advance_to(t_s, "frame_time_backwards")?;
+        self.advance_to(t_s, Counter::FrameTimeBackwards)?;
         self.stats.frames += 1;
         let mut report = FrameReport::default();
         self.global_update_if_due(&mut report);
@@ -92,7 +93,7 @@ impl Estimator {
         // triangulate to a depth or a fit (§9 D1).
         let inconsistent = [Reject::Chi2, Reject::BadDepth, Reject::NotConverged]
             .iter()
-            .filter_map(|r| report.rejected.get(r.name()))
+            .filter_map(|r| report.rejected.get(r))
             .sum::<u64>();
         self.monitor.push_frame(t_s, &report.nis, inconsistent);
         Ok(report)

@@ -8,6 +8,7 @@
 //! nominal state and the clock through them (the covariance step itself is
 //! `covariance.rs`'s), and the low-latency prediction the outputs use.
 
+use crate::counters::Counter;
 use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 
 use super::math::{exp_so3, skew};
@@ -187,7 +188,7 @@ impl Estimator {
             && m.accel_mps2.iter().all(|v| v.is_finite())
             && m.gyro_radps.iter().all(|v| v.is_finite()))
         {
-            *self.stats.rejected.entry("imu_non_finite").or_default() += 1;
+            *self.stats.rejected.entry(Counter::ImuNonFinite).or_default() += 1;
             return Err(InputError::NonFiniteImu(m.t_s));
         }
         let prev = self
@@ -197,7 +198,7 @@ impl Estimator {
             .or(self.last_meas.map(|l| l.t_s))
             .unwrap_or(f64::NEG_INFINITY);
         if m.t_s <= prev {
-            *self.stats.rejected.entry("imu_time_backwards").or_default() += 1;
+            *self.stats.rejected.entry(Counter::ImuTimeBackwards).or_default() += 1;
             return Err(InputError::ImuTimeBackwards {
                 t_s: m.t_s,
                 prev_s: prev,
@@ -217,7 +218,7 @@ impl Estimator {
         let mut res = Ok(());
         if self.imu_buf.len() == IMU_BUFFER_CAP {
             self.imu_buf.pop_front();
-            *self.stats.rejected.entry("imu_overflow").or_default() += 1;
+            *self.stats.rejected.entry(Counter::ImuOverflow).or_default() += 1;
             res = Err(InputError::ImuOverflow(IMU_BUFFER_CAP));
         }
         self.imu_buf.push_back(m);
@@ -348,7 +349,7 @@ impl Estimator {
 
     /// Brings the filter to a measurement at `t_s`, which must not be in
     /// its past (else it is counted under `counter` and refused).
-    pub(super) fn advance_to(&mut self, t_s: f64, counter: &'static str) -> Result<(), InputError> {
+    pub(super) fn advance_to(&mut self, t_s: f64, counter: Counter) -> Result<(), InputError> {
         if !t_s.is_finite() || t_s < self.t_s {
             *self.stats.rejected.entry(counter).or_default() += 1;
             return Err(InputError::FrameTimeBackwards {

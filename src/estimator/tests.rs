@@ -390,7 +390,12 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
     let t0 = est.time_s();
     // (The simulated camera stamps its first frame before the first IMU
     // sample: already refused once.)
-    let backwards_before = est.stats.rejected.get("frame_time_backwards").copied().unwrap_or(0);
+    let backwards_before = est
+        .stats
+        .rejected
+        .get(&crate::counters::Counter::FrameTimeBackwards)
+        .copied()
+        .unwrap_or(0);
     let obs = |id: u64, x: f64, y: f64| NormObs {
         landmark_id: id,
         xn: nalgebra::Vector2::new(x, y),
@@ -404,12 +409,18 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
     est.process_frame(t0 + 0.004, &[obs(900_002, 0.0, 0.0)]).unwrap();
     let rep = est.process_frame(t0 + 0.005, &[]).unwrap();
     assert!(
-        est.stats.rejected.get("too_few_observations").copied().unwrap_or(0) >= 1,
+        est.stats
+            .rejected
+            .get(&crate::counters::Counter::TrackRejectedTooFewObservations)
+            .copied()
+            .unwrap_or(0)
+            >= 1,
         "{:?}",
         est.stats.rejected
     );
     assert!(
-        rep.rejected.contains_key("poor_parallax") || rep.rejected.contains_key("bad_depth"),
+        rep.rejected.contains_key(&crate::estimator::Reject::PoorParallax)
+            || rep.rejected.contains_key(&crate::estimator::Reject::BadDepth),
         "{:?}",
         rep.rejected
     );
@@ -446,10 +457,16 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
             gyro_radps: Vector3::zeros()
         })
         .is_err());
-    assert_eq!(est.stats.rejected.get("imu_non_finite"), Some(&1));
-    assert_eq!(est.stats.rejected.get("imu_time_backwards"), Some(&1));
     assert_eq!(
-        est.stats.rejected.get("frame_time_backwards"),
+        est.stats.rejected.get(&crate::counters::Counter::ImuNonFinite),
+        Some(&1)
+    );
+    assert_eq!(
+        est.stats.rejected.get(&crate::counters::Counter::ImuTimeBackwards),
+        Some(&1)
+    );
+    assert_eq!(
+        est.stats.rejected.get(&crate::counters::Counter::FrameTimeBackwards),
         Some(&(backwards_before + 1))
     );
     est.check_health().unwrap();

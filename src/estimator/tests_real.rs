@@ -273,7 +273,7 @@ fn late_gnss_over_a_flight_is_fused_not_dropped() {
     let err = est.process_gnss(est.time_s() - 1.5, &frame, &[s]).unwrap_err();
     assert!(matches!(err, InputError::GnssLate { .. }), "{err}");
     assert_eq!(est.stats.gnss_epochs_late, 1);
-    assert_eq!(est.stats.rejected.get("gnss_late"), Some(&1));
+    assert_eq!(est.stats.rejected.get(&crate::counters::Counter::GnssLate), Some(&1));
     assert_eq!(est.snapshot().max_rel_diff(&before), 0.0);
 }
 
@@ -291,10 +291,14 @@ fn standstill_is_held_by_zero_velocity_updates() {
     let mut inconsistent = 0;
     for k in 0..ds.frames.len() {
         let (_, rep) = run.step_frame(k);
-        inconsistent += ["chi2", "bad_depth", "not_converged"]
-            .iter()
-            .filter_map(|r| rep.rejected.get(*r))
-            .sum::<u64>();
+        inconsistent += [
+            crate::estimator::Reject::Chi2,
+            crate::estimator::Reject::BadDepth,
+            crate::estimator::Reject::NotConverged,
+        ]
+        .iter()
+        .filter_map(|r| rep.rejected.get(r))
+        .sum::<u64>();
         if p1.is_none() && run.est.time_s() >= 1.0 {
             p1 = Some(run.est.imu_state().p_B_in_W);
         }
@@ -440,7 +444,10 @@ fn the_epoch_grid_is_learnt_from_the_epochs() {
     assert!(est.n_gnss_clones() <= 6, "clones {}", est.n_gnss_clones());
     // A NaN epoch time: refused, counted, no panic.
     assert!(est.process_gnss(f64::NAN, &frame, &sats).is_err());
-    assert_eq!(est.stats.rejected.get("gnss_time_invalid"), Some(&1));
+    assert_eq!(
+        est.stats.rejected.get(&crate::counters::Counter::GnssTimeInvalid),
+        Some(&1)
+    );
     // A tag a day ahead teaches the grid nothing (its period and last
     // epoch stay), and the filter survives the day of dead reckoning.
     let grid = est.gnss_grid.map(|g| (g.period_s, g.last_epoch_s));

@@ -12,6 +12,7 @@
 //! moving in the image since the last clone, the estimated speed small, and
 //! the update itself passing its χ² gate.
 
+use crate::counters::Counter;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::propagate::{BG, V};
@@ -112,7 +113,7 @@ impl Estimator {
         };
         let nis = r.dot(&ch.solve(&r));
         if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6) {
-            *self.stats.rejected.entry("zupt_chi2").or_default() += 1;
+            *self.stats.rejected.entry(Counter::ZuptChi2).or_default() += 1;
             return false;
         }
         self.ekf_update(&h, &cols, &r, false);

@@ -6,6 +6,8 @@
 //! bytes, or after the 4th. A sequence with a missing fragment is dropped
 //! and counted.
 
+use crate::counters::Counter;
+
 /// Largest fragment payload (bytes).
 pub const FRAGMENT_LEN: usize = 180;
 
@@ -18,12 +20,9 @@ pub enum Reassembled {
     Pending,
     /// A sequence was abandoned because a fragment was missing; the new
     /// fragment was then taken as usual (`then`).
-    Dropped {
-        reason: &'static str,
-        then: Box<Reassembled>,
-    },
+    Dropped { reason: Counter, then: Box<Reassembled> },
     /// The fragment itself is unusable.
-    Rejected(&'static str),
+    Rejected(Counter),
 }
 
 /// The reassembler state (bounded: at most 4 × 180 bytes).
@@ -49,7 +48,7 @@ impl Reassembler {
     /// Feeds one fragment (`data` is the used part, `len` bytes).
     pub fn push(&mut self, flags: u8, data: &[u8]) -> Reassembled {
         if data.len() > FRAGMENT_LEN {
-            return Reassembled::Rejected("rtcm_fragment_too_long");
+            return Reassembled::Rejected(Counter::RtcmFragmentTooLong);
         }
         if flags & 1 == 0 {
             // Not fragmented: a whole message on its own.
@@ -77,7 +76,7 @@ impl Reassembler {
                 // The rest of this sequence is lost with it.
                 self.skip = Some(seq);
                 return Reassembled::Dropped {
-                    reason: "rtcm_fragment_missing",
+                    reason: Counter::RtcmFragmentMissing,
                     then: Box::new(Reassembled::Pending),
                 };
             }
@@ -86,7 +85,7 @@ impl Reassembler {
             self.skip = Some(seq);
             // The start of this sequence was lost.
             Reassembled::Dropped {
-                reason: "rtcm_fragment_missing",
+                reason: Counter::RtcmFragmentMissing,
                 then: Box::new(Reassembled::Pending),
             }
         } else {
@@ -110,11 +109,11 @@ impl Reassembler {
         }
     }
 
-    fn abandon(&mut self) -> Option<&'static str> {
+    fn abandon(&mut self) -> Option<Counter> {
         let had = self.seq.take().is_some();
         self.buf.clear();
         self.next_frag = 0;
-        had.then_some("rtcm_fragment_missing")
+        had.then_some(Counter::RtcmFragmentMissing)
     }
 }
 
@@ -158,7 +157,7 @@ mod tests {
             matches!(
                 got,
                 Reassembled::Dropped {
-                    reason: "rtcm_fragment_missing",
+                    reason: Counter::RtcmFragmentMissing,
                     ..
                 }
             ),
@@ -166,6 +165,9 @@ mod tests {
         );
         // A new sequence starts cleanly.
         assert_eq!(r.push(frag(2, 0), &[5; 20]), Reassembled::Message(vec![5; 20]));
-        assert_eq!(r.push(0, &[0; 181]), Reassembled::Rejected("rtcm_fragment_too_long"));
+        assert_eq!(
+            r.push(0, &[0; 181]),
+            Reassembled::Rejected(Counter::RtcmFragmentTooLong)
+        );
     }
 }

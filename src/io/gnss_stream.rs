@@ -10,7 +10,7 @@ use std::time::Duration;
 use tokio::io::AsyncReadExt;
 use tokio::sync::{mpsc, watch};
 
-use crate::io::Counters;
+use crate::counters::{Counter, Counters};
 
 /// A parsed stream address.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -68,20 +68,20 @@ pub async fn run(spec: StreamSpec, out: mpsc::Sender<Vec<u8>>, counters: Counter
             r = open(&spec) => match r {
                 Ok(r) => r,
                 Err(e) => {
-                    counters.add("gnss_stream_open_error", 1);
+                    counters.add(Counter::GnssStreamOpenError, 1);
                     tracing::warn!(error = %e, source = ?spec, "cannot open the GNSS stream; retrying");
                     tokio::select! { _ = tokio::time::sleep(Duration::from_secs(1)) => continue, _ = stop.changed() => return }
                 }
             },
             _ = stop.changed() => return,
         };
-        counters.add("gnss_stream_connected", 1);
+        counters.add(Counter::GnssStreamConnected, 1);
         loop {
             let n = tokio::select! { n = r.read(&mut buf) => n, _ = stop.changed() => return };
             match n {
                 Ok(0) => break,
                 Ok(n) => {
-                    counters.add("gnss_stream_bytes", n as u64);
+                    counters.add(Counter::GnssStreamBytes, n as u64);
                     if out.send(buf[..n].to_vec()).await.is_err() {
                         return;
                     }

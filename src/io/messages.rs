@@ -184,6 +184,35 @@ impl Outbound {
     }
 }
 
+/// Where RTCM reached the daemon, and so what its observations may be.
+/// `GPS_RTCM_DATA` normally carries a base station's corrections to the
+/// autopilot; a receiver wired to the companion is the rover itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RtcmStream {
+    /// The receiver on the companion (`gnss.source = "stream"`): the
+    /// rover's own, whatever its station id.
+    Receiver,
+    /// `GPS_RTCM_DATA` from the vehicle's system id: the rover's only when
+    /// its station id is `gnss.rover_station_id` (and it announces no
+    /// antenna position, as a base does); else a base station's.
+    LinkVehicle,
+    /// `GPS_RTCM_DATA` from another system (a ground station injecting a
+    /// base's corrections): never the rover's.
+    LinkOther,
+}
+
+impl RtcmStream {
+    /// The name logged for replay.
+    pub fn name(self) -> &'static str {
+        match self {
+            RtcmStream::Receiver => "receiver",
+            RtcmStream::LinkVehicle => "link_vehicle",
+            RtcmStream::LinkOther => "link_other",
+        }
+    }
+}
+
 /// Which autopilot a `HEARTBEAT` says it is (`MAV_AUTOPILOT_*`): the
 /// output's frame and covariance follow what each one reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

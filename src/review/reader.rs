@@ -8,6 +8,8 @@ use serde_json::Value;
 
 use super::timeline::{plausible, Timeline};
 use super::ReviewSummary;
+use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, SimStateRecord};
+use crate::io::mcap_log::Topic;
 
 /// The series kept from the log (times in s of log time).
 #[derive(Default)]
@@ -65,23 +67,37 @@ impl LogReader {
         let t = m.log_time as f64 * 1e-9;
         self.timeline.push(m.log_time);
         *self.counts.entry(m.channel.topic.clone()).or_default() += 1;
-        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+        let Some(topic) = Topic::from_name(&m.channel.topic) else {
             return;
         };
         let (s, d) = (&mut self.s, &mut self.d);
-        match m.channel.topic.as_str() {
-            "/filter/state" => d.push_state(t, &v),
-            "/filter/keyframes" => {
+        if topic == Topic::InputAutopilot {
+            // A typed input record: the autopilot's position, or the truth.
+            match InputRecord::parse(topic, &m.data) {
+                Ok(InputRecord::Autopilot(AutopilotRecord::LocalPosition(l))) => d.autopilot.push((t, l.p_ned_m)),
+                Ok(InputRecord::Autopilot(AutopilotRecord::SimState(SimStateRecord { p_ned_m: Some(p), .. }))) => {
+                    d.truth.push((t, p))
+                }
+                _ => {}
+            }
+            return;
+        }
+        let Ok(v) = serde_json::from_slice::<Value>(&m.data) else {
+            return;
+        };
+        match topic {
+            Topic::FilterState => d.push_state(t, &v),
+            Topic::FilterKeyframes => {
                 d.push_keyframe(&v);
                 s.keyframes += 1;
             }
-            "/filter/update/vision" => on_vision_update(s, d, t, &v),
-            "/filter/update/gnss" => {
+            Topic::FilterVision => on_vision_update(s, d, t, &v),
+            Topic::FilterGnss => {
                 s.gnss_updates += 1;
                 d.gnss_t.push(t);
                 d.push_sigmas(t, &v);
             }
-            "/filter/update/global" => {
+            Topic::FilterGlobal => {
                 if v["reason"] == "Promotion" {
                     s.promotions += 1;
                 } else {
@@ -89,14 +105,10 @@ impl LogReader {
                     d.global_t.push(t);
                 }
             }
-            "/output/vision_position_estimate" => s.estimates += 1,
-            "/input/mavlink/autopilot" => {
-                d.push_autopilot(t, &v);
-                d.push_truth(t, &v);
-            }
-            "/location" => d.push_location(t, &v),
-            "/gnss/fix" => d.push_fix(&v),
-            "/diagnostics" => {
+            Topic::OutputVpe => s.estimates += 1,
+            Topic::Location => d.push_location(t, &v),
+            Topic::GnssFix => d.push_fix(&v),
+            Topic::Diagnostics => {
                 // The last record holds every counter at its latest.
                 if let Some(c) = v["counters"].as_object() {
                     s.counters = c.iter().filter_map(|(k, n)| Some((k.clone(), n.as_u64()?))).collect();
@@ -119,7 +131,7 @@ impl LogReader {
         d.keep_plausible(timeline.plausible_spans_s().as_deref());
         d.place_fixes();
         for (k, n) in &counts {
-            if k.starts_with("/input/") && s.duration_s > 0.0 {
+            if Topic::from_name(k).is_some_and(Topic::is_input) && s.duration_s > 0.0 {
                 s.input_rates_hz.insert(k.clone(), *n as f64 / s.duration_s);
             }
         }
@@ -208,24 +220,6 @@ impl Data {
                 if let (Some(id), Some(s)) = (e[0].as_u64(), e[1].as_f64()) {
                     self.kf_sigma.entry(id).or_default().push((t, s));
                 }
-            }
-        }
-    }
-
-    /// An autopilot record with a local position: its north, east, down.
-    fn push_autopilot(&mut self, t: f64, v: &Value) {
-        if let Some(p) = v["local_position"]["p_ned_m"].as_array() {
-            if let (Some(n), Some(e), Some(d)) = (p[0].as_f64(), p[1].as_f64(), p[2].as_f64()) {
-                self.autopilot.push((t, [n, e, d]));
-            }
-        }
-    }
-
-    /// A `SIM_STATE` record placed in our world frame: the truth.
-    fn push_truth(&mut self, t: f64, v: &Value) {
-        if let Some(p) = v["sim_state"]["p_ned_m"].as_array() {
-            if let (Some(n), Some(e), Some(d)) = (p[0].as_f64(), p[1].as_f64(), p[2].as_f64()) {
-                self.truth.push((t, [n, e, d]));
             }
         }
     }

@@ -131,7 +131,7 @@ pub fn fusion_ctx() -> (
 ) {
     let (out_tx, out_rx) = tokio::sync::mpsc::channel(1 << 16);
     let ctx = cmsckf::daemon::Ctx {
-        counters: cmsckf::io::Counters::default(),
+        counters: cmsckf::counters::Counters::default(),
         out: out_tx,
         status: Default::default(),
         mono_offset_us: std::sync::Arc::new(std::sync::atomic::AtomicI64::new(i64::MIN)),

@@ -34,6 +34,8 @@ pub use socket::{bind, FeatureSocket, SocketError};
 
 use serde::Deserialize;
 
+use crate::counters::Counter;
+
 /// One camera frame as received.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FeatureFrame {
@@ -61,13 +63,13 @@ pub enum LineError {
 
 impl LineError {
     /// Short counter name.
-    pub fn reason(&self) -> &'static str {
+    pub fn reason(&self) -> Counter {
         match self {
-            LineError::TooLong(_) => "feature_line_too_long",
-            LineError::Syntax(_) => "feature_line_syntax",
-            LineError::Version(_) => "feature_line_version",
-            LineError::TooManyFeatures(..) => "feature_line_too_many",
-            LineError::NonFinite(_) => "feature_non_finite",
+            LineError::TooLong(_) => Counter::FeatureLineTooLong,
+            LineError::Syntax(_) => Counter::FeatureLineSyntax,
+            LineError::Version(_) => Counter::FeatureLineVersion,
+            LineError::TooManyFeatures(..) => Counter::FeatureLineTooMany,
+            LineError::NonFinite(_) => Counter::FeatureNonFinite,
         }
     }
 }
@@ -110,10 +112,13 @@ mod tests {
         let ok = br#"{"v":1,"t_us":1000,"cam":0,"features":[[1,10.5,20.0],[2,30,40]]}"#;
         let f = parse_line(ok, 10).unwrap();
         assert_eq!(f.features.len(), 2);
-        assert_eq!(parse_line(ok, 1).unwrap_err().reason(), "feature_line_too_many");
-        assert_eq!(parse_line(b"garbage", 10).unwrap_err().reason(), "feature_line_syntax");
+        assert_eq!(parse_line(ok, 1).unwrap_err().reason(), Counter::FeatureLineTooMany);
+        assert_eq!(
+            parse_line(b"garbage", 10).unwrap_err().reason(),
+            Counter::FeatureLineSyntax
+        );
         let v2 = br#"{"v":2,"t_us":1,"features":[]}"#;
-        assert_eq!(parse_line(v2, 10).unwrap_err().reason(), "feature_line_version");
+        assert_eq!(parse_line(v2, 10).unwrap_err().reason(), Counter::FeatureLineVersion);
         let nan = br#"{"v":1,"t_us":1,"features":[[1,NaN,2]]}"#;
         assert!(parse_line(nan, 10).is_err());
         let huge = br#"{"v":1,"t_us":1,"features":[[1,1e999,2]]}"#;

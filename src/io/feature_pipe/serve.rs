@@ -9,7 +9,7 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::sync::mpsc;
 
 use super::{parse_line, FeatureFrame, FeatureSocket, LineError};
-use crate::io::Counters;
+use crate::counters::{Counter, Counters};
 
 /// Limits on what one front end may do.
 #[derive(Clone, Copy, Debug)]
@@ -57,7 +57,7 @@ pub async fn serve(
                 Ok((s, _)) => s,
                 Err(e) => {
                     tracing::warn!(reason = "feature_accept_error", error = %e, "feature socket accept failed");
-                    counters.add("feature_accept_error", 1);
+                    counters.add(Counter::FeatureAcceptError, 1);
                     tokio::time::sleep(Duration::from_millis(100)).await;
                     continue;
                 }
@@ -68,16 +68,16 @@ pub async fn serve(
             Ok(c) => (c.pid(), Some(c.uid())),
             Err(_) => (None, None),
         };
-        counters.add("feature_connections", 1);
+        counters.add(Counter::FeatureConnections, 1);
         tracing::info!(?pid, ?uid, "feature front end connected");
         let mut reader = BufReader::with_capacity(64 * 1024, stream);
         match serve_one(&mut reader, &mut line, &limits, &out, &counters, &mut stop).await {
             End::Left => {
-                counters.add("feature_disconnects", 1);
+                counters.add(Counter::FeatureDisconnects, 1);
                 tracing::info!(?pid, ?uid, "feature front end disconnected");
             }
             End::Idle { lines_rejected } => {
-                counters.add("feature_idle_dropped", 1);
+                counters.add(Counter::FeatureIdleDropped, 1);
                 tracing::warn!(
                     reason = "feature_idle_dropped",
                     ?pid,
@@ -117,7 +117,7 @@ async fn serve_one<R: tokio::io::AsyncBufRead + Unpin>(
             Ok(Some(false)) => {
                 let e = LineError::TooLong(limits.max_line_bytes);
                 counters.add(e.reason(), 1);
-                tracing::warn!(reason = e.reason(), "{e}");
+                tracing::warn!(reason = %e.reason(), "{e}");
                 lines_rejected += 1;
             }
             Ok(Some(true)) => {
@@ -126,16 +126,16 @@ async fn serve_one<R: tokio::io::AsyncBufRead + Unpin>(
                 }
                 match parse_line(line, limits.max_features) {
                     Ok(f) => {
-                        counters.add("feature_frames", 1);
+                        counters.add(Counter::FeatureFrames, 1);
                         idle.as_mut().reset(tokio::time::Instant::now() + limits.idle_timeout);
                         lines_rejected = 0;
                         if out.try_send(f).is_err() {
-                            counters.add("feature_queue_full", 1);
+                            counters.add(Counter::FeatureQueueFull, 1);
                         }
                     }
                     Err(e) => {
                         counters.add(e.reason(), 1);
-                        tracing::warn!(reason = e.reason(), "rejected feature line: {e}");
+                        tracing::warn!(reason = %e.reason(), "rejected feature line: {e}");
                         lines_rejected += 1;
                     }
                 }
@@ -224,7 +224,7 @@ mod tests {
         };
         let task = tokio::spawn(serve(socket, limits, tx, c.clone(), stop_rx));
         let mut silent = UnixStream::connect(&p).await.unwrap();
-        while c.get("feature_connections") == 0 {
+        while c.get(Counter::FeatureConnections) == 0 {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         let mut front = UnixStream::connect(&p).await.unwrap();
@@ -244,8 +244,8 @@ mod tests {
         );
         let mut b = [0u8; 1];
         assert_eq!(silent.read(&mut b).await.unwrap(), 0, "the silent one was closed");
-        assert_eq!(c.get("feature_idle_dropped"), 1);
-        assert_eq!(c.get("feature_connections"), 2);
+        assert_eq!(c.get(Counter::FeatureIdleDropped), 1);
+        assert_eq!(c.get(Counter::FeatureConnections), 2);
         stop_tx.send(true).unwrap();
         task.await.unwrap();
         assert!(!p.exists(), "removed at stop");

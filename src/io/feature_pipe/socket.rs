@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use tokio::net::{UnixListener, UnixStream};
 
-use crate::io::Counters;
+use crate::counters::{Counter, Counters};
 
 /// Errors that stop the socket from being served.
 #[derive(Debug, thiserror::Error)]
@@ -173,18 +173,18 @@ impl FeatureSocket {
                     }
                 };
             }
-            Ok(_) => "feature_socket_replaced",
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "feature_socket_gone",
+            Ok(_) => Counter::FeatureSocketReplaced,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Counter::FeatureSocketGone,
             Err(e) => {
                 tracing::warn!(socket = %path, error = %e, "cannot check the feature socket; left in place");
-                "feature_socket_replaced"
+                Counter::FeatureSocketReplaced
             }
         };
         if let Some(c) = counters {
             c.add(reason, 1);
         }
         tracing::warn!(
-            reason,
+            reason = %reason,
             socket = %path,
             "the feature socket's path is no longer the socket this daemon bound (replaced or removed by \
              someone else); left alone"
@@ -320,12 +320,12 @@ mod tests {
         assert!(!ours.close(Some(&c)), "closed once");
         drop(ours);
         assert!(std::os::unix::net::UnixStream::connect(&p).is_ok(), "theirs is left");
-        assert_eq!(c.get("feature_socket_replaced"), 1);
+        assert_eq!(c.get(Counter::FeatureSocketReplaced), 1);
         drop(theirs);
         std::fs::remove_file(&p).unwrap();
         let mut ours = bind(&p).await.unwrap();
         std::fs::remove_file(&p).unwrap();
         assert!(!ours.close(Some(&c)));
-        assert_eq!(c.get("feature_socket_gone"), 1);
+        assert_eq!(c.get(Counter::FeatureSocketGone), 1);
     }
 }

@@ -6,6 +6,7 @@ use mavlink::dialects::ardupilotmega as apm;
 use nalgebra::Vector3;
 
 use super::LinkError;
+use crate::counters::Counter;
 use crate::io::messages::{AutopilotKind, Inbound, SimTruth};
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
@@ -15,7 +16,7 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(v)
     } else {
-        Err(LinkError::Rejected("non_finite"))
+        Err(LinkError::Rejected(Counter::MavlinkRejectedNonFinite))
     }
 }
 
@@ -36,7 +37,7 @@ const MAX_GYRO_RADPS: f64 = 70.0;
 fn imu_checked(accel: Vector3<f64>, gyro: Vector3<f64>) -> Result<(Vector3<f64>, Vector3<f64>), LinkError> {
     let (a, g) = (finite3(accel)?, finite3(gyro)?);
     if a.amax() > MAX_ACCEL_MPS2 || g.amax() > MAX_GYRO_RADPS {
-        return Err(LinkError::Rejected("imu_out_of_range"));
+        return Err(LinkError::Rejected(Counter::MavlinkRejectedImuOutOfRange));
     }
     Ok((a, g))
 }
@@ -132,7 +133,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 && (d.alt as f64).is_finite()
                 && q.iter().all(|x| x.is_finite());
             if !ok {
-                return Err(LinkError::Rejected("sim_state_out_of_range"));
+                return Err(LinkError::Rejected(Counter::MavlinkRejectedOther));
             }
             Inbound::SimState(SimTruth {
                 lat_deg,
@@ -216,6 +217,9 @@ mod tests {
             xacc: f32::NAN,
             ..Default::default()
         });
-        assert!(matches!(decode(nan), Err(LinkError::Rejected("non_finite"))));
+        assert!(matches!(
+            decode(nan),
+            Err(LinkError::Rejected(Counter::MavlinkRejectedNonFinite))
+        ));
     }
 }

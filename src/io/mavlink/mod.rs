@@ -36,6 +36,7 @@ use mavlink::{AsyncMavConnection, MavHeader, Message as _};
 
 use super::messages::{Inbound, Outbound, Source};
 use super::udp_peer::{UdpPeer, MAX_DATAGRAM};
+use crate::counters::Counter;
 use decode::decode;
 pub use decode::decode_bytes;
 use encode::encode;
@@ -49,7 +50,7 @@ pub enum LinkError {
     #[error("undecodable MAVLink message: {0}")]
     Parse(String),
     #[error("message rejected: {0}")]
-    Rejected(&'static str),
+    Rejected(Counter),
 }
 
 /// What one receive gave.
@@ -61,7 +62,7 @@ pub enum Received {
     /// A frame that is fine but not taken now (counted under this name;
     /// not a rejection): the autopilot's data before its first HEARTBEAT
     /// told us where it is.
-    Ignored(&'static str),
+    Ignored(Counter),
     /// A TCP or serial link was opened again after it failed.
     Reconnected,
     /// The autopilot's UDP address, learned from its HEARTBEAT.
@@ -241,11 +242,11 @@ impl Link {
                 }
             }
             if frames.is_empty() {
-                return Err(LinkError::Rejected("garbage_datagram"));
+                return Err(LinkError::Rejected(Counter::MavlinkRejectedGarbageDatagram));
             }
         }
         let Some((raw, from)) = rx.frames.pop_front() else {
-            return Err(LinkError::Rejected("garbage_datagram"));
+            return Err(LinkError::Rejected(Counter::MavlinkRejectedGarbageDatagram));
         };
         drop(rx);
         let (src, sequence, id) = raw_header(&raw);
@@ -261,13 +262,13 @@ impl Link {
         };
         let msg = self.accept_raw(&raw).inspect_err(|_| self.carry_lost(lost))?;
         if from_autopilot && !at_its_address {
-            return Err(LinkError::Rejected("autopilot_id_from_other_address"));
+            return Err(LinkError::Rejected(Counter::MavlinkRejectedAutopilotIdFromOtherAddress));
         }
         if learning && id != MSG_ID_HEARTBEAT {
             // udpin before the autopilot's first HEARTBEAT, or after a long
             // silence: only its HEARTBEAT says where it is now.
             self.carry_lost(lost);
-            return Ok(Received::Ignored("mavlink_before_autopilot_heartbeat"));
+            return Ok(Received::Ignored(Counter::MavlinkBeforeAutopilotHeartbeat));
         }
         if from_autopilot {
             if learning && peer.learn(from) {
@@ -381,13 +382,13 @@ impl Link {
         sd: &mavlink::SigningData,
     ) -> Result<apm::MavMessage, LinkError> {
         let mavlink::MAVLinkMessageRaw::V2(r) = raw else {
-            return Err(LinkError::Rejected("unsigned"));
+            return Err(LinkError::Rejected(Counter::MavlinkRejectedUnsigned));
         };
         if r.incompatibility_flags() & IFLAG_SIGNED == 0 {
-            return Err(LinkError::Rejected("unsigned"));
+            return Err(LinkError::Rejected(Counter::MavlinkRejectedUnsigned));
         }
         if !sd.verify_signature(r) {
-            return Err(LinkError::Rejected("bad_signature"));
+            return Err(LinkError::Rejected(Counter::MavlinkRejectedBadSignature));
         }
         apm::MavMessage::parse(mavlink::MavlinkVersion::V2, r.message_id(), r.payload())
             .map_err(|e| LinkError::Parse(e.to_string()))

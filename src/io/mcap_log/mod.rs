@@ -30,6 +30,7 @@
 //! [`Degraded::LogDiskFull`]: crate::status::Degraded::LogDiskFull
 
 mod failure;
+pub mod input;
 mod recover;
 mod schemas;
 mod spool;
@@ -38,6 +39,7 @@ mod tests;
 mod topics;
 mod writer;
 
+pub use input::{InputRecord, RecordError, LOG_FORMAT};
 pub use recover::{is_finished, recover, unfinished_logs, RecoverError, RecoverReport, MCAP_MAGIC};
 pub use topics::Topic;
 
@@ -54,8 +56,8 @@ use std::time::Instant;
 use serde::Serialize;
 use tokio::sync::mpsc;
 
+use crate::counters::{Counter, Counters};
 use crate::io::messages::Outbound;
-use crate::io::Counters;
 use crate::status::Status;
 
 use spool::{Spool, SpoolSink, SPOOL_MAX_BYTES};
@@ -121,9 +123,9 @@ pub struct LogAlarm {
 }
 
 /// Counter of failed writes of the log file ([`LogSummary::write_failures`]).
-pub const COUNTER_WRITE_FAILED: &str = "log_write_failed";
+pub const COUNTER_WRITE_FAILED: Counter = Counter::LogWriteFailed;
 /// Counter of records lost to write errors ([`LogSummary::dropped_write_error`]).
-pub const COUNTER_DROPPED_WRITE_ERROR: &str = "log_records_dropped_write_error";
+pub const COUNTER_DROPPED_WRITE_ERROR: Counter = Counter::LogRecordsDroppedWriteError;
 
 struct Record {
     topic: Topic,
@@ -192,6 +194,7 @@ impl McapLogger {
         meta.insert("version".to_string(), header.version.clone());
         meta.insert("mode".to_string(), header.mode.clone());
         meta.insert("config_toml".to_string(), header.config_toml.clone());
+        meta.insert("log_format".to_string(), LOG_FORMAT.to_string());
         w.write_metadata(&mcap::records::Metadata {
             name: "cmsckf".into(),
             metadata: meta,

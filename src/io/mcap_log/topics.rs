@@ -62,6 +62,29 @@ impl Topic {
         Topic::Diagnostics,
     ];
 
+    /// The channel's topic name (`/input/imu`, …).
+    pub fn name(self) -> &'static str {
+        self.spec().0
+    }
+
+    /// The channel named `name`, if it is one of the log's.
+    pub fn from_name(name: &str) -> Option<Topic> {
+        Topic::ALL.into_iter().find(|t| t.name() == name)
+    }
+
+    /// An input channel: what replay feeds back into the fusion loop.
+    pub fn is_input(self) -> bool {
+        matches!(
+            self,
+            Topic::InputImu
+                | Topic::InputFeatures
+                | Topic::InputRtcm
+                | Topic::InputSystemTime
+                | Topic::InputAutopilot
+                | Topic::InputRebase
+        )
+    }
+
     /// `(topic name, schema name, JSON schema)`.
     pub fn spec(self) -> (&'static str, &'static str, &'static str) {
         match self {
