@@ -5,7 +5,8 @@ use cmsckf_models::camera::Camera;
 
 use super::Config;
 use crate::estimator::feature::{Extrinsic, TriangulationLimits};
-use crate::estimator::propagate::{Mat15, BA, BG, P, TH, V};
+use crate::estimator::imu_covariance::ImuPrior;
+use crate::estimator::Mat15;
 use crate::estimator::{Settings, ZuptSettings};
 
 impl Config {
@@ -65,18 +66,14 @@ impl Config {
     /// The initial covariance of the IMU block from `[init]`.
     pub fn initial_covariance(&self) -> Mat15 {
         let i = &self.init;
-        let mut p = Mat15::zeros();
-        let set = |p: &mut Mat15, o: usize, s: [f64; 3]| {
-            for k in 0..3 {
-                p[(o + k, o + k)] = s[k] * s[k];
-            }
-        };
-        let tilt = i.sigma_tilt_deg.to_radians();
-        set(&mut p, TH, [tilt, tilt, i.sigma_yaw_deg.to_radians()]);
-        set(&mut p, V, [i.sigma_velocity_mps; 3]);
-        set(&mut p, P, [i.sigma_position_m; 3]);
-        set(&mut p, BG, [i.sigma_gyro_bias_radps; 3]);
-        set(&mut p, BA, [i.sigma_accel_bias_mps2; 3]);
-        p
+        ImuPrior {
+            tilt_rad: i.sigma_tilt_deg.to_radians(),
+            yaw_rad: i.sigma_yaw_deg.to_radians(),
+            velocity_mps: i.sigma_velocity_mps,
+            position_m: i.sigma_position_m,
+            gyro_bias_radps: i.sigma_gyro_bias_radps,
+            accel_bias_mps2: i.sigma_accel_bias_mps2,
+        }
+        .covariance()
     }
 }

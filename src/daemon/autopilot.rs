@@ -8,14 +8,28 @@ use cmsckf_models::geodesy::{ecef_to_llh, llh_to_ecef, NedFrame};
 use cmsckf_models::geoid;
 use tokio::sync::mpsc;
 
-use super::fusion::Fusion;
-use super::FusionMsg;
+use std::collections::VecDeque;
+
+use nalgebra::Vector3;
+
+use super::flight_log::{FlightLog, Level};
+use super::gnss_input::GnssIn;
+use super::time_guard::SteadyValue;
+use super::{FusionMsg, Restart};
 use crate::counters::{Counter, Counters};
 use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, LocalPositionRecord, SimStateRecord, SystemTimeRecord};
+use crate::io::messages::AutopilotKind;
 use crate::io::messages::Outbound;
 
 /// Magnetometer readings kept for the compass yaw (10 Hz: about 1 s).
-pub(super) const MAG_READINGS: usize = 10;
+const MAG_READINGS: usize = 10;
+/// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
+/// believed once this many messages agree on it.
+const SYSTEM_TIME_TOL_S: f64 = 1.0;
+const SYSTEM_TIME_CONFIRM: u32 = 3;
+/// The autopilot's GNSS fix counts as its own position source for this long
+/// after its last `GPS_RAW_INT` with a 3D fix (s).
+const AUTOPILOT_FIX_FRESH_S: f64 = 5.0;
 /// The origin is sent again this often until the autopilot reports it (s
 /// of autopilot time), at most [`ORIGIN_TRIES`] times.
 const ORIGIN_RESEND_S: f64 = 2.0;
@@ -27,20 +41,79 @@ const ORIGIN_MATCH_M: f64 = 1.0;
 /// HEARTBEAT, and a message can be lost, so it is sent until the
 /// autopilot's `GPS_GLOBAL_ORIGIN` comes back.
 #[derive(Debug, Default)]
-pub(super) struct OriginSend {
+struct OriginSend {
     /// The autopilot reported an origin (ours, or its own).
-    pub(super) settled: bool,
+    settled: bool,
     next_t_s: f64,
     tries: u32,
 }
 
-impl Fusion {
+/// The autopilot's state as it reports it, owned here: what a start reads
+/// (attitude, local position, accuracy, magnetometer, date), what the
+/// zero-velocity updates and the outputs follow (armed, landed, its kind),
+/// its clock's Unix offset, and our origin sent until it reports it back.
+#[derive(Debug)]
+pub(super) struct AutopilotView {
+    /// Roll, pitch, yaw (rad), from `ATTITUDE`.
+    attitude: Option<(f64, f64, f64)>,
+    /// The autopilot's local position and velocity (NED) and their time (s).
+    local: Option<(Vector3<f64>, Vector3<f64>, f64)>,
+    /// The autopilot's GNSS accuracy `(horizontal, vertical)` (m, one
+    /// sigma), when it reports one.
+    gps_accuracy: Option<(f64, f64)>,
+    /// The latest magnetometer readings (body frame, ~1 s).
+    mag_B: VecDeque<Vector3<f64>>,
+    /// Today in Unix days (the companion's clock at start), for the
+    /// declination.
+    unix_days: Option<i64>,
+    /// The armed and landed states, when it reports them.
+    armed: Option<bool>,
+    on_ground: Option<bool>,
+    /// Which autopilot its HEARTBEAT says it is.
+    kind: Option<AutopilotKind>,
+    /// When (IMU time) it last reported a 3D GNSS fix of its own.
+    fix_t: Option<f64>,
+    /// Its Unix − boot offset (s), from SYSTEM_TIME, changed only when
+    /// several messages agree.
+    unix_minus_boot: SteadyValue,
+    /// Our origin, sent until it reports it back.
+    origin: OriginSend,
+}
+
+impl Default for AutopilotView {
+    fn default() -> Self {
+        Self {
+            attitude: None,
+            local: None,
+            gps_accuracy: None,
+            mag_B: VecDeque::with_capacity(MAG_READINGS),
+            unix_days: None,
+            armed: None,
+            on_ground: None,
+            kind: None,
+            fix_t: None,
+            unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
+            origin: OriginSend::default(),
+        }
+    }
+}
+
+impl AutopilotView {
     /// The autopilot's attitude, local position, clock and origin: kept for
-    /// initialisation and GNSS time, and logged for replay.
-    pub(super) fn on_autopilot(&mut self, msg: FusionMsg, counters: &Counters) {
+    /// initialisation and GNSS time (`gnss`), and logged for replay at the
+    /// last IMU sample's time `t_s`.
+    pub(super) fn on_message(
+        &mut self,
+        msg: FusionMsg,
+        t_s: f64,
+        gnss: &mut GnssIn,
+        log: &FlightLog,
+        counters: &Counters,
+    ) {
+        let log_autopilot = |rec: AutopilotRecord| log.input(t_s, &InputRecord::Autopilot(rec));
         match msg {
             FusionMsg::Attitude { roll, pitch, yaw } => {
-                self.log_autopilot(AutopilotRecord::Attitude([roll, pitch, yaw]));
+                log_autopilot(AutopilotRecord::Attitude([roll, pitch, yaw]));
                 self.attitude = Some((roll, pitch, yaw))
             }
             FusionMsg::LocalPosition {
@@ -48,7 +121,7 @@ impl Fusion {
                 p_ned_m,
                 v_ned_mps,
             } => {
-                self.log_autopilot(AutopilotRecord::LocalPosition(LocalPositionRecord {
+                log_autopilot(AutopilotRecord::LocalPosition(LocalPositionRecord {
                     t_s,
                     p_ned_m: p_ned_m.into(),
                     v_ned_mps: v_ned_mps.into(),
@@ -56,29 +129,29 @@ impl Fusion {
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
             FusionMsg::Magnetometer { mag_B } => {
-                self.log_autopilot(AutopilotRecord::Magnetometer(mag_B.into()));
+                log_autopilot(AutopilotRecord::Magnetometer(mag_B.into()));
                 if self.mag_B.len() == MAG_READINGS {
                     self.mag_B.pop_front();
                 }
                 self.mag_B.push_back(mag_B);
             }
             FusionMsg::VehicleState { armed, on_ground, kind } => {
-                if let Some(k) = kind.filter(|k| Some(*k) != self.autopilot_kind) {
-                    self.log_autopilot(AutopilotRecord::Autopilot(k));
-                    self.autopilot_kind = kind;
+                if let Some(k) = kind.filter(|k| Some(*k) != self.kind) {
+                    log_autopilot(AutopilotRecord::Autopilot(k));
+                    self.kind = kind;
                 }
                 // Logged on change only (the HEARTBEAT comes every second).
                 if let Some(a) = armed.filter(|a| Some(*a) != self.armed) {
-                    self.log_autopilot(AutopilotRecord::Armed(a));
+                    log_autopilot(AutopilotRecord::Armed(a));
                     self.armed = armed;
                 }
                 if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
-                    self.log_autopilot(AutopilotRecord::OnGround(g));
+                    log_autopilot(AutopilotRecord::OnGround(g));
                     self.on_ground = on_ground;
                 }
             }
             FusionMsg::Date { unix_days } => {
-                self.log_autopilot(AutopilotRecord::UnixDays(unix_days));
+                log_autopilot(AutopilotRecord::UnixDays(unix_days));
                 self.unix_days = Some(unix_days);
             }
             FusionMsg::SimState(crate::io::messages::SimTruth {
@@ -91,13 +164,13 @@ impl Fusion {
                 // A simulator's truth, for review only: also placed in our
                 // world frame once its origin is known (MSL → ellipsoid as
                 // for the origin itself).
-                let p_ned_m = self.gnss.frame.map(|f| {
+                let p_ned_m = gnss.frame().map(|f| {
                     let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
                     let r = llh_to_ecef(lat_deg.to_radians(), lon_deg.to_radians(), h_m);
                     let p = f.R_ecef_ned.transpose() * (r - f.origin_ecef);
                     [p.x, p.y, p.z]
                 });
-                self.log_autopilot(AutopilotRecord::SimState(SimStateRecord {
+                log_autopilot(AutopilotRecord::SimState(SimStateRecord {
                     lat_deg,
                     lon_deg,
                     alt_m,
@@ -108,14 +181,14 @@ impl Fusion {
             }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
                 // Logged for replay, kept as the prior of an in-flight start.
-                self.log_autopilot(AutopilotRecord::GpsAccuracy(
+                log_autopilot(AutopilotRecord::GpsAccuracy(
                     [h_acc_m, v_acc_m].map(|a| a.is_finite().then_some(a)),
                 ));
                 self.gps_accuracy = (h_acc_m.is_finite() && v_acc_m.is_finite()).then_some((h_acc_m, v_acc_m));
-                self.autopilot_fix_t = Some(self.last_imu_t);
+                self.fix_t = Some(t_s);
             }
             FusionMsg::SystemTime { unix_us, boot_ms } => {
-                self.log_input(
+                log.input(
                     boot_ms as f64 * 1e-3,
                     &InputRecord::SystemTime(SystemTimeRecord { unix_us, boot_ms }),
                 );
@@ -123,7 +196,7 @@ impl Fusion {
                     .unix_minus_boot
                     .offer(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3)
                 {
-                    Some(offset_s) => self.gnss.unix_minus_boot_s = Some(offset_s),
+                    Some(offset_s) => gnss.set_unix_minus_boot(Some(offset_s)),
                     None => {
                         counters.add(Counter::SystemTimeOutlier, 1);
                         tracing::warn!(reason = "system_time_outlier", unix_us, boot_ms, "SYSTEM_TIME rejected");
@@ -135,13 +208,13 @@ impl Fusion {
                 lon_deg,
                 alt_m,
             } => {
-                self.log_autopilot(AutopilotRecord::Origin([lat_deg, lon_deg, alt_m]));
+                log_autopilot(AutopilotRecord::Origin([lat_deg, lon_deg, alt_m]));
                 // MAVLink gives the origin's altitude above mean sea level;
                 // our frame is on the ellipsoid (EGM96, §geoid).
                 let h_m = geoid::ellipsoid_from_msl(lat_deg, lon_deg, alt_m);
-                match self.gnss.frame {
+                match gnss.frame() {
                     None => {
-                        self.gnss.frame = Some(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
+                        gnss.set_frame(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
                         counters.add(Counter::GnssOriginFromAutopilot, 1);
                     }
                     Some(ours) if !self.origin.settled => {
@@ -149,7 +222,7 @@ impl Fusion {
                         let off_m = (theirs - ours.origin_ecef).norm();
                         if off_m <= ORIGIN_MATCH_M {
                             counters.add(Counter::GpsOriginConfirmed, 1);
-                            self.log_text(2, self.last_imu_t, "the autopilot took our origin");
+                            log.text(Level::Info, t_s, "the autopilot took our origin");
                         } else {
                             // An autopilot sets its origin once: its GNSS
                             // (or a ground station) came first.
@@ -159,7 +232,7 @@ impl Fusion {
                                  of our estimates will be off by that"
                             );
                             tracing::warn!(reason = "gps_origin_mismatch", off_m, "{text}");
-                            self.log_text(3, self.last_imu_t, &text);
+                            log.text(Level::Warning, t_s, &text);
                         }
                     }
                     Some(_) => {}
@@ -172,15 +245,10 @@ impl Fusion {
                 } else {
                     format!("link down: the autopilot has been silent for {silent_s:.1} s")
                 };
-                self.log_text(if up { 3 } else { 4 }, self.last_imu_t, &text);
+                log.text(if up { Level::Warning } else { Level::Error }, t_s, &text);
             }
             _ => {}
         }
-    }
-
-    /// What the autopilot said, logged at the last IMU sample's time.
-    fn log_autopilot(&self, rec: AutopilotRecord) {
-        self.log_input(self.last_imu_t, &InputRecord::Autopilot(rec));
     }
 
     /// Whether a zero-velocity update may be taken: on the ground, by the
@@ -197,8 +265,15 @@ impl Fusion {
     /// Tells the autopilot our origin once it is known
     /// (`output.set_gps_origin`), again every [`ORIGIN_RESEND_S`] until it
     /// reports an origin back.
-    pub(super) fn send_origin(&mut self, t_s: f64, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        if !self.cfg.output.set_gps_origin || self.origin.settled || t_s < self.origin.next_t_s {
+    pub(super) fn send_origin(
+        &mut self,
+        t_s: f64,
+        frame: Option<NedFrame>,
+        log: &FlightLog,
+        counters: &Counters,
+        out: &mpsc::Sender<Outbound>,
+    ) {
+        if self.origin.settled || t_s < self.origin.next_t_s {
             return;
         }
         if self.origin.tries == ORIGIN_TRIES {
@@ -206,10 +281,10 @@ impl Fusion {
             counters.add(Counter::GpsOriginUnconfirmed, 1);
             let text = "the autopilot never reported our origin back (GPS_GLOBAL_ORIGIN)";
             tracing::warn!(reason = "gps_origin_unconfirmed", "{text}");
-            self.log_text(3, t_s, text);
+            log.text(Level::Warning, t_s, text);
             return;
         }
-        if let Some(frame) = self.gnss.frame {
+        if let Some(frame) = frame {
             // MAVLink's altitude is above mean sea level (EGM96), ours above
             // the ellipsoid: tens of metres apart.
             let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
@@ -224,6 +299,57 @@ impl Fusion {
                 self.origin.next_t_s = t_s + ORIGIN_RESEND_S;
                 counters.add(Counter::GpsOriginSent, 1);
             }
+        }
+    }
+
+    /// Roll, pitch, yaw (rad), as `ATTITUDE` last said.
+    pub(super) fn attitude(&self) -> Option<(f64, f64, f64)> {
+        self.attitude
+    }
+
+    /// The local position and velocity (NED) and their time (s).
+    pub(super) fn local(&self) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+        self.local
+    }
+
+    /// The GNSS accuracy `(horizontal, vertical)` (m, 1σ) it reports.
+    pub(super) fn gps_accuracy(&self) -> Option<(f64, f64)> {
+        self.gps_accuracy
+    }
+
+    /// The mean direction of the latest magnetometer readings (body frame,
+    /// unit vector), or `None` without any.
+    pub(super) fn mag_direction_B(&self) -> Option<Vector3<f64>> {
+        let sum: Vector3<f64> = self.mag_B.iter().filter_map(|m| m.try_normalize(0.0)).sum();
+        sum.try_normalize(1e-9)
+    }
+
+    pub(super) fn unix_days(&self) -> Option<i64> {
+        self.unix_days
+    }
+
+    pub(super) fn kind(&self) -> Option<AutopilotKind> {
+        self.kind
+    }
+
+    /// It has a position source of its own: a 3D GNSS fix reported in the
+    /// last [`AUTOPILOT_FIX_FRESH_S`].
+    pub(super) fn has_own_fix(&self, t_s: f64) -> bool {
+        self.fix_t.is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S)
+    }
+
+    /// Forgets what a restart of `kind` makes stale: after an IMU gap or a
+    /// reboot, its attitude and position; after a reboot, also our origin
+    /// (a rebooted autopilot has lost it) and its clock's Unix offset.
+    pub(super) fn forget_for_restart(&mut self, kind: Restart) {
+        if kind != Restart::Unhealthy {
+            self.attitude = None;
+            self.local = None;
+            self.gps_accuracy = None;
+        }
+        if kind == Restart::Reboot {
+            self.origin = OriginSend::default();
+            self.unix_minus_boot.reset();
         }
     }
 }

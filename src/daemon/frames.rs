@@ -26,7 +26,7 @@ use serde_json::json;
 use cmsckf_models::geodesy::{ecef_to_llh, NedFrame};
 
 use super::records::{Quat, Stamp, Transform, Xyz};
-use crate::estimator::propagate::P as P_OFF;
+use crate::estimator::imu_covariance::position_block;
 use crate::estimator::{Estimator, ImuState, Mat15};
 use crate::io::mcap_log::{McapLogger, Topic};
 
@@ -80,7 +80,7 @@ pub(super) fn log_location(l: &McapLogger, t_s: f64, x: &ImuState, cov: &Mat15, 
     let r_ecef = frame.origin_ecef + frame.R_ecef_ned * x.p_B_in_W;
     let (lat, lon, h) = ecef_to_llh(&r_ecef);
     let s = ned_to_enu();
-    let p_enu = s * cov.fixed_view::<3, 3>(P_OFF, P_OFF) * s.transpose();
+    let p_enu = s * position_block(cov) * s.transpose();
     let c: Vec<f64> = (0..9).map(|k| p_enu[(k / 3, k % 3)]).collect();
     let ts = Stamp::at(t_s);
     l.log(

@@ -1,46 +1,47 @@
-//! The fusion loop, on its own OS thread: it takes the inputs in the order
-//! they arrive (IMU, camera frames, RTCM, autopilot state), logs each one it
-//! uses (so `cmsckf replay` feeds them back through this same code),
-//! holds measurements until IMU covers their time, runs the estimator, and
-//! has one restart path (reboot, IMU gap, divergence; `Fusion::restart` in
-//! `init.rs`, beside the starts it leads to).
+//! The fusion loop, on its own OS thread, as a router: it takes the inputs
+//! in the order they arrive (IMU, camera frames, RTCM, autopilot state) and
+//! hands each to the part that owns its state:
+//!
+//! - `autopilot.rs` ([`AutopilotView`]): what the autopilot says of itself;
+//! - `init.rs` ([`Starter`]): starts and restarts of the filter;
+//! - `measurements.rs` ([`MeasurementQueue`]): what waits for IMU to cover it;
+//! - `output.rs` ([`OutputPacer`]): the estimates sent and `reset_counter`;
+//! - `flight_log.rs` ([`FlightLog`]): the log (each input is logged as it
+//!   is used, so `cmsckf replay` feeds them back through this same code);
+//! - `gnss_input.rs` (`GnssIn`): RTCM to GNSS epochs, the world frame.
+//!
+//! It keeps the filter itself, the IMU clock and the one restart path
+//! (reboot, IMU gap, divergence: [`Fusion::restart`]).
 
 use std::borrow::Cow;
-use std::collections::VecDeque;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use cmsckf_models::gnss::SatMeas;
-use nalgebra::Vector3;
-use serde_json::json;
 use tokio::sync::mpsc;
 
-use super::autopilot::{OriginSend, MAG_READINGS};
+use super::autopilot::AutopilotView;
+use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
-use super::init::{Carried, GoodEstimates, RECENT_IMU_S};
+use super::init::{Start, Starter};
+use super::measurements::{FuseCtx, MeasurementQueue, Pending};
+use super::output::{OutputCtx, OutputPacer};
 use super::rebase::{InstallSite, RebaseExec};
-use super::time_guard::{SteadyValue, TimeGuard, Verdict};
-use super::{FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, PENDING_FRAMES, REBOOT_JUMP_S};
+use super::time_guard::{TimeGuard, Verdict};
+use super::{FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, REBOOT_JUMP_S};
 use crate::config::{Config, FeatureClock};
 use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, ImuMeas};
 use crate::io::feature_pipe::FeatureFrame;
 use crate::io::mcap_log::input::{FeaturesRecord, ImuRecord, InputRecord, RtcmRecord};
-use crate::io::mcap_log::{McapLogger, Topic};
-use crate::io::messages::{AutopilotKind, Outbound};
+use crate::io::mcap_log::McapLogger;
+use crate::io::messages::Outbound;
 use crate::status::{self, Degraded, Status};
 
 /// IMU samples in a row that must agree on a jump of their clock (a reboot,
 /// or a link that was down) before it is believed.
 const IMU_JUMP_CONFIRM: u32 = 5;
-/// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
-/// believed once this many messages agree on it.
-const SYSTEM_TIME_TOL_S: f64 = 1.0;
-const SYSTEM_TIME_CONFIRM: u32 = 3;
-/// Records held until the first IMU sample gives them a sensor time.
-const PRE_IMU_LOG_CAP: usize = 1024;
 /// A camera frame is believed only within this much of the IMU clock:
 /// ahead of it (s), and behind it (s; latency and a short IMU stall).
 const FRAME_MAX_LEAD_S: f64 = 1.0;
@@ -51,83 +52,28 @@ const FRAME_MAX_LAG_S: f64 = 5.0;
 /// 0.1 s), and GNSS epochs reach back through their clones.
 const MAX_FILTER_LAG_S: f64 = 1.0;
 
-/// Most IMU samples kept in `recent_imu` (2.5 s at 1.6 kHz): allocated once.
-const RECENT_IMU_CAPACITY: usize = 4096;
-
 /// An estimate counts as good only this soon after a measurement (s).
 const GOOD_AIDED_S: f64 = 0.5;
 
-/// A measurement waiting for IMU to cover its time.
-#[derive(Debug)]
-pub(super) enum Pending {
-    Frame(NormFrame),
-    Gnss(Vec<SatMeas>),
-}
-
-/// State of the fusion loop.
+/// The fusion loop: the filter, and the parts that own the rest.
 pub struct Fusion {
-    pub(super) log: Option<McapLogger>,
-    pub(super) rebase: RebaseExec,
+    cfg: Config,
+    est: Option<Estimator>,
     /// Counts estimators started, so a rebase result of a filter since
     /// restarted is recognised and dropped.
-    pub(super) est_gen: u64,
-    pub(super) next_state_log: f64,
-    /// Landmarks gathered for the log's `/landmarks`.
-    pub(super) landmarks: super::frames::LandmarkCloud,
-    /// The camera's pose in the body frame, for the log's frame tree.
-    pub(super) T_B_C: nalgebra::Isometry3<f64>,
-    /// Next autopilot time to log the counters at (`/diagnostics`).
-    next_diag_t: f64,
-    pub(super) cfg: Config,
-    pub(super) est: Option<Estimator>,
-    pub(super) static_buf: VecDeque<ImuMeas>,
-    pub(super) attitude: Option<(f64, f64, f64)>,
-    /// The autopilot's local position and velocity (NED) and their time (s).
-    pub(super) local: Option<(Vector3<f64>, Vector3<f64>, f64)>,
-    /// The autopilot's GNSS accuracy `(horizontal, vertical)` (m, one
-    /// sigma), when it reports one.
-    pub(super) gps_accuracy: Option<(f64, f64)>,
-    pub(super) pending: VecDeque<(f64, Pending)>,
-    pub(super) gnss: GnssIn,
-    /// Our origin, sent to the autopilot until it reports it back.
-    pub(super) origin: OriginSend,
-    /// The autopilot's latest magnetometer readings (body frame, ~1 s).
-    pub(super) mag_B: VecDeque<Vector3<f64>>,
-    /// Today in Unix days (the companion's clock at start), for the
-    /// declination.
-    pub(super) unix_days: Option<i64>,
-    /// The autopilot's armed and landed states, when it reports them.
-    pub(super) armed: Option<bool>,
-    pub(super) on_ground: Option<bool>,
-    /// When (IMU time) the autopilot last reported a 3D GNSS fix of its own.
-    pub(super) autopilot_fix_t: Option<f64>,
-    /// When the filter was last restarted from our own estimate.
-    pub(super) in_place_t: Option<f64>,
-    /// Which autopilot its HEARTBEAT says it is.
-    pub(super) autopilot_kind: Option<AutopilotKind>,
-    /// Our own last estimate across a restart: the next filter starts from
-    /// it, never from the autopilot's echo of it.
-    pub(super) carried: Option<Carried>,
-    /// Our estimate while healthy, 1–2 s back: what `carried` is taken from.
-    pub(super) good: GoodEstimates,
-    /// The last [`RECENT_IMU_S`] of IMU samples, which a restart propagates
-    /// the carried estimate through.
-    pub(super) recent_imu: VecDeque<ImuMeas>,
-    pub(super) last_imu_t: f64,
-    /// Records of inputs that came before any IMU sample (an ephemeris, the
-    /// autopilot's origin): they have no sensor time yet, so they wait and
-    /// are logged, in order, at the first IMU sample's time rather than at 0.
-    pre_imu_log: std::cell::RefCell<Vec<(Topic, serde_json::Value)>>,
+    est_gen: u64,
+    rebase: RebaseExec,
+    gnss: GnssIn,
     /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
     imu_clock: TimeGuard,
-    /// The autopilot's Unix − boot offset (s), from SYSTEM_TIME, changed
-    /// only when several messages agree.
-    pub(super) unix_minus_boot: SteadyValue,
-    pub(super) last_frame_t: f64,
-    pub(super) next_output_t: f64,
-    pub(super) reset_counter: u8,
+    last_imu_t: f64,
     /// Degraded-state reasons, in autopilot time.
-    pub(super) tracker: status::Tracker,
+    tracker: status::Tracker,
+    autopilot: AutopilotView,
+    starter: Starter,
+    queue: MeasurementQueue,
+    pacer: OutputPacer,
+    log: FlightLog,
 }
 
 /// What the fusion loop writes to: counters, the outbound channel and the
@@ -146,13 +92,13 @@ pub struct Ctx {
 fn install_site<'a>(
     est: &'a mut Option<Estimator>,
     est_gen: u64,
-    log: &'a Option<McapLogger>,
+    log: Option<&'a McapLogger>,
     t_s: f64,
 ) -> InstallSite<'a> {
     InstallSite {
         est: est.as_mut(),
         est_gen,
-        log: log.as_ref(),
+        log,
         t_s,
     }
 }
@@ -208,39 +154,18 @@ impl Fusion {
     /// A fusion loop for `cfg`, logging to `log` if given.
     pub fn new(cfg: Config, log: Option<McapLogger>) -> Self {
         Fusion {
-            log,
             rebase: RebaseExec::for_config(&cfg),
-            est_gen: 0,
-            next_state_log: f64::NEG_INFINITY,
-            landmarks: Default::default(),
-            T_B_C: cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C,
-            next_diag_t: f64::NEG_INFINITY,
             est: None,
-            static_buf: VecDeque::with_capacity(4096),
-            attitude: None,
-            local: None,
-            gps_accuracy: None,
-            pending: VecDeque::with_capacity(PENDING_FRAMES),
-            origin: OriginSend::default(),
-            mag_B: VecDeque::with_capacity(MAG_READINGS),
-            unix_days: None,
-            armed: None,
-            on_ground: None,
-            autopilot_kind: None,
-            autopilot_fix_t: None,
-            in_place_t: None,
-            carried: None,
-            good: GoodEstimates::default(),
-            recent_imu: VecDeque::with_capacity(RECENT_IMU_CAPACITY),
+            est_gen: 0,
             gnss: GnssIn::new(&cfg),
-            last_imu_t: f64::NEG_INFINITY,
-            pre_imu_log: std::cell::RefCell::new(Vec::new()),
             imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM),
-            unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
-            last_frame_t: f64::NEG_INFINITY,
-            next_output_t: f64::NEG_INFINITY,
-            reset_counter: 0,
+            last_imu_t: f64::NEG_INFINITY,
             tracker: status::Tracker::default(),
+            autopilot: AutopilotView::default(),
+            starter: Starter::default(),
+            queue: MeasurementQueue::default(),
+            pacer: OutputPacer::new(&cfg),
+            log: FlightLog::new(log),
             cfg,
         }
     }
@@ -248,36 +173,7 @@ impl Fusion {
     /// Finishes the log (on shutdown: `Drop` would swallow its errors),
     /// counting its messages and raising an alarm for dropped records.
     pub fn finish_log(&mut self, counters: &Counters) {
-        if self.last_imu_t.is_finite() {
-            self.log_diagnostics(self.last_imu_t, counters, 0);
-        }
-        // A log that never saw an IMU sample still keeps its other inputs.
-        if let Some(l) = &self.log {
-            for (topic, v) in self.pre_imu_log.get_mut().drain(..) {
-                l.log(topic, 0.0, &v);
-            }
-        }
-        let Some(l) = self.log.take() else {
-            return;
-        };
-        let dropped = l.dropped();
-        match l.finish() {
-            Ok(s) => {
-                counters.add(Counter::LogMessages, s.messages);
-                counters.add(Counter::LogChunks, s.chunks);
-            }
-            Err(e) => {
-                counters.add(Counter::LogError, 1);
-                tracing::error!(error = %e, "the MCAP log could not be finished");
-            }
-        }
-        if dropped > 0 {
-            counters.add(Counter::LogDropped, dropped);
-            tracing::error!(
-                dropped,
-                "ALARM: MCAP log records were dropped (writer could not keep up)"
-            );
-        }
+        self.log.finish(self.last_imu_t, counters, self.pacer.reset_counter());
     }
 
     /// For `cmsckf replay`: rebases are installed where the log says.
@@ -289,47 +185,47 @@ impl Fusion {
     /// Handles one input, in the order the fusion loop received it (replay
     /// feeds the logged inputs through here in the same order).
     pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
-        let site = install_site(&mut self.est, self.est_gen, &self.log, self.last_imu_t);
+        let site = install_site(&mut self.est, self.est_gen, self.log.logger(), self.last_imu_t);
         self.rebase.poll(site, &ctx.counters);
         match msg {
             FusionMsg::RebaseInstalled { seq } => {
-                let site = install_site(&mut self.est, self.est_gen, &self.log, self.last_imu_t);
+                let site = install_site(&mut self.est, self.est_gen, self.log.logger(), self.last_imu_t);
                 self.rebase.on_installed(seq, site, &ctx.counters);
             }
-            FusionMsg::Rtcm { bytes, stream } => {
-                self.log_input(
-                    self.last_imu_t,
-                    &InputRecord::Rtcm(RtcmRecord {
-                        bytes: Cow::Borrowed(&bytes),
-                        stream,
-                    }),
-                );
-                self.on_rtcm(&bytes, stream, &ctx.counters)
-            }
+            FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
-            FusionMsg::Imu(m) => self.on_imu_msg(m, ctx),
-            other => self.on_autopilot(other, &ctx.counters),
+            FusionMsg::Imu(m) => self.on_imu(m, ctx),
+            other => self
+                .autopilot
+                .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
         }
     }
 
-    /// RTCM from the rover: each completed epoch's measurements wait in
-    /// time order for IMU to cover them.
+    /// RTCM: logged, then each completed epoch's measurements wait in time
+    /// order for IMU to cover them.
     fn on_rtcm(&mut self, bytes: &[u8], stream: RtcmStream, counters: &Counters) {
+        self.log.input(
+            self.last_imu_t,
+            &InputRecord::Rtcm(RtcmRecord {
+                bytes: Cow::Borrowed(bytes),
+                stream,
+            }),
+        );
         let mut epochs = Vec::new();
         self.gnss.on_rtcm(
             bytes,
             stream,
             self.est.as_ref(),
-            self.log.as_ref(),
+            self.log.logger(),
             counters,
             &mut epochs,
         );
         for (t, sats) in epochs {
-            self.enqueue(t, Pending::Gnss(sats), counters);
+            self.queue.enqueue(t, Pending::Gnss(sats), counters);
         }
         // The world origin was just placed at a single-point fix: every
         // position in the filter is now off by that fix's error (§7).
-        if let (Some(sigma_m), Some(est)) = (self.gnss.origin_fix_sigma_m.take(), self.est.as_mut()) {
+        if let (Some(sigma_m), Some(est)) = (self.gnss.take_origin_fix_sigma(), self.est.as_mut()) {
             if est.add_world_offset_variance(sigma_m * sigma_m) {
                 counters.add(Counter::PriorFromFix, 1);
             }
@@ -351,7 +247,7 @@ impl Fusion {
             }
         };
         let t = t_ap_us as f64 * 1e-6;
-        self.log_input(
+        self.log.input(
             t,
             &InputRecord::Features(FeaturesRecord {
                 t_us: fr.t_us,
@@ -377,18 +273,17 @@ impl Fusion {
             );
             return;
         }
-        if t <= self.last_frame_t {
+        if t <= self.queue.last_frame_t() {
             ctx.counters.add(Counter::FeatureTimeBackwards, 1);
             tracing::warn!(
                 reason = "feature_time_backwards",
                 t_s = t,
-                prev_s = self.last_frame_t,
+                prev_s = self.queue.last_frame_t(),
                 "frame rejected"
             );
             return;
         }
-        self.last_frame_t = t;
-        self.enqueue(t, Pending::Frame(norm), &ctx.counters);
+        self.queue.push_frame(t, norm, &ctx.counters);
     }
 
     /// An IMU sample: logged as it came (so that replay judges it the same
@@ -396,8 +291,8 @@ impl Fusion {
     /// is a reboot and one forward past `MAX_IMU_GAP_S` a gap: either
     /// restarts the filter. Then the sample is fused, and the status and
     /// diagnostics follow it.
-    fn on_imu_msg(&mut self, m: ImuMeas, ctx: &Ctx) {
-        self.log_input(
+    fn on_imu(&mut self, m: ImuMeas, ctx: &Ctx) {
+        self.log.input(
             m.t_s,
             &InputRecord::Imu(ImuRecord {
                 t_us: (m.t_s * 1e6).round() as u64,
@@ -454,119 +349,65 @@ impl Fusion {
         }
         self.last_imu_t = m.t_s;
         ctx.counters.add(Counter::ImuSamples, 1);
-        while self
-            .recent_imu
-            .front()
-            .is_some_and(|f| m.t_s - f.t_s > RECENT_IMU_S || f.t_s >= m.t_s)
-            || self.recent_imu.len() == RECENT_IMU_CAPACITY
-        {
-            self.recent_imu.pop_front();
-        }
-        self.recent_imu.push_back(m);
-        self.on_imu(m, &ctx.counters, &ctx.out);
+        self.starter.push_imu(m);
+        self.fuse_imu(m, &ctx.counters, &ctx.out);
         let st = &ctx.status;
-        // An unhealthy filter was restarted in `on_imu`: a running
-        // filter is a healthy one.
+        // An unhealthy filter was restarted in `fuse_imu`: a running filter
+        // is a healthy one.
         st.initialised.store(self.est.is_some(), Ordering::Relaxed);
         st.last_imu_wall_ms
             .store(ctx.start.elapsed().as_millis() as u64, Ordering::Relaxed);
         self.tracker.update(m.t_s, self.est.is_some(), &ctx.counters, st);
-        if m.t_s >= self.next_diag_t {
-            self.next_diag_t = m.t_s + 1.0;
-            self.log_diagnostics(m.t_s, &ctx.counters, st.degraded());
-        }
-    }
-
-    /// An input, as the fusion loop consumed it (what replay feeds back).
-    pub(super) fn log_input(&self, t_s: f64, rec: &InputRecord<'_>) {
-        self.log(rec.topic(), t_s, rec);
-    }
-
-    pub(super) fn log<T: serde::Serialize>(&self, topic: Topic, t_s: f64, v: &T) {
-        let Some(l) = &self.log else { return };
-        let mut pending = self.pre_imu_log.borrow_mut();
-        if !t_s.is_finite() {
-            // Before any IMU sample: wait for a sensor time (bounded; past
-            // the bound the logger's own stamp, 0, is better than none).
-            if pending.len() < PRE_IMU_LOG_CAP {
-                if let Ok(v) = serde_json::to_value(v) {
-                    pending.push((topic, v));
-                    return;
-                }
-            }
-        } else {
-            for (topic, v) in pending.drain(..) {
-                l.log(topic, t_s, &v);
-            }
-        }
-        l.log(topic, t_s, v);
-    }
-
-    /// The counters and degraded-state reasons, to `/diagnostics`.
-    fn log_diagnostics(&self, t_s: f64, counters: &Counters, degraded: u32) {
-        if self.log.is_some() {
-            self.log(
-                Topic::Diagnostics,
-                t_s,
-                &json!({"t_s": t_s, "counters": counters.snapshot(), "degraded": status::describe(degraded),
-                    "reset_counter": self.reset_counter}),
-            );
-        }
-    }
-
-    /// A `foxglove.Log` line (level: 2 info, 3 warning, 4 error).
-    pub(super) fn log_text(&self, level: u8, t_s: f64, message: &str) {
-        let t = t_s.max(0.0);
-        self.log(
-            Topic::Log,
-            t,
-            &json!({"timestamp": {"sec": t.floor() as u64, "nsec": ((t - t.floor()) * 1e9) as u64},
-                "level": level, "message": message, "name": "cmsckf", "file": file!(), "line": 0}),
-        );
-    }
-
-    /// Queues a measurement in time order (bounded; the oldest is dropped).
-    pub(super) fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
-        if self.pending.len() == PENDING_FRAMES {
-            self.pending.pop_front();
-            counters.add(Counter::PendingOverflow, 1);
-        }
-        let at = self.pending.partition_point(|(u, _)| *u <= t);
-        self.pending.insert(at, (t, item));
+        self.log
+            .diagnostics_if_due(m.t_s, &ctx.counters, st.degraded(), self.pacer.reset_counter());
     }
 
     /// One IMU sample through the filter: the origin to the autopilot once
-    /// known, initialisation, the output, then the measurements it covers,
-    /// and a health check.
-    fn on_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        self.send_origin(m.t_s, counters, out);
+    /// known, a start when none runs, the output, then the measurements it
+    /// covers, and a health check.
+    fn fuse_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if self.cfg.output.set_gps_origin {
+            self.autopilot
+                .send_origin(m.t_s, self.gnss.frame(), &self.log, counters, out);
+        }
         let Some(est) = self.est.as_mut() else {
-            if !self.restart_in_place(m, counters) {
-                self.try_init(m, counters);
+            if let Some(start) = self
+                .starter
+                .start(m, &self.cfg, &self.autopilot, self.gnss.frame(), counters)
+            {
+                self.install_filter(start, m.t_s, counters);
             }
             return;
         };
         if est.add_imu(m).is_err() {
             counters.add(Counter::ImuRejected, 1);
         }
-        self.emit_output(m, counters, out);
-        let zupt_allowed = self.zupt_allowed();
-        let Some(est) = self.est.as_mut() else {
-            return;
+        let cx = OutputCtx {
+            cfg: &self.cfg,
+            autopilot: self.autopilot.kind(),
+            tracker: &self.tracker,
+            frame: self.gnss.frame(),
+            log: self.log.logger(),
         };
-        est.set_zupt_allowed(zupt_allowed);
-        self.fuse_covered(m.t_s, counters);
+        self.pacer.emit(m, est, cx, counters, out);
+        est.set_zupt_allowed(self.autopilot.zupt_allowed());
+        let cx = FuseCtx {
+            rebase: &mut self.rebase,
+            est_gen: self.est_gen,
+            tracker: &mut self.tracker,
+            log: self.log.logger(),
+            frame: self.gnss.frame(),
+            counters,
+        };
+        self.queue.fuse_covered(m.t_s, est, cx);
         // Without measurements (camera and GNSS both out) nothing moved the
         // filter on: carry it behind the IMU, so that the covariance in the
         // outputs grows as the error does and the IMU buffer never fills.
-        if let Some(est) = self.est.as_mut() {
-            if est.time_s() < m.t_s - MAX_FILTER_LAG_S {
-                est.propagate_to(m.t_s - MAX_FILTER_LAG_S);
-            }
+        if est.time_s() < m.t_s - MAX_FILTER_LAG_S {
+            est.propagate_to(m.t_s - MAX_FILTER_LAG_S);
         }
         // Once per IMU sample, after this sample's measurements (a GNSS-only
         // divergence is caught as soon as a vision one).
-        let Some(est) = self.est.as_ref() else { return };
         if let Err(why) = est.check_health() {
             counters.add(Counter::FilterReset, 1);
             tracing::error!(reason = %why, "filter unhealthy: resetting");
@@ -574,7 +415,63 @@ impl Fusion {
         } else if m.t_s - self.tracker.last_aided_s() < GOOD_AIDED_S {
             // Only an estimate that measurements vouch for: a filter
             // carried on the IMU alone passes its checks however wrong.
-            self.good.offer(est, m.t_s);
+            self.starter.offer_good(est, m.t_s);
         }
+    }
+
+    /// `start`'s filter becomes the running one at the IMU sample time `t_s`.
+    fn install_filter(&mut self, start: Start, t_s: f64, counters: &Counters) {
+        let Start { mut est, is_static } = start;
+        est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
+        self.est_gen += 1;
+        self.est = Some(est);
+        self.tracker.filter_started(t_s);
+        self.queue.drop_before(t_s);
+        counters.add(
+            if is_static {
+                Counter::InitStatic
+            } else {
+                Counter::InitInFlight
+            },
+            1,
+        );
+        self.log.text(
+            Level::Info,
+            t_s,
+            if is_static {
+                "filter initialised (static start)"
+            } else {
+                "filter initialised in flight"
+            },
+        );
+        tracing::info!(static_start = is_static, t_s, "filter initialised");
+    }
+
+    /// Drops the filter so that the next IMU sample starts a fresh one (the
+    /// one reset path): `reset_counter` moves on, the autopilot gets a
+    /// `STATUSTEXT`, the log a `/log` line, and the status shows
+    /// `filter_reset` for 2 s. Where the next filter starts is the
+    /// [`Starter`]'s (`plan_restart`). After a reboot or a long IMU gap the
+    /// autopilot's attitude and position are stale and are dropped (and,
+    /// after a reboot, SYSTEM_TIME must map GPS time again and every clock
+    /// starts over).
+    fn restart(&mut self, t_s: f64, why: &str, kind: Restart, out: &mpsc::Sender<Outbound>) {
+        self.log.text(Level::Error, t_s, &format!("filter reset: {why}"));
+        let _ = out.try_send(Outbound::StatusText {
+            severity: if kind == Restart::Unhealthy { 2 } else { 4 },
+            text: format!("cmsckf reset: {why}"),
+        });
+        self.est = None;
+        self.starter.plan_restart(t_s, kind, &self.cfg, &self.autopilot);
+        self.autopilot.forget_for_restart(kind);
+        self.pacer.on_reset();
+        if kind == Restart::Reboot {
+            self.tracker.restart_clock();
+            self.gnss.set_unix_minus_boot(None);
+            self.queue.clear();
+            self.pacer.restart_clock();
+            self.last_imu_t = f64::NEG_INFINITY;
+        }
+        self.tracker.hold(Degraded::FilterReset, t_s);
     }
 }

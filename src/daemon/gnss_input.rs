@@ -66,10 +66,12 @@ pub(super) struct GnssIn {
     /// recognised from the bytes. Each stream has its own decoder, so a
     /// frame is never spliced from two.
     stream_dec: StreamDecoder,
-    pub(super) rx: Receiver,
-    pub(super) frame: Option<NedFrame>,
+    rx: Receiver,
+    /// The world frame: configured, the autopilot's origin, or placed at
+    /// the first fix.
+    frame: Option<NedFrame>,
     /// Unix time minus autopilot boot time (s), from SYSTEM_TIME.
-    pub(super) unix_minus_boot_s: Option<f64>,
+    unix_minus_boot_s: Option<f64>,
     msgs: Vec<GnssMessage>,
     epochs: Vec<Epoch>,
     klobuchar: Option<Klobuchar>,
@@ -77,7 +79,7 @@ pub(super) struct GnssIn {
     iono: IonoMode,
     /// Set when the world origin was just placed at a single-point fix:
     /// that fix's position sigma (m), `PDOP · σ_pseudorange`.
-    pub(super) origin_fix_sigma_m: Option<f64>,
+    origin_fix_sigma_m: Option<f64>,
     pseudorange_sigma_m: f64,
     /// `gnss.rover_station_id`: the station id of the rover's own RTCM on
     /// the link (0: none there).
@@ -142,6 +144,28 @@ impl GnssIn {
 }
 
 impl GnssIn {
+    /// The world frame, once its origin is known.
+    pub(super) fn frame(&self) -> Option<NedFrame> {
+        self.frame
+    }
+
+    /// The world frame from the autopilot's origin.
+    pub(super) fn set_frame(&mut self, frame: NedFrame) {
+        self.frame = Some(frame);
+    }
+
+    /// The autopilot's Unix − boot offset (s), or `None` (unknown again
+    /// after a reboot): how GNSS time maps onto the autopilot's clock.
+    pub(super) fn set_unix_minus_boot(&mut self, offset_s: Option<f64>) {
+        self.unix_minus_boot_s = offset_s;
+    }
+
+    /// The sigma (m) of the single-point fix the world origin was just
+    /// placed at, once: the filter takes it as a prior (§7).
+    pub(super) fn take_origin_fix_sigma(&mut self) -> Option<f64> {
+        self.origin_fix_sigma_m.take()
+    }
+
     /// Whether a decoded message goes to the rover's receiver model.
     /// Ephemerides do from any stream (broadcast orbits are the same
     /// whoever relays them: a base's serve a rover that sends none).

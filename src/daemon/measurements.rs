@@ -1,143 +1,214 @@
-//! Fusing the measurements IMU now covers: GNSS epochs and camera frames in
-//! time order, their filter events to the log, and their counters.
+//! The measurements waiting for IMU to cover their time, and their fusing:
+//! GNSS epochs and camera frames in time order, their filter events to the
+//! log, and their counters.
 
+use std::collections::VecDeque;
+
+use cmsckf_models::geodesy::NedFrame;
 use cmsckf_models::gnss::SatMeas;
 use cmsckf_models::stats::chi2_quantile;
 use serde_json::json;
 
-use super::fusion::{Fusion, Pending};
-use super::rebase::dispatch_rebase;
+use super::frames::LandmarkCloud;
+use super::rebase::{dispatch_rebase, RebaseExec};
+use super::PENDING_FRAMES;
 use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::{Estimator, FilterEvent, FrameReport};
 use crate::io::mcap_log::{McapLogger, Topic};
+use crate::status::Tracker;
 
-impl Fusion {
-    /// The measurements now covered by IMU (up to `t_imu_s`), in time order.
-    /// A frame older than the filter is late and counted; a GNSS epoch goes
-    /// to the filter whatever its time, which fuses it at that time through
-    /// its clone or refuses it as late (§8b).
-    pub(super) fn fuse_covered(&mut self, t_imu_s: f64, counters: &Counters) {
+/// A measurement waiting for IMU to cover its time.
+#[derive(Debug)]
+pub(super) enum Pending {
+    Frame(NormFrame),
+    Gnss(Vec<SatMeas>),
+}
+
+/// The measurements waiting for IMU, in time order (bounded: the oldest is
+/// dropped), the last frame's time, and the landmarks of the fused tracks
+/// gathered for the log.
+#[derive(Debug)]
+pub(super) struct MeasurementQueue {
+    pending: VecDeque<(f64, Pending)>,
+    last_frame_t: f64,
+    landmarks: LandmarkCloud,
+}
+
+/// What fusing a measurement reports to: the filter's generation and the
+/// rebase worker (for the global updates it starts), the status tracker,
+/// the log, the world frame (GNSS needs its origin) and the counters.
+pub(super) struct FuseCtx<'a> {
+    pub(super) rebase: &'a mut RebaseExec,
+    pub(super) est_gen: u64,
+    pub(super) tracker: &'a mut Tracker,
+    pub(super) log: Option<&'a McapLogger>,
+    pub(super) frame: Option<NedFrame>,
+    pub(super) counters: &'a Counters,
+}
+
+impl Default for MeasurementQueue {
+    fn default() -> Self {
+        Self {
+            pending: VecDeque::with_capacity(PENDING_FRAMES),
+            last_frame_t: f64::NEG_INFINITY,
+            landmarks: LandmarkCloud::default(),
+        }
+    }
+}
+
+impl MeasurementQueue {
+    /// Autopilot time of the last frame accepted (−∞ before the first).
+    pub(super) fn last_frame_t(&self) -> f64 {
+        self.last_frame_t
+    }
+
+    /// Queues a camera frame at `t`, which must be after the last one.
+    pub(super) fn push_frame(&mut self, t: f64, frame: NormFrame, counters: &Counters) {
+        self.last_frame_t = t;
+        self.enqueue(t, Pending::Frame(frame), counters);
+    }
+
+    /// Queues a measurement in time order (bounded; the oldest is dropped).
+    pub(super) fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
+        if self.pending.len() == PENDING_FRAMES {
+            self.pending.pop_front();
+            counters.add(Counter::PendingOverflow, 1);
+        }
+        let at = self.pending.partition_point(|(u, _)| *u <= t);
+        self.pending.insert(at, (t, item));
+    }
+
+    /// Drops what a filter started at `t_s` cannot take.
+    pub(super) fn drop_before(&mut self, t_s: f64) {
+        self.pending.retain(|(t, _)| *t >= t_s);
+    }
+
+    /// Forgets every measurement and time (the autopilot's clock restarted).
+    pub(super) fn clear(&mut self) {
+        self.pending.clear();
+        self.last_frame_t = f64::NEG_INFINITY;
+    }
+
+    /// The measurements now covered by IMU (up to `t_imu_s`), into `est` in
+    /// time order. A frame older than the filter is late and counted; a
+    /// GNSS epoch goes to the filter whatever its time, which fuses it at
+    /// that time through its clone or refuses it as late (§8b).
+    pub(super) fn fuse_covered(&mut self, t_imu_s: f64, est: &mut Estimator, mut cx: FuseCtx<'_>) {
         while let Some((t, item)) = self.pending.front() {
             // A frame is fused at its stamp plus the time offset (§3b): that
             // is the time IMU must cover, and the filter must not be past.
             let is_frame = matches!(item, Pending::Frame(_));
-            let t_fused = *t
-                + self
-                    .est
-                    .as_ref()
-                    .filter(|_| is_frame)
-                    .map_or(0.0, |e| e.time_offset().0);
+            let t_fused = *t + if is_frame { est.time_offset().0 } else { 0.0 };
             if t_fused > t_imu_s {
                 break;
             }
             let Some((t, item)) = self.pending.pop_front() else {
                 break;
             };
-            let Some(est) = self.est.as_ref() else { return };
             if is_frame && t_fused < est.time_s() {
-                counters.add(Counter::FeatureLate, 1);
+                cx.counters.add(Counter::FeatureLate, 1);
                 continue;
             }
             match item {
-                Pending::Frame(fr) => self.fuse_frame(t, &fr, counters),
-                Pending::Gnss(sats) => self.fuse_gnss(t, &sats, counters),
+                Pending::Frame(fr) => fuse_frame(est, t, &fr, &mut self.landmarks, &mut cx),
+                Pending::Gnss(sats) => fuse_gnss(est, t, &sats, &mut cx),
             }
         }
     }
+}
 
-    /// One GNSS epoch into the filter (once the world origin is known).
-    fn fuse_gnss(&mut self, t: f64, sats: &[SatMeas], counters: &Counters) {
-        let Some(frame) = self.gnss.frame else { return };
-        let Some(est) = self.est.as_mut() else { return };
-        match est.process_gnss(t, &frame, sats) {
-            Ok(rep) => {
-                if let Some(l) = &self.log {
-                    let (clock, clock_var) = est.clock();
-                    l.log(
-                        Topic::FilterGnss,
-                        t,
-                        &json!({
-                            "t_s": t, "pseudoranges_used": rep.pseudoranges_used, "range_rates_used": rep.range_rates_used,
-                            "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
-                            "clock_var": clock_var.as_slice(),
-                            "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
-                        }),
-                    );
-                }
-                counters.add(Counter::GnssEpochsFused, 1);
-                self.tracker.gnss_fused(t);
-                let codes_rejected = [Counter::GnssPseudorangeChi2, Counter::GnssPseudorangeOutlier]
-                    .iter()
-                    .filter_map(|k| rep.rejected.get(k))
-                    .sum::<u64>();
-                self.tracker.gnss_codes_rejected(t, codes_rejected);
-                counters.add(Counter::GnssPseudorangesUsed, rep.pseudoranges_used as u64);
-                counters.add(Counter::GnssRangeRatesUsed, rep.range_rates_used as u64);
-                for (k, v) in &rep.rejected {
-                    counters.add(*k, *v);
-                }
+/// One GNSS epoch into the filter (once the world origin is known).
+fn fuse_gnss(est: &mut Estimator, t: f64, sats: &[SatMeas], cx: &mut FuseCtx<'_>) {
+    let Some(frame) = cx.frame else { return };
+    let counters = cx.counters;
+    match est.process_gnss(t, &frame, sats) {
+        Ok(rep) => {
+            if let Some(l) = cx.log {
+                let (clock, clock_var) = est.clock();
+                l.log(
+                    Topic::FilterGnss,
+                    t,
+                    &json!({
+                        "t_s": t, "pseudoranges_used": rep.pseudoranges_used, "range_rates_used": rep.range_rates_used,
+                        "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
+                        "clock_var": clock_var.as_slice(),
+                        "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),
+                    }),
+                );
             }
-            Err(e @ crate::estimator::InputError::GnssLate { .. }) => {
-                counters.add(Counter::GnssLate, 1);
-                tracing::warn!(reason = "gnss_late", error = %e, "GNSS epoch too late to fuse");
+            counters.add(Counter::GnssEpochsFused, 1);
+            cx.tracker.gnss_fused(t);
+            let codes_rejected = [Counter::GnssPseudorangeChi2, Counter::GnssPseudorangeOutlier]
+                .iter()
+                .filter_map(|k| rep.rejected.get(k))
+                .sum::<u64>();
+            cx.tracker.gnss_codes_rejected(t, codes_rejected);
+            counters.add(Counter::GnssPseudorangesUsed, rep.pseudoranges_used as u64);
+            counters.add(Counter::GnssRangeRatesUsed, rep.range_rates_used as u64);
+            for (k, v) in &rep.rejected {
+                counters.add(*k, *v);
             }
-            Err(e) => {
-                counters.add(Counter::GnssRejected, 1);
-                tracing::warn!(error = %e, "GNSS epoch rejected");
-            }
+        }
+        Err(e @ crate::estimator::InputError::GnssLate { .. }) => {
+            counters.add(Counter::GnssLate, 1);
+            tracing::warn!(reason = "gnss_late", error = %e, "GNSS epoch too late to fuse");
+        }
+        Err(e) => {
+            counters.add(Counter::GnssRejected, 1);
+            tracing::warn!(error = %e, "GNSS epoch rejected");
         }
     }
+}
 
-    /// One camera frame into the filter; a global update it starts goes to
-    /// the rebase worker.
-    fn fuse_frame(&mut self, t: f64, fr: &NormFrame, counters: &Counters) {
-        let rej = fr.rejects;
-        for (name, n) in [
-            (Counter::FeatureNonFinite, rej.non_finite),
-            (Counter::FeatureOutsideImage, rej.outside_image),
-            (Counter::FeatureUndistortFailed, rej.undistort_failed),
-            (Counter::FeatureDuplicateId, rej.duplicate_id),
-        ] {
-            if n > 0 {
-                counters.add(name, n);
+/// One camera frame into the filter; a global update it starts goes to the
+/// rebase worker.
+fn fuse_frame(est: &mut Estimator, t: f64, fr: &NormFrame, landmarks: &mut LandmarkCloud, cx: &mut FuseCtx<'_>) {
+    let counters = cx.counters;
+    let rej = fr.rejects;
+    for (name, n) in [
+        (Counter::FeatureNonFinite, rej.non_finite),
+        (Counter::FeatureOutsideImage, rej.outside_image),
+        (Counter::FeatureUndistortFailed, rej.undistort_failed),
+        (Counter::FeatureDuplicateId, rej.duplicate_id),
+    ] {
+        if n > 0 {
+            counters.add(name, n);
+        }
+    }
+    let started = std::time::Instant::now();
+    let result = est.process_frame(t, &fr.obs);
+    let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
+    dispatch_rebase(cx.rebase, cx.est_gen, est, counters);
+    match result {
+        Ok(rep) => {
+            if let Some(l) = cx.log {
+                log_frame(l, est, t, fr.obs.len(), &rep, elapsed_us);
+                landmarks.push(l, t, &rep.landmarks_W);
+            }
+            counters.add(Counter::FramesProcessed, 1);
+            cx.tracker.frame_processed(t);
+            counters.add(Counter::TracksUsed, rep.tracks_used as u64);
+            counters.add(Counter::GlobalUpdates, rep.global_updates as u64);
+            if rep.loop_closure_tracks > 0 {
+                // Tracks that reached back to a keyframe: revisits.
+                counters.add(Counter::LoopClosureTracks, rep.loop_closure_tracks as u64);
+            }
+            if rep.promoted > 0 {
+                counters.add(Counter::KeyframesPromoted, rep.promoted as u64);
+            }
+            if rep.deferred > 0 {
+                // Loop-closure observations left for a later track while
+                // a rebase was computing the global part.
+                counters.add(Counter::LoopClosureDeferred, rep.deferred as u64);
+            }
+            for (k, v) in &rep.rejected {
+                counters.add(k.counter(), *v);
             }
         }
-        let Some(est) = self.est.as_mut() else { return };
-        let started = std::time::Instant::now();
-        let result = est.process_frame(t, &fr.obs);
-        let elapsed_us = started.elapsed().as_secs_f64() * 1e6;
-        dispatch_rebase(&mut self.rebase, self.est_gen, est, counters);
-        match result {
-            Ok(rep) => {
-                if let Some(l) = &self.log {
-                    log_frame(l, est, t, fr.obs.len(), &rep, elapsed_us);
-                    self.landmarks.push(l, t, &rep.landmarks_W);
-                }
-                counters.add(Counter::FramesProcessed, 1);
-                self.tracker.frame_processed(t);
-                counters.add(Counter::TracksUsed, rep.tracks_used as u64);
-                counters.add(Counter::GlobalUpdates, rep.global_updates as u64);
-                if rep.loop_closure_tracks > 0 {
-                    // Tracks that reached back to a keyframe: revisits.
-                    counters.add(Counter::LoopClosureTracks, rep.loop_closure_tracks as u64);
-                }
-                if rep.promoted > 0 {
-                    counters.add(Counter::KeyframesPromoted, rep.promoted as u64);
-                }
-                if rep.deferred > 0 {
-                    // Loop-closure observations left for a later track while
-                    // a rebase was computing the global part.
-                    counters.add(Counter::LoopClosureDeferred, rep.deferred as u64);
-                }
-                for (k, v) in &rep.rejected {
-                    counters.add(k.counter(), *v);
-                }
-            }
-            Err(e) => {
-                counters.add(Counter::FrameRejected, 1);
-                tracing::warn!(error = %e, "frame rejected");
-            }
+        Err(e) => {
+            counters.add(Counter::FrameRejected, 1);
+            tracing::warn!(error = %e, "frame rejected");
         }
     }
 }

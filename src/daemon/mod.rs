@@ -23,7 +23,9 @@
 //! future completes.
 
 mod autopilot;
+mod estimate_message;
 mod features;
+mod flight_log;
 mod frames;
 mod fusion;
 mod gnss_input;
@@ -58,8 +60,8 @@ pub use crate::io::messages::RtcmStream;
 use crate::io::messages::{AutopilotKind, Outbound};
 use crate::status::Status;
 
+pub use estimate_message::{outputs, upper21};
 pub use fusion::{Ctx, Fusion};
-pub use output::{outputs, upper21};
 
 /// Errors that stop the daemon from starting.
 #[derive(Debug, thiserror::Error)]

@@ -31,6 +31,7 @@ pub mod frontend;
 pub mod gnss_model;
 pub mod gnss_update;
 pub mod health;
+pub mod imu_covariance;
 mod keyframes;
 pub mod math;
 mod msckf;
@@ -448,8 +449,7 @@ impl Estimator {
 
     /// Covariance of the body pose `[δθ, δp]` (6×6).
     pub fn pose_covariance(&self) -> Matrix6<f64> {
-        let idx = [0, 1, 2, 6, 7, 8];
-        Matrix6::from_fn(|i, j| self.P[(idx[i], idx[j])])
+        Matrix6::from_fn(|i, j| self.P[(POSE_IDX[i], POSE_IDX[j])])
     }
 
     /// The IMU block of the covariance (15×15).

@@ -1,0 +1,449 @@
+//! An estimate as the autopilot gets it: `ODOMETRY`, or
+//! `VISION_POSITION_ESTIMATE` with `VISION_SPEED_ESTIMATE`
+//! (`output.message`; one source of the pose, never two), their
+//! covariances (mapped from the filter's through the Jacobians below, and
+//! written as ArduPilot or PX4 read them) and `ODOMETRY.quality`.
+
+use nalgebra::{Matrix3, Matrix6, SMatrix, UnitQuaternion, Vector3};
+
+use crate::config::{OutputMessage, PoseCovariance};
+use crate::estimator::imu_covariance::{attitude_velocity_gyro_bias_block, pose_block, velocity_block};
+use crate::estimator::math::skew;
+use crate::estimator::{ImuState, Mat15};
+use crate::io::messages::Outbound;
+
+/// Euler (ZYX) angles of `q` and the map `M` from `[droll, dpitch, dyaw]` to
+/// the world-frame rotation error: `δθ = dyaw ẑ + dpitch Rz ŷ + droll Rz Ry x̂`.
+fn euler_and_map(q: &UnitQuaternion<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+    let (r, p, y) = q.euler_angles();
+    let rz = UnitQuaternion::from_euler_angles(0.0, 0.0, y);
+    let rzy = UnitQuaternion::from_euler_angles(0.0, p, y);
+    let m = Matrix3::from_columns(&[rzy * Vector3::x(), rz * Vector3::y(), Vector3::z()]);
+    (Vector3::new(r, p, y), m)
+}
+
+/// Upper triangle, row-major, of a 6×6 matrix (MAVLink's 21-float layout).
+pub fn upper21(c: &Matrix6<f64>) -> [f32; 21] {
+    let mut out = [0.0f32; 21];
+    let mut k = 0;
+    for i in 0..6 {
+        for j in i..6 {
+            out[k] = c[(i, j)] as f32;
+            k += 1;
+        }
+    }
+    out
+}
+
+/// The filter at one output instant: what the messages are made of.
+#[derive(Clone, Debug)]
+pub struct OutputState {
+    /// Autopilot time of the IMU sample the estimate is predicted to (s).
+    pub t_s: f64,
+    /// The state predicted to `t_s`.
+    pub x: ImuState,
+    /// The IMU block of the covariance, `[δθ δv δp δb_g δb_a]` (rotation
+    /// errors in the world frame, `R = Exp(δθ) R̂`).
+    pub imu_cov: Mat15,
+    /// That sample's gyro reading (rad/s, body FRD).
+    pub gyro_radps: Vector3<f64>,
+    /// The white-noise variance of one gyro reading, per axis (rad²/s²).
+    pub gyro_var: f64,
+    pub reset_counter: u8,
+    /// `ODOMETRY.quality`: see [`quality`].
+    pub quality: i8,
+    /// How the pose covariance is written (`Variances` or `ArdupilotCbrt`).
+    pub pose_covariance: PoseCovariance,
+    /// `ODOMETRY` in `MAV_FRAME_LOCAL_NED` (towards PX4) rather than
+    /// `MAV_FRAME_LOCAL_FRD` (ArduPilot's only accepted frame).
+    pub frame_ned: bool,
+}
+
+/// The 21 entries of the pose covariance `c` (`[x y z roll pitch yaw]`) as
+/// `encoding` writes them (see [`PoseCovariance::ArdupilotCbrt`]: eq. O1
+/// of `src/estimator/README.md`).
+pub fn pose_covariance21(c: &Matrix6<f64>, encoding: PoseCovariance) -> [f32; 21] {
+    if encoding != PoseCovariance::ArdupilotCbrt {
+        return upper21(c);
+    }
+    let sigma_p = c[(0, 0)].max(c[(1, 1)]).max(c[(2, 2)]).max(0.0).sqrt();
+    let sigma_yaw = c[(5, 5)].max(0.0).sqrt();
+    let entry = |sigma: f64| (sigma.powf(1.5) / 3f64.sqrt()) as f32;
+    let mut out = [0.0f32; 21];
+    // Diagonal positions in MAVLink's row-major upper triangle.
+    for (k, sigma) in [
+        (0, sigma_p),
+        (6, sigma_p),
+        (11, sigma_p),
+        (15, sigma_yaw),
+        (18, sigma_yaw),
+        (20, sigma_yaw),
+    ] {
+        out[k] = entry(sigma);
+    }
+    out
+}
+
+/// The variance of one gyro reading's white noise at `rate_hz` from the
+/// continuous density (rad/s/√Hz): `σ² = σ_c² · rate`, the noise of a
+/// sample whose bandwidth is the Nyquist frequency.
+pub fn gyro_white_variance(noise_density: f64, rate_hz: f64) -> f64 {
+    noise_density * noise_density * rate_hz
+}
+
+/// Without a measurement for this long the filter is being carried on the
+/// IMU alone (the fusion loop keeps it within 1 s behind the IMU): camera
+/// and GNSS are both out (s).
+const DEAD_RECKONING_S: f64 = 1.0;
+/// Measurements sparser than this: degraded (s).
+const SPARSE_AIDING_S: f64 = 0.5;
+
+/// `ODOMETRY.quality` ("−1 = failed, 0 = unknown, 1 = worst, 100 = best"),
+/// from the filter's health at the output instant, with
+/// `aided_age_s` how long ago a measurement (frame, GNSS epoch, ZUPT) last
+/// moved the filter:
+/// - −1: failed: the predicted state or its covariance is not finite
+///   (a filter that fails its health check is reset before its next
+///   output, and none is sent while a new one starts);
+/// - 1: dead reckoning: nothing fused for [`DEAD_RECKONING_S`] (camera and
+///   GNSS both out; the position error grows with the cube of time);
+/// - 50: aiding sparse or degraded: nothing fused for [`SPARSE_AIDING_S`]
+///   (frames late or lost, GNSS alone), or a degraded reason in the
+///   HEARTBEAT (input rejected, a reset just now, GNSS outliers …);
+/// - 100: nominal.
+///
+/// ArduPilot ignores estimates below `VISO_QUAL_MIN` (0 by default: only
+/// −1 is dropped; 2 drops dead reckoning as well), PX4 below `EKF2_EV_QMIN`.
+///
+/// `aided_age_s` is the time since the last frame or GNSS epoch was fused
+/// (∞ before the first: dead reckoning).
+pub fn quality(x: &ImuState, imu_cov: &Mat15, aided_age_s: f64, degraded: bool) -> i8 {
+    let finite = [x.p_B_in_W, x.v_B_in_W, x.b_g]
+        .iter()
+        .all(|v| v.iter().all(|c| c.is_finite()))
+        && x.q_W_B.coords.iter().all(|c| c.is_finite())
+        && imu_cov.iter().all(|c| c.is_finite());
+    if !finite || aided_age_s.is_nan() {
+        -1
+    } else if aided_age_s >= DEAD_RECKONING_S {
+        1
+    } else if aided_age_s >= SPARSE_AIDING_S || degraded {
+        50
+    } else {
+        100
+    }
+}
+
+pub(super) fn t_us(t_s: f64) -> u64 {
+    (t_s * 1e6).round() as u64
+}
+
+/// Roll, pitch, yaw of the state and the covariance of `[x y z roll pitch
+/// yaw]`, from that of the pose `[δθ, δp]`.
+pub(super) fn pose_rpy_covariance(x: &ImuState, imu_cov: &Mat15) -> (Vector3<f64>, Matrix6<f64>) {
+    let cov = pose_block(imu_cov);
+    let (rpy, m) = euler_and_map(&x.q_W_B);
+    let minv = m.try_inverse().unwrap_or_else(Matrix3::identity);
+    let mut t = Matrix6::zeros();
+    t.fixed_view_mut::<3, 3>(0, 3).copy_from(&Matrix3::identity());
+    t.fixed_view_mut::<3, 3>(3, 0).copy_from(&minv);
+    (rpy, t * cov * t.transpose())
+}
+
+/// Covariance of `[v_B, ω_B]`, body velocity and rate (FRD), the layout of
+/// `ODOMETRY.velocity_covariance`:
+/// - velocity: `v_B = R̂ᵀ Exp(−δθ)(v̂ + δv) ≈ v̂_B + R̂ᵀ[v̂]× δθ + R̂ᵀ δv`, the
+///   filter's attitude and velocity errors rotated into the body;
+/// - rate: `ω = ω_m − b̂_g` errs by the gyro's white noise (`gyro_var`,
+///   [`gyro_white_variance`]) and the bias error `−δb_g` (whose
+///   correlation with `δθ`, `δv` is kept).
+pub fn body_velocity_rate_covariance(x: &ImuState, imu_cov: &Mat15, gyro_var: f64) -> Matrix6<f64> {
+    let p9 = attitude_velocity_gyro_bias_block(imu_cov);
+    let rt = x.q_W_B.to_rotation_matrix().into_inner().transpose();
+    let mut a = SMatrix::<f64, 6, 9>::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&(rt * skew(&x.v_B_in_W)));
+    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&rt);
+    a.fixed_view_mut::<3, 3>(3, 6).copy_from(&(-Matrix3::identity()));
+    let mut c = a * p9 * a.transpose();
+    for k in 3..6 {
+        c[(k, k)] += gyro_var;
+    }
+    // Exactly symmetric, as MAVLink's upper triangle assumes.
+    (c + c.transpose()) * 0.5
+}
+
+/// The messages for one output instant: `ODOMETRY`, or
+/// `VISION_POSITION_ESTIMATE` and `VISION_SPEED_ESTIMATE` (a different
+/// quantity, the velocity, at the same instant): never two messages of the
+/// same pose.
+pub fn outputs(s: &OutputState, message: OutputMessage) -> Vec<Outbound> {
+    let x = &s.x;
+    let (rpy, c) = pose_rpy_covariance(x, &s.imu_cov);
+    let t_us = t_us(s.t_s);
+    match message {
+        OutputMessage::Odometry => {
+            let q = x.q_W_B.coords;
+            vec![Outbound::Odometry {
+                t_us,
+                p_ned_m: x.p_B_in_W,
+                q_wxyz: [q.w as f32, q.x as f32, q.y as f32, q.z as f32],
+                v_body_mps: x.q_W_B.inverse_transform_vector(&x.v_B_in_W),
+                w_body_radps: s.gyro_radps - x.b_g,
+                // The same [x y z roll pitch yaw] layout as VPE's.
+                pose_covariance: pose_covariance21(&c, s.pose_covariance),
+                velocity_covariance: upper21(&body_velocity_rate_covariance(x, &s.imu_cov, s.gyro_var)),
+                reset_counter: s.reset_counter,
+                quality: s.quality,
+                frame_ned: s.frame_ned,
+            }]
+        }
+        OutputMessage::VisionPositionEstimate => {
+            let pv = velocity_block(&s.imu_cov);
+            let mut covariance = [0.0f32; 9];
+            for (k, v) in covariance.iter_mut().enumerate() {
+                *v = (0.5 * (pv[(k / 3, k % 3)] + pv[(k % 3, k / 3)])) as f32;
+            }
+            vec![
+                Outbound::VisionPositionEstimate {
+                    t_us,
+                    p_ned_m: x.p_B_in_W,
+                    rpy_rad: rpy,
+                    covariance: upper21(&c),
+                    reset_counter: s.reset_counter,
+                },
+                Outbound::VisionSpeedEstimate {
+                    t_us,
+                    v_ned_mps: x.v_B_in_W,
+                    covariance,
+                    reset_counter: s.reset_counter,
+                },
+            ]
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::propagate::{BG, P as P_OFF, TH, V};
+
+    fn state(q: UnitQuaternion<f64>) -> ImuState {
+        ImuState {
+            q_W_B: q,
+            v_B_in_W: Vector3::new(3.0, -1.0, 0.5),
+            p_B_in_W: Vector3::new(1.0, 2.0, 3.0),
+            b_g: Vector3::new(0.01, -0.02, 0.03),
+            b_a: Vector3::zeros(),
+        }
+    }
+
+    /// A symmetric positive-definite IMU covariance with correlations.
+    fn imu_cov() -> Mat15 {
+        let l = Mat15::from_fn(|i, j| {
+            if i >= j {
+                0.01 * (1.0 + ((i * 7 + j * 3) % 5) as f64)
+            } else {
+                0.0
+            }
+        });
+        l * l.transpose() + Mat15::identity() * 1e-4
+    }
+
+    fn output_state(q: UnitQuaternion<f64>) -> OutputState {
+        OutputState {
+            t_s: 1.5,
+            x: state(q),
+            imu_cov: imu_cov(),
+            gyro_radps: Vector3::new(0.1, 0.2, -0.3),
+            gyro_var: gyro_white_variance(1.7e-4, 200.0),
+            reset_counter: 2,
+            pose_covariance: PoseCovariance::Variances,
+            frame_ned: false,
+            quality: 100,
+        }
+    }
+
+    /// The Euler-angle map against finite differences.
+    #[test]
+    fn euler_map_matches_finite_differences() {
+        let q = UnitQuaternion::from_euler_angles(0.2, -0.3, 1.2);
+        let (rpy, m) = euler_and_map(&q);
+        let h = 1e-6;
+        for k in 0..3 {
+            let mut d = rpy;
+            d[k] += h;
+            let qp = UnitQuaternion::from_euler_angles(d.x, d.y, d.z);
+            let dth = (qp * q.inverse()).scaled_axis() / h;
+            assert!((dth - m.column(k)).norm() < 1e-5, "{k}: {dth} vs {}", m.column(k));
+        }
+    }
+
+    /// `vision_position_estimate`: VPE and VISION_SPEED_ESTIMATE at the same
+    /// instant, and never ODOMETRY.
+    #[test]
+    fn vpe_comes_with_its_speed_estimate_and_never_odometry() {
+        let s = output_state(UnitQuaternion::from_euler_angles(0.2, -0.3, 1.2));
+        let o = outputs(&s, OutputMessage::VisionPositionEstimate);
+        assert_eq!(o.len(), 2, "{o:?}");
+        assert!(!o.iter().any(|m| matches!(m, Outbound::Odometry { .. })));
+        let Outbound::VisionPositionEstimate {
+            t_us,
+            p_ned_m,
+            covariance,
+            reset_counter,
+            ..
+        } = &o[0]
+        else {
+            panic!("{o:?}")
+        };
+        assert_eq!((*t_us, *reset_counter, *p_ned_m), (1_500_000, 2, s.x.p_B_in_W));
+        // Position variances come first.
+        assert!((covariance[0] as f64 - s.imu_cov[(P_OFF, P_OFF)]).abs() < 1e-6);
+        assert!(covariance.iter().all(|v| v.is_finite()));
+        let Outbound::VisionSpeedEstimate {
+            t_us,
+            v_ned_mps,
+            covariance,
+            reset_counter,
+        } = &o[1]
+        else {
+            panic!("{o:?}")
+        };
+        assert_eq!((*t_us, *reset_counter, *v_ned_mps), (1_500_000, 2, s.x.v_B_in_W));
+        for k in 0..9 {
+            let want = s.imu_cov[(V + k / 3, V + k % 3)];
+            assert!((covariance[k] as f64 - want).abs() < 1e-7, "{k}");
+        }
+    }
+
+    /// `odometry`: one ODOMETRY and nothing else, its rate the gyro minus
+    /// the bias, its covariances finite, its quality as judged.
+    #[test]
+    fn odometry_alone_with_rates_covariances_and_quality() {
+        let mut s = output_state(UnitQuaternion::from_euler_angles(0.2, -0.3, 1.2));
+        s.quality = 50;
+        let o = outputs(&s, OutputMessage::Odometry);
+        assert_eq!(o.len(), 1, "{o:?}");
+        let Outbound::Odometry {
+            t_us,
+            p_ned_m,
+            q_wxyz,
+            v_body_mps,
+            w_body_radps,
+            pose_covariance,
+            velocity_covariance,
+            reset_counter,
+            quality,
+            frame_ned,
+        } = &o[0]
+        else {
+            panic!("{o:?}")
+        };
+        assert_eq!(
+            (*t_us, *reset_counter, *quality, *p_ned_m),
+            (1_500_000, 2, 50, s.x.p_B_in_W)
+        );
+        assert_eq!(*w_body_radps, s.gyro_radps - s.x.b_g);
+        assert!(!frame_ned, "LOCAL_FRD unless the autopilot is PX4");
+        assert!((s.x.q_W_B * v_body_mps - s.x.v_B_in_W).norm() < 1e-12);
+        let q = s.x.q_W_B.coords;
+        assert_eq!(*q_wxyz, [q.w as f32, q.x as f32, q.y as f32, q.z as f32]);
+        assert!(pose_covariance
+            .iter()
+            .chain(velocity_covariance.iter())
+            .all(|v| v.is_finite()));
+        // Diagonal entries of the upper triangle: 0, 6, 11, 15, 18, 20; the
+        // rates' include the gyro noise.
+        for (k, &d) in [0, 6, 11, 15, 18, 20].iter().enumerate() {
+            assert!(velocity_covariance[d] > 0.0, "{k}");
+            if k >= 3 {
+                assert!(velocity_covariance[d] as f64 >= s.gyro_var, "{k}");
+            }
+        }
+    }
+
+    /// The body velocity and rate covariance against the numerical
+    /// Jacobian of `[R(δθ)ᵀ (v + δv), ω_m − (b_g + δb_g)]`.
+    #[test]
+    fn body_velocity_covariance_matches_numerical_jacobian() {
+        let s = output_state(UnitQuaternion::from_euler_angles(0.4, 0.1, -2.0));
+        let (x, w_m) = (&s.x, s.gyro_radps);
+        let f = |e: &SMatrix<f64, 9, 1>| -> SMatrix<f64, 6, 1> {
+            let r = UnitQuaternion::from_scaled_axis(Vector3::new(e[0], e[1], e[2])) * x.q_W_B;
+            let v = r.inverse_transform_vector(&(x.v_B_in_W + Vector3::new(e[3], e[4], e[5])));
+            let w = w_m - (x.b_g + Vector3::new(e[6], e[7], e[8]));
+            SMatrix::<f64, 6, 1>::from_iterator(v.iter().chain(w.iter()).copied())
+        };
+        let h = 1e-6;
+        let mut j = SMatrix::<f64, 6, 9>::zeros();
+        for k in 0..9 {
+            let mut e = SMatrix::<f64, 9, 1>::zeros();
+            e[k] = h;
+            j.set_column(k, &((f(&e) - f(&-e)) / (2.0 * h)));
+        }
+        let idx = [TH, TH + 1, TH + 2, V, V + 1, V + 2, BG, BG + 1, BG + 2];
+        let p9 = SMatrix::<f64, 9, 9>::from_fn(|a, b| s.imu_cov[(idx[a], idx[b])]);
+        let mut want = j * p9 * j.transpose();
+        for k in 3..6 {
+            want[(k, k)] += s.gyro_var;
+        }
+        let got = body_velocity_rate_covariance(x, &s.imu_cov, s.gyro_var);
+        assert!((got - want).abs().max() < 1e-7 * want.abs().max(), "{got} vs {want}");
+    }
+
+    /// ArduPilot's reduction (GCS_Common.cpp before PR #32084) applied to
+    /// what `ardupilot_cbrt` writes gives back the largest position σ and
+    /// the yaw σ (eq. O1); measured on ArduPilot's own SITL (its `VISP.PErr`
+    /// logged 3.634 for c₀ = c₆ = c₁₁ = 4, i.e. cbrt(3·4²)).
+    #[test]
+    fn ardupilot_cbrt_covariance_survives_the_reduction() {
+        let reduce = |c: &[f32; 21], [a, b, d]: [usize; 3]| {
+            ((c[a] as f64).powi(2) + (c[b] as f64).powi(2) + (c[d] as f64).powi(2)).cbrt()
+        };
+        let mut cov = Matrix6::zeros();
+        for (k, sigma) in [0.12, 0.3, 0.2, 0.01, 0.02, 0.05].iter().enumerate() {
+            cov[(k, k)] = sigma * sigma;
+        }
+        cov[(0, 1)] = 0.001;
+        cov[(1, 0)] = 0.001;
+        let enc = pose_covariance21(&cov, PoseCovariance::ArdupilotCbrt);
+        assert!(
+            (reduce(&enc, [0, 6, 11]) - 0.3).abs() < 1e-6,
+            "position: {}",
+            reduce(&enc, [0, 6, 11])
+        );
+        assert!(
+            (reduce(&enc, [15, 18, 20]) - 0.05).abs() < 1e-6,
+            "yaw: {}",
+            reduce(&enc, [15, 18, 20])
+        );
+        assert_eq!(enc.iter().filter(|&&c| c != 0.0).count(), 6, "only the diagonal");
+        // The MAVLink encoding is the plain upper triangle, and under the
+        // same reduction it is wrong (3^(1/3)·σ^(4/3) for equal axes).
+        let plain = pose_covariance21(&cov, PoseCovariance::Variances);
+        assert_eq!(plain, upper21(&cov));
+        assert!(
+            (reduce(&plain, [0, 6, 11]) - 0.3).abs() > 0.05,
+            "{}",
+            reduce(&plain, [0, 6, 11])
+        );
+    }
+
+    #[test]
+    fn quality_is_failed_dead_reckoning_sparse_or_nominal() {
+        let x = state(UnitQuaternion::identity());
+        let cov = imu_cov();
+        assert_eq!(quality(&x, &cov, 0.05, false), 100);
+        assert_eq!(quality(&x, &cov, 0.05, true), 50, "degraded");
+        assert_eq!(quality(&x, &cov, 0.7, false), 50);
+        assert_eq!(quality(&x, &cov, 1.0, false), 1);
+        assert_eq!(quality(&x, &cov, f64::INFINITY, false), 1);
+        let mut bad = cov;
+        bad[(4, 4)] = f64::NAN;
+        assert_eq!(quality(&x, &bad, 0.05, false), -1, "a non-finite covariance");
+        let mut bad = x;
+        bad.v_B_in_W.x = f64::INFINITY;
+        assert_eq!(quality(&bad, &cov, 0.05, false), -1, "a non-finite state");
+        assert_eq!(quality(&x, &cov, f64::NAN, false), -1);
+    }
+}
