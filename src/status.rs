@@ -148,7 +148,7 @@ impl Default for Tracker {
 
 impl Tracker {
     /// Sets a transient reason for [`HOLD_S`] from `t_s`.
-    pub fn hold(&mut self, why: Degraded, t_s: f64) {
+    pub fn hold_reason(&mut self, why: Degraded, t_s: f64) {
         self.held_until[why as usize] = t_s + HOLD_S;
     }
 
@@ -181,7 +181,7 @@ impl Tracker {
     pub fn gnss_codes_rejected(&mut self, t_s: f64, n: u64) {
         self.bad_epochs = if n >= 2 { self.bad_epochs + 1 } else { 0 };
         if self.bad_epochs >= 2 {
-            self.hold(Degraded::GnssOutliers, t_s);
+            self.hold_reason(Degraded::GnssOutliers, t_s);
         }
     }
 
@@ -204,7 +204,7 @@ impl Tracker {
         self.next_check_t = t_s + 0.1;
         let rejections = counters.input_rejections();
         if rejections > self.rejections {
-            self.hold(Degraded::InputRejected, t_s);
+            self.hold_reason(Degraded::InputRejected, t_s);
         }
         self.rejections = rejections;
         let mut bits = 0;

@@ -346,7 +346,7 @@ impl Reid {
             if *n < recent_from {
                 sc.pix_ok.clear();
                 sc.pix_ok.extend((0..m.len()).filter(|&t| ok(t)).map(|t| sc.pix[t]));
-                predict(kf, &sc.pix_ok, present, &mut sc.near, &mut self.predicted);
+                predict_landmarks(kf, &sc.pix_ok, present, &mut sc.near, &mut self.predicted);
             }
         }
         // One feature per old id, one old id per feature, and no id
@@ -441,7 +441,7 @@ const PREDICT_REACH_PX: f64 = 120.0;
 /// the mean motion of the `PREDICT_PAIRS` verified pairs `pix` (keyframe
 /// pixel, this frame's pixel) nearest it, all within `PREDICT_REACH_PX`.
 /// `present` is sorted; `near` is scratch.
-fn predict(
+fn predict_landmarks(
     kf: &Keyframe,
     pix: &[([f64; 2], [f64; 2])],
     present: &[u64],
@@ -558,7 +558,7 @@ mod tests {
             .collect();
         let present = [1, 2, 3, 4];
         let mut out = Vec::new();
-        predict(&kf, &pix, &present, &mut Vec::new(), &mut out);
+        predict_landmarks(&kf, &pix, &present, &mut Vec::new(), &mut out);
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(out[0].0, 6);
         assert!(

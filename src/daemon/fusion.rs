@@ -341,7 +341,7 @@ impl Fusion {
             self.restart(m.t_s, "IMU gap", Restart::Gap, &ctx.out);
         }
         if self.last_imu_t.is_finite() && m.t_s - self.last_imu_t > 0.2 {
-            self.tracker.hold(Degraded::ImuGap, m.t_s);
+            self.tracker.hold_reason(Degraded::ImuGap, m.t_s);
             if m.t_s - self.last_imu_t > 0.5 {
                 ctx.counters.add(Counter::ImuGap, 1);
                 tracing::warn!(reason = "imu_gap", gap_s = m.t_s - self.last_imu_t, "IMU gap");
@@ -373,7 +373,7 @@ impl Fusion {
         let Some(est) = self.est.as_mut() else {
             if let Some(start) = self
                 .starter
-                .start(m, &self.cfg, &self.autopilot, self.gnss.frame(), counters)
+                .start_filter(m, &self.cfg, &self.autopilot, self.gnss.frame(), counters)
             {
                 self.install_filter(start, m.t_s, counters);
             }
@@ -472,6 +472,6 @@ impl Fusion {
             self.pacer.restart_clock();
             self.last_imu_t = f64::NEG_INFINITY;
         }
-        self.tracker.hold(Degraded::FilterReset, t_s);
+        self.tracker.hold_reason(Degraded::FilterReset, t_s);
     }
 }

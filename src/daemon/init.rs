@@ -56,7 +56,7 @@ const GOOD_PERIOD_S: f64 = 1.0;
 
 impl GoodEstimates {
     /// Keeps the estimate of `est` at `t_s` if the last one is a period old.
-    fn offer(&mut self, est: &Estimator, t_s: f64) {
+    fn keep_if_due(&mut self, est: &Estimator, t_s: f64) {
         if self
             .recent
             .as_ref()
@@ -174,14 +174,14 @@ impl Starter {
     /// an estimate that measurements vouch for: a filter carried on the IMU
     /// alone passes its checks however wrong).
     pub(super) fn offer_good(&mut self, est: &Estimator, t_s: f64) {
-        self.good.offer(est, t_s);
+        self.good.keep_if_due(est, t_s);
     }
 
     /// A filter to start at the IMU sample `m`, if one can start: at once
     /// from the estimate carried over a restart, else once the static
     /// window is full (see [`Starter::try_init`]). `frame` is the world
     /// frame's origin, for the compass's declination.
-    pub(super) fn start(
+    pub(super) fn start_filter(
         &mut self,
         m: ImuMeas,
         cfg: &Config,

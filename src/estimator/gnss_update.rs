@@ -157,7 +157,12 @@ impl Estimator {
     /// GPS is the reference clock: the first epoch with GPS pseudoranges
     /// sets the bias and drift from the median residuals, and the first
     /// with Galileo ones sets the inter-system bias the same way.
-    pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
+    pub(super) fn update_with_gnss(
+        &mut self,
+        t_s: f64,
+        frame: &NedFrame,
+        sats: &[SatMeas],
+    ) -> Result<GnssReport, InputError> {
         let mut rep = GnssReport::default();
         // Before propagating: an on-time epoch needs no clone at its own
         // instant. An epoch far ahead of the filter (a bad tag) would move

@@ -152,7 +152,7 @@ impl Estimator {
     /// diagonal and a positive-definite active block; the state finite and
     /// within physical bounds; and the NIS monitor's verdict. Returns the
     /// first problem found. Allocation-free, so it can run every IMU sample.
-    pub fn check_health(&self) -> Result<(), String> {
+    pub(super) fn judge_health(&self) -> Result<(), String> {
         let p = &self.P;
         if !math::all_finite(p.as_slice()) {
             return Err("covariance has non-finite entries".into());

@@ -46,7 +46,8 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use compressed::Global;
 pub use compressed::{InstallError, RebaseJob, RebaseResult};
 
-use cmsckf_models::gnss::System;
+use cmsckf_models::geodesy::NedFrame;
+use cmsckf_models::gnss::{SatMeas, System};
 use nalgebra::{DMatrix, Matrix6, UnitQuaternion, Vector3};
 
 use covariance::position_sigma_m;
@@ -422,6 +423,54 @@ impl Estimator {
     pub fn time_s(&self) -> f64 {
         self.t_s
     }
+    // The filter's interface, in one place: each entry point below is done
+    // by the file of its concern (named beside it), whose doc gives the
+    // details and the equations.
+
+    /// Queues an IMU sample (rejecting a non-finite or non-increasing one);
+    /// it is integrated when a measurement or a prediction needs it
+    /// (`propagate.rs`, §2).
+    pub fn add_imu(&mut self, m: ImuMeas) -> Result<(), InputError> {
+        self.queue_imu(m)
+    }
+
+    /// Brings the filter to `t_s` through the queued IMU samples, cloning
+    /// the states GNSS epochs will need (`propagate.rs`, §2, §8b).
+    pub fn propagate_to(&mut self, t_s: f64) {
+        self.propagate_filter_to(t_s)
+    }
+
+    /// The body state predicted to `t_s` through the queued IMU samples,
+    /// without changing the filter: the low-latency output
+    /// (`propagate.rs`).
+    pub fn predict(&self, t_s: f64) -> ImuState {
+        self.predict_imu_state(t_s)
+    }
+
+    /// One camera frame stamped `t_cam_s` by the camera's clock: the
+    /// tracks it ends, the keyframes and loop closures (`msckf.rs`, §3–§5).
+    pub fn process_frame(&mut self, t_cam_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+        self.update_with_frame(t_cam_s, obs)
+    }
+
+    /// One GNSS epoch at `t_s` in the world frame `frame` (`gnss_update.rs`,
+    /// §8).
+    pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
+        self.update_with_gnss(t_s, frame, sats)
+    }
+
+    /// Whether zero-velocity updates may be taken now: on the ground only
+    /// (`zupt.rs`, §3c).
+    pub fn set_zupt_allowed(&mut self, allowed: bool) {
+        self.allow_zupt(allowed)
+    }
+
+    /// The filter's judgement of itself: covariance, state bounds and the
+    /// innovations' monitor (`health.rs`, §9); `Err` says why it failed.
+    pub fn check_health(&self) -> Result<(), String> {
+        self.judge_health()
+    }
+
     pub fn imu_state(&self) -> &ImuState {
         &self.imu
     }

@@ -49,7 +49,7 @@ impl Estimator {
     /// (§3–§5): it is fused at `t_cam_s + t_d` on the IMU clock, with `t_d`
     /// the time offset estimate (§3b). The IMU samples up to (and preferably
     /// just past) that time must have been added.
-    pub fn process_frame(&mut self, t_cam_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
+    pub(super) fn update_with_frame(&mut self, t_cam_s: f64, obs: &[NormObs]) -> Result<FrameReport, InputError> {
         let t_s = t_cam_s + self.t_d_s;
         self.advance_to(t_s, Counter::FrameTimeBackwards)?;
         self.stats.frames += 1;

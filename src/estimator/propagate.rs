@@ -183,7 +183,7 @@ pub fn boxplus(x: &ImuState, d: &[f64]) -> ImuState {
 impl Estimator {
     /// Queues an IMU sample; it is integrated when a frame or a query needs
     /// it. Non-finite or non-increasing samples are rejected.
-    pub fn add_imu(&mut self, m: ImuMeas) -> Result<(), InputError> {
+    pub(super) fn queue_imu(&mut self, m: ImuMeas) -> Result<(), InputError> {
         if !(m.t_s.is_finite()
             && m.accel_mps2.iter().all(|v| v.is_finite())
             && m.gyro_radps.iter().all(|v| v.is_finite()))
@@ -279,7 +279,7 @@ impl Estimator {
     /// interpolating the last one (or holding it if none is later). On the
     /// way it clones the state at each instant a GNSS epoch is expected
     /// (§8b), and marginalises the clones whose epochs never came.
-    pub fn propagate_to(&mut self, t_s: f64) {
+    pub(super) fn propagate_filter_to(&mut self, t_s: f64) {
         let oldest_useful = t_s - self.s.gnss_max_delay_s;
         while let Some(g) = self.gnss_grid.as_mut() {
             let tc = g.next_s;
@@ -326,7 +326,7 @@ impl Estimator {
 
     /// The body state predicted to `t_s` through the buffered IMU samples,
     /// without changing the filter (for low-latency output).
-    pub fn predict(&self, t_s: f64) -> ImuState {
+    pub(super) fn predict_imu_state(&self, t_s: f64) -> ImuState {
         let mut x = self.imu;
         let Some(mut last) = self.last_meas else {
             return x;

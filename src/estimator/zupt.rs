@@ -43,7 +43,7 @@ impl Estimator {
     /// what the IMU and camera cannot tell apart, a vehicle on the ground
     /// from one hovering (which drifts at centimetres per second, and a
     /// zero-velocity update would pin it). True by default.
-    pub fn set_zupt_allowed(&mut self, allowed: bool) {
+    pub(super) fn allow_zupt(&mut self, allowed: bool) {
         self.zupt_allowed = allowed;
     }
 
