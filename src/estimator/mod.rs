@@ -31,6 +31,7 @@ pub mod frontend;
 pub mod gnss_model;
 pub mod gnss_update;
 pub mod health;
+mod inspect;
 mod keyframes;
 pub mod math;
 mod msckf;
@@ -50,6 +51,7 @@ use nalgebra::{DMatrix, Matrix6, UnitQuaternion, Vector3};
 use covariance::position_sigma_m;
 pub use frontend::NormObs;
 pub use gnss_update::{GnssReport, GNSS_CLONE_DIM};
+pub use inspect::SchmidtDowndate;
 use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
 pub use settings::{Mode, Settings, ZuptSettings};
@@ -334,6 +336,10 @@ pub struct Estimator {
     /// Runs the rebase jobs of a synchronous filter ([`RebaseJob::run`];
     /// the evaluation wraps it to time them).
     rebase_runner: fn(&RebaseJob) -> RebaseResult,
+    /// The Schmidt update's downdate `P += α AᵀA` outside the keyframe
+    /// block ([`math::add_gram_outside_block`]; see
+    /// [`Estimator::set_schmidt_downdate`]).
+    schmidt_downdate: SchmidtDowndate,
     centre_W: Vector3<f64>,
     tracks: BTreeMap<u64, Track>,
     /// Landmark → keyframes holding an observation of it.
@@ -401,6 +407,7 @@ impl Estimator {
             pending: None,
             rebase_seq: 0,
             rebase_runner: RebaseJob::run,
+            schmidt_downdate: math::add_gram_outside_block,
             tracks: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
@@ -501,8 +508,3 @@ pub fn attitude_from_static(mean_accel_B: &Vector3<f64>, yaw_rad: f64) -> Option
     let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
     Some(UnitQuaternion::from_euler_angles(roll, pitch, yaw_rad))
 }
-
-#[cfg(test)]
-mod tests;
-#[cfg(test)]
-mod tests_real;

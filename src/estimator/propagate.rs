@@ -363,8 +363,29 @@ impl Estimator {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
+
+    /// A moving, turning state with biases: the fixture of the IMU and GNSS
+    /// model tests.
+    pub(in crate::estimator) fn state() -> ImuState {
+        ImuState {
+            q_W_B: UnitQuaternion::from_euler_angles(0.2, -0.3, 1.1),
+            v_B_in_W: Vector3::new(12.0, -3.0, 0.5),
+            p_B_in_W: Vector3::new(100.0, 20.0, -5.0),
+            b_g: Vector3::new(0.01, -0.02, 0.005),
+            b_a: Vector3::new(0.1, -0.05, 0.2),
+        }
+    }
+
+    /// An IMU measurement of that motion at `t_s`.
+    pub(in crate::estimator) fn meas(t_s: f64) -> ImuMeas {
+        ImuMeas {
+            t_s,
+            accel_mps2: Vector3::new(1.0, 2.5, -9.0),
+            gyro_radps: Vector3::new(0.3, -0.4, 0.8),
+        }
+    }
 
     /// F against finite differences: perturb the start state along each
     /// error direction, integrate, and take the error at the end.
@@ -407,5 +428,26 @@ mod tests {
                 f.column(k).iter().collect::<Vec<_>>()
             );
         }
+    }
+
+    /// §3b, eq. T3: the body pose at `t + δt_d` moves by `[R ω_B; v] δt_d`.
+    /// Finite differences of the integrated pose against that column.
+    #[test]
+    fn time_offset_column_matches_finite_differences() {
+        let x = state();
+        let g = Vector3::new(0.0, 0.0, 9.81);
+        let m0 = meas(0.0);
+        let h = 1e-5;
+        let fwd = integrate(&x, &m0, &meas(h), &g);
+        let bwd = integrate(&x, &m0, &meas(-h), &g);
+        let d_th = (fwd.q_W_B * bwd.q_W_B.inverse()).scaled_axis() / (2.0 * h);
+        let d_p = (fwd.p_B_in_W - bwd.p_B_in_W) / (2.0 * h);
+        let w_W = x.q_W_B * (m0.gyro_radps - x.b_g);
+        assert!((d_th - w_W).amax() < 1e-8, "rotation: fd {d_th:?} vs {w_W:?}");
+        assert!(
+            (d_p - x.v_B_in_W).amax() < 1e-8,
+            "position: fd {d_p:?} vs {:?}",
+            x.v_B_in_W
+        );
     }
 }
