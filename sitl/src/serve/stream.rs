@@ -22,9 +22,10 @@ use super::fault::{Active, FaultKind};
 use super::feature_socket::{feature_line, FeatureSocket};
 use super::receive::Inbox;
 use super::{Link, ServeOptions, HEADER};
-use crate::dataset::{rng_for, Dataset};
+use crate::dataset::Dataset;
 use crate::features::CameraFrame;
 use crate::gnss::GnssEpoch;
+use crate::rng::rng_for;
 
 /// The sending side of a served flight.
 pub(super) struct Streamer<'a> {
