@@ -60,10 +60,22 @@ impl ImuMeas {
     }
 }
 
-/// Integrates the nominal state from `m0.t_s` to `m1.t_s` with RK4
-/// (README §2, eq. N1), the measurements linearly interpolated in between:
-/// `Ṙ = R [ω_m − b_g]×`, `v̇ = R (a_m − b_a) + g`, `ṗ = v`.
-pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -> ImuState {
+/// One IMU step's bias-corrected specific force at its start, middle and
+/// end, and the attitude at each: the rotation over each half step with the
+/// mean rate of that half. [`integrate`] and [`transition`] both stand on
+/// it, so the nominal state and its transition cannot drift apart.
+struct HalfSteps {
+    dt: f64,
+    a0: Vector3<f64>,
+    ah: Vector3<f64>,
+    a1: Vector3<f64>,
+    q0: UnitQuaternion<f64>,
+    qh: UnitQuaternion<f64>,
+    q1: UnitQuaternion<f64>,
+}
+
+/// [`HalfSteps`] of the step from `m0` to `m1`, the biases of `x` removed.
+fn half_steps(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas) -> HalfSteps {
     let dt = m1.t_s - m0.t_s;
     let w0 = m0.gyro_radps - x.b_g;
     let w1 = m1.gyro_radps - x.b_g;
@@ -75,6 +87,30 @@ pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -
     let q0 = x.q_W_B;
     let qh = q0 * exp_so3(&((w0 + wh) * (0.25 * dt)));
     let q1 = qh * exp_so3(&((wh + w1) * (0.25 * dt)));
+    HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    }
+}
+
+/// Integrates the nominal state from `m0.t_s` to `m1.t_s` with RK4
+/// (README §2, eq. N1), the measurements linearly interpolated in between:
+/// `Ṙ = R [ω_m − b_g]×`, `v̇ = R (a_m − b_a) + g`, `ṗ = v`.
+pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -> ImuState {
+    let HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    } = half_steps(x, m0, m1);
     let acc = |q: &UnitQuaternion<f64>, a: &Vector3<f64>| q * a + g_W;
     let k1v = acc(&q0, &a0);
     let k1p = x.v_B_in_W;
@@ -101,16 +137,15 @@ pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -
 /// `F_θb_g = F_vb_a = −∫R`, …, evaluated with Simpson's rule on the start,
 /// middle and end of the step.
 pub fn transition(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, imu: &ImuConfig) -> (Mat15, Mat15) {
-    let dt = m1.t_s - m0.t_s;
-    let w0 = m0.gyro_radps - x.b_g;
-    let w1 = m1.gyro_radps - x.b_g;
-    let wh = (w0 + w1) * 0.5;
-    let a0 = m0.accel_mps2 - x.b_a;
-    let a1 = m1.accel_mps2 - x.b_a;
-    let ah = (a0 + a1) * 0.5;
-    let q0 = x.q_W_B;
-    let qh = q0 * exp_so3(&((w0 + wh) * (0.25 * dt)));
-    let q1 = qh * exp_so3(&((wh + w1) * (0.25 * dt)));
+    let HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    } = half_steps(x, m0, m1);
     let (r0, rh, r1) = (
         q0.to_rotation_matrix().into_inner(),
         qh.to_rotation_matrix().into_inner(),
