@@ -14,6 +14,7 @@
 pub mod dgnss;
 pub mod ephemeris_store;
 mod epoch_assembly;
+mod framing;
 pub mod inav;
 pub mod lnav;
 mod options;
