@@ -17,58 +17,19 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
 
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::SimConfig;
-use crate::features::{CameraFrame, FeatureSim, TrackStats};
-use crate::gnss::{GnssEpoch, GnssModel};
-use crate::imu::{gauss3, ImuBias, ImuModel, ImuSample};
-use crate::trajectory::{GustField, Trajectory, TrajectoryError, TruthSample};
+use crate::features::FeatureSim;
+use crate::gnss::GnssModel;
+use crate::imu::{gauss3, ImuBias, ImuModel};
+use crate::trajectory::{GustField, Trajectory, TrajectoryError};
 use cmsckf_models::camera::Camera;
-use cmsckf_models::gnss::BroadcastEphemeris;
 
-/// Truth at one IMU sample, with the biases in force.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct TruthRow {
-    pub truth: TruthSample,
-    pub bias: ImuBias,
-}
-
-/// The simulated flight.
-#[derive(Clone, Debug)]
-pub struct Dataset {
-    pub scenario: String,
-    pub seed: u64,
-    pub duration_s: f64,
-    pub cfg: SimConfig,
-    pub truth: Vec<TruthRow>,
-    pub imu: Vec<ImuSample>,
-    pub frames: Vec<CameraFrame>,
-    /// Each frame's image file, for a recorded dataset (`euroc:`); empty
-    /// when the camera is simulated (then it is rendered, if served).
-    pub frame_images: Vec<std::path::PathBuf>,
-    pub gnss: Vec<GnssEpoch>,
-    /// The base station's epochs (`gnss.base.enabled`), delivered late by
-    /// its own link, and its antenna position (ECEF, m).
-    pub base_gnss: Vec<GnssEpoch>,
-    pub base_arp_ecef_m: Option<[f64; 3]>,
-    pub ephemerides: Vec<BroadcastEphemeris>,
-    pub track_stats: TrackStats,
-    /// The ground truth itself, for sampling at any time.
-    pub trajectory: Trajectory,
-}
-
-/// The RNG stream `stream` of `seed`. Streams: 1 initial biases, 2 IMU
-/// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency, 7 the
-/// mock autopilot's EKF errors (drawn while serving), 8 the base station's
-/// noise and clock, 9 its latency, 10 the gusts, 11 the rendered world's
-/// blocks.
-pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    r.set_stream(stream);
-    r
-}
+pub use crate::flight::{Dataset, TruthRow};
+use crate::render::{Renderer, World};
+use crate::rng::rng_for;
 
 /// A draw from `[lo, hi]` (s), uniform; exactly `lo` when they are equal.
 fn uniform_in(range: [f64; 2], rng: &mut ChaCha8Rng) -> f64 {
@@ -314,6 +275,18 @@ impl Dataset {
             }
         }
         write_file(&dir.join("gnss.csv"), &s)
+    }
+}
+
+impl Renderer {
+    /// The renderer of a simulated flight: its world drawn around its
+    /// trajectory from its seed, its camera and `[render]` settings.
+    pub fn for_dataset(ds: &Dataset) -> Self {
+        Self::new(
+            World::around(&ds.trajectory, ds.seed),
+            Camera::from_config(&ds.cfg.camera),
+            ds.cfg.render.clone(),
+        )
     }
 }
 

@@ -22,8 +22,8 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use crate::config::SimConfig;
-use crate::dataset::{Dataset, TruthRow};
 use crate::features::{CameraFrame, TrackStats};
+use crate::flight::{Dataset, TruthRow};
 use crate::imu::{ImuBias, ImuSample};
 use crate::trajectory::tum::{from_rows, TumRow};
 use crate::trajectory::TrajectoryError;

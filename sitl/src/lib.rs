@@ -12,7 +12,8 @@
 //! - [`render`]: the camera's images of a textured world, with each
 //!   pixel's true world point
 //! - [`euroc`]: a EuRoC/ASL folder's IMU, images and truth, to serve
-//! - [`dataset`]: a whole flight, and its CSV export
+//! - [`dataset`]: a whole simulated flight, and its CSV export; [`flight`]:
+//!   the record of a flight, simulated or loaded; [`rng`]: its seeded streams
 //! - [`metrics`]: ATE, rotation RMSE, NEES and χ² bounds
 //! - [`serve`]: the mock autopilot and camera front end, with its scoring
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
@@ -22,10 +23,12 @@ pub mod config;
 pub mod dataset;
 pub mod euroc;
 pub mod features;
+pub mod flight;
 pub mod gnss;
 pub mod imu;
 pub mod metrics;
 pub mod render;
+pub mod rng;
 pub mod rtcm_out;
 pub mod serve;
 pub mod spline;

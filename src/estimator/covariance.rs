@@ -27,7 +27,7 @@ impl Estimator {
 
     /// Applies the accumulated IMU transition to the cross-covariances and
     /// to `Φ` (§2, eq. F4): `P_IX ← F P_IX`, `Φ_I ← F Φ_I`.
-    pub(super) fn sync(&mut self) {
+    pub fn sync(&mut self) {
         if self.f_acc == MatActive::identity() {
             return;
         }
@@ -49,11 +49,13 @@ impl Estimator {
         self.f_acc = MatActive::identity();
     }
 
-    pub(super) fn kf_offset(&self, local_index: usize) -> usize {
+    /// Offset of the `local_index`-th local keyframe in `P`.
+    pub fn kf_offset(&self, local_index: usize) -> usize {
         ACTIVE_DIM + 6 * local_index
     }
 
-    pub(super) fn clones_offset(&self) -> usize {
+    /// Offset of the first camera clone: after the local keyframes.
+    pub fn clones_offset(&self) -> usize {
         ACTIVE_DIM + 6 * self.local_kfs.len()
     }
 
@@ -64,7 +66,7 @@ impl Estimator {
     }
 
     /// Offset of the first GNSS clone: after the camera clones.
-    pub(super) fn gnss_clones_offset(&self) -> usize {
+    pub fn gnss_clones_offset(&self) -> usize {
         self.clones_offset() + 6 * self.clones.len()
     }
 
@@ -114,7 +116,7 @@ impl Estimator {
     /// A camera view's pose enters the state at `at` (a clone or a
     /// keyframe): the body pose at the frame's time `t_cam + t̂_d`, with the
     /// time offset's column `c = [R_W_B ω_B; v_B_in_W]` (§3b, eq. T3).
-    pub(super) fn augment_view(&mut self, at: usize) {
+    pub fn augment_view(&mut self, at: usize) {
         let w_B = self.last_meas.map_or(Vector3::zeros(), |m| m.gyro_radps - self.imu.b_g);
         let w_W = self.imu.q_W_B * w_B;
         let v = self.imu.v_B_in_W;
@@ -165,7 +167,7 @@ impl Estimator {
     /// `h` holds the columns `cols` of the full Jacobian; the rest are zero.
     /// `upper`: `h` is the square upper-triangular `T` of Q1, whose zero
     /// lower triangle the products skip.
-    pub(super) fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>, upper: bool) {
+    pub fn ekf_update(&mut self, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f64>, upper: bool) {
         let (m, n) = (r.len(), self.P.nrows());
         let h_times = |rows: DMatrix<f64>| if upper { math::upper_mul(h, &rows) } else { h * rows };
         // H P = h P[cols, :] (P symmetric), and S = H P Hᵀ + I.
@@ -207,10 +209,7 @@ impl Estimator {
             dx.rows_mut(k0, k1 - k0).fill(0.0);
             // Tests can swap in the former formula (Aᵀ A formed n × n, its
             // SS block zeroed) to compare whole flights.
-            #[cfg(test)]
-            let downdate = schmidt_tests::downdate();
-            #[cfg(not(test))]
-            let downdate = math::add_gram_outside_block;
+            let downdate = self.schmidt_downdate;
             downdate(&mut self.P, -1.0, at, a, k0, k1);
             self.inject(&dx);
             return;
@@ -338,7 +337,3 @@ pub(super) fn whitening_factor(p: &DMatrix<f64>) -> DMatrix<f64> {
     }
     d.map(f64::sqrt)
 }
-
-#[cfg(test)]
-#[path = "schmidt_tests.rs"]
-mod schmidt_tests;

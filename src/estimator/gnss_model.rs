@@ -183,6 +183,7 @@ pub fn range_rate(
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
+    use crate::estimator::propagate::tests::state;
     use cmsckf_models::gnss::System;
 
     /// A satellite 2e7 m up and 8e6 m east of a Sydney origin, moving, with
@@ -239,5 +240,80 @@ pub(super) mod tests {
         // Clock terms enter with unit slope.
         assert!((pseudorange(&frame, &p, 101.0, &s).0 - pseudorange(&frame, &p, 100.0, &s).0 - 1.0).abs() < 1e-9);
         assert!((range_rate(&frame, &p, &v, 3.0, &s).0 - range_rate(&frame, &p, &v, 2.0, &s).0 - 1.0).abs() < 1e-12);
+    }
+
+    /// §8, eqs. L1–L2: the pseudorange and range-rate rows over
+    /// `[δθ, δv, δp, δb_g, δb, δḃ, δisb_E,R,C]` for every constellation, with a 0.3 m lever arm turning at
+    /// 1 rad/s, against central differences of the prediction.
+    #[test]
+    fn lever_arm_rows_match_finite_differences() {
+        for system in [
+            System::Gps,
+            System::Galileo,
+            System::Glonass,
+            System::BeiDou,
+            System::Qzss,
+        ] {
+            let (frame, s) = sat_of(system);
+            let nom = GnssNominal {
+                imu: state(),
+                gyro_radps: Vector3::new(0.6, -0.5, 0.7),
+                clock: ClockVec::from_column_slice(&[120.0, 3.0, 6.0, -4.0, 9.0]),
+            };
+            let lever = Vector3::new(0.2, -0.1, -0.2);
+            let p = predict_sat(&frame, &nom, &lever, &s);
+            for k in 0..GNSS_CLONE_DIM {
+                // Steps of 1e-3 (rad, rad/s, m, m/s): the pseudorange is 2e7 m,
+                // so smaller ones drown in round-off.
+                let h = 1e-3;
+                let mut d = [0.0; GNSS_CLONE_DIM];
+                d[k] = h;
+                let mut plus = nom;
+                plus.correct(&d);
+                d[k] = -h;
+                let mut minus = nom;
+                minus.correct(&d);
+                let pp = predict_sat(&frame, &plus, &lever, &s);
+                let pm = predict_sat(&frame, &minus, &lever, &s);
+                let fd_pr = (pp.pseudorange_m - pm.pseudorange_m) / (2.0 * h);
+                let fd_rate = (pp.range_rate_mps - pm.range_rate_mps) / (2.0 * h);
+                assert!(
+                    (fd_pr - p.h_pseudorange[k]).abs() < 2e-5,
+                    "{system:?} pseudorange column {k}: fd {fd_pr} vs {}",
+                    p.h_pseudorange[k]
+                );
+                assert!(
+                    (fd_rate - p.h_range_rate[k]).abs() < 2e-5,
+                    "{system:?} range-rate column {k}: fd {fd_rate} vs {}",
+                    p.h_range_rate[k]
+                );
+            }
+            // The lever arm matters: the antenna is not the body origin.
+            let at_origin = predict_sat(&frame, &nom, &Vector3::zeros(), &s);
+            assert!((at_origin.pseudorange_m - p.pseudorange_m).abs() > 0.01);
+            assert!((at_origin.range_rate_mps - p.range_rate_mps).abs() > 0.01);
+        }
+    }
+
+    /// The range rate is the time derivative of the pseudorange, Sagnac term
+    /// included (§8, K3): move the receiver along its velocity and the
+    /// satellite along its own, and difference the predicted pseudoranges.
+    #[test]
+    fn range_rate_is_the_pseudoranges_derivative() {
+        let (frame, s) = sat_of(System::Gps);
+        let p = Vector3::new(120.0, -40.0, -8.0);
+        let v = Vector3::new(14.0, 3.0, -0.5);
+        let (rate, _, _) = range_rate(&frame, &p, &v, 0.0, &s);
+        let h = 1e-3;
+        let at = |dt: f64| {
+            let mut sd = s;
+            sd.r_sat_ecef_m += s.v_sat_ecef_mps * dt;
+            // The satellite clock's own drift is in the rate only.
+            pseudorange(&frame, &(p + v * dt), 0.0, &sd).0
+        };
+        let fd = (at(h) - at(-h)) / (2.0 * h) - s.ddts_mps;
+        // The troposphere's change with elevation is not in the rate model
+        // (below 1 mm/s at this geometry).
+        assert!((fd - rate).abs() < 1e-3, "fd {fd} vs model {rate}");
     }
 }

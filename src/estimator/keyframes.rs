@@ -54,7 +54,9 @@ impl Estimator {
         id
     }
 
-    pub(super) fn remove_keyframe(&mut self, id: u64) {
+    /// Marginalises a keyframe: a local one's block leaves `P`, a global
+    /// one's goes dead until the next rebase drops it (§5 G5).
+    pub fn remove_keyframe(&mut self, id: u64) {
         if let Some(j) = self.local_kfs.iter().position(|&k| k == id) {
             let at = self.kf_offset(j);
             self.remove_block(at, 6);

@@ -32,6 +32,7 @@ pub mod gnss_model;
 pub mod gnss_update;
 pub mod health;
 pub mod imu_covariance;
+mod inspect;
 mod keyframes;
 pub mod math;
 mod msckf;
@@ -54,6 +55,7 @@ use covariance::position_sigma_m;
 pub use feature::Reject;
 pub use frontend::NormObs;
 pub use gnss_update::{GnssReport, GNSS_CLONE_DIM};
+pub use inspect::SchmidtDowndate;
 use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
 pub use settings::{Mode, Settings, ZuptSettings};
@@ -338,6 +340,10 @@ pub struct Estimator {
     /// Runs the rebase jobs of a synchronous filter ([`RebaseJob::run`];
     /// the evaluation wraps it to time them).
     rebase_runner: fn(&RebaseJob) -> RebaseResult,
+    /// The Schmidt update's downdate `P += α AᵀA` outside the keyframe
+    /// block ([`math::add_gram_outside_block`]; see
+    /// [`Estimator::set_schmidt_downdate`]).
+    schmidt_downdate: SchmidtDowndate,
     centre_W: Vector3<f64>,
     tracks: BTreeMap<u64, Track>,
     /// Landmark → keyframes holding an observation of it.
@@ -405,6 +411,7 @@ impl Estimator {
             pending: None,
             rebase_seq: 0,
             rebase_runner: RebaseJob::run,
+            schmidt_downdate: math::add_gram_outside_block,
             tracks: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
@@ -552,8 +559,3 @@ pub fn attitude_from_static(mean_accel_B: &Vector3<f64>, yaw_rad: f64) -> Option
     let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
     Some(UnitQuaternion::from_euler_angles(roll, pitch, yaw_rad))
 }
-
-#[cfg(test)]
-mod tests;
-#[cfg(test)]
-mod tests_real;

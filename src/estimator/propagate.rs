@@ -61,10 +61,22 @@ impl ImuMeas {
     }
 }
 
-/// Integrates the nominal state from `m0.t_s` to `m1.t_s` with RK4
-/// (README §2, eq. N1), the measurements linearly interpolated in between:
-/// `Ṙ = R [ω_m − b_g]×`, `v̇ = R (a_m − b_a) + g`, `ṗ = v`.
-pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -> ImuState {
+/// One IMU step's bias-corrected specific force at its start, middle and
+/// end, and the attitude at each: the rotation over each half step with the
+/// mean rate of that half. [`integrate`] and [`transition`] both stand on
+/// it, so the nominal state and its transition cannot drift apart.
+struct HalfSteps {
+    dt: f64,
+    a0: Vector3<f64>,
+    ah: Vector3<f64>,
+    a1: Vector3<f64>,
+    q0: UnitQuaternion<f64>,
+    qh: UnitQuaternion<f64>,
+    q1: UnitQuaternion<f64>,
+}
+
+/// [`HalfSteps`] of the step from `m0` to `m1`, the biases of `x` removed.
+fn half_steps(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas) -> HalfSteps {
     let dt = m1.t_s - m0.t_s;
     let w0 = m0.gyro_radps - x.b_g;
     let w1 = m1.gyro_radps - x.b_g;
@@ -76,6 +88,30 @@ pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -
     let q0 = x.q_W_B;
     let qh = q0 * exp_so3(&((w0 + wh) * (0.25 * dt)));
     let q1 = qh * exp_so3(&((wh + w1) * (0.25 * dt)));
+    HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    }
+}
+
+/// Integrates the nominal state from `m0.t_s` to `m1.t_s` with RK4
+/// (README §2, eq. N1), the measurements linearly interpolated in between:
+/// `Ṙ = R [ω_m − b_g]×`, `v̇ = R (a_m − b_a) + g`, `ṗ = v`.
+pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -> ImuState {
+    let HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    } = half_steps(x, m0, m1);
     let acc = |q: &UnitQuaternion<f64>, a: &Vector3<f64>| q * a + g_W;
     let k1v = acc(&q0, &a0);
     let k1p = x.v_B_in_W;
@@ -102,16 +138,15 @@ pub fn integrate(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, g_W: &Vector3<f64>) -
 /// `F_θb_g = F_vb_a = −∫R`, …, evaluated with Simpson's rule on the start,
 /// middle and end of the step.
 pub fn transition(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, imu: &ImuConfig) -> (Mat15, Mat15) {
-    let dt = m1.t_s - m0.t_s;
-    let w0 = m0.gyro_radps - x.b_g;
-    let w1 = m1.gyro_radps - x.b_g;
-    let wh = (w0 + w1) * 0.5;
-    let a0 = m0.accel_mps2 - x.b_a;
-    let a1 = m1.accel_mps2 - x.b_a;
-    let ah = (a0 + a1) * 0.5;
-    let q0 = x.q_W_B;
-    let qh = q0 * exp_so3(&((w0 + wh) * (0.25 * dt)));
-    let q1 = qh * exp_so3(&((wh + w1) * (0.25 * dt)));
+    let HalfSteps {
+        dt,
+        a0,
+        ah,
+        a1,
+        q0,
+        qh,
+        q1,
+    } = half_steps(x, m0, m1);
     let (r0, rh, r1) = (
         q0.to_rotation_matrix().into_inner(),
         qh.to_rotation_matrix().into_inner(),
@@ -364,8 +399,29 @@ impl Estimator {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
+
+    /// A moving, turning state with biases: the fixture of the IMU and GNSS
+    /// model tests.
+    pub(in crate::estimator) fn state() -> ImuState {
+        ImuState {
+            q_W_B: UnitQuaternion::from_euler_angles(0.2, -0.3, 1.1),
+            v_B_in_W: Vector3::new(12.0, -3.0, 0.5),
+            p_B_in_W: Vector3::new(100.0, 20.0, -5.0),
+            b_g: Vector3::new(0.01, -0.02, 0.005),
+            b_a: Vector3::new(0.1, -0.05, 0.2),
+        }
+    }
+
+    /// An IMU measurement of that motion at `t_s`.
+    pub(in crate::estimator) fn meas(t_s: f64) -> ImuMeas {
+        ImuMeas {
+            t_s,
+            accel_mps2: Vector3::new(1.0, 2.5, -9.0),
+            gyro_radps: Vector3::new(0.3, -0.4, 0.8),
+        }
+    }
 
     /// F against finite differences: perturb the start state along each
     /// error direction, integrate, and take the error at the end.
@@ -408,5 +464,26 @@ mod tests {
                 f.column(k).iter().collect::<Vec<_>>()
             );
         }
+    }
+
+    /// §3b, eq. T3: the body pose at `t + δt_d` moves by `[R ω_B; v] δt_d`.
+    /// Finite differences of the integrated pose against that column.
+    #[test]
+    fn time_offset_column_matches_finite_differences() {
+        let x = state();
+        let g = Vector3::new(0.0, 0.0, 9.81);
+        let m0 = meas(0.0);
+        let h = 1e-5;
+        let fwd = integrate(&x, &m0, &meas(h), &g);
+        let bwd = integrate(&x, &m0, &meas(-h), &g);
+        let d_th = (fwd.q_W_B * bwd.q_W_B.inverse()).scaled_axis() / (2.0 * h);
+        let d_p = (fwd.p_B_in_W - bwd.p_B_in_W) / (2.0 * h);
+        let w_W = x.q_W_B * (m0.gyro_radps - x.b_g);
+        assert!((d_th - w_W).amax() < 1e-8, "rotation: fd {d_th:?} vs {w_W:?}");
+        assert!(
+            (d_p - x.v_B_in_W).amax() < 1e-8,
+            "position: fd {d_p:?} vs {:?}",
+            x.v_B_in_W
+        );
     }
 }

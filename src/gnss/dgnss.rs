@@ -33,9 +33,11 @@ use cmsckf_models::gnss::gps_day_of_year;
 
 pub use super::spp::CodeModel;
 
+use super::epoch_assembly::EpochAssembler;
+use super::options::IonoMode;
+use super::raw_sat::RawSat;
 use super::rtcm::{MsmEpoch, SatObs, System};
 use super::spp::{self, EphStore, Meas, Orbit, SppError, SppOptions, SppSolution};
-use super::{EpochAssembler, IonoMode, RawSat};
 
 /// Code corrections (m) by satellite `(system, prn)`.
 pub type Corrections = Vec<((System, u8), f64)>;

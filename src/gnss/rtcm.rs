@@ -1,15 +1,18 @@
 //! RTCM3 framing and decoding into the GNSS module's own types.
 //!
-//! Framing is done here, over a bounded buffer, so that every bad frame is
-//! seen and counted: a frame whose CRC-24Q fails is skipped one byte at a time
-//! until the stream resynchronises. The checked frame is decoded by the
-//! `rtcm-rs` crate; MSM4–MSM7 (GPS 1074–1077, Galileo 1094–1097) and the
-//! ephemerides (1019 GPS, 1045/1046 Galileo) are converted to SI units here
-//! (the ephemeris mappings are shared with the simulator's encoder).
+//! Framing is done by `super::framing` (shared with UBX), over a bounded
+//! buffer, so that every bad frame is seen and counted: a frame whose CRC-24Q
+//! fails is skipped one byte at a time until the stream resynchronises. The
+//! checked frame is decoded by the `rtcm-rs` crate; MSM4–MSM7 (GPS
+//! 1074–1077, Galileo 1094–1097) and the ephemerides (1019 GPS, 1045/1046
+//! Galileo) are converted to SI units here (the ephemeris mappings are
+//! shared with the simulator's encoder).
 
 use std::collections::BTreeMap;
 
 use rtcm_rs::{Message, MessageFrame};
+
+use super::framing;
 
 /// A GLONASS ephemeris as MT1020 carries it.
 pub type Msg1020 = rtcm_rs::msg::Msg1020T;
@@ -140,64 +143,50 @@ impl RtcmDecoder {
 
     /// Feeds bytes; returns the messages completed by them.
     pub fn push(&mut self, bytes: &[u8], out: &mut Vec<GnssMessage>) {
-        for chunk in bytes.chunks(MAX_FRAME) {
-            self.buf.extend_from_slice(chunk);
-            self.drain(out);
-        }
-        self.stats.trailing_bytes = self.buf.len() as u64;
+        self.stats.trailing_bytes = framing::push(self, bytes, out) as u64;
+    }
+}
+
+/// RTCM3 frames: preamble 0xD3, six reserved bits (zero) and a 10-bit
+/// length, the payload and a CRC-24Q. A frame whose CRC fails is counted,
+/// but its preamble byte not as skipped.
+impl framing::Format for RtcmDecoder {
+    const SYNC: &'static [u8] = &[0xD3];
+    const HEADER: usize = 3;
+    const MAX_FRAME: usize = MAX_FRAME;
+    const COUNT_FAILED_FRAME_SKIPPED: bool = false;
+
+    fn buffer(&mut self) -> &mut Vec<u8> {
+        &mut self.buf
     }
 
-    fn drain(&mut self, out: &mut Vec<GnssMessage>) {
-        let mut i = 0;
-        loop {
-            // Find the preamble.
-            match self.buf[i..].iter().position(|&b| b == 0xD3) {
-                Some(p) => {
-                    self.stats.bytes_skipped += p as u64;
-                    i += p;
-                }
-                None => {
-                    self.stats.bytes_skipped += (self.buf.len() - i) as u64;
-                    i = self.buf.len();
-                    break;
-                }
-            }
-            let rest = &self.buf[i..];
-            if rest.len() < 3 {
-                break;
-            }
-            if rest[1] & 0xFC != 0 {
-                // Reserved bits set: not a frame start.
-                i += 1;
-                self.stats.bytes_skipped += 1;
-                continue;
-            }
-            let len = (((rest[1] & 0x03) as usize) << 8) | rest[2] as usize;
-            if rest.len() < len + 6 {
-                break;
-            }
-            match MessageFrame::new(&rest[..len + 6]) {
-                Ok(frame) => {
-                    let t = frame.message_number().unwrap_or(0);
-                    *self.stats.frames_by_type.entry(t).or_default() += 1;
-                    match convert(t, frame.get_message()) {
-                        Some(m) => out.push(m),
-                        None => self.stats.undecodable += 1,
-                    }
-                    i += len + 6;
-                }
-                Err(_) => {
-                    self.stats.crc_failures += 1;
-                    i += 1;
-                }
-            }
+    fn bytes_skipped(&mut self) -> &mut u64 {
+        &mut self.stats.bytes_skipped
+    }
+
+    fn frame_len(&mut self, header: &[u8]) -> Result<usize, usize> {
+        if header[1] & 0xFC != 0 {
+            // Reserved bits set: not a frame start.
+            return Err(1);
         }
-        self.buf.drain(..i);
-        // Never hold more than one frame's worth of unframed bytes.
-        if self.buf.len() > 2 * MAX_FRAME {
-            let cut = self.buf.len() - MAX_FRAME;
-            self.stats.bytes_skipped += cut as u64;
-            self.buf.drain(..cut);
+        Ok(((((header[1] & 0x03) as usize) << 8) | header[2] as usize) + 6)
+    }
+
+    fn frame(&mut self, frame: &[u8], out: &mut Vec<GnssMessage>) -> bool {
+        match MessageFrame::new(frame) {
+            Ok(checked) => {
+                let t = checked.message_number().unwrap_or(0);
+                *self.stats.frames_by_type.entry(t).or_default() += 1;
+                match convert(t, checked.get_message()) {
+                    Some(m) => out.push(m),
+                    None => self.stats.undecodable += 1,
+                }
+                true
+            }
+            Err(_) => {
+                self.stats.crc_failures += 1;
+                false
+            }
         }
     }
 }

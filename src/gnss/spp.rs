@@ -18,146 +18,17 @@
 //!   satellites as unknowns the solution is determined and RAIM is
 //!   impossible.
 
-use std::collections::BTreeMap;
-
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
-use cmsckf_models::gnss::{
-    niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, BroadcastEphemeris, GlonassEphemeris,
-    SatState,
-};
+use cmsckf_models::gnss::{niell_hydrostatic_mapping, saastamoinen_m, saastamoinen_zenith_hydrostatic_m, SatState};
 use cmsckf_models::stats::chi2_quantile;
 
+pub use super::ephemeris_store::{EphStore, Orbit};
+use super::options::{clock_group, IonoMode};
+pub use super::raw_sat::iono_free;
+use super::raw_sat::RawSat;
 use super::rtcm::{SatObs, System};
-use super::IonoMode;
-use super::RawSat;
-
-/// The first frequency (GPS L1, Galileo E1), Hz.
-const F1: f64 = 1_575.42e6;
-/// Largest `|t − toe|` for an ephemeris to be used (s).
-const MAX_AGE_S: f64 = 7200.0;
-
-/// Largest `|t − t_b|` for a GLONASS ephemeris to be used (s): they are
-/// broadcast every 30 min (RTKLIB's limit).
-const MAX_AGE_GLONASS_S: f64 = 1800.0;
-
-/// Broadcast ephemerides by satellite, with resolved weeks.
-#[derive(Clone, Debug, Default)]
-pub struct EphStore {
-    by_sat: BTreeMap<(System, u8), Vec<BroadcastEphemeris>>,
-    /// GLONASS's, by slot.
-    glonass: BTreeMap<u8, Vec<GlonassEphemeris>>,
-    /// Week and toe of the latest ephemeris, to place a time of week.
-    last: Option<(u32, f64)>,
-}
-
-/// A satellite's broadcast orbit and clock: a Kepler ephemeris (GPS,
-/// Galileo, BeiDou, QZSS) or a GLONASS state vector.
-#[derive(Clone, Copy, Debug)]
-pub enum Orbit<'a> {
-    Kepler(&'a BroadcastEphemeris),
-    Glonass(&'a GlonassEphemeris),
-}
-
-impl Orbit<'_> {
-    /// Position, velocity and clock at GPS time `week`/`tow_s`.
-    pub fn state(&self, week: u32, tow_s: f64) -> SatState {
-        match self {
-            Orbit::Kepler(e) => e.state(tow_s),
-            Orbit::Glonass(g) => g.state(week, tow_s),
-        }
-    }
-
-    /// The single-frequency user's group delay (s): GPS TGD, Galileo BGD,
-    /// BeiDou TGD1; GLONASS none.
-    pub fn tgd_s(&self) -> f64 {
-        match self {
-            Orbit::Kepler(e) => e.tgd_s,
-            Orbit::Glonass(_) => 0.0,
-        }
-    }
-
-    /// The broadcast accuracy (m): URA, SISA, or GLONASS's fixed 5 m.
-    pub fn accuracy_m(&self) -> f64 {
-        match self {
-            Orbit::Kepler(e) => e.accuracy_m(),
-            Orbit::Glonass(g) => g.accuracy_m(),
-        }
-    }
-}
-
-impl EphStore {
-    /// Adds a GLONASS ephemeris, replacing one with the same `t_b`.
-    pub fn insert_glonass(&mut self, eph: GlonassEphemeris) {
-        self.last = Some((eph.week, eph.toe_s));
-        let v = self.glonass.entry(eph.slot).or_default();
-        v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week));
-        v.push(eph);
-        if v.len() > 8 {
-            v.remove(0);
-        }
-    }
-
-    /// The satellite's orbit at the time: the healthy ephemeris nearest to
-    /// it ([`Self::select`]; GLONASS's within 30 min of `t_b`).
-    pub fn orbit(&self, system: System, prn: u8, week: u32, tow_s: f64) -> Option<Orbit<'_>> {
-        if system != System::Glonass {
-            return self.select(system, prn, week, tow_s).map(Orbit::Kepler);
-        }
-        self.glonass
-            .get(&prn)?
-            .iter()
-            .filter(|e| e.health == 0)
-            .map(|e| (e, e.since_tb_s(week, tow_s).abs()))
-            .filter(|(_, d)| *d <= MAX_AGE_GLONASS_S)
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(e, _)| Orbit::Glonass(e))
-    }
-    /// Adds an ephemeris, replacing one with the same `toe` and IODE.
-    pub fn insert(&mut self, eph: BroadcastEphemeris) {
-        self.last = Some((eph.week, eph.toe_s));
-        let v = self.by_sat.entry((eph.system, eph.prn)).or_default();
-        v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week && e.iode == eph.iode));
-        v.push(eph);
-        // Bounded: keep the newest 8 per satellite.
-        if v.len() > 8 {
-            v.remove(0);
-        }
-    }
-
-    /// The healthy ephemeris with `toe` nearest to the time (RTKLIB's rule).
-    pub fn select(&self, system: System, prn: u8, week: u32, tow_s: f64) -> Option<&BroadcastEphemeris> {
-        self.by_sat
-            .get(&(system, prn))?
-            .iter()
-            .filter(|e| e.health == 0)
-            .map(|e| (e, ((week as f64 - e.week as f64) * 604_800.0 + tow_s - e.toe_s).abs()))
-            .filter(|(_, d)| *d <= MAX_AGE_S)
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(e, _)| e)
-    }
-
-    /// The full week of a time of week near the latest ephemeris.
-    pub fn week_for_tow(&self, tow_s: f64) -> Option<u32> {
-        let (w, toe) = self.last?;
-        let d = tow_s - toe;
-        Some(if d < -302_400.0 {
-            w + 1
-        } else if d > 302_400.0 {
-            w.saturating_sub(1)
-        } else {
-            w
-        })
-    }
-
-    pub fn len(&self) -> usize {
-        self.by_sat.values().map(Vec::len).sum::<usize>() + self.glonass.values().map(Vec::len).sum::<usize>()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-}
 
 /// Settings of the solver.
 #[derive(Clone, Debug)]
@@ -257,13 +128,6 @@ impl CodeModel {
             }
         }
     }
-}
-
-/// The ionosphere-free pseudorange `(P2 − γ P1)/(1 − γ)`, `γ = (f1/f2)²`,
-/// of an L1/E1 code and a second code on `f2_hz`.
-pub fn iono_free(p1: f64, p2: f64, f2_hz: f64) -> f64 {
-    let g = (F1 / f2_hz).powi(2);
-    (p2 - g * p1) / (1.0 - g)
 }
 
 /// Solves one epoch of observations at `week`/`tow_s`.
@@ -381,7 +245,7 @@ struct LsqOut {
 fn lsq(meas: &[Meas], exclude: Option<(System, u8)>, opt: &SppOptions, model: CodeModel) -> Result<LsqOut, SppError> {
     let mut x = Vector3::zeros();
     // One clock per constellation present, in a fixed order (GPS first).
-    let mut systems: Vec<System> = meas.iter().map(|m| super::clock_group(m.sat.0)).collect();
+    let mut systems: Vec<System> = meas.iter().map(|m| clock_group(m.sat.0)).collect();
     systems.sort();
     systems.dedup();
     let nu = 3 + systems.len();
@@ -437,10 +301,7 @@ fn lsq_rows(
         if known && el < mask {
             continue;
         }
-        let k = systems
-            .iter()
-            .position(|s| *s == super::clock_group(m.sat.0))
-            .unwrap_or(0);
+        let k = systems.iter().position(|s| *s == clock_group(m.sat.0)).unwrap_or(0);
         let d = m.r_sat - x;
         let rho = d.norm() + OMEGA_E_RADPS * (m.r_sat.x * x.y - m.r_sat.y * x.x) / C_MPS;
         let u = d / d.norm();

@@ -1,6 +1,11 @@
 //! Unit tests of the receiver model: epochs, stream recognition, measurement policy.
 
 use super::*;
+use cmsckf_models::gnss::Klobuchar;
+
+use super::raw_sat::F_L2_HZ;
+use super::rtcm::System;
+use super::spp::EphStore;
 use rand::SeedableRng;
 
 fn pol(mode: IonoMode) -> IonoPolicy<'static> {

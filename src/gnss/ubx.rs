@@ -4,7 +4,7 @@
 //! navigation subframes (RXM-SFRBX, legacy RXM-SFRB) become ephemerides
 //! through [`super::lnav`], since u-blox receivers send no RTCM ephemeris.
 //!
-//! The framing is done here, over a bounded buffer, like the RTCM3 decoder's:
+//! The framing is `super::framing`'s, shared with the RTCM3 decoder:
 //! every frame whose Fletcher checksum fails is counted and skipped one byte
 //! at a time, and bytes between frames (NMEA sentences on the same port) are
 //! counted as skipped. The `ublox` crate was considered for the framing but
@@ -17,6 +17,7 @@ use std::collections::BTreeMap;
 
 use cmsckf_models::geodesy::C_MPS;
 
+use super::framing;
 use super::inav::InavAssembler;
 use super::lnav::{LnavAssembler, Subframe};
 use super::rtcm::{GnssMessage, MsmEpoch, SatObs, SignalObs, System};
@@ -84,6 +85,46 @@ fn checksum(bytes: &[u8]) -> (u8, u8) {
     })
 }
 
+/// UBX frames: sync 0xB5 0x62, class, id, a little-endian payload length,
+/// the payload and a Fletcher checksum over class to payload. A frame whose
+/// checksum fails is counted, and its first sync byte as skipped too.
+impl framing::Format for UbxDecoder {
+    const SYNC: &'static [u8] = &[0xB5, 0x62];
+    const HEADER: usize = 6;
+    const MAX_FRAME: usize = MAX_PAYLOAD + 8;
+    const COUNT_FAILED_FRAME_SKIPPED: bool = true;
+
+    fn buffer(&mut self) -> &mut Vec<u8> {
+        &mut self.buf
+    }
+
+    fn bytes_skipped(&mut self) -> &mut u64 {
+        &mut self.stats.bytes_skipped
+    }
+
+    fn frame_len(&mut self, header: &[u8]) -> Result<usize, usize> {
+        let len = u16_at(header, 4) as usize;
+        if len > MAX_PAYLOAD {
+            // No raw-data message is this long: pass over the sync.
+            self.stats.oversize += 1;
+            return Err(2);
+        }
+        Ok(len + 8)
+    }
+
+    fn frame(&mut self, frame: &[u8], out: &mut Vec<GnssMessage>) -> bool {
+        let len = frame.len() - 8;
+        if checksum(&frame[2..6 + len]) != (frame[6 + len], frame[7 + len]) {
+            self.stats.checksum_failures += 1;
+            return false;
+        }
+        let (class, id) = (frame[2], frame[3]);
+        *self.stats.frames_by_id.entry((class, id)).or_default() += 1;
+        self.payload(class, id, &frame[6..6 + len], out);
+        true
+    }
+}
+
 impl UbxDecoder {
     pub fn new() -> Self {
         Self::default()
@@ -96,63 +137,7 @@ impl UbxDecoder {
 
     /// Feeds bytes; returns the messages completed by them.
     pub fn push(&mut self, bytes: &[u8], out: &mut Vec<GnssMessage>) {
-        for chunk in bytes.chunks(MAX_PAYLOAD + 8) {
-            self.buf.extend_from_slice(chunk);
-            self.drain(out);
-        }
-        self.stats.trailing_bytes = self.buf.len() as u64;
-    }
-
-    fn drain(&mut self, out: &mut Vec<GnssMessage>) {
-        let mut i = 0;
-        loop {
-            match self.buf[i..].windows(2).position(|w| w == [0xB5, 0x62]) {
-                Some(p) => {
-                    self.stats.bytes_skipped += p as u64;
-                    i += p;
-                }
-                None => {
-                    // Keep a trailing 0xB5: it may start the next frame.
-                    let keep = usize::from(self.buf.last() == Some(&0xB5));
-                    let end = self.buf.len() - keep;
-                    self.stats.bytes_skipped += (end.max(i) - i) as u64;
-                    i = end.max(i);
-                    break;
-                }
-            }
-            let rest = &self.buf[i..];
-            if rest.len() < 6 {
-                break;
-            }
-            let len = u16_at(rest, 4) as usize;
-            if len > MAX_PAYLOAD {
-                self.stats.oversize += 1;
-                self.stats.bytes_skipped += 2;
-                i += 2;
-                continue;
-            }
-            if rest.len() < len + 8 {
-                break;
-            }
-            let (a, b) = checksum(&rest[2..6 + len]);
-            if (a, b) != (rest[6 + len], rest[7 + len]) {
-                self.stats.checksum_failures += 1;
-                self.stats.bytes_skipped += 1;
-                i += 1;
-                continue;
-            }
-            let (class, id) = (rest[2], rest[3]);
-            *self.stats.frames_by_id.entry((class, id)).or_default() += 1;
-            let payload = rest[6..6 + len].to_vec();
-            self.payload(class, id, &payload, out);
-            i += len + 8;
-        }
-        self.buf.drain(..i);
-        if self.buf.len() > 2 * (MAX_PAYLOAD + 8) {
-            let cut = self.buf.len() - (MAX_PAYLOAD + 8);
-            self.stats.bytes_skipped += cut as u64;
-            self.buf.drain(..cut);
-        }
+        self.stats.trailing_bytes = framing::push(self, bytes, out) as u64;
     }
 
     /// One checked frame's payload.

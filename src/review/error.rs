@@ -13,7 +13,7 @@ use plotters::prelude::*;
 
 use cmsckf_models::stats::percentile;
 
-use super::plots::{chart, err, range};
+use super::chart::{chart, err, range};
 use super::reader::Data;
 use super::ReviewSummary;
 

@@ -26,6 +26,7 @@
 //! segments cover, and the time series keep plausible times only
 //! (`timeline.rs`), so one far-future or backwards record changes neither.
 
+mod chart;
 mod error;
 mod html;
 mod plots;

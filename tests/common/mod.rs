@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod autopilot;
+pub mod flights;
 
 use cmsckf::config::Config;
 

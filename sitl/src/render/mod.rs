@@ -115,16 +115,6 @@ impl Renderer {
         }
     }
 
-    /// The renderer of a simulated flight: its world drawn around its
-    /// trajectory from its seed, its camera and `[render]` settings.
-    pub fn for_dataset(ds: &crate::dataset::Dataset) -> Self {
-        Self::new(
-            World::around(&ds.trajectory, ds.seed),
-            Camera::from_config(&ds.cfg.camera),
-            ds.cfg.render.clone(),
-        )
-    }
-
     /// The camera's poses over an exposure centred on `t_s`: one a blur
     /// sub-frame, evenly spread over `exposure_s` (just `t_s` without blur).
     pub fn exposure_poses(&self, traj: &Trajectory, t_s: f64, poses: &mut Vec<Isometry3<f64>>) {

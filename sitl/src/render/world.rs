@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use super::texture::Texture;
 use rand::Rng;
 
-use crate::dataset::rng_for;
+use crate::rng::rng_for;
 use crate::trajectory::Trajectory;
 
 /// Height of the ground in NED (m): 0.3 m below the IMU of a landed drone.

@@ -34,6 +34,7 @@ mod clock;
 mod fault;
 mod feature_socket;
 mod receive;
+mod receiver_port;
 mod report;
 mod rtcm;
 mod sensors;
@@ -121,7 +122,7 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let rx = receive::spawn_receiver(conn.clone(), inbox.clone(), started, t_start, opts.speedup, stop_rx);
     let receiver_port = match &opts.gnss_stream {
         Some(addr) => Some(
-            rtcm::ReceiverPort::listen(addr)
+            receiver_port::ReceiverPort::listen(addr)
                 .await
                 .map_err(|e| ServeError::GnssStream(addr.clone(), e))?,
         ),

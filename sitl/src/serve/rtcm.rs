@@ -1,60 +1,16 @@
 //! The GNSS receivers' side: the rover's RTCM3 observations (MSM7) and
 //! broadcast ephemerides, split into MAVLink `GPS_RTCM_DATA` fragments as an
 //! autopilot relays them, or written to a TCP port as a receiver wired to
-//! the companion sends them ([`ReceiverPort`]); and a base station's
+//! the companion sends them (`receiver_port`); and a base station's
 //! observations with its antenna position (MT1005), injected by a ground
 //! station into `GPS_RTCM_DATA`.
 
-use std::sync::Arc;
-use std::time::Duration;
-
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{AsyncMavConnection, MavHeader};
-use tokio::io::AsyncWriteExt;
-use tokio::sync::Mutex;
 
 use super::fault::{add_pr_outliers, break_crc, Active, FaultKind};
 use super::stream::Streamer;
 use super::{GCS_HEADER, HEADER, ROVER_STATION_ID};
-
-/// The rover receiver's own port: a TCP listener whose latest client gets
-/// every byte the receiver sends. Nothing waits for a client: bytes sent
-/// while none is connected are lost, as on a serial line nobody reads.
-pub struct ReceiverPort {
-    client: Arc<Mutex<Option<tokio::net::TcpStream>>>,
-    _accept: tokio::task::JoinHandle<()>,
-}
-
-impl ReceiverPort {
-    /// Listens on `addr` (`host:port`) and keeps accepting clients.
-    pub async fn listen(addr: &str) -> std::io::Result<Self> {
-        let listener = tokio::net::TcpListener::bind(addr).await?;
-        let client = Arc::new(Mutex::new(None));
-        let c = client.clone();
-        let accept = tokio::spawn(async move {
-            while let Ok((s, _)) = listener.accept().await {
-                let _ = s.set_nodelay(true);
-                *c.lock().await = Some(s);
-            }
-        });
-        Ok(Self {
-            client,
-            _accept: accept,
-        })
-    }
-
-    /// Writes `bytes` to the client, if any (dropped on an error or after
-    /// 100 ms).
-    async fn write(&self, bytes: &[u8]) {
-        let mut guard = self.client.lock().await;
-        if let Some(s) = guard.as_mut() {
-            let ok = tokio::time::timeout(Duration::from_millis(100), s.write_all(bytes)).await;
-            if !matches!(ok, Ok(Ok(()))) {
-                *guard = None;
-            }
-        }
-    }
-}
 
 /// Splits an RTCM message into `GPS_RTCM_DATA` fragments (MAVLink spec):
 /// flags bit 0 = fragmented, bits 1–2 = fragment id, bits 3–7 = sequence.

@@ -22,9 +22,10 @@ use super::fault::{Active, FaultKind};
 use super::feature_socket::{feature_line, FeatureSocket};
 use super::receive::Inbox;
 use super::{Link, ServeOptions, HEADER};
-use crate::dataset::{rng_for, Dataset};
+use crate::dataset::Dataset;
 use crate::features::CameraFrame;
 use crate::gnss::GnssEpoch;
+use crate::rng::rng_for;
 
 /// The sending side of a served flight.
 pub(super) struct Streamer<'a> {
@@ -53,7 +54,7 @@ pub(super) struct Streamer<'a> {
     pub(super) base_order: Vec<usize>,
     pub(super) k_base: usize,
     /// The rover receiver's own port, when it is wired to the companion.
-    pub(super) receiver_port: Option<super::rtcm::ReceiverPort>,
+    pub(super) receiver_port: Option<super::receiver_port::ReceiverPort>,
     /// Flight time of the next 10 Hz attitude / position.
     pub(super) next_slow: f64,
     /// Flight time of the next 1 Hz heartbeat, system time and origin.
@@ -78,7 +79,7 @@ impl<'a> Streamer<'a> {
         ds: &'a Dataset,
         reboot_s: Option<f64>,
         inbox: Inbox,
-        receiver_port: Option<super::rtcm::ReceiverPort>,
+        receiver_port: Option<super::receiver_port::ReceiverPort>,
         camera: Option<super::camera::CameraServer>,
     ) -> Self {
         Self {

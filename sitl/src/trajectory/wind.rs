@@ -136,7 +136,7 @@ mod tests {
     #[test]
     fn the_gusts_have_the_configured_acceleration() {
         let cfg = WindConfig::default();
-        let g = GustField::new(&cfg, &mut crate::dataset::rng_for(3, 10));
+        let g = GustField::new(&cfg, &mut crate::rng::rng_for(3, 10));
         // Acceleration by central differences over 200 s.
         let h = 1e-3;
         let (mut sum, mut n) = (Vector3::zeros(), 0.0);
@@ -153,7 +153,7 @@ mod tests {
         }
         // On the ground nothing moves; calm air adds nothing.
         assert_eq!(g.apply(5.0, Vector3::zeros()), Vector3::zeros());
-        let calm = GustField::new(&WindConfig::calm(), &mut crate::dataset::rng_for(3, 10));
+        let calm = GustField::new(&WindConfig::calm(), &mut crate::rng::rng_for(3, 10));
         let p = Vector3::new(1.0, 2.0, -5.0);
         assert_eq!(calm.apply(5.0, p), p);
         assert!(cfg.validate("wind").is_ok());
@@ -175,7 +175,7 @@ mod tests {
     #[test]
     fn light_wind_shakes_the_attitude_by_degrees() {
         use crate::trajectory::{racetrack, RacetrackParams};
-        let g = GustField::new(&WindConfig::default(), &mut crate::dataset::rng_for(1, 10));
+        let g = GustField::new(&WindConfig::default(), &mut crate::rng::rng_for(1, 10));
         let calm = racetrack(&RacetrackParams::default(), 60.0, 5.0, &GustField::default());
         let windy = racetrack(&RacetrackParams::default(), 60.0, 5.0, &g);
         let (mut dw, mut dth, mut dp, mut n) = (0.0, 0.0, 0.0, 0.0);

@@ -131,7 +131,7 @@ impl Estimator {
     /// rebase's inputs (R5): `O(n_L n_L0 |Q| + n_L²)`, independent of `n_G`.
     /// Returns false (and changes nothing) if an id is not global or is
     /// given twice.
-    pub(in crate::estimator) fn promote(&mut self, ids: &[u64]) -> bool {
+    pub fn promote(&mut self, ids: &[u64]) -> bool {
         let at = self.clones_offset();
         let Some(g) = self.global.as_mut() else {
             return false;

@@ -291,7 +291,9 @@ pub fn add_gram_outside_block(
 mod tri_tests {
     use super::*;
     use crate::estimator::math::{all_finite, gather_block};
-    use nalgebra::DMatrix;
+    use nalgebra::{DMatrix, DVector};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// The blocked solve agrees with nalgebra's column-by-column one, over
     /// sizes that cross block edges; the symmetric rank-k form with the
@@ -396,6 +398,59 @@ mod tri_tests {
                 v[at] = bad;
                 assert!(!all_finite(&v), "{bad} at {at}");
                 v[at] = 1.0;
+            }
+        }
+    }
+
+    /// A random symmetric positive-definite matrix whose scales span four
+    /// decades, exactly symmetric.
+    fn random_spd(rng: &mut ChaCha8Rng, n: usize) -> DMatrix<f64> {
+        let m = DMatrix::from_fn(n, n + 5, |_, _| rng.random_range(-1.0..1.0));
+        let s = DVector::from_fn(n, |_, _| 10f64.powf(rng.random_range(-3.0..1.0)));
+        let mut p = &m * m.transpose() / (n as f64) + DMatrix::identity(n, n) * 0.05;
+        for j in 0..n {
+            for i in 0..n {
+                p[(i, j)] *= s[i] * s[j];
+            }
+        }
+        (&p + p.transpose()) * 0.5
+    }
+
+    /// The kernel against a dense reference, at the edges: no nuisance block,
+    /// one at the start, one at the end, the whole matrix, and sizes across
+    /// the block (32) and tile (64) edges.
+    #[test]
+    fn schmidt_gram_kernel_matches_the_dense_reference() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for &(n, s0, s1) in &[
+            (1usize, 0usize, 0usize),
+            (7, 0, 7),
+            (30, 0, 0),
+            (30, 12, 12),
+            (70, 0, 36),
+            (70, 18, 70),
+            (70, 18, 66),
+            (140, 18, 78),
+            (333, 18, 267),
+        ] {
+            let p0 = random_spd(&mut rng, n);
+            for k in [1usize, 5, 40] {
+                let a = DMatrix::from_fn(k, n, |_, _| rng.random_range(-1.0..1.0));
+                let at = a.transpose();
+                let mut p = p0.clone();
+                add_gram_outside_block(&mut p, -0.5, at.as_view(), a.as_view(), s0, s1);
+                let mut want = &p0 - at.clone() * &a * 0.5;
+                want.view_mut((s0, s0), (s1 - s0, s1 - s0))
+                    .copy_from(&p0.view((s0, s0), (s1 - s0, s1 - s0)));
+                let scale = want.abs().max().max(1.0);
+                let d = (&p - &want).abs().max() / scale;
+                assert!(d <= 1e-13, "n {n} [{s0}, {s1}) k {k}: {d:e}");
+                assert_eq!(p, p.transpose(), "n {n} [{s0}, {s1}) k {k}: not symmetric");
+                assert_eq!(
+                    p.view((s0, s0), (s1 - s0, s1 - s0)),
+                    p0.view((s0, s0), (s1 - s0, s1 - s0)),
+                    "n {n} [{s0}, {s1}) k {k}: nuisance block changed"
+                );
             }
         }
     }

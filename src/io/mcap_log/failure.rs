@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
 use super::spool::write_spool;
-use super::writer::LogWriter;
+use super::writer::{Failure, LogWriter};
 use super::{LogAlarm, COUNTER_DROPPED_WRITE_ERROR, COUNTER_WRITE_FAILED};
 use crate::io::messages::Outbound;
 use crate::status::Degraded;
@@ -16,18 +16,7 @@ use crate::status::Degraded;
 const RETRY_WALL: Duration = Duration::from_secs(1);
 /// How often the writer's counts are published to the daemon's counters
 /// while records are being lost.
-pub(super) const PUBLISH_WALL: Duration = Duration::from_secs(1);
-
-/// The file cannot be written (since `since`).
-#[derive(Debug)]
-pub(super) struct Failure {
-    /// The first error of the episode (the reason).
-    pub(super) first: std::io::Error,
-    pub(super) since: Instant,
-    pub(super) next_retry: Instant,
-    /// The explicit STATUSTEXT still has to be queued (the queue was full).
-    pub(super) text_pending: bool,
-}
+const PUBLISH_WALL: Duration = Duration::from_secs(1);
 
 impl LogWriter {
     /// Writes what the file does not have yet (whole chunks: no chunk is
@@ -94,6 +83,20 @@ impl LogWriter {
         self.publish();
     }
 
+    /// Keeps the alarm going: queues a failure's explicit STATUSTEXT if the
+    /// queue was full before, and publishes the counts every
+    /// [`PUBLISH_WALL`].
+    pub(super) fn keep_alarm(&mut self, now: Instant) {
+        if let Some(f) = &mut self.failure {
+            if f.text_pending {
+                f.text_pending = !send_text(self.alarm.as_ref(), &f.first);
+            }
+        }
+        if now >= self.last_publish + PUBLISH_WALL {
+            self.publish();
+        }
+    }
+
     /// Adds the counts of write failures and records lost since the last
     /// time to the alarm's counters.
     pub(super) fn publish(&mut self) {
@@ -112,7 +115,7 @@ impl LogWriter {
 
 /// Queues the explicit STATUSTEXT of a write failure (critical); false if
 /// the queue was full (try again later).
-pub(super) fn send_text(alarm: Option<&LogAlarm>, e: &std::io::Error) -> bool {
+fn send_text(alarm: Option<&LogAlarm>, e: &std::io::Error) -> bool {
     let Some(a) = alarm else { return true };
     let text = match e.kind() {
         std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded => "cmsckf: log disk full".to_string(),

@@ -10,7 +10,6 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use super::failure::{send_text, Failure, PUBLISH_WALL};
 use super::spool::{lock, Spool, SpoolSink};
 use super::{LogAlarm, LogError, LogSummary, Record, Topic};
 
@@ -36,6 +35,17 @@ pub(super) struct OpenChunk {
     /// Its records' earliest and latest sensor times (ns).
     t_min_ns: u64,
     t_max_ns: u64,
+}
+
+/// The file cannot be written (since `since`).
+#[derive(Debug)]
+pub(super) struct Failure {
+    /// The first error of the episode (the reason).
+    pub(super) first: std::io::Error,
+    pub(super) since: Instant,
+    pub(super) next_retry: Instant,
+    /// The explicit STATUSTEXT still has to be queued (the queue was full).
+    pub(super) text_pending: bool,
 }
 
 /// The writer thread's state.
@@ -203,14 +213,7 @@ impl LogWriter {
         } else if self.chunk.is_none() && self.failure.as_ref().is_some_and(|f| now >= f.next_retry) {
             self.save();
         }
-        if let Some(f) = &mut self.failure {
-            if f.text_pending {
-                f.text_pending = !send_text(self.alarm.as_ref(), &f.first);
-            }
-        }
-        if now >= self.last_publish + PUBLISH_WALL {
-            self.publish();
-        }
+        self.keep_alarm(now);
         Ok(())
     }
 

@@ -1,48 +1,21 @@
 //! The Schmidt update (README §6) against the formula it replaced.
 //!
-//! The branch of [`Estimator::ekf_update`] used to form `AᵀA` over the whole
-//! state (n × n, `O(m·n²)`, the cost of the full update), zero its keyframe
-//! block and subtract it. It now touches the keyframes only through their
-//! cross-covariances (`math::add_gram_outside_block`, `O(m·n_A·n)`). The
-//! former formula is kept here, and the Schmidt branch runs it instead while
-//! [`with_former`] holds (per thread), so that single updates and whole
-//! flights can be compared.
-
-use std::cell::Cell;
+//! The branch of the EKF update for Schmidt mode used to form `AᵀA` over the
+//! whole state (n × n, `O(m·n²)`, the cost of the full update), zero its
+//! keyframe block and subtract it. It now touches the keyframes only through
+//! their cross-covariances (`math::add_gram_outside_block`, `O(m·n_A·n)`).
+//! The former formula is kept here, and a filter runs it instead once
+//! [`Estimator::set_schmidt_downdate`] is given it, so that single updates
+//! and whole flights can be compared.
 
 use nalgebra::{DMatrix, DMatrixView, DVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::Config;
-use crate::estimator::{math, Estimator, Mode, ACTIVE_DIM};
-use crate::eval;
+use cmsckf::config::Config;
+use cmsckf::estimator::{math, Estimator, Mode, ACTIVE_DIM};
+use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
-
-/// The Schmidt downdate `P += α AᵀA` outside the keyframe block `[k0, k1)²`.
-pub(super) type Downdate = fn(&mut DMatrix<f64>, f64, DMatrixView<'_, f64>, DMatrixView<'_, f64>, usize, usize);
-
-thread_local! {
-    /// The Schmidt branch runs [`former_downdate`] on this thread.
-    static FORMER: Cell<bool> = const { Cell::new(false) };
-}
-
-/// The downdate the Schmidt branch runs on this thread.
-pub(super) fn downdate() -> Downdate {
-    if FORMER.with(Cell::get) {
-        former_downdate
-    } else {
-        math::add_gram_outside_block
-    }
-}
-
-/// Runs `f` with the Schmidt branch on the former formula.
-fn with_former<R>(f: impl FnOnce() -> R) -> R {
-    FORMER.with(|c| c.set(true));
-    let r = f();
-    FORMER.with(|c| c.set(false));
-    r
-}
 
 /// The former Schmidt branch, verbatim: `K S Kᵀ = AᵀA` formed n × n, its
 /// keyframe block zeroed, subtracted from `P`.
@@ -112,28 +85,35 @@ fn check_update(est: &Estimator, h: &DMatrix<f64>, cols: &[usize], r: &DVector<f
     let mut new = est.clone();
     new.ekf_update(h, cols, r, upper);
     let mut old = est.clone();
-    with_former(|| old.ekf_update(h, cols, r, upper));
+    old.set_schmidt_downdate(former_downdate);
+    old.ekf_update(h, cols, r, upper);
     assert_eq!(new.stats.rejected, est.stats.rejected, "{what}: update refused");
-    let d = normalised_diff(&new.P, &old.P, &est.P);
+    let (p_new, p_old, p_est) = (new.covariance(), old.covariance(), est.covariance());
+    let d = normalised_diff(p_new, p_old, p_est);
     assert!(d <= 1e-12, "{what}: new and former Schmidt covariances differ by {d:e}");
-    assert_eq!(new.P, new.P.transpose(), "{what}: not exactly symmetric");
+    assert_eq!(p_new, &p_new.transpose(), "{what}: not exactly symmetric");
     assert_eq!(
-        new.P.view((k0, k0), (k1 - k0, k1 - k0)),
-        est.P.view((k0, k0), (k1 - k0, k1 - k0)),
+        p_new.view((k0, k0), (k1 - k0, k1 - k0)),
+        p_est.view((k0, k0), (k1 - k0, k1 - k0)),
         "{what}: P_SS changed"
     );
-    assert_eq!(new.snapshot().x, old.snapshot().x, "{what}: nominal states differ");
-    for (id, kf) in &est.keyframes {
-        let after = &new.keyframes[id];
+    let x_new = new.snapshot().x;
+    assert_eq!(x_new, old.snapshot().x, "{what}: nominal states differ");
+    // Each keyframe's chart `[δ, p]`, in id order after the IMU, the clock,
+    // the time offset and the clones (the snapshot's layout).
+    let x_est = est.snapshot().x;
+    let kf0 = ACTIVE_DIM + 6 * est.n_clones();
+    for (j, kf) in est.keyframes().enumerate() {
+        let id = kf.id;
         assert_eq!(
-            (after.delta, after.p_B_in_W),
-            (kf.delta, kf.p_B_in_W),
+            x_new.rows(kf0 + 6 * j, 6),
+            x_est.rows(kf0 + 6 * j, 6),
             "{what}: keyframe {id} corrected"
         );
     }
     // The update did something to the cross-covariances.
     assert!(
-        new.P.view((0, k0), (k0, k1 - k0)) != est.P.view((0, k0), (k0, k1 - k0)),
+        p_new.view((0, k0), (k0, k1 - k0)) != p_est.view((0, k0), (k0, k1 - k0)),
         "{what}: P_AS unchanged"
     );
     d
@@ -153,24 +133,24 @@ fn schmidt_update_equals_the_former_formula() {
     }
     let base = run.est.clone();
     let (k0, k1) = (ACTIVE_DIM, base.clones_offset());
-    let n = base.P.nrows();
-    assert!(k1 - k0 >= 6 * 15, "only {} keyframes", base.local_kfs.len());
+    let n = base.covariance().nrows();
+    assert!(k1 - k0 >= 6 * 15, "only {} keyframes", (k1 - k0) / 6);
     assert!(n > k1, "no clones");
 
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let mut worst: f64 = 0.0;
     let mut states = vec![("flight", base.clone())];
     let mut random = base.clone();
-    random.P = random_spd(&mut rng, n);
+    random.set_covariance(random_spd(&mut rng, n));
     states.push(("random P", random));
     // States after the clones (the updated set is not contiguous on either
     // side of the keyframes); the nominal correction ignores them.
     let mut extra = base.clone();
-    extra.P = random_spd(&mut rng, n + 12);
+    extra.set_covariance(random_spd(&mut rng, n + 12));
     states.push(("random P, 12 states after the clones", extra));
 
     for (name, est) in &states {
-        let n = est.P.nrows();
+        let n = est.covariance().nrows();
         let kf_cols: Vec<usize> = (k0..k1).collect();
         let mut sparse: Vec<usize> = (0..9).collect();
         sparse.extend(k0 + 6..k0 + 18);
@@ -198,7 +178,7 @@ fn schmidt_update_equals_the_former_formula() {
             // Scale H to the state: P_jj^-1/2 on column j, times a few,
             // so that the update is strong but S stays well conditioned.
             for (j, &col) in cols.iter().enumerate() {
-                let s = 3.0 / est.P[(col, col)].sqrt();
+                let s = 3.0 / est.covariance()[(col, col)].sqrt();
                 h.column_mut(j).scale_mut(s);
             }
             let r = DVector::from_fn(m, |_, _| rng.random_range(-1.0..1.0));
@@ -207,45 +187,6 @@ fn schmidt_update_equals_the_former_formula() {
         }
     }
     eprintln!("worst normalised difference, new vs former Schmidt update: {worst:e}");
-}
-
-/// The kernel against a dense reference, at the edges: no nuisance block,
-/// one at the start, one at the end, the whole matrix, and sizes across
-/// the block (32) and tile (64) edges.
-#[test]
-fn schmidt_gram_kernel_matches_the_dense_reference() {
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    for &(n, s0, s1) in &[
-        (1usize, 0usize, 0usize),
-        (7, 0, 7),
-        (30, 0, 0),
-        (30, 12, 12),
-        (70, 0, 36),
-        (70, 18, 70),
-        (70, 18, 66),
-        (140, 18, 78),
-        (333, 18, 267),
-    ] {
-        let p0 = random_spd(&mut rng, n);
-        for k in [1usize, 5, 40] {
-            let a = DMatrix::from_fn(k, n, |_, _| rng.random_range(-1.0..1.0));
-            let at = a.transpose();
-            let mut p = p0.clone();
-            math::add_gram_outside_block(&mut p, -0.5, at.as_view(), a.as_view(), s0, s1);
-            let mut want = &p0 - at.clone() * &a * 0.5;
-            want.view_mut((s0, s0), (s1 - s0, s1 - s0))
-                .copy_from(&p0.view((s0, s0), (s1 - s0, s1 - s0)));
-            let scale = want.abs().max().max(1.0);
-            let d = (&p - &want).abs().max() / scale;
-            assert!(d <= 1e-13, "n {n} [{s0}, {s1}) k {k}: {d:e}");
-            assert_eq!(p, p.transpose(), "n {n} [{s0}, {s1}) k {k}: not symmetric");
-            assert_eq!(
-                p.view((s0, s0), (s1 - s0, s1 - s0)),
-                p0.view((s0, s0), (s1 - s0, s1 - s0)),
-                "n {n} [{s0}, {s1}) k {k}: nuisance block changed"
-            );
-        }
-    }
 }
 
 /// A Schmidt flight (camera and GNSS, loop closures on keyframes) with the
@@ -258,10 +199,11 @@ fn schmidt_flight_equals_the_former_formula() {
     let (ds, cfg) = schmidt_flight(4, 60.0);
     let mut new = eval::Runner::new(&ds, &cfg, Mode::Schmidt, 4).with_gnss();
     let mut old = new.clone();
+    old.est.set_schmidt_downdate(former_downdate);
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
         let (_, rep_new) = new.step_frame(k);
-        let (_, rep_old) = with_former(|| old.step_frame(k));
+        let (_, rep_old) = old.step_frame(k);
         assert_eq!(rep_new.tracks_used, rep_old.tracks_used, "frame {k}");
         assert_eq!(rep_new.events, rep_old.events, "frame {k}");
         let d = new.est.snapshot().max_rel_diff(&old.est.snapshot());
@@ -271,17 +213,14 @@ fn schmidt_flight_equals_the_former_formula() {
     let s = &new.est.stats;
     assert_eq!(s, &old.est.stats);
     assert!(s.loop_closure_updates > 0, "no loop closure on a keyframe");
-    assert!(
-        new.est.local_kfs.len() >= 40,
-        "only {} keyframes",
-        new.est.local_kfs.len()
-    );
+    let n_keyframes = (new.est.clones_offset() - ACTIVE_DIM) / 6;
+    assert!(n_keyframes >= 40, "only {n_keyframes} keyframes");
     assert!(!new.clock_errors.is_empty(), "no GNSS epoch fused");
     eprintln!(
         "{} frames, {} updates, {} loop-closure updates, {} keyframes: worst difference {worst:e}",
         ds.frames.len(),
         s.updates,
         s.loop_closure_updates,
-        new.est.local_kfs.len()
+        n_keyframes
     );
 }

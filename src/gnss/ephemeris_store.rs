@@ -1,0 +1,134 @@
+//! The broadcast ephemerides a receiver has heard, by satellite, with
+//! their weeks resolved: why it exists is that the single-point and
+//! differential solvers and the filter's measurements all look a
+//! satellite's orbit up here, at the epoch's time.
+
+use std::collections::BTreeMap;
+
+use cmsckf_models::gnss::{BroadcastEphemeris, GlonassEphemeris, SatState};
+
+use super::rtcm::System;
+
+/// Largest `|t − toe|` for an ephemeris to be used (s).
+const MAX_AGE_S: f64 = 7200.0;
+
+/// Largest `|t − t_b|` for a GLONASS ephemeris to be used (s): they are
+/// broadcast every 30 min (RTKLIB's limit).
+const MAX_AGE_GLONASS_S: f64 = 1800.0;
+
+/// Broadcast ephemerides by satellite, with resolved weeks.
+#[derive(Clone, Debug, Default)]
+pub struct EphStore {
+    by_sat: BTreeMap<(System, u8), Vec<BroadcastEphemeris>>,
+    /// GLONASS's, by slot.
+    glonass: BTreeMap<u8, Vec<GlonassEphemeris>>,
+    /// Week and toe of the latest ephemeris, to place a time of week.
+    last: Option<(u32, f64)>,
+}
+
+/// A satellite's broadcast orbit and clock: a Kepler ephemeris (GPS,
+/// Galileo, BeiDou, QZSS) or a GLONASS state vector.
+#[derive(Clone, Copy, Debug)]
+pub enum Orbit<'a> {
+    Kepler(&'a BroadcastEphemeris),
+    Glonass(&'a GlonassEphemeris),
+}
+
+impl Orbit<'_> {
+    /// Position, velocity and clock at GPS time `week`/`tow_s`.
+    pub fn state(&self, week: u32, tow_s: f64) -> SatState {
+        match self {
+            Orbit::Kepler(e) => e.state(tow_s),
+            Orbit::Glonass(g) => g.state(week, tow_s),
+        }
+    }
+
+    /// The single-frequency user's group delay (s): GPS TGD, Galileo BGD,
+    /// BeiDou TGD1; GLONASS none.
+    pub fn tgd_s(&self) -> f64 {
+        match self {
+            Orbit::Kepler(e) => e.tgd_s,
+            Orbit::Glonass(_) => 0.0,
+        }
+    }
+
+    /// The broadcast accuracy (m): URA, SISA, or GLONASS's fixed 5 m.
+    pub fn accuracy_m(&self) -> f64 {
+        match self {
+            Orbit::Kepler(e) => e.accuracy_m(),
+            Orbit::Glonass(g) => g.accuracy_m(),
+        }
+    }
+}
+
+impl EphStore {
+    /// Adds a GLONASS ephemeris, replacing one with the same `t_b`.
+    pub fn insert_glonass(&mut self, eph: GlonassEphemeris) {
+        self.last = Some((eph.week, eph.toe_s));
+        let v = self.glonass.entry(eph.slot).or_default();
+        v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week));
+        v.push(eph);
+        if v.len() > 8 {
+            v.remove(0);
+        }
+    }
+
+    /// The satellite's orbit at the time: the healthy ephemeris nearest to
+    /// it ([`Self::select`]; GLONASS's within 30 min of `t_b`).
+    pub fn orbit(&self, system: System, prn: u8, week: u32, tow_s: f64) -> Option<Orbit<'_>> {
+        if system != System::Glonass {
+            return self.select(system, prn, week, tow_s).map(Orbit::Kepler);
+        }
+        self.glonass
+            .get(&prn)?
+            .iter()
+            .filter(|e| e.health == 0)
+            .map(|e| (e, e.since_tb_s(week, tow_s).abs()))
+            .filter(|(_, d)| *d <= MAX_AGE_GLONASS_S)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(e, _)| Orbit::Glonass(e))
+    }
+    /// Adds an ephemeris, replacing one with the same `toe` and IODE.
+    pub fn insert(&mut self, eph: BroadcastEphemeris) {
+        self.last = Some((eph.week, eph.toe_s));
+        let v = self.by_sat.entry((eph.system, eph.prn)).or_default();
+        v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week && e.iode == eph.iode));
+        v.push(eph);
+        // Bounded: keep the newest 8 per satellite.
+        if v.len() > 8 {
+            v.remove(0);
+        }
+    }
+
+    /// The healthy ephemeris with `toe` nearest to the time (RTKLIB's rule).
+    pub fn select(&self, system: System, prn: u8, week: u32, tow_s: f64) -> Option<&BroadcastEphemeris> {
+        self.by_sat
+            .get(&(system, prn))?
+            .iter()
+            .filter(|e| e.health == 0)
+            .map(|e| (e, ((week as f64 - e.week as f64) * 604_800.0 + tow_s - e.toe_s).abs()))
+            .filter(|(_, d)| *d <= MAX_AGE_S)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(e, _)| e)
+    }
+
+    /// The full week of a time of week near the latest ephemeris.
+    pub fn week_for_tow(&self, tow_s: f64) -> Option<u32> {
+        let (w, toe) = self.last?;
+        let d = tow_s - toe;
+        Some(if d < -302_400.0 {
+            w + 1
+        } else if d > 302_400.0 {
+            w.saturating_sub(1)
+        } else {
+            w
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.by_sat.values().map(Vec::len).sum::<usize>() + self.glonass.values().map(Vec::len).sum::<usize>()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}

@@ -1,0 +1,19 @@
+//! Simulated flights for the estimator's integration tests: a scenario
+//! generated with the default simulator and config, the one set-up the
+//! exactness, GNSS and time-offset tests share.
+
+use cmsckf::config::Config;
+use cmsckf::eval;
+use cmsckf_sitl::dataset::Dataset;
+
+/// A scenario with the default simulator and config.
+pub fn scenario(scenario: &str, seed: u64, duration_s: f64) -> (Dataset, Config) {
+    let cfg = Config::default();
+    let ds = Dataset::generate(scenario, seed, Some(duration_s), &eval::sim_config_for(&cfg)).unwrap();
+    (ds, cfg)
+}
+
+/// The racetrack with the default simulator and config.
+pub fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
+    scenario("racetrack", seed, duration_s)
+}

@@ -1,0 +1,144 @@
+//! The camera–IMU time offset (README §3b): a camera view enters the state
+//! with the offset's column, and the offset is estimated online, in flight
+//! and under motion that excites it.
+#![allow(non_snake_case)] // names carry frames: w_W
+
+use nalgebra::{DMatrix, UnitQuaternion, Vector3};
+
+use cmsckf::config::Config;
+use cmsckf::estimator::propagate::{P, TH};
+use cmsckf::estimator::{Mode, TD};
+use cmsckf::eval;
+use cmsckf_sitl::dataset::Dataset;
+
+mod common;
+use common::flights::{self, racetrack};
+
+/// The body pose `[δθ, δp]` within the IMU error state (what a clone
+/// copies).
+const POSE_IDX: [usize; 6] = [TH, TH + 1, TH + 2, P, P + 1, P + 2];
+
+/// `augment` with the time-offset column equals the dense `J P Jᵀ`.
+#[test]
+fn augmenting_a_view_equals_the_dense_product() {
+    let (ds, cfg) = racetrack(3, 2.0);
+    let mut run = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
+    for k in 0..10 {
+        run.step_frame(k);
+    }
+    let mut est = run.est.clone();
+    est.sync();
+    let n = est.covariance().nrows();
+    let imu = *est.imu_state();
+    let w_W = imu.q_W_B * (est.last_imu().unwrap().gyro_radps - imu.b_g);
+    let v = imu.v_B_in_W;
+    let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
+    let mut j = DMatrix::zeros(6, n);
+    for (i, &r) in POSE_IDX.iter().enumerate() {
+        j[(i, r)] = 1.0;
+        j[(i, TD)] = c[i];
+    }
+    let cross = est.covariance() * j.transpose();
+    let block = &j * &cross;
+    let at = est.gnss_clones_offset();
+    est.augment_view(at);
+    let p = est.covariance();
+    let got_cross = p.view((0, at), (n, 6)).into_owned();
+    let got_block = p.view((at, at), (6, 6)).into_owned();
+    assert!((got_cross - cross).amax() < 1e-12 * p.amax());
+    assert!((got_block - block).amax() < 1e-12 * p.amax());
+}
+
+/// The camera–IMU time offset is estimated online (§3b): from a prior of
+/// 0 ± 20 ms, after 20 s of flight it is within 1 ms of the simulator's
+/// 12 ms (the target), within 3σ, and its σ is below 0.5 ms, on
+/// figure8 and the racetrack in the default light wind. (In calm air, the
+/// historical perfectly smooth paths, σ is 0.9–1.3 ms after 20 s: a path at
+/// constant speed and turn rate shifts every view alike, and only changes of
+/// angular rate show the offset; README, "Time offset".)
+#[test]
+fn time_offset_converges_in_flight() {
+    for (scenario, seed) in [("figure8", 4), ("racetrack", 1)] {
+        let (ds, cfg) = flights::scenario(scenario, seed, 27.0);
+        let takeoff = ds.cfg.standstill_s;
+        let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
+        let mut at_20 = None;
+        for k in 0..ds.frames.len() {
+            run.step_frame(k);
+            if at_20.is_none() && run.est.time_s() >= takeoff + 20.0 {
+                at_20 = Some(run.est.time_offset());
+            }
+        }
+        let (td, var) = at_20.expect("20 s of flight");
+        let truth = ds.cfg.camera_time_offset_s;
+        let err = (td - truth).abs();
+        eprintln!(
+            "{scenario}: t_d after 20 s of flight: {:.3} ms ± {:.3} ms (truth {:.1} ms)",
+            td * 1e3,
+            var.sqrt() * 1e3,
+            truth * 1e3
+        );
+        assert!(err < 1e-3, "{scenario}: t_d error {err} s after 20 s");
+        assert!(
+            err < 3.0 * var.sqrt(),
+            "{scenario}: t_d {td} vs {truth}, σ {}",
+            var.sqrt()
+        );
+        assert!(var.sqrt() < 0.5e-3, "{scenario}: σ {}", var.sqrt());
+    }
+}
+
+/// With motion that excites it, the time offset converges within 1 ms of
+/// the truth in 20 s (§3b): a handheld-like trajectory (turns of ±0.4 and
+/// ±1 rad at up to 0.8 rad/s, translations of ±2 m at up to 3 m/s), written as a
+/// TUM file and flown with the default simulator (12 ms offset, frames
+/// 30–60 ms late). On udel_gore with OpenVINS's simulator settings the same
+/// holds (0.08 ms after 20 s, 3 seeds); the drone scenarios in calm air
+/// excite it less (`time_offset_converges_in_flight`).
+#[test]
+fn time_offset_converges_under_rich_motion() {
+    use std::fmt::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("handheld.txt");
+    let mut text = String::from("# t x y z qx qy qz qw (z up)\n");
+    for k in 0..=2600 {
+        let t = k as f64 * 0.01;
+        let p = Vector3::new(
+            2.0 * (1.5 * t).sin(),
+            1.5 * (1.3 * t + 1.0).sin(),
+            1.5 + 0.5 * (0.7 * t).sin(),
+        );
+        let q = UnitQuaternion::from_euler_angles(
+            0.4 * (1.7 * t).sin(),
+            0.4 * (1.3 * t + 0.5).sin(),
+            1.0 * (0.8 * t).sin(),
+        );
+        let c = q.coords;
+        let _ = writeln!(text, "{t} {} {} {} {} {} {} {}", p.x, p.y, p.z, c.x, c.y, c.z, c.w);
+    }
+    std::fs::write(&path, text).unwrap();
+    let cfg = Config::default();
+    let sim = eval::sim_config_for(&cfg);
+    let scenario = format!("tum:{}", path.display());
+    let mut worst: f64 = 0.0;
+    for seed in 1..=2 {
+        let ds = Dataset::generate(&scenario, seed, Some(25.0), &sim).unwrap();
+        let mut run = eval::Runner::new(&ds, &cfg, Mode::Msckf, seed);
+        let mut at_20 = None;
+        for k in 0..ds.frames.len() {
+            run.step_frame(k);
+            if at_20.is_none() && run.est.time_s() >= 20.0 {
+                at_20 = Some(run.est.time_offset());
+            }
+        }
+        let (td, var) = at_20.expect("20 s");
+        let err = (td - ds.cfg.camera_time_offset_s).abs();
+        eprintln!(
+            "seed {seed}: t_d error after 20 s {:.3} ms, σ {:.3} ms",
+            err * 1e3,
+            var.sqrt() * 1e3
+        );
+        worst = worst.max(err);
+    }
+    assert!(worst < 1e-3, "t_d error {worst} s after 20 s");
+}
