@@ -8,7 +8,8 @@ use std::process::Command;
 
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
-use cmsckf_sitl::serve::{serve, ServeOptions};
+
+use common::harness;
 
 /// Runs the daemon binary against the SITL autopilot flying `scenario`
 /// (10× real time), then stops it with SIGTERM. The simulated sky has no
@@ -28,24 +29,8 @@ fn fly(
     tweak(&mut cfg);
     let mut daemon = common::spawn_daemon_binary(&cfg, dir);
     let ds = Dataset::generate(scenario, seed, Some(duration), &sim).unwrap();
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let report = rt
-        .block_on(serve(
-            &ServeOptions {
-                mavlink: format!("udpout:127.0.0.1:{port}"),
-                feature_socket: cfg.features.socket.clone().into(),
-                speedup: 10.0,
-                faults: Vec::new(),
-                gnss_stream: None,
-                camera_socket: None,
-            },
-            &ds,
-        ))
-        .unwrap();
-    unsafe {
-        libc::kill(daemon.id() as i32, libc::SIGTERM);
-    }
-    let status = daemon.wait().unwrap();
+    let report = harness::fly(&harness::serve_options(&cfg, port, 10.0), &ds);
+    let status = harness::sigterm(&mut daemon);
     assert!(status.success(), "daemon exit {status:?}");
     assert!(!std::path::Path::new(&cfg.features.socket).exists());
     (report, ds, cfg)

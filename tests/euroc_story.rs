@@ -16,8 +16,10 @@ use cmsckf::eval;
 use cmsckf_frontend::image::Gray;
 use cmsckf_sitl::dataset::Dataset;
 use cmsckf_sitl::render::Renderer;
-use cmsckf_sitl::serve::{serve, ServeOptions};
+use cmsckf_sitl::serve::ServeOptions;
 use nalgebra::{UnitQuaternion, Vector3};
+
+use common::harness;
 
 /// EuRoC MH_01_easy's first stamp (ns): the folder uses real-sized stamps.
 const T0_NS: u64 = 1_403_636_579_758_555_392;
@@ -108,25 +110,13 @@ fn a_euroc_folder_flies_through_the_front_end_and_the_daemon() {
         let mut tracker = Tracker::new(TrackerParams::default(), Some(cam));
         run(&mut source, &mut tracker, &mut sink, 0, Stamp::Source).unwrap()
     });
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let report = rt
-        .block_on(serve(
-            &ServeOptions {
-                mavlink: format!("udpout:127.0.0.1:{port}"),
-                feature_socket: cfg.features.socket.clone().into(),
-                speedup: 2.0,
-                faults: Vec::new(),
-                gnss_stream: None,
-                camera_socket: Some(cam_sock),
-            },
-            &ds,
-        ))
-        .unwrap();
+    let opts = ServeOptions {
+        camera_socket: Some(cam_sock),
+        ..harness::serve_options(&cfg, port, 2.0)
+    };
+    let report = harness::fly(&opts, &ds);
     let tracked = front.join().unwrap();
-    unsafe {
-        libc::kill(daemon.id() as i32, libc::SIGTERM);
-    }
-    assert!(daemon.wait().unwrap().success());
+    assert!(harness::sigterm(&mut daemon).success());
     eprintln!("front-end: {tracked}");
     eprintln!("{}", serde_json::to_string(&report).unwrap());
     assert_eq!(tracked.frames as usize, report.frames_sent);

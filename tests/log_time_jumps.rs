@@ -13,11 +13,13 @@
 mod common;
 
 use std::io::Write;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
-use cmsckf_sitl::serve::{serve, ServeOptions, BOOT0_S};
+use cmsckf_sitl::serve::{ServeOptions, BOOT0_S};
+
+use common::harness;
 
 /// Flight time of the reboot (the `clock_jump` fault's start, s).
 const REBOOT_S: f64 = 5.0;
@@ -41,26 +43,12 @@ fn sigkill_after_clock_jumps_loses_at_most_about_a_second() {
     std::thread::sleep(Duration::from_millis(200));
     let ds = Dataset::generate("racetrack", 4, Some(32.0), &eval::sim_config_for(&cfg)).unwrap();
     let opts = ServeOptions {
-        mavlink: format!("udpout:127.0.0.1:{port}"),
-        feature_socket: cfg.features.socket.clone().into(),
-        speedup: SPEEDUP,
         faults: vec![format!("clock_jump@{REBOOT_S}+1").parse().unwrap()],
-        gnss_stream: None,
-        camera_socket: None,
+        ..harness::serve_options(&cfg, port, SPEEDUP)
     };
-    let start = Instant::now();
-    let sitl = std::thread::spawn(move || {
-        let rt = tokio::runtime::Runtime::new().unwrap();
-        rt.block_on(serve(&opts, &ds)).unwrap()
-    });
+    let sitl = harness::fly_in_background(opts, ds);
     // Kill at 2.5 s of wall time = 25 s of flight, 20 s after the reboot.
-    std::thread::sleep(Duration::from_millis(2500));
-    let kill_flight_s = start.elapsed().as_secs_f64() * SPEEDUP;
-    unsafe {
-        libc::kill(daemon.id() as i32, libc::SIGKILL);
-    }
-    let _ = daemon.wait();
-    let _ = sitl.join();
+    let kill_flight_s = harness::sigkill_after(&mut daemon, sitl, Duration::from_millis(2500), SPEEDUP);
 
     // The readable records, in file order.
     let bytes = std::fs::read(&log).unwrap();

@@ -8,11 +8,13 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
-use cmsckf_sitl::serve::{serve, ServeOptions, BOOT0_S};
+use cmsckf_sitl::serve::BOOT0_S;
+
+use common::harness;
 
 #[test]
 fn sigkill_leaves_a_readable_log() {
@@ -23,27 +25,9 @@ fn sigkill_leaves_a_readable_log() {
     let mut daemon = common::spawn_daemon_binary(&cfg, dir.path());
     let ds = Dataset::generate("racetrack", 2, Some(30.0), &eval::sim_config_for(&cfg)).unwrap();
     let speedup = 10.0;
-    let opts = ServeOptions {
-        mavlink: format!("udpout:127.0.0.1:{port}"),
-        feature_socket: cfg.features.socket.clone().into(),
-        speedup,
-        faults: Vec::new(),
-        gnss_stream: None,
-        camera_socket: None,
-    };
-    let start = Instant::now();
-    let sitl = std::thread::spawn(move || {
-        let rt = tokio::runtime::Runtime::new().unwrap();
-        rt.block_on(serve(&opts, &ds)).unwrap()
-    });
+    let sitl = harness::fly_in_background(harness::serve_options(&cfg, port, speedup), ds);
     // Kill at 1.5 s of wall time = 15 s of flight.
-    std::thread::sleep(Duration::from_millis(1500));
-    let kill_flight_s = start.elapsed().as_secs_f64() * speedup;
-    unsafe {
-        libc::kill(daemon.id() as i32, libc::SIGKILL);
-    }
-    let _ = daemon.wait();
-    let _ = sitl.join();
+    let kill_flight_s = harness::sigkill_after(&mut daemon, sitl, Duration::from_millis(1500), speedup);
 
     let r = cmsckf::review::review(&log, None, None, None).unwrap();
     assert!(r.truncated, "a killed writer leaves no summary");
