@@ -16,8 +16,6 @@
 //! framer takes it out for the while it walks it, so that the format can be
 //! handed a frame of it and still count into itself.
 
-use super::rtcm::GnssMessage;
-
 /// One framed format: its sync pattern, header and checksum, and its counts.
 pub(super) trait Format {
     /// The bytes every frame starts with.
@@ -30,6 +28,8 @@ pub(super) trait Format {
     /// Whether the first byte of a frame whose checksum fails is counted as
     /// skipped (the bytes after it, up to the next sync, always are).
     const COUNT_FAILED_FRAME_SKIPPED: bool;
+    /// What a frame decodes into.
+    type Message;
 
     /// The buffer of bytes not yet framed.
     fn buffer(&mut self) -> &mut Vec<u8>;
@@ -41,11 +41,11 @@ pub(super) trait Format {
     fn frame_len(&mut self, header: &[u8]) -> Result<usize, usize>;
     /// A whole frame: checks its checksum and decodes it into `out`. False
     /// when the checksum fails (the format counts the failure itself).
-    fn frame(&mut self, frame: &[u8], out: &mut Vec<GnssMessage>) -> bool;
+    fn frame(&mut self, frame: &[u8], out: &mut Vec<Self::Message>) -> bool;
 }
 
 /// Feeds bytes to `f`; returns the bytes left buffered (a truncated frame).
-pub(super) fn push<F: Format>(f: &mut F, bytes: &[u8], out: &mut Vec<GnssMessage>) -> usize {
+pub(super) fn push<F: Format>(f: &mut F, bytes: &[u8], out: &mut Vec<F::Message>) -> usize {
     for chunk in bytes.chunks(F::MAX_FRAME) {
         f.buffer().extend_from_slice(chunk);
         drain(f, out);
@@ -54,7 +54,7 @@ pub(super) fn push<F: Format>(f: &mut F, bytes: &[u8], out: &mut Vec<GnssMessage
 }
 
 /// Frames what the buffer holds, keeps the unfinished rest, and bounds it.
-fn drain<F: Format>(f: &mut F, out: &mut Vec<GnssMessage>) {
+fn drain<F: Format>(f: &mut F, out: &mut Vec<F::Message>) {
     let mut buf = std::mem::take(f.buffer());
     let mut skipped = 0u64;
     let mut i = 0;

@@ -151,6 +151,7 @@ impl RtcmDecoder {
 /// length, the payload and a CRC-24Q. A frame whose CRC fails is counted,
 /// but its preamble byte not as skipped.
 impl framing::Format for RtcmDecoder {
+    type Message = GnssMessage;
     const SYNC: &'static [u8] = &[0xD3];
     const HEADER: usize = 3;
     const MAX_FRAME: usize = MAX_FRAME;

@@ -89,6 +89,7 @@ fn checksum(bytes: &[u8]) -> (u8, u8) {
 /// the payload and a Fletcher checksum over class to payload. A frame whose
 /// checksum fails is counted, and its first sync byte as skipped too.
 impl framing::Format for UbxDecoder {
+    type Message = GnssMessage;
     const SYNC: &'static [u8] = &[0xB5, 0x62];
     const HEADER: usize = 6;
     const MAX_FRAME: usize = MAX_PAYLOAD + 8;
