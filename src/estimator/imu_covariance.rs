@@ -134,7 +134,8 @@ mod tests {
     #[test]
     fn priors_set_and_inflate_their_own_states() {
         let mut p = prior().covariance();
-        assert_eq!(p[(TH + 2, TH + 2)], 0.01);
+        assert_eq!(p[(TH + 2, TH + 2)], 0.1 * 0.1);
+        assert_eq!(p[(BA + 1, BA + 1)], 0.1 * 0.1);
         set_yaw_variance(&mut p, 0.04);
         set_position_variances(&mut p, [4.0, 4.0, 9.0]);
         assert_eq!((p[(TH + 2, TH + 2)], p[(P + 2, P + 2)]), (0.04, 9.0));
@@ -146,7 +147,7 @@ mod tests {
         let q = inflate_for_restart(&small, &prior().covariance(), 2.0, 3.0, 0.5);
         assert!((q[(P, P)] - (1e-8 + 9.0 + 1.0)).abs() < 1e-12);
         assert!((q[(V, V)] - (1e-8 + 0.25)).abs() < 1e-12);
-        assert_eq!(q[(BG, BG)], 1e-4, "raised to its prior");
-        assert_eq!(q[(BA + 2, BA + 2)], 1e-2);
+        assert_eq!(q[(BG, BG)], 0.01 * 0.01, "raised to its prior");
+        assert_eq!(q[(BA + 2, BA + 2)], 0.1 * 0.1);
     }
 }
