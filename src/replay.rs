@@ -23,7 +23,7 @@ use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mcap_log::input::{check_format, AutopilotRecord, InputRecord, RecordError};
+use crate::io::mcap_log::input::{log_format_of, AutopilotRecord, InputRecord, RecordError};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::{Outbound, SimTruth};
 
@@ -67,8 +67,6 @@ pub fn logged_config(bytes: &[u8], name: &str) -> Result<Config, ReplayError> {
         let Ok(rec) = rec else { break };
         if let mcap::records::Record::Metadata(m) = rec {
             if m.name == "cmsckf" {
-                check_format(m.metadata.get("log_format").map(String::as_str))
-                    .map_err(|e| ReplayError::Format(name.into(), e))?;
                 if let Some(t) = m.metadata.get("config_toml") {
                     return Ok(Config::from_toml(t, name)?);
                 }
@@ -179,6 +177,8 @@ pub fn replay(
 ) -> Result<ReplayReport, ReplayError> {
     let name = input.display().to_string();
     let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
+    // Refused before anything is written, whichever config is replayed under.
+    log_format_of(&bytes).map_err(|e| ReplayError::Format(name.clone(), e))?;
     let total = input_total(&bytes);
     let cfg = replay_config(&bytes, &name, mode, config)?;
     let log = McapLogger::create(output, &cfg.log_header())?.blocking();
@@ -209,7 +209,8 @@ pub fn replay(
                 }
             }
         }
-        reader.join().unwrap_or(0)
+        // A reader that panicked must not pass for a log that ended.
+        reader.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
     });
     fusion.finish_log(&ctx.counters);
     let mut report = tally.report(start.elapsed().as_secs_f64());
@@ -322,4 +323,45 @@ impl Tally {
             malformed_inputs: 0,
         }
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A log whose `cmsckf` metadata names `log_format`, with no message.
+    fn log_of_format(dir: &Path, log_format: &str) -> std::path::PathBuf {
+        let path = dir.join(format!("format-{log_format}.mcap"));
+        let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+        let mut w = mcap::Writer::new(file).unwrap();
+        let mut meta = std::collections::BTreeMap::new();
+        meta.insert("log_format".to_string(), log_format.to_string());
+        meta.insert("config_toml".to_string(), toml::to_string(&Config::default()).unwrap());
+        w.write_metadata(&mcap::records::Metadata {
+            name: "cmsckf".into(),
+            metadata: meta,
+        })
+        .unwrap();
+        w.finish().unwrap();
+        path
+    }
+
+    #[test]
+    fn a_newer_log_format_is_refused_by_replay_and_review_whatever_the_config() {
+        let dir = tempfile::tempdir().unwrap();
+        let newer = log_of_format(dir.path(), "3");
+        let out = dir.path().join("out.mcap");
+        for config in [None, Some(Config::default())] {
+            let e = replay(&newer, &out, None, config, |_, _| {}).unwrap_err();
+            assert!(e.to_string().contains("format 3"), "{e}");
+            assert!(!out.exists(), "nothing is written for a refused log");
+        }
+        let e = crate::review::review(&newer, None, None, None).unwrap_err();
+        assert!(e.to_string().contains("format 3"), "{e}");
+        // This build's own format is read.
+        let own = log_of_format(dir.path(), &LOG_FORMAT_NOW.to_string());
+        assert!(crate::review::review(&own, None, None, None).is_ok());
+    }
+
+    const LOG_FORMAT_NOW: u32 = crate::io::mcap_log::LOG_FORMAT;
 }

@@ -20,7 +20,7 @@ pub struct ReplayArgs {
     /// Another config (the log's own otherwise).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Print {"messages_in","estimates_out","flight_s","wall_s","realtime_factor"}.
+    /// Print {"messages_in","estimates_out","flight_s","wall_s","realtime_factor","malformed_inputs"}.
     #[arg(long)]
     json: bool,
 }
@@ -64,6 +64,12 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
             r.realtime_factor,
             out.display()
         );
+        if r.malformed_inputs > 0 {
+            println!(
+                "{} input records did not parse and were skipped (each named in a warning)",
+                r.malformed_inputs
+            );
+        }
     }
     Ok(())
 }

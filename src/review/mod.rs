@@ -54,6 +54,8 @@ pub enum ReviewError {
     Mcap(String, String),
     #[error("plotting '{0}': {1}")]
     Plot(String, String),
+    #[error("'{0}': {1}")]
+    Format(String, crate::io::mcap_log::RecordError),
 }
 
 /// The summary `review --json` prints.
@@ -115,6 +117,7 @@ pub fn review(
 ) -> Result<ReviewSummary, ReviewError> {
     let name = log.display().to_string();
     let bytes = std::fs::read(log).map_err(|e| ReviewError::Io(name.clone(), e))?;
+    crate::io::mcap_log::input::log_format_of(&bytes).map_err(|e| ReviewError::Format(name.clone(), e))?;
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReviewError::Mcap(name.clone(), e.to_string()))?;
     let mut reader = LogReader::new();
     for m in stream {

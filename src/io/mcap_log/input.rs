@@ -205,6 +205,24 @@ impl InputRecord<'static> {
     }
 }
 
+/// The format of the log in `bytes`, from its `cmsckf` metadata (a log
+/// without it, or that cannot be read that far, is taken as format 1: its
+/// reader then says what else is wrong); a newer format is refused.
+pub fn log_format_of(bytes: &[u8]) -> Result<u32, RecordError> {
+    let Ok(records) = mcap::read::LinearReader::new(bytes) else {
+        return check_format(None);
+    };
+    for rec in records {
+        let Ok(rec) = rec else { break };
+        if let mcap::records::Record::Metadata(m) = rec {
+            if m.name == "cmsckf" {
+                return check_format(m.metadata.get("log_format").map(String::as_str));
+            }
+        }
+    }
+    check_format(None)
+}
+
 /// Checks the log format named in a log's `cmsckf` metadata (`None`: a
 /// format 1 log, which did not name it).
 pub fn check_format(log_format: Option<&str>) -> Result<u32, RecordError> {
