@@ -207,6 +207,8 @@ counters! {
     InitStatic = "init_static", event;
     InitInFlight = "init_in_flight", event;
     InitFromCarriedEstimate = "init_from_carried_estimate", event;
+    /// A start that cannot happen, said (STATUSTEXT and the log) with why.
+    InitWaiting = "init_waiting", event;
     FilterReset = "filter_reset", event;
     EstimatesSent = "estimates_sent", event;
     OutputQueueFull = "output_queue_full", event;

@@ -208,7 +208,8 @@ pub fn outputs(s: &OutputState, message: OutputMessage) -> Vec<Outbound> {
                     t_us,
                     p_ned_m: x.p_B_in_W,
                     rpy_rad: rpy,
-                    covariance: upper21(&c),
+                    // Written as ODOMETRY's: ArduPilot reduces both alike.
+                    covariance: pose_covariance21(&c, s.pose_covariance),
                     reset_counter: s.reset_counter,
                 },
                 Outbound::VisionSpeedEstimate {
@@ -427,6 +428,45 @@ mod tests {
             "{}",
             reduce(&plain, [0, 6, 11])
         );
+    }
+
+    /// VISION_POSITION_ESTIMATE's pose covariance is written as ODOMETRY's:
+    /// towards ArduPilot, the cube-root reduction it applies to both
+    /// (`cbrt(c0² + c6² + c11²)`, and the same of the rotations) gives back
+    /// our σ (the variances PX4 reads would not).
+    #[test]
+    fn vpe_covariance_survives_ardupilots_reduction_as_odometry_does() {
+        let reduce = |c: &[f32; 21], [a, b, d]: [usize; 3]| {
+            ((c[a] as f64).powi(2) + (c[b] as f64).powi(2) + (c[d] as f64).powi(2)).cbrt()
+        };
+        let mut s = output_state(UnitQuaternion::identity());
+        s.pose_covariance = PoseCovariance::ArdupilotCbrt;
+        let mut p = Mat15::identity() * 1e-6;
+        for (k, sigma) in [3.0f64, 2.0, 1.0].into_iter().enumerate() {
+            p[(P_OFF + k, P_OFF + k)] = sigma * sigma;
+        }
+        p[(TH + 2, TH + 2)] = 0.05f64.powi(2);
+        s.imu_cov = p;
+        for message in [OutputMessage::Odometry, OutputMessage::VisionPositionEstimate] {
+            let cov = match outputs(&s, message).first() {
+                Some(Outbound::Odometry { pose_covariance, .. }) => *pose_covariance,
+                Some(Outbound::VisionPositionEstimate { covariance, .. }) => *covariance,
+                other => panic!("{other:?}"),
+            };
+            let (pos, yaw) = (reduce(&cov, [0, 6, 11]), reduce(&cov, [15, 18, 20]));
+            assert!((pos - 3.0).abs() < 1e-5, "{message:?}: position {pos}");
+            assert!((yaw - 0.05).abs() < 1e-6, "{message:?}: yaw {yaw}");
+        }
+        s.pose_covariance = PoseCovariance::Variances;
+        let Some(Outbound::VisionPositionEstimate { covariance, .. }) =
+            outputs(&s, OutputMessage::VisionPositionEstimate).into_iter().next()
+        else {
+            panic!("no VPE")
+        };
+        // As variances (PX4's reading), ArduPilot's reduction would take
+        // cbrt(9² + 4² + 1²) = 4.61 m for our 3 m.
+        let plain = reduce(&covariance, [0, 6, 11]);
+        assert!((plain - 98f64.cbrt()).abs() < 1e-4, "{plain}");
     }
 
     #[test]

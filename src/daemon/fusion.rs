@@ -23,7 +23,7 @@ use tokio::sync::mpsc;
 use super::autopilot::AutopilotView;
 use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
-use super::init::{Start, Starter};
+use super::init::{Start, Starter, Waiting};
 use super::measurements::{FuseCtx, MeasurementQueue, Pending};
 use super::output::{OutputCtx, OutputPacer};
 use super::rebase::{InstallSite, RebaseExec};
@@ -371,11 +371,12 @@ impl Fusion {
                 .send_origin(m.t_s, self.gnss.frame(), &self.log, counters, out);
         }
         let Some(est) = self.est.as_mut() else {
-            if let Some(start) = self
+            match self
                 .starter
                 .start_filter(m, &self.cfg, &self.autopilot, self.gnss.frame(), counters)
             {
-                self.install_filter(start, m.t_s, counters);
+                Ok(start) => self.install_filter(start, m.t_s, counters),
+                Err(why) => self.say_waiting(why, m.t_s, counters, out),
             }
             return;
         };
@@ -417,6 +418,22 @@ impl Fusion {
             // carried on the IMU alone passes its checks however wrong.
             self.starter.offer_good(est, m.t_s);
         }
+    }
+
+    /// No filter can start yet: says why, at once and then every few seconds
+    /// while it lasts (a STATUSTEXT to the autopilot, a `/log` line, the
+    /// journal and `init_waiting`); the HEARTBEAT stays STANDBY meanwhile.
+    fn say_waiting(&mut self, why: Waiting, t_s: f64, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if !self.starter.report_waiting(why, t_s) {
+            return;
+        }
+        counters.add(Counter::InitWaiting, 1);
+        tracing::warn!(reason = ?why, "{}", why.text());
+        self.log.text(Level::Warning, t_s, why.text());
+        let _ = out.try_send(Outbound::StatusText {
+            severity: 4,
+            text: format!("cmsckf {}", why.text()),
+        });
     }
 
     /// `start`'s filter becomes the running one at the IMU sample time `t_s`.

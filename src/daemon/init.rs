@@ -38,6 +38,9 @@ const CARRY_MAX_S: f64 = 5.0;
 const RECENT_IMU_S: f64 = 2.5;
 /// Most IMU samples kept in `recent_imu` (2.5 s at 1.6 kHz): allocated once.
 const RECENT_IMU_CAPACITY: usize = 4096;
+/// A start that cannot happen says why this often while it lasts (s of IMU
+/// time).
+const WAITING_REPORT_S: f64 = 5.0;
 /// A step between IMU samples up to this (s) is covered by them; beyond it,
 /// the gap is inflated for.
 const RECENT_IMU_MAX_STEP_S: f64 = 0.1;
@@ -135,6 +138,40 @@ pub(super) struct Starter {
     good: GoodEstimates,
     /// When the filter was last restarted from a carried estimate.
     in_place_t: Option<f64>,
+    /// The last reason for waiting reported, and when to report it again.
+    reported: Option<(Waiting, f64)>,
+}
+
+/// Why no filter has started yet, at this IMU sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Waiting {
+    /// The static window is still filling (the first second or so: normal).
+    Window,
+    /// No `ATTITUDE` from the autopilot yet.
+    NoAttitude,
+    /// `init.yaw_source` has no yaw to give (no compass reading, no world
+    /// origin for the declination, no `ATTITUDE` yaw).
+    NoYaw,
+    /// The IMU says the vehicle is not still, and the autopilot gives no
+    /// local position for an in-flight start.
+    NotStillNoPosition,
+    /// Still by the IMU, but its specific force gives no attitude.
+    NoGravity,
+}
+
+impl Waiting {
+    /// Why, in words for the pilot (STATUSTEXT, the log, the journal).
+    pub(super) fn text(self) -> &'static str {
+        match self {
+            Waiting::Window => "waiting: filling the static window",
+            Waiting::NoAttitude => "waiting: no ATTITUDE from the autopilot",
+            Waiting::NoYaw => "waiting: no yaw from init.yaw_source (no compass, origin or ATTITUDE yaw)",
+            Waiting::NotStillNoPosition => {
+                "waiting: vehicle not still, and no autopilot position (LOCAL_POSITION_NED) for an in-flight start"
+            }
+            Waiting::NoGravity => "waiting: the accelerometer shows no gravity",
+        }
+    }
 }
 
 /// A filter to run, and how it started.
@@ -152,6 +189,7 @@ impl Default for Starter {
             carried: None,
             good: GoodEstimates::default(),
             in_place_t: None,
+            reported: None,
         }
     }
 }
@@ -188,7 +226,7 @@ impl Starter {
         ap: &AutopilotView,
         frame: Option<NedFrame>,
         counters: &Counters,
-    ) -> Option<Start> {
+    ) -> Result<Start, Waiting> {
         let start = match self.restart_in_place(m, cfg) {
             Some(est) => {
                 counters.add(Counter::InitFromCarriedEstimate, 1);
@@ -198,7 +236,25 @@ impl Starter {
             None => self.try_init(m, cfg, ap, frame)?,
         };
         self.static_buf.clear();
-        Some(start)
+        self.reported = None;
+        Ok(start)
+    }
+
+    /// Whether to say why no filter starts (`why`, at `t_s`): at once when
+    /// the reason is new, then every [`WAITING_REPORT_S`] while it lasts.
+    /// The static window filling is no reason to report.
+    pub(super) fn report_waiting(&mut self, why: Waiting, t_s: f64) -> bool {
+        if why == Waiting::Window {
+            return false;
+        }
+        let due = match self.reported {
+            Some((last, next_t)) => last != why || t_s >= next_t || t_s < next_t - WAITING_REPORT_S,
+            None => true,
+        };
+        if due {
+            self.reported = Some((why, t_s + WAITING_REPORT_S));
+        }
+        due
     }
 
     /// The autopilot's own state, when it has a position of its own (a GNSS
@@ -265,31 +321,42 @@ impl Starter {
     /// attitude is known: static when the IMU (and the autopilot's velocity,
     /// when it has one: constant velocity looks static to an IMU) says so,
     /// else in flight from the autopilot's state.
-    fn try_init(&mut self, m: ImuMeas, cfg: &Config, ap: &AutopilotView, frame: Option<NedFrame>) -> Option<Start> {
+    fn try_init(
+        &mut self,
+        m: ImuMeas,
+        cfg: &Config,
+        ap: &AutopilotView,
+        frame: Option<NedFrame>,
+    ) -> Result<Start, Waiting> {
         self.static_buf.push_back(m);
         let window = cfg.init.static_window_s;
         while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
             self.static_buf.pop_front();
         }
-        let (roll, pitch, _) = ap.attitude()?;
         if self.static_buf.len() < 10 || m.t_s - self.static_buf[0].t_s < 0.9 * window {
-            return None;
+            return Err(Waiting::Window);
         }
+        let (roll, pitch, _) = ap.attitude().ok_or(Waiting::NoAttitude)?;
         let w = StillWindow::of(self.static_buf.iter());
         let tilt =
             attitude_from_static(&w.acc, 0.0).unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
-        let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt)?;
+        let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
         let is_static = w.gyr.norm() < 0.05
             && w.gyr_var < 1e-3
             && (w.acc.norm() - cfg.imu.gravity_mps2).abs() < 0.3
             && ap.local().is_none_or(|(_, v, _)| v.norm() < 0.3);
-        let (x0, mut p0) = initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw])?;
+        let (x0, mut p0) =
+            initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw]).ok_or(if is_static {
+                Waiting::NoGravity
+            } else {
+                Waiting::NotStillNoPosition
+            })?;
         set_yaw_variance(&mut p0, yaw_sigma_deg.to_radians().powi(2));
         let mut est = Estimator::new(cfg.estimator_settings(), m.t_s, x0, &p0);
         let _ = est.add_imu(m);
         let (_, _, yaw) = x0.q_W_B.euler_angles();
         tracing::info!(yaw_deg = yaw.to_degrees(), "initial yaw");
-        Some(Start { est, is_static })
+        Ok(Start { est, is_static })
     }
 
     /// Where the next filter starts after a restart of `kind` at `t_s` (the
