@@ -203,6 +203,12 @@ impl Default for EstimatorConfig {
 pub struct InitConfig {
     /// Length of the static IMU segment used for roll, pitch and gyro bias (s).
     pub static_window_s: f64,
+    /// The gyro's largest bias by its specification, uncompensated (rad/s):
+    /// a mean rate within it may be the bias of a vehicle standing still
+    /// (it is then taken as the bias), beyond it is a turn. Autopilots
+    /// remove the offset before `HIGHRES_IMU`; a raw IMU (EuRoC's, a
+    /// MEMS part at turn-on) may be off by 0.1 rad/s.
+    pub gyro_bias_max_radps: f64,
     /// Where the first yaw comes from (after a restart it is always our own
     /// last estimate, never the autopilot's echo of it).
     pub yaw_source: YawSource,
@@ -245,6 +251,7 @@ impl Default for InitConfig {
     fn default() -> Self {
         Self {
             static_window_s: 1.0,
+            gyro_bias_max_radps: 0.15,
             yaw_source: YawSource::Auto,
             yaw_deg: 0.0,
             sigma_tilt_deg: 0.5,

@@ -154,6 +154,7 @@ impl Config {
         let i = &self.init;
         let c = Check::new("init");
         c.range("static_window_s", i.static_window_s, 0.1, 60.0)?;
+        c.range("gyro_bias_max_radps", i.gyro_bias_max_radps, 0.001, 1.0)?;
         c.range("yaw_deg", i.yaw_deg, -360.0, 360.0)?;
         c.positive("sigma_tilt_deg", i.sigma_tilt_deg, 90.0)?;
         c.positive("sigma_yaw_deg", i.sigma_yaw_deg, 180.0)?;

@@ -104,21 +104,73 @@ impl Carried {
     }
 }
 
-/// Mean specific force and angular rate of the buffered samples, and the
-/// angular rate's variance.
+/// Mean specific force and angular rate of the buffered samples, and how
+/// far the means of its quarters stray from them: a still vehicle's slow
+/// part is constant however its motors make it vibrate (zero-mean lines
+/// that a quarter's mean averages out) and whatever its gyro's bias (a
+/// constant), while a vehicle that moves changes its means.
 struct StillWindow {
     acc: Vector3<f64>,
     gyr: Vector3<f64>,
-    gyr_var: f64,
+    /// Largest |quarter's mean − window's mean| of the rate (rad/s) and of
+    /// the specific force (m/s²).
+    gyr_spread: f64,
+    acc_spread: f64,
+    /// What those spreads may be from noise and vibration alone: four
+    /// standard errors of a quarter's mean, from the window's own scatter
+    /// (rad/s, m/s²).
+    gyr_noise: f64,
+    acc_noise: f64,
 }
+
+/// The quarters' means may stray by this much besides their noise (rad/s,
+/// m/s²): residual vibration and the slow wander of a vehicle standing on
+/// its legs with its motors running.
+const STILL_GYRO_SPREAD_RADPS: f64 = 0.01;
+const STILL_ACCEL_SPREAD_MPS2: f64 = 0.1;
 
 impl StillWindow {
     fn of<'a>(samples: impl ExactSizeIterator<Item = &'a ImuMeas> + Clone) -> Self {
-        let n = samples.len() as f64;
-        let acc = samples.clone().map(|s| s.accel_mps2).sum::<Vector3<f64>>() / n;
-        let gyr = samples.clone().map(|s| s.gyro_radps).sum::<Vector3<f64>>() / n;
-        let gyr_var = samples.map(|s| (s.gyro_radps - gyr).norm_squared()).sum::<f64>() / n;
-        Self { acc, gyr, gyr_var }
+        let n = samples.len();
+        let mean = |v: &mut dyn Iterator<Item = Vector3<f64>>, k: usize| v.sum::<Vector3<f64>>() / k.max(1) as f64;
+        let acc = mean(&mut samples.clone().map(|s| s.accel_mps2), n);
+        let gyr = mean(&mut samples.clone().map(|s| s.gyro_radps), n);
+        let gyr_var = samples
+            .clone()
+            .map(|s| (s.gyro_radps - gyr).norm_squared())
+            .sum::<f64>()
+            / n as f64;
+        let acc_var = samples
+            .clone()
+            .map(|s| (s.accel_mps2 - acc).norm_squared())
+            .sum::<f64>()
+            / n as f64;
+        let q = (n / 4).max(1);
+        let (mut gyr_spread, mut acc_spread) = (0.0f64, 0.0f64);
+        for k in 0..4 {
+            let part = || samples.clone().skip(k * q).take(q);
+            gyr_spread = gyr_spread.max((mean(&mut part().map(|s| s.gyro_radps), q) - gyr).norm());
+            acc_spread = acc_spread.max((mean(&mut part().map(|s| s.accel_mps2), q) - acc).norm());
+        }
+        let q = q as f64;
+        Self {
+            acc,
+            gyr,
+            gyr_spread,
+            acc_spread,
+            gyr_noise: 4.0 * (gyr_var / q).sqrt(),
+            acc_noise: 4.0 * (acc_var / q).sqrt(),
+        }
+    }
+
+    /// Still by the IMU: the means constant within noise and vibration, the
+    /// specific force gravity's, and the mean rate within the gyro's bias
+    /// specification `gyro_bias_max_radps` (beyond it, a turn).
+    fn is_still(&self, gravity_mps2: f64, gyro_bias_max_radps: f64) -> bool {
+        self.gyr_spread < STILL_GYRO_SPREAD_RADPS + self.gyr_noise
+            && self.acc_spread < STILL_ACCEL_SPREAD_MPS2 + self.acc_noise
+            && self.gyr.norm() < gyro_bias_max_radps
+            && (self.acc.norm() - gravity_mps2).abs() < 0.3
     }
 }
 
@@ -338,13 +390,18 @@ impl Starter {
         }
         let (roll, pitch, _) = ap.attitude().ok_or(Waiting::NoAttitude)?;
         let w = StillWindow::of(self.static_buf.iter());
-        let tilt =
-            attitude_from_static(&w.acc, 0.0).unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
-        let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
-        let is_static = w.gyr.norm() < 0.05
-            && w.gyr_var < 1e-3
-            && (w.acc.norm() - cfg.imu.gravity_mps2).abs() < 0.3
+        // Constant velocity looks still to an IMU: the autopilot's velocity
+        // says otherwise.
+        let is_static = w.is_still(cfg.imu.gravity_mps2, cfg.init.gyro_bias_max_radps)
             && ap.local().is_none_or(|(_, v, _)| v.norm() < 0.3);
+        // The tilt the compass is levelled with: gravity's direction when
+        // still; in flight the accelerometer points along the thrust, so the
+        // autopilot's attitude.
+        let tilt = is_static
+            .then(|| attitude_from_static(&w.acc, 0.0))
+            .flatten()
+            .unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
+        let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
         let (x0, mut p0) =
             initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw]).ok_or(if is_static {
                 Waiting::NoGravity
