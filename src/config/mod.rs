@@ -243,8 +243,14 @@ pub struct InitConfig {
     pub sigma_velocity_mps: f64,
     /// Initial accelerometer bias sigma (m/s²).
     pub sigma_accel_bias_mps2: f64,
-    /// Initial gyroscope bias sigma (rad/s).
+    /// Initial gyroscope bias sigma (rad/s) of a static start, whose bias is
+    /// the still window's mean.
     pub sigma_gyro_bias_radps: f64,
+    /// Initial gyroscope bias sigma of an in-flight start (rad/s): no still
+    /// window measured the bias, so the sensor's specification (a MEMS
+    /// gyro's uncompensated turn-on bias; an autopilot that removes its
+    /// offset first may set less). A restart keeps the last estimate's.
+    pub sigma_gyro_bias_in_flight_radps: f64,
 }
 
 impl Default for InitConfig {
@@ -265,6 +271,7 @@ impl Default for InitConfig {
             sigma_velocity_mps: 0.05,
             sigma_accel_bias_mps2: 0.05,
             sigma_gyro_bias_radps: 0.005,
+            sigma_gyro_bias_in_flight_radps: 0.05,
         }
     }
 }

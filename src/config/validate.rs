@@ -166,7 +166,12 @@ impl Config {
         c.positive("sigma_position_autopilot_m", i.sigma_position_autopilot_m, 1e4)?;
         c.positive("sigma_velocity_mps", i.sigma_velocity_mps, 100.0)?;
         c.positive("sigma_accel_bias_mps2", i.sigma_accel_bias_mps2, 10.0)?;
-        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)
+        c.positive("sigma_gyro_bias_radps", i.sigma_gyro_bias_radps, 1.0)?;
+        c.positive(
+            "sigma_gyro_bias_in_flight_radps",
+            i.sigma_gyro_bias_in_flight_radps,
+            1.0,
+        )
     }
 
     /// `[keyframe]`: the interval and the count.

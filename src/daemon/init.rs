@@ -479,8 +479,9 @@ fn initial_state(
         (attitude_from_static(&w.acc, yaw)?, w.gyr, Vector3::zeros())
     } else {
         local?;
-        // In flight: the autopilot's attitude, looser.
-        loosen_for_flight(&mut p0);
+        // In flight: the autopilot's attitude, looser, and the gyro bias as
+        // uncertain as the sensor's specification says.
+        loosen_for_flight(&mut p0, cfg.init.sigma_gyro_bias_in_flight_radps);
         (UnitQuaternion::from_euler_angles(roll, pitch, yaw), Vector3::zeros(), v)
     };
     let x0 = ImuState {

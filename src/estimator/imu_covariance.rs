@@ -54,12 +54,15 @@ pub fn set_position_variances(p: &mut Mat15, var_m2: [f64; 3]) {
 }
 
 /// An in-flight start's looser prior (§7, eq. I1): the attitude's
-/// variances ×4 (the autopilot's attitude, not a still window), and the
-/// velocity's σ 0.2 m/s (the autopilot's own estimate).
-pub fn loosen_for_flight(p: &mut Mat15) {
+/// variances ×4 (the autopilot's attitude, not a still window), the
+/// velocity's σ 0.2 m/s (the autopilot's own estimate), and the gyro bias's
+/// σ `sigma_gyro_bias_radps` (no still window measured it: the sensor's
+/// specification).
+pub fn loosen_for_flight(p: &mut Mat15, sigma_gyro_bias_radps: f64) {
     for k in 0..3 {
         p[(TH + k, TH + k)] *= 4.0;
         p[(V + k, V + k)] = 0.2f64.powi(2);
+        p[(BG + k, BG + k)] = p[(BG + k, BG + k)].max(sigma_gyro_bias_radps.powi(2));
     }
 }
 
@@ -140,8 +143,9 @@ mod tests {
         set_position_variances(&mut p, [4.0, 4.0, 9.0]);
         assert_eq!((p[(TH + 2, TH + 2)], p[(P + 2, P + 2)]), (0.04, 9.0));
         let before = p;
-        loosen_for_flight(&mut p);
+        loosen_for_flight(&mut p, 0.05);
         assert_eq!(p[(TH, TH)], 4.0 * before[(TH, TH)]);
+        assert_eq!(p[(BG + 2, BG + 2)], 0.05 * 0.05);
         assert!((p[(V + 1, V + 1)] - 0.04).abs() < 1e-15);
         let small = Mat15::identity() * 1e-8;
         let q = inflate_for_restart(&small, &prior().covariance(), 2.0, 3.0, 0.5);
