@@ -39,10 +39,18 @@ pub enum Degraded {
     /// The flight log cannot be written (disk full or an I/O error; set by
     /// the log writer, in wall time, until a write succeeds again).
     LogDiskFull = 7,
+    /// The filter runs and nothing (a camera frame, a GNSS epoch) has been
+    /// fused for [`DEAD_RECKONING_S`]: its position is the IMU's alone, and
+    /// its error grows with the cube of the time (ODOMETRY's quality is 1).
+    DeadReckoning = 8,
 }
 
+/// Without a fused measurement for this long, a running filter is dead
+/// reckoning (s of autopilot time).
+pub const DEAD_RECKONING_S: f64 = 1.0;
+
 impl Degraded {
-    pub const ALL: [Degraded; 8] = [
+    pub const ALL: [Degraded; 9] = [
         Degraded::ImuGap,
         Degraded::CameraStale,
         Degraded::GnssStale,
@@ -51,6 +59,7 @@ impl Degraded {
         Degraded::FilterReset,
         Degraded::LinkDown,
         Degraded::LogDiskFull,
+        Degraded::DeadReckoning,
     ];
 
     pub fn name(self) -> &'static str {
@@ -63,6 +72,7 @@ impl Degraded {
             Degraded::FilterReset => "filter_reset",
             Degraded::LinkDown => "link_down",
             Degraded::LogDiskFull => "log_disk_full",
+            Degraded::DeadReckoning => "dead_reckoning",
         }
     }
 
@@ -226,6 +236,15 @@ impl Tracker {
         if self.last_gnss_t.is_finite() && t_s - self.last_gnss_t > 3.0 {
             bits |= Degraded::GnssStale.bit();
         }
+        // The last measurement fused, or the filter's start if none has been.
+        let aided_ref_t = if self.last_aided_s().is_finite() {
+            self.last_aided_s()
+        } else {
+            self.filter_started_t
+        };
+        if initialised && aided_ref_t.is_finite() && t_s - aided_ref_t > DEAD_RECKONING_S {
+            bits |= Degraded::DeadReckoning.bit();
+        }
         self.bits = bits;
         status.degraded.store(bits, Ordering::Relaxed);
     }
@@ -244,7 +263,7 @@ mod tests {
         t.update(0.5, true, &c, &s);
         assert_eq!(s.degraded(), 0);
         t.update(1.5, true, &c, &s);
-        assert_eq!(describe(s.degraded()), "camera_stale");
+        assert_eq!(describe(s.degraded()), "camera_stale,dead_reckoning");
         t.frame_processed(1.55);
         c.add(crate::counters::Counter::RtcmCrcFailure, 1);
         t.update(1.6, true, &c, &s);
@@ -262,11 +281,14 @@ mod tests {
         t.update(4.1, true, &c, &s);
         assert_eq!(describe(s.degraded()), "gnss_outliers");
         t.update(7.0, true, &c, &s);
-        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");
+        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale,dead_reckoning");
         // Updates within 0.1 s of the last are skipped (cheap per sample).
         t.frame_processed(7.0);
         t.update(7.05, true, &c, &s);
-        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale");
+        assert_eq!(describe(s.degraded()), "camera_stale,gnss_stale,dead_reckoning");
+        // A frame fused ends the dead reckoning; GNSS stays stale.
+        t.update(7.2, true, &c, &s);
+        assert_eq!(describe(s.degraded()), "gnss_stale");
     }
 
     #[test]
@@ -283,14 +305,14 @@ mod tests {
         t.update(6.1, true, &c, &s);
         assert_eq!(
             describe(s.degraded()),
-            "camera_stale",
+            "camera_stale,dead_reckoning",
             "no frame at all since the start"
         );
         t.frame_processed(6.15);
         t.update(6.2, true, &c, &s);
         assert_eq!(s.degraded(), 0, "a frame clears it");
         t.update(7.3, true, &c, &s);
-        assert_eq!(describe(s.degraded()), "camera_stale");
+        assert_eq!(describe(s.degraded()), "camera_stale,dead_reckoning");
         // A reboot forgets every time: the new filter's start counts again.
         t.restart_clock();
         t.update(1.0, false, &c, &s);
@@ -299,6 +321,6 @@ mod tests {
         t.update(1.5, true, &c, &s);
         assert_eq!(s.degraded(), 0);
         t.update(2.2, true, &c, &s);
-        assert_eq!(describe(s.degraded()), "camera_stale");
+        assert_eq!(describe(s.degraded()), "camera_stale,dead_reckoning");
     }
 }

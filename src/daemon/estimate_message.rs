@@ -11,6 +11,8 @@ use crate::estimator::imu_covariance::{attitude_velocity_gyro_bias_block, pose_b
 use crate::estimator::math::skew;
 use crate::estimator::{ImuState, Mat15};
 use crate::io::messages::Outbound;
+// Nothing fused for this long: dead reckoning, as the status says it.
+use crate::status::DEAD_RECKONING_S;
 
 /// Euler (ZYX) angles of `q` and the map `M` from `[droll, dpitch, dyaw]` to
 /// the world-frame rotation error: `δθ = dyaw ẑ + dpitch Rz ŷ + droll Rz Ry x̂`.
@@ -90,11 +92,6 @@ pub fn pose_covariance21(c: &Matrix6<f64>, encoding: PoseCovariance) -> [f32; 21
 pub fn gyro_white_variance(noise_density: f64, rate_hz: f64) -> f64 {
     noise_density * noise_density * rate_hz
 }
-
-/// Without a measurement for this long the filter is being carried on the
-/// IMU alone (the fusion loop keeps it within 1 s behind the IMU): camera
-/// and GNSS are both out (s).
-const DEAD_RECKONING_S: f64 = 1.0;
 /// Measurements sparser than this: degraded (s).
 const SPARSE_AIDING_S: f64 = 0.5;
 
