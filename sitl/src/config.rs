@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 use cmsckf_models::check::{Check, FieldError, Validate};
 use cmsckf_models::sensors::{CameraConfig, ImuConfig};
 
+use crate::imu::VibrationConfig;
 use crate::trajectory::WindConfig;
 
 /// Simulated feature tracks (a KLT-like front end over a landmark field).
@@ -426,6 +427,9 @@ pub struct SimConfig {
     pub autopilot: AutopilotSimConfig,
     /// Gusts in the air (`crate::trajectory::wind`).
     pub wind: WindConfig,
+    /// Motor vibration on the IMU (`crate::imu`): none by default;
+    /// `VibrationConfig::armed_multirotor()` gives a real vehicle's levels.
+    pub vibration: VibrationConfig,
     /// The rendered camera (`crate::render`, `demo --frontend`).
     pub render: crate::render::RenderConfig,
 }
@@ -492,6 +496,7 @@ impl Validate for SimConfig {
         self.gnss.validate(&p("gnss"))?;
         self.autopilot.validate(&p("autopilot"))?;
         self.wind.validate(&p("wind"))?;
+        self.vibration.validate(&p("vibration"))?;
         self.render.validate(&p("render"))
     }
 }

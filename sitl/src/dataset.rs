@@ -67,7 +67,8 @@ impl Dataset {
             b_a: gauss3(&mut rng_bias) * cfg.accel_bias0_sigma,
             b_g: gauss3(&mut rng_bias) * cfg.gyro_bias0_sigma,
         };
-        let mut imu_model = ImuModel::new(&cfg.imu, cfg.imu_rate_hz, bias0);
+        let mut imu_model =
+            ImuModel::new(&cfg.imu, cfg.imu_rate_hz, bias0).with_vibration(&cfg.vibration, &mut rng_for(seed, 7));
         let n_imu = (duration * cfg.imu_rate_hz).floor() as usize + 1;
         let mut truth = Vec::with_capacity(n_imu);
         let mut imu = Vec::with_capacity(n_imu);
