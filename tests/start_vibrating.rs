@@ -42,6 +42,41 @@ fn vibrating_sample(t_s: f64, k: usize, gyro_bias: Vector3<f64>, turn_radps: f64
     }
 }
 
+/// The estimates sent: when the first went out (s after `t0`), and the
+/// mean of their body rates.
+struct Sent {
+    t0: f64,
+    first: Option<f64>,
+    w_sum: Vector3<f64>,
+    n: f64,
+}
+
+impl Sent {
+    fn new(t0: f64) -> Self {
+        Self {
+            t0,
+            first: None,
+            w_sum: Vector3::zeros(),
+            n: 0.0,
+        }
+    }
+
+    /// Takes what the fusion loop sent since the last call.
+    fn take(&mut self, out_rx: &mut tokio::sync::mpsc::Receiver<Outbound>) {
+        while let Ok(o) = out_rx.try_recv() {
+            if let Outbound::Odometry { t_us, w_body_radps, .. } = o {
+                self.first.get_or_insert(t_us as f64 * 1e-6 - self.t0);
+                self.w_sum += w_body_radps;
+                self.n += 1.0;
+            }
+        }
+    }
+
+    fn w_mean(&self) -> Vector3<f64> {
+        self.w_sum / self.n.max(1.0)
+    }
+}
+
 /// Flies `seconds` of the standing vehicle; returns the time of the first
 /// estimate sent (after `t0`), and the mean body rate of the estimates.
 fn stand(
@@ -61,7 +96,7 @@ fn stand(
     );
     let t0 = 30.0;
     let bias = Vector3::new(0.08, -0.03, 0.02);
-    let (mut first, mut w_sum, mut n) = (None, Vector3::zeros(), 0.0f64);
+    let mut sent = Sent::new(t0);
     for k in 0..(seconds * RATE_HZ) as usize {
         let t_s = t0 + k as f64 / RATE_HZ;
         if with_position && k % 20 == 0 {
@@ -75,15 +110,9 @@ fn stand(
             );
         }
         f.handle(FusionMsg::Imu(vibrating_sample(t_s, k, bias, turn_radps)), &ctx);
-        while let Ok(o) = out_rx.try_recv() {
-            if let Outbound::Odometry { t_us, w_body_radps, .. } = o {
-                first.get_or_insert(t_us as f64 * 1e-6 - t0);
-                w_sum += w_body_radps;
-                n += 1.0;
-            }
-        }
+        sent.take(&mut out_rx);
     }
-    (first, w_sum / n.max(1.0), ctx.counters)
+    (sent.first, sent.w_mean(), ctx.counters)
 }
 
 #[test]
@@ -151,23 +180,18 @@ fn a_real_armed_px4_imu_standing_on_the_ground_starts_still() {
         &ctx,
     );
     let t0 = samples[0].t_s;
-    let (mut first, mut w_sum, mut n) = (None, Vector3::zeros(), 0.0f64);
+    let mut sent = Sent::new(t0);
     for s in &samples {
         f.handle(FusionMsg::Imu(*s), &ctx);
-        while let Ok(o) = out_rx.try_recv() {
-            if let Outbound::Odometry { t_us, w_body_radps, .. } = o {
-                first.get_or_insert(t_us as f64 * 1e-6 - t0);
-                w_sum += w_body_radps;
-                n += 1.0;
-            }
-        }
+        sent.take(&mut out_rx);
     }
+    let first = sent.first;
     let counters = &ctx.counters;
     let first = first.unwrap_or_else(|| panic!("no start: {:?}", counters.snapshot()));
     assert!(first < 3.0, "started {first:.2} s after the first sample");
     assert_eq!(counters.get(Counter::InitStatic), 1, "{:?}", counters.snapshot());
     // The bias is the mean (4.7 mrad/s here): what is sent averages to less.
-    let w_mean = w_sum / n;
+    let w_mean = sent.w_mean();
     assert!(
         w_mean.norm() < 0.3 * gyro_mean.norm(),
         "mean rate sent {w_mean:?}, the gyro's mean {gyro_mean:?}"
