@@ -23,7 +23,7 @@ use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mcap_log::input::{log_format_of, AutopilotRecord, InputRecord, RecordError};
+use crate::io::mcap_log::input::{cmsckf_metadata, log_format_of, AutopilotRecord, InputRecord, RecordError};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::{Outbound, SimTruth};
 
@@ -61,20 +61,20 @@ pub struct ReplayReport {
     pub malformed_inputs: u64,
 }
 
-/// The config stored in a log's `cmsckf` metadata record.
-pub fn logged_config(bytes: &[u8], name: &str) -> Result<Config, ReplayError> {
-    for rec in mcap::read::LinearReader::new(bytes).map_err(|e| ReplayError::Mcap(name.into(), e.to_string()))? {
-        let Ok(rec) = rec else { break };
-        if let mcap::records::Record::Metadata(m) = rec {
-            if m.name == "cmsckf" {
-                if let Some(t) = m.metadata.get("config_toml") {
-                    return Ok(Config::from_toml(t, name)?);
-                }
-            }
-        }
+/// The config stored in a log's `cmsckf` metadata record (as
+/// [`cmsckf_metadata`] read it from the log `name`).
+pub fn logged_config(metadata: &Metadata, name: &str) -> Result<Config, ReplayError> {
+    let m = metadata
+        .as_ref()
+        .map_err(|e| ReplayError::Mcap(name.into(), e.to_string()))?;
+    match m.as_ref().and_then(|m| m.get("config_toml")) {
+        Some(t) => Ok(Config::from_toml(t, name)?),
+        None => Err(ReplayError::NoConfig(name.into())),
     }
-    Err(ReplayError::NoConfig(name.into()))
 }
+
+/// A log's `cmsckf` metadata as [`cmsckf_metadata`] reads it.
+type Metadata = Result<Option<std::collections::BTreeMap<String, String>>, mcap::McapError>;
 
 /// Turns one logged input back into what the fusion loop received.
 fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
@@ -178,9 +178,10 @@ pub fn replay(
     let name = input.display().to_string();
     let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
     // Refused before anything is written, whichever config is replayed under.
-    log_format_of(&bytes).map_err(|e| ReplayError::Format(name.clone(), e))?;
+    let metadata = cmsckf_metadata(&bytes);
+    log_format_of(metadata.as_ref().ok().and_then(Option::as_ref)).map_err(|e| ReplayError::Format(name.clone(), e))?;
     let total = input_total(&bytes);
-    let cfg = replay_config(&bytes, &name, mode, config)?;
+    let cfg = replay_config(&metadata, &name, mode, config)?;
     let log = McapLogger::create(output, &cfg.log_header())?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
     let ctx = Ctx {
@@ -220,10 +221,15 @@ pub fn replay(
 
 /// The config to replay under: `config`, else the log's own; then `mode`
 /// if given, and the feature clock already mapped to the autopilot's.
-fn replay_config(bytes: &[u8], name: &str, mode: Option<Mode>, config: Option<Config>) -> Result<Config, ReplayError> {
+fn replay_config(
+    metadata: &Metadata,
+    name: &str,
+    mode: Option<Mode>,
+    config: Option<Config>,
+) -> Result<Config, ReplayError> {
     let mut cfg = match config {
         Some(c) => c,
-        None => logged_config(bytes, name)?,
+        None => logged_config(metadata, name)?,
     };
     if let Some(m) = mode {
         cfg.estimator.mode = m;

@@ -237,10 +237,9 @@ impl Tracker {
             bits |= Degraded::GnssStale.bit();
         }
         // The last measurement fused, or the filter's start if none has been.
-        let aided_ref_t = if self.last_aided_s().is_finite() {
-            self.last_aided_s()
-        } else {
-            self.filter_started_t
+        let aided_ref_t = match self.last_aided_s() {
+            t if t.is_finite() => t,
+            _ => self.filter_started_t,
         };
         if initialised && aided_ref_t.is_finite() && t_s - aided_ref_t > DEAD_RECKONING_S {
             bits |= Degraded::DeadReckoning.bit();

@@ -117,7 +117,8 @@ pub fn review(
 ) -> Result<ReviewSummary, ReviewError> {
     let name = log.display().to_string();
     let bytes = std::fs::read(log).map_err(|e| ReviewError::Io(name.clone(), e))?;
-    crate::io::mcap_log::input::log_format_of(&bytes).map_err(|e| ReviewError::Format(name.clone(), e))?;
+    let metadata = crate::io::mcap_log::input::cmsckf_metadata(&bytes).ok().flatten();
+    crate::io::mcap_log::input::log_format_of(metadata.as_ref()).map_err(|e| ReviewError::Format(name.clone(), e))?;
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReviewError::Mcap(name.clone(), e.to_string()))?;
     let mut reader = LogReader::new();
     for m in stream {

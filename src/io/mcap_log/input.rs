@@ -14,6 +14,7 @@
 //! below; a log of a newer format is refused by name.
 
 use std::borrow::Cow;
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
@@ -205,22 +206,26 @@ impl InputRecord<'static> {
     }
 }
 
-/// The format of the log in `bytes`, from its `cmsckf` metadata (a log
-/// without it, or that cannot be read that far, is taken as format 1: its
-/// reader then says what else is wrong); a newer format is refused.
-pub fn log_format_of(bytes: &[u8]) -> Result<u32, RecordError> {
-    let Ok(records) = mcap::read::LinearReader::new(bytes) else {
-        return check_format(None);
-    };
-    for rec in records {
+/// The log's `cmsckf` metadata record (its version, mode, config and log
+/// format), read once for all who need it: `Ok(None)` for a log without one
+/// (or cut before it), `Err` for bytes that do not start as an MCAP file.
+pub fn cmsckf_metadata(bytes: &[u8]) -> Result<Option<BTreeMap<String, String>>, mcap::McapError> {
+    for rec in mcap::read::LinearReader::new(bytes)? {
         let Ok(rec) = rec else { break };
         if let mcap::records::Record::Metadata(m) = rec {
             if m.name == "cmsckf" {
-                return check_format(m.metadata.get("log_format").map(String::as_str));
+                return Ok(Some(m.metadata));
             }
         }
     }
-    check_format(None)
+    Ok(None)
+}
+
+/// The format of a log from its `cmsckf` metadata (a log without it is
+/// taken as format 1: its reader then says what else is wrong); a newer
+/// format is refused.
+pub fn log_format_of(metadata: Option<&BTreeMap<String, String>>) -> Result<u32, RecordError> {
+    check_format(metadata.and_then(|m| m.get("log_format")).map(String::as_str))
 }
 
 /// Checks the log format named in a log's `cmsckf` metadata (`None`: a
