@@ -7,7 +7,7 @@
 mod common;
 
 use cmsckf::config::Config;
-use cmsckf::daemon::{Fusion, FusionMsg};
+use cmsckf::daemon::FusionMsg;
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::messages::Outbound;
 use nalgebra::Vector3;
@@ -15,16 +15,7 @@ use nalgebra::Vector3;
 #[test]
 fn seventy_seconds_blind_grow_the_covariance_and_lose_no_imu() {
     let cfg = Config::default();
-    let (ctx, mut out_rx) = common::fusion_ctx();
-    let mut f = Fusion::new(cfg, None);
-    f.handle(
-        FusionMsg::Attitude {
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 0.0,
-        },
-        &ctx,
-    );
+    let (mut f, ctx, mut out_rx) = common::level_fusion(cfg, 0.0);
     // (time, x variance) of each estimate sent.
     let mut var_x: Vec<(f64, f64)> = Vec::new();
     let t0 = 10.0;

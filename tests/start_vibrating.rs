@@ -11,7 +11,7 @@ mod common;
 
 use cmsckf::config::Config;
 use cmsckf::counters::Counter;
-use cmsckf::daemon::{Fusion, FusionMsg};
+use cmsckf::daemon::FusionMsg;
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::messages::Outbound;
 use nalgebra::Vector3;
@@ -84,16 +84,7 @@ fn stand(
     turn_radps: f64,
     seconds: f64,
 ) -> (Option<f64>, Vector3<f64>, cmsckf::counters::Counters) {
-    let (ctx, mut out_rx) = common::fusion_ctx();
-    let mut f = Fusion::new(Config::default(), None);
-    f.handle(
-        FusionMsg::Attitude {
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 1.0,
-        },
-        &ctx,
-    );
+    let (mut f, ctx, mut out_rx) = common::level_fusion(Config::default(), 1.0);
     let t0 = 30.0;
     let bias = Vector3::new(0.08, -0.03, 0.02);
     let mut sent = Sent::new(t0);
@@ -169,16 +160,7 @@ fn a_real_armed_px4_imu_standing_on_the_ground_starts_still() {
         .collect();
     assert!(samples.len() > 1000);
     let gyro_mean = samples.iter().map(|s| s.gyro_radps).sum::<Vector3<f64>>() / samples.len() as f64;
-    let (ctx, mut out_rx) = common::fusion_ctx();
-    let mut f = Fusion::new(Config::default(), None);
-    f.handle(
-        FusionMsg::Attitude {
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 0.5,
-        },
-        &ctx,
-    );
+    let (mut f, ctx, mut out_rx) = common::level_fusion(Config::default(), 0.5);
     let t0 = samples[0].t_s;
     let mut sent = Sent::new(t0);
     for s in &samples {

@@ -8,7 +8,7 @@ mod common;
 
 use cmsckf::config::Config;
 use cmsckf::counters::Counter;
-use cmsckf::daemon::{Fusion, FusionMsg};
+use cmsckf::daemon::FusionMsg;
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::messages::Outbound;
 use nalgebra::Vector3;
@@ -30,16 +30,7 @@ fn drain(out_rx: &mut tokio::sync::mpsc::Receiver<Outbound>) -> (Vec<String>, bo
 #[test]
 fn a_turning_vehicle_without_a_position_says_why_it_waits_then_starts_in_flight() {
     let cfg = Config::default();
-    let (ctx, mut out_rx) = common::fusion_ctx();
-    let mut f = Fusion::new(cfg, None);
-    f.handle(
-        FusionMsg::Attitude {
-            roll: 0.0,
-            pitch: 0.0,
-            yaw: 0.3,
-        },
-        &ctx,
-    );
+    let (mut f, ctx, mut out_rx) = common::level_fusion(cfg, 0.3);
     // Turning at 0.3 rad/s about the vertical: not still, whatever the bias.
     let imu = |t_s: f64| {
         FusionMsg::Imu(ImuMeas {

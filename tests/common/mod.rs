@@ -142,6 +142,30 @@ pub fn fusion_ctx() -> (
     (ctx, out_rx)
 }
 
+/// A fusion loop for `cfg`, driven directly, that has heard the autopilot's
+/// `ATTITUDE` (level, heading `yaw` rad): what a start needs first. With its
+/// context and the receiver of what it sends.
+pub fn level_fusion(
+    cfg: cmsckf::config::Config,
+    yaw: f64,
+) -> (
+    cmsckf::daemon::Fusion,
+    cmsckf::daemon::Ctx,
+    tokio::sync::mpsc::Receiver<cmsckf::io::messages::Outbound>,
+) {
+    let (ctx, out_rx) = fusion_ctx();
+    let mut f = cmsckf::daemon::Fusion::new(cfg, None);
+    f.handle(
+        cmsckf::daemon::FusionMsg::Attitude {
+            roll: 0.0,
+            pitch: 0.0,
+            yaw,
+        },
+        &ctx,
+    );
+    (f, ctx, out_rx)
+}
+
 /// Makes sure `python3` can import each of `modules`, installing the
 /// missing ones with pip, so that `cargo test --workspace` needs no set-up
 /// of its own on a fresh machine. Once per test binary. An entry is the
