@@ -131,35 +131,33 @@ const STILL_ACCEL_SPREAD_MPS2: f64 = 0.1;
 
 impl StillWindow {
     fn of<'a>(samples: impl ExactSizeIterator<Item = &'a ImuMeas> + Clone) -> Self {
-        let n = samples.len();
-        let mean = |v: &mut dyn Iterator<Item = Vector3<f64>>, k: usize| v.sum::<Vector3<f64>>() / k.max(1) as f64;
-        let acc = mean(&mut samples.clone().map(|s| s.accel_mps2), n);
-        let gyr = mean(&mut samples.clone().map(|s| s.gyro_radps), n);
-        let gyr_var = samples
-            .clone()
-            .map(|s| (s.gyro_radps - gyr).norm_squared())
-            .sum::<f64>()
-            / n as f64;
-        let acc_var = samples
-            .clone()
-            .map(|s| (s.accel_mps2 - acc).norm_squared())
-            .sum::<f64>()
-            / n as f64;
+        let n = samples.len().max(1);
+        // Each quarter's sums (a remainder of up to 3 samples joins none).
         let q = (n / 4).max(1);
-        let (mut gyr_spread, mut acc_spread) = (0.0f64, 0.0f64);
-        for k in 0..4 {
-            let part = || samples.clone().skip(k * q).take(q);
-            gyr_spread = gyr_spread.max((mean(&mut part().map(|s| s.gyro_radps), q) - gyr).norm());
-            acc_spread = acc_spread.max((mean(&mut part().map(|s| s.accel_mps2), q) - acc).norm());
+        let (mut gyr_q, mut acc_q) = ([Vector3::zeros(); 4], [Vector3::zeros(); 4]);
+        for (i, s) in samples.clone().enumerate().filter(|(i, _)| i / q < 4) {
+            gyr_q[i / q] += s.gyro_radps;
+            acc_q[i / q] += s.accel_mps2;
         }
+        let acc = samples.clone().map(|s| s.accel_mps2).sum::<Vector3<f64>>() / n as f64;
+        let gyr = samples.clone().map(|s| s.gyro_radps).sum::<Vector3<f64>>() / n as f64;
+        let (gyr_var, acc_var) = samples.fold((0.0, 0.0), |(g, a), s| {
+            (
+                g + (s.gyro_radps - gyr).norm_squared(),
+                a + (s.accel_mps2 - acc).norm_squared(),
+            )
+        });
         let q = q as f64;
+        let spread = |sums: &[Vector3<f64>; 4], mean: &Vector3<f64>| {
+            sums.iter().map(|s| (s / q - mean).norm()).fold(0.0, f64::max)
+        };
         Self {
             acc,
             gyr,
-            gyr_spread,
-            acc_spread,
-            gyr_noise: 4.0 * (gyr_var / q).sqrt(),
-            acc_noise: 4.0 * (acc_var / q).sqrt(),
+            gyr_spread: spread(&gyr_q, &gyr),
+            acc_spread: spread(&acc_q, &acc),
+            gyr_noise: 4.0 * (gyr_var / n as f64 / q).sqrt(),
+            acc_noise: 4.0 * (acc_var / n as f64 / q).sqrt(),
         }
     }
 
