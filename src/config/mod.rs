@@ -435,11 +435,21 @@ impl Default for GnssConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct ZuptConfig {
     pub enabled: bool,
-    /// Largest body rate of any IMU sample since the last frame (rad/s).
+    /// Largest mean body rate since the last frame, the gyro bias removed,
+    /// beyond two standard errors of the samples' own scatter and three
+    /// sigmas of the bias (rad/s).
     pub max_gyro_radps: f64,
-    /// Largest `|a_m − b_a + R_W_Bᵀ g|` of any IMU sample: the specific
-    /// force's departure from gravity's, in any direction (m/s²).
+    /// Largest mean of `a_m − b_a + R_W_Bᵀ g` since the last frame: the
+    /// specific force's departure from gravity's, in any direction, beyond
+    /// two standard errors of the scatter and three sigmas of the tilt (m/s²).
     pub max_accel_deviation_mps2: f64,
+    /// Largest RMS scatter of the body rate about its mean (rad/s): motor
+    /// vibration on a vehicle standing armed is about 0.1; more is not a
+    /// vehicle standing.
+    pub max_vibration_gyro_radps: f64,
+    /// Largest RMS scatter of the specific force about its mean (m/s²):
+    /// about 0.8 on an armed multirotor standing.
+    pub max_vibration_accel_mps2: f64,
     /// Largest median feature displacement since the last clone (px). Pixel
     /// noise alone moves a still feature by a median of 1.7 σ_px between two
     /// frames: keep this about 3 σ_px.
@@ -456,6 +466,8 @@ impl Default for ZuptConfig {
             enabled: true,
             max_gyro_radps: 0.02,
             max_accel_deviation_mps2: 0.1,
+            max_vibration_gyro_radps: 0.5,
+            max_vibration_accel_mps2: 5.0,
             max_disparity_px: 3.0,
             max_speed_mps: 0.5,
             sigma_mps: 0.01,

@@ -48,6 +48,8 @@ impl Config {
                 enabled: c.zupt.enabled,
                 max_gyro_radps: c.zupt.max_gyro_radps,
                 max_accel_dev_mps2: c.zupt.max_accel_deviation_mps2,
+                max_vibration_gyro_radps: c.zupt.max_vibration_gyro_radps,
+                max_vibration_accel_mps2: c.zupt.max_vibration_accel_mps2,
                 // Pixels to normalised units through the mean focal length.
                 max_disparity: c.zupt.max_disparity_px / (0.5 * (c.camera.intrinsics[0] + c.camera.intrinsics[1])),
                 max_speed_mps: c.zupt.max_speed_mps,

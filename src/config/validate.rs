@@ -144,6 +144,8 @@ impl Config {
         let c = Check::new("zupt");
         c.positive("max_gyro_radps", z.max_gyro_radps, 10.0)?;
         c.positive("max_accel_deviation_mps2", z.max_accel_deviation_mps2, 50.0)?;
+        c.positive("max_vibration_gyro_radps", z.max_vibration_gyro_radps, 10.0)?;
+        c.positive("max_vibration_accel_mps2", z.max_vibration_accel_mps2, 100.0)?;
         c.positive("max_disparity_px", z.max_disparity_px, 1000.0)?;
         c.positive("max_speed_mps", z.max_speed_mps, 100.0)?;
         c.positive("sigma_mps", z.sigma_mps, 10.0)

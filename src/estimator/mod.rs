@@ -166,13 +166,21 @@ struct GnssGrid {
     next_s: f64,
 }
 
-/// IMU stillness since the last frame (§3c): the largest body rate and the
-/// largest deviation of the specific force's norm from gravity.
+/// IMU stillness since the last frame (§3c): the sums that give the mean
+/// and the scatter of the body rate and of the specific force's departure
+/// from gravity's, both with the current bias estimates removed. A still
+/// vehicle's means are small whatever its motors make the samples do
+/// (vibration is zero-mean); its scatter says how far the means may be off
+/// from noise and vibration alone.
 #[derive(Clone, Copy, Debug, Default)]
 struct Stillness {
     samples: u32,
-    max_gyro_radps: f64,
-    max_accel_dev_mps2: f64,
+    /// `Σ (ω_m − b̂_g)` (rad/s) and `Σ |ω_m − b̂_g|²` (rad²/s²).
+    gyro_sum_radps: Vector3<f64>,
+    gyro_sq_sum: f64,
+    /// `Σ (a_m − b̂_a + R̂_W_Bᵀ g_W)` (m/s²) and the sum of its squares.
+    accel_dev_sum_mps2: Vector3<f64>,
+    accel_dev_sq_sum: f64,
     /// `∫ ω_m dt` and the time it spans (s): the mean rate, which at rest
     /// is the gyro bias.
     gyro_integral_rad: Vector3<f64>,

@@ -104,12 +104,19 @@ pub struct Settings {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ZuptSettings {
     pub enabled: bool,
-    /// Largest body rate of any IMU sample since the last frame (rad/s).
+    /// Largest mean body rate since the last frame, beyond what the
+    /// samples' scatter and the bias's sigma allow (rad/s).
     pub max_gyro_radps: f64,
-    /// Largest `|a_m − b_a + R_W_Bᵀ g_W|` of any IMU sample (m/s²): the
-    /// specific force's departure from gravity's, in any direction (a norm
-    /// test alone misses a gentle horizontal acceleration).
+    /// Largest `|mean(a_m − b_a + R_W_Bᵀ g_W)|` since the last frame, beyond
+    /// what the scatter and the tilt's sigma allow (m/s²): the specific
+    /// force's departure from gravity's, in any direction (a norm test alone
+    /// misses a gentle horizontal acceleration).
     pub max_accel_dev_mps2: f64,
+    /// Largest RMS scatter of the body rate about its mean (rad/s): more
+    /// shaking than a vehicle standing with its motors running.
+    pub max_vibration_gyro_radps: f64,
+    /// Largest RMS scatter of the specific force about its mean (m/s²).
+    pub max_vibration_accel_mps2: f64,
     /// Largest median feature displacement since the last clone
     /// (normalised image units: pixels / focal length).
     pub max_disparity: f64,
@@ -125,6 +132,8 @@ impl Default for ZuptSettings {
             enabled: true,
             max_gyro_radps: 0.02,
             max_accel_dev_mps2: 0.1,
+            max_vibration_gyro_radps: 0.5,
+            max_vibration_accel_mps2: 5.0,
             max_disparity: 3.0 / 450.0,
             max_speed_mps: 0.5,
             sigma_mps: 0.01,

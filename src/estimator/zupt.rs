@@ -6,10 +6,12 @@
 //! pose to the window, and the tracks wait for the motion that gives them
 //! parallax (OpenVINS does the same).
 //!
-//! Still means all of: every IMU sample since the last frame with a small
-//! body rate and a specific force equal to gravity's (in size and
-//! direction), the features not
-//! moving in the image since the last clone, the estimated speed small, and
+//! Still means all of: since the last frame, a mean body rate that is small
+//! and a mean specific force equal to gravity's (in size and direction),
+//! each within what the samples' own scatter allows (an armed multirotor's
+//! motors shake every sample by more than a turn would, but the shaking is
+//! zero-mean), and that scatter within a vibration ceiling; the features not
+//! moving in the image since the last clone; the estimated speed small; and
 //! the update itself passing its χ² gate.
 
 use crate::counters::Counter;
@@ -26,15 +28,39 @@ const ZUPT_GATE_PROB: f64 = 0.99;
 
 impl Stillness {
     /// Adds one IMU sample, its biases removed with the current estimate:
-    /// at rest `a_m − b_a = −R_W_Bᵀ g_W`, so the deviation is
-    /// `|a_m − b_a + R_W_Bᵀ g_W|`.
+    /// at rest `a_m − b_a = −R_W_Bᵀ g_W`, so the departure is
+    /// `a_m − b_a + R_W_Bᵀ g_W`.
     pub(super) fn push(&mut self, m: &ImuMeas, dt_s: f64, x: &ImuState, g_W: &Vector3<f64>) {
         self.samples += 1;
         self.gyro_integral_rad += m.gyro_radps * dt_s;
         self.span_s += dt_s;
-        self.max_gyro_radps = self.max_gyro_radps.max((m.gyro_radps - x.b_g).norm());
-        let dev = (m.accel_mps2 - x.b_a + x.q_W_B.inverse() * g_W).norm();
-        self.max_accel_dev_mps2 = self.max_accel_dev_mps2.max(dev);
+        let w = m.gyro_radps - x.b_g;
+        self.gyro_sum_radps += w;
+        self.gyro_sq_sum += w.norm_squared();
+        let dev = m.accel_mps2 - x.b_a + x.q_W_B.inverse() * g_W;
+        self.accel_dev_sum_mps2 += dev;
+        self.accel_dev_sq_sum += dev.norm_squared();
+    }
+
+    /// `(|mean|, scatter)` of a quantity from its sums: the mean's size and
+    /// the samples' RMS about it (summed over the axes).
+    fn mean_and_scatter(sum: &Vector3<f64>, sq_sum: f64, n: f64) -> (f64, f64) {
+        let mean = sum / n;
+        (mean.norm(), (sq_sum / n - mean.norm_squared()).max(0.0).sqrt())
+    }
+
+    /// The body rate's `(|mean|, scatter)` (rad/s).
+    fn gyro(&self) -> (f64, f64) {
+        Self::mean_and_scatter(&self.gyro_sum_radps, self.gyro_sq_sum, f64::from(self.samples.max(1)))
+    }
+
+    /// The specific force's departure from gravity: `(|mean|, scatter)` (m/s²).
+    fn accel(&self) -> (f64, f64) {
+        Self::mean_and_scatter(
+            &self.accel_dev_sum_mps2,
+            self.accel_dev_sq_sum,
+            f64::from(self.samples.max(1)),
+        )
     }
 }
 
@@ -71,15 +97,28 @@ impl Estimator {
     /// Returns whether it did.
     pub(super) fn zero_velocity_update(&mut self, still: &Stillness, obs: &[NormObs]) -> bool {
         let z = self.s.zupt;
-        // A tilt error θ alone makes gravity seem off by g·θ: allow three
-        // sigmas of the filter's own tilt on top of the threshold.
+        let n = f64::from(still.samples.max(1));
+        let (gyro_mean, gyro_scatter) = still.gyro();
+        let (accel_mean, accel_scatter) = still.accel();
+        // The means may be off by noise and vibration (two standard errors,
+        // scatter / √n), by the filter's own bias error (three sigmas of
+        // the gyro bias), and, for the specific force, by a tilt error θ,
+        // which makes gravity seem off by g·θ (three sigmas of the tilt).
         let tilt_sigma = self.P[(0, 0)].max(self.P[(1, 1)]).max(0.0).sqrt();
-        let accel_bound = z.max_accel_dev_mps2 + 3.0 * self.g_W.norm() * tilt_sigma;
+        let bg_sigma = self.P[(BG, BG)]
+            .max(self.P[(BG + 1, BG + 1)])
+            .max(self.P[(BG + 2, BG + 2)])
+            .max(0.0)
+            .sqrt();
+        let gyro_bound = z.max_gyro_radps + 3.0 * bg_sigma + 2.0 * gyro_scatter / n.sqrt();
+        let accel_bound = z.max_accel_dev_mps2 + 3.0 * self.g_W.norm() * tilt_sigma + 2.0 * accel_scatter / n.sqrt();
         if !z.enabled
             || !self.zupt_allowed
             || still.samples == 0
-            || still.max_gyro_radps > z.max_gyro_radps
-            || still.max_accel_dev_mps2 > accel_bound
+            || gyro_mean > gyro_bound
+            || accel_mean > accel_bound
+            || gyro_scatter > z.max_vibration_gyro_radps
+            || accel_scatter > z.max_vibration_accel_mps2
             || self.imu.v_B_in_W.norm() > z.max_speed_mps
         {
             return false;
@@ -91,7 +130,9 @@ impl Estimator {
         // interval, with the white gyro noise averaged: σ_g / √T.
         let v = self.imu.v_B_in_W;
         let w_mean = still.gyro_integral_rad / still.span_s;
-        let sigma_w = self.s.imu.gyro_noise_density / still.span_s.sqrt();
+        // Its noise is the white gyro noise averaged, σ_g / √T, or the
+        // vibration's, the per-axis scatter over √n, whichever is larger.
+        let sigma_w = (self.s.imu.gyro_noise_density / still.span_s.sqrt()).max(gyro_scatter / (3.0 * n).sqrt());
         let cols = [V, V + 1, V + 2, BG, BG + 1, BG + 2];
         let mut h = DMatrix::zeros(6, 6);
         let mut r = DVector::zeros(6);
