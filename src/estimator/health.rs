@@ -6,10 +6,19 @@
 //! truth with a covariance that does not know it) sees every measurement as
 //! an outlier. So, over a sliding window of measurement time (README.md §9):
 //!
-//! - **D1 (vision):** with at least `min_tracks` tracks in the window, the
-//!   fraction the poses cannot explain (rejected by the χ² gate, or failing
-//!   to triangulate to a valid depth or fit) above `max_reject_fraction`, or the
-//!   accepted tracks' mean NIS per degree of freedom above `max_nis_per_dof`;
+//! - **D1 (vision):** over the last `window_s` if it holds `min_tracks`
+//!   tracks, else over as far back as it takes to hold them, up to
+//!   `max_window_s` (a real front-end gives 20–40 tracks a second, not 60),
+//!   and with at least `min_tracks_long` there, the fraction the poses
+//!   cannot explain (rejected by the χ² gate, or failing to triangulate to a
+//!   valid depth or fit) above `max_reject_fraction`, or the accepted
+//!   tracks' mean NIS per degree of freedom above `max_nis_per_dof`;
+//! - **D3 (standstill):** over the last `window_s`, with at least
+//!   `min_zupts` frames that the IMU and the image call still, more than
+//!   `max_reject_fraction` of their zero-velocity updates rejected by the χ²
+//!   gate: a standing vehicle whose filter cannot believe it stands (a tilt
+//!   or a gyro bias far beyond its sigma) sees no parallax either, so D1
+//!   has nothing to judge;
 //! - **D2 (GNSS):** over the last `gnss_epochs` epochs, with at least
 //!   `min_gnss_codes` pseudoranges gated, the fraction rejected above
 //!   `max_reject_fraction`.
@@ -33,6 +42,12 @@ use super::{math, Estimator, ACTIVE_DIM, MAX_ACCEL_BIAS_MPS2, MAX_GYRO_BIAS_RADP
 pub struct MonitorSettings {
     pub window_s: f64,
     pub min_tracks: u64,
+    /// How far back D1 looks for `min_tracks` when the last `window_s`
+    /// holds fewer (s), and the fewest it judges there.
+    pub max_window_s: f64,
+    pub min_tracks_long: u64,
+    /// Fewest still frames D3 judges in `window_s`.
+    pub min_zupts: u64,
     pub max_reject_fraction: f64,
     pub max_nis_per_dof: f64,
     pub gnss_epochs: usize,
@@ -44,6 +59,9 @@ impl Default for MonitorSettings {
         Self {
             window_s: 1.0,
             min_tracks: 60,
+            max_window_s: 3.0,
+            min_tracks_long: 20,
+            min_zupts: 10,
             max_reject_fraction: 0.5,
             max_nis_per_dof: 5.0,
             gnss_epochs: 5,
@@ -62,11 +80,19 @@ struct FrameGate {
     dof_sum: u64,
 }
 
+/// One still frame's zero-velocity update: taken, or refused by its gate.
+#[derive(Clone, Copy, Debug)]
+struct ZuptGate {
+    t_s: f64,
+    rejected: bool,
+}
+
 /// The sliding-window NIS monitor.
 #[derive(Clone, Debug, Default)]
 pub struct NisMonitor {
     pub settings: MonitorSettings,
     frames: VecDeque<FrameGate>,
+    zupts: VecDeque<ZuptGate>,
     /// `(accepted, rejected)` pseudoranges of the last epochs.
     gnss: VecDeque<(usize, usize)>,
 }
@@ -76,6 +102,7 @@ impl NisMonitor {
         Self {
             settings,
             frames: VecDeque::with_capacity(128),
+            zupts: VecDeque::with_capacity(128),
             gnss: VecDeque::with_capacity(settings.gnss_epochs + 1),
         }
     }
@@ -86,7 +113,7 @@ impl NisMonitor {
         while self
             .frames
             .front()
-            .is_some_and(|f| f.t_s < t_s - self.settings.window_s)
+            .is_some_and(|f| f.t_s < t_s - self.settings.max_window_s.max(self.settings.window_s))
         {
             self.frames.pop_front();
         }
@@ -103,6 +130,18 @@ impl NisMonitor {
         });
     }
 
+    /// Records a frame that the IMU and the image call still: whether its
+    /// zero-velocity update was refused by the χ² gate.
+    pub fn push_zupt(&mut self, t_s: f64, rejected: bool) {
+        while self.zupts.front().is_some_and(|z| z.t_s < t_s - self.settings.window_s) {
+            self.zupts.pop_front();
+        }
+        if self.zupts.len() >= 1000 {
+            self.zupts.pop_front();
+        }
+        self.zupts.push_back(ZuptGate { t_s, rejected });
+    }
+
     /// Records a GNSS epoch: pseudoranges accepted and rejected by the gate.
     pub fn push_gnss(&mut self, accepted: usize, rejected: usize) {
         if self.gnss.len() >= self.settings.gnss_epochs.max(1) {
@@ -114,26 +153,49 @@ impl NisMonitor {
     /// `Err(reason)` when the innovations say the filter has diverged.
     pub fn verdict(&self) -> Result<(), String> {
         let s = &self.settings;
-        let (acc, rej, nis, dof) = self.frames.iter().fold((0, 0, 0.0, 0), |a, f| {
-            (a.0 + f.accepted, a.1 + f.rejected, a.2 + f.nis_sum, a.3 + f.dof_sum)
-        });
+        // D1: the newest frames back to `window_s`, and on past it while
+        // they hold fewer than `min_tracks`, up to `max_window_s`.
+        let t_last = self.frames.back().map_or(0.0, |f| f.t_s);
+        let (mut acc, mut rej, mut nis, mut dof, mut span_s) = (0, 0, 0.0, 0, 0.0);
+        for f in self.frames.iter().rev() {
+            let age_s = t_last - f.t_s;
+            if age_s > s.max_window_s || (age_s > s.window_s && acc + rej >= s.min_tracks) {
+                break;
+            }
+            (acc, rej, nis, dof, span_s) = (
+                acc + f.accepted,
+                rej + f.rejected,
+                nis + f.nis_sum,
+                dof + f.dof_sum,
+                age_s,
+            );
+        }
         let n = acc + rej;
-        if n >= s.min_tracks {
+        if n >= s.min_tracks.min(s.min_tracks_long) && (n >= s.min_tracks || span_s > s.window_s) {
             let frac = rej as f64 / n as f64;
             if frac > s.max_reject_fraction {
                 return Err(format!(
-                    "divergence: {:.0}% of {n} tracks inconsistent in {} s",
+                    "divergence: {:.0}% of {n} tracks inconsistent in {:.1} s",
                     100.0 * frac,
-                    s.window_s
+                    span_s.max(s.window_s)
                 ));
             }
             if dof > 0 && nis / dof as f64 > s.max_nis_per_dof {
                 return Err(format!(
-                    "divergence: mean NIS per degree of freedom {:.1} over {acc} tracks in {} s",
+                    "divergence: mean NIS per degree of freedom {:.1} over {acc} tracks in {:.1} s",
                     nis / dof as f64,
-                    s.window_s
+                    span_s.max(s.window_s)
                 ));
             }
+        }
+        // D3.
+        let still = self.zupts.len() as u64;
+        let refused = self.zupts.iter().filter(|z| z.rejected).count() as u64;
+        if still >= s.min_zupts && refused as f64 > s.max_reject_fraction * still as f64 {
+            return Err(format!(
+                "divergence: {refused} of {still} zero-velocity updates refused in {} s while still",
+                s.window_s
+            ));
         }
         let (acc, rej) = self.gnss.iter().fold((0, 0), |a, g| (a.0 + g.0, a.1 + g.1));
         if acc + rej >= s.min_gnss_codes && rej as f64 > s.max_reject_fraction * (acc + rej) as f64 {
@@ -277,5 +339,57 @@ mod tests {
             few.push_gnss(0, 3);
         }
         assert!(few.verdict().is_ok());
+    }
+
+    #[test]
+    fn few_tracks_a_second_are_judged_over_a_longer_window() {
+        // 20 tracks a second (a real front-end), 1 a frame at 20 Hz: the
+        // 1 s window never holds 60, so the monitor looks back up to 3 s.
+        let mut m = NisMonitor::new(MonitorSettings::default());
+        for k in 0..200 {
+            m.push_frame(k as f64 / 20.0, &[(4.2, 4)], 0);
+            assert!(m.verdict().is_ok(), "healthy at frame {k}");
+        }
+        let mut fired = None;
+        for k in 200..400 {
+            // Then three tracks of four fail the gate.
+            let accepted: &[(f64, usize)] = if k % 4 == 0 { &[(4.2, 4)] } else { &[] };
+            m.push_frame(k as f64 / 20.0, accepted, u64::from(k % 4 != 0));
+            if let Err(e) = m.verdict() {
+                assert!(e.contains("inconsistent"), "{e}");
+                fired = Some(k - 200);
+                break;
+            }
+        }
+        let frames = fired.expect("divergence detected with 20 tracks a second");
+        assert!(frames <= 60, "fired after {frames} frames (3 s)");
+        // 10 tracks in 3 s are too few to judge, whatever they say.
+        let mut sparse = NisMonitor::new(MonitorSettings::default());
+        for k in 0..200 {
+            sparse.push_frame(k as f64 / 20.0, &[], u64::from(k % 6 == 0));
+        }
+        assert!(sparse.verdict().is_ok());
+    }
+
+    #[test]
+    fn refused_zero_velocity_updates_while_still_are_a_divergence() {
+        let mut m = NisMonitor::new(MonitorSettings::default());
+        // Standing, one update in ten refused: healthy.
+        for k in 0..100 {
+            m.push_zupt(k as f64 / 20.0, k % 10 == 0);
+            assert!(m.verdict().is_ok());
+        }
+        // A few refused at a take-off's first frames: too few to judge.
+        let mut takeoff = NisMonitor::new(MonitorSettings::default());
+        for k in 0..5 {
+            takeoff.push_zupt(k as f64 / 20.0, true);
+        }
+        assert!(takeoff.verdict().is_ok());
+        // Every update refused for a second: the filter cannot believe the
+        // vehicle stands.
+        for k in 100..120 {
+            m.push_zupt(k as f64 / 20.0, true);
+        }
+        assert!(m.verdict().unwrap_err().contains("zero-velocity"));
     }
 }

@@ -155,8 +155,10 @@ impl Estimator {
         let nis = r.dot(&ch.solve(&r));
         if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6) {
             *self.stats.rejected.entry(Counter::ZuptChi2).or_default() += 1;
+            self.monitor.push_zupt(self.t_s, true);
             return false;
         }
+        self.monitor.push_zupt(self.t_s, false);
         self.ekf_update(&h, &cols, &r, false);
         self.stats.zupt_updates += 1;
         true
