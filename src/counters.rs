@@ -154,8 +154,15 @@ counters! {
     TrackRejectedBadDepth = "track_rejected_bad_depth", event;
     TrackRejectedNotConverged = "track_rejected_not_converged", event;
     TrackRejectedChi2 = "track_rejected_chi2", event;
+    /// A frame taken as a zero-velocity update (standing still).
+    ZuptUpdates = "zupt_updates", event;
     /// A zero-velocity update failed its χ² gate.
     ZuptChi2 = "zupt_chi2", event;
+    /// The accepted tracks' NIS, summed (in thousandths), and their degrees
+    /// of freedom: their ratio is the NIS per degree of freedom, 1 for a
+    /// consistent filter (`demo --json`'s `nis_per_dof`).
+    TrackNisMilli = "track_nis_milli", event;
+    TrackNisDof = "track_nis_dof", event;
     /// An update whose innovation covariance was not positive definite.
     UpdateNotPd = "update_not_pd", event;
     // Compressed mode's global updates on the worker thread.

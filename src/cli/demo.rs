@@ -13,6 +13,7 @@ use std::path::PathBuf;
 use anyhow::bail;
 
 use cmsckf::config::Config;
+use cmsckf::counters::Counter;
 use cmsckf::daemon::RunSummary;
 use cmsckf::eval;
 
@@ -196,6 +197,16 @@ fn fly(
     out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
     if let Ok(s) = &summary {
         out["daemon_counters"] = serde_json::to_value(&s.counters)?;
+        let count = |c: Counter| s.counters.get(c.as_str()).copied().unwrap_or(0);
+        out["zupt_updates"] = count(Counter::ZuptUpdates).into();
+        // The accepted tracks' NIS per degree of freedom: 1 when the pixel
+        // noise fits the front-end's.
+        let dof = count(Counter::TrackNisDof);
+        out["nis_per_dof"] = if dof > 0 {
+            (count(Counter::TrackNisMilli) as f64 / 1000.0 / dof as f64).into()
+        } else {
+            serde_json::Value::Null
+        };
     }
     if let Some(handle) = front {
         let r = handle

@@ -177,6 +177,11 @@ pub struct EstimatorConfig {
     /// Time after (re)initialisation during which the divergence monitor
     /// does not judge (s).
     pub health_grace_s: f64,
+    /// The motion an IMU gap hides (a step beyond 50 ms): the body rate and
+    /// the specific force in the gap differ from their interpolation by
+    /// this much, the vehicle's own manoeuvring (rad/s, m/s²).
+    pub imu_gap_sigma_rate_radps: f64,
+    pub imu_gap_sigma_accel_mps2: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -193,6 +198,8 @@ impl Default for EstimatorConfig {
             time_offset_s: 0.0,
             time_offset_sigma_s: 0.02,
             health_grace_s: 2.0,
+            imu_gap_sigma_rate_radps: 0.3,
+            imu_gap_sigma_accel_mps2: 3.0,
         }
     }
 }

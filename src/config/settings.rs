@@ -56,6 +56,10 @@ impl Config {
                 sigma_mps: c.zupt.sigma_mps,
             },
             health_grace_s: c.estimator.health_grace_s,
+            imu_gap: crate::estimator::propagate::GapNoise {
+                sigma_rate_radps: c.estimator.imu_gap_sigma_rate_radps,
+                sigma_accel_mps2: c.estimator.imu_gap_sigma_accel_mps2,
+            },
             ext: Extrinsic {
                 R_B_C: cam.T_B_C.rotation.to_rotation_matrix().into_inner(),
                 p_C_in_B: cam.T_B_C.translation.vector,

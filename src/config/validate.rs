@@ -135,7 +135,9 @@ impl Config {
         c.range("min_parallax_deg", e.min_parallax_deg, 0.0, 10.0)?;
         c.range("time_offset_s", e.time_offset_s, -0.5, 0.5)?;
         c.positive("time_offset_sigma_s", e.time_offset_sigma_s, 0.5)?;
-        c.range("health_grace_s", e.health_grace_s, 0.0, 60.0)
+        c.range("health_grace_s", e.health_grace_s, 0.0, 60.0)?;
+        c.positive("imu_gap_sigma_rate_radps", e.imu_gap_sigma_rate_radps, 20.0)?;
+        c.positive("imu_gap_sigma_accel_mps2", e.imu_gap_sigma_accel_mps2, 200.0)
     }
 
     /// `[zupt]`: the stillness thresholds and the measurement sigma.

@@ -189,6 +189,14 @@ fn fuse_frame(est: &mut Estimator, t: f64, fr: &NormFrame, landmarks: &mut Landm
             counters.add(Counter::FramesProcessed, 1);
             cx.tracker.frame_processed(t);
             counters.add(Counter::TracksUsed, rep.tracks_used as u64);
+            if rep.zupt {
+                counters.add(Counter::ZuptUpdates, 1);
+            }
+            let (nis, dof) = rep.nis.iter().fold((0.0, 0), |(n, d), (nis, dof)| (n + nis, d + dof));
+            if dof > 0 && nis.is_finite() {
+                counters.add(Counter::TrackNisMilli, (1000.0 * nis).round() as u64);
+                counters.add(Counter::TrackNisDof, dof as u64);
+            }
             counters.add(Counter::GlobalUpdates, rep.global_updates as u64);
             if rep.loop_closure_tracks > 0 {
                 // Tracks that reached back to a keyframe: revisits.

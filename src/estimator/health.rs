@@ -11,8 +11,10 @@
 //!   `max_window_s` (a real front-end gives 20–40 tracks a second, not 60),
 //!   and with at least `min_tracks_long` there, the fraction the poses
 //!   cannot explain (rejected by the χ² gate, or failing to triangulate to a
-//!   valid depth or fit) above `max_reject_fraction`, or the accepted
-//!   tracks' mean NIS per degree of freedom above `max_nis_per_dof`;
+//!   valid depth or fit) above `max_reject_fraction` (above
+//!   `max_reject_fraction_long` over the longer window: a hover's few tracks
+//!   fail to triangulate at about half that rate), or the accepted tracks'
+//!   mean NIS per degree of freedom above `max_nis_per_dof`;
 //! - **D3 (standstill):** over the last `window_s`, with at least
 //!   `min_zupts` frames that the IMU and the image call still, more than
 //!   `max_reject_fraction` of their zero-velocity updates rejected by the χ²
@@ -43,9 +45,13 @@ pub struct MonitorSettings {
     pub window_s: f64,
     pub min_tracks: u64,
     /// How far back D1 looks for `min_tracks` when the last `window_s`
-    /// holds fewer (s), and the fewest it judges there.
+    /// holds fewer (s), the fewest it judges there, and the inconsistent
+    /// fraction that is a divergence there (few tracks in a hover, with
+    /// little parallax, fail to triangulate at half that rate; a diverged
+    /// filter loses nearly all).
     pub max_window_s: f64,
     pub min_tracks_long: u64,
+    pub max_reject_fraction_long: f64,
     /// Fewest still frames D3 judges in `window_s`.
     pub min_zupts: u64,
     pub max_reject_fraction: f64,
@@ -61,6 +67,7 @@ impl Default for MonitorSettings {
             min_tracks: 60,
             max_window_s: 3.0,
             min_tracks_long: 20,
+            max_reject_fraction_long: 0.8,
             min_zupts: 10,
             max_reject_fraction: 0.5,
             max_nis_per_dof: 5.0,
@@ -171,9 +178,16 @@ impl NisMonitor {
             );
         }
         let n = acc + rej;
-        if n >= s.min_tracks.min(s.min_tracks_long) && (n >= s.min_tracks || span_s > s.window_s) {
+        let long = span_s > s.window_s;
+        if n >= s.min_tracks.min(s.min_tracks_long) && (n >= s.min_tracks || long) {
             let frac = rej as f64 / n as f64;
-            if frac > s.max_reject_fraction {
+            if frac
+                > if long {
+                    s.max_reject_fraction_long
+                } else {
+                    s.max_reject_fraction
+                }
+            {
                 return Err(format!(
                     "divergence: {:.0}% of {n} tracks inconsistent in {:.1} s",
                     100.0 * frac,
@@ -352,9 +366,9 @@ mod tests {
         }
         let mut fired = None;
         for k in 200..400 {
-            // Then three tracks of four fail the gate.
-            let accepted: &[(f64, usize)] = if k % 4 == 0 { &[(4.2, 4)] } else { &[] };
-            m.push_frame(k as f64 / 20.0, accepted, u64::from(k % 4 != 0));
+            // Then seven tracks of eight fail the gate.
+            let accepted: &[(f64, usize)] = if k % 8 == 0 { &[(4.2, 4)] } else { &[] };
+            m.push_frame(k as f64 / 20.0, accepted, u64::from(k % 8 != 0));
             if let Err(e) = m.verdict() {
                 assert!(e.contains("inconsistent"), "{e}");
                 fired = Some(k - 200);
@@ -363,6 +377,14 @@ mod tests {
         }
         let frames = fired.expect("divergence detected with 20 tracks a second");
         assert!(frames <= 60, "fired after {frames} frames (3 s)");
+        // A hover's few tracks, half failing to triangulate for want of
+        // parallax, are not a divergence.
+        let mut hover = NisMonitor::new(MonitorSettings::default());
+        for k in 0..200 {
+            let accepted: &[(f64, usize)] = if k % 2 == 0 { &[(4.2, 4)] } else { &[] };
+            hover.push_frame(k as f64 / 20.0, accepted, u64::from(k % 2 != 0));
+            assert!(hover.verdict().is_ok(), "hover flagged at frame {k}");
+        }
         // 10 tracks in 3 s are too few to judge, whatever they say.
         let mut sparse = NisMonitor::new(MonitorSettings::default());
         for k in 0..200 {

@@ -307,6 +307,8 @@ pub struct FrameReport {
     /// The triangulated position of each accepted track's landmark (m,
     /// world NED), for the log's 3D view.
     pub landmarks_W: Vec<Vector3<f64>>,
+    /// The frame was taken as a zero-velocity update (§3c), not a clone.
+    pub zupt: bool,
 }
 
 /// A landmark's observations in the window.
@@ -372,8 +374,12 @@ pub struct Estimator {
     gnss_clones: VecDeque<GnssClone>,
     gnss_grid: Option<GnssGrid>,
     still: Stillness,
-    /// Time the filter started (the monitor's grace period runs from it).
+    /// Time the filter started, or the end of its last IMU gap (the
+    /// monitor's grace period runs from it).
     t_start_s: f64,
+    /// Time of the last IMU sample stepped through (not an interpolated
+    /// one): the spacing of the samples tells an IMU gap (§2, eq. N3).
+    last_sample_t_s: f64,
     pub stats: Stats,
     /// Divergence detection from the innovations (§9).
     pub monitor: health::NisMonitor,
@@ -399,6 +405,7 @@ impl Estimator {
             gnss_grid: None,
             still: Stillness::default(),
             t_start_s: t_s,
+            last_sample_t_s: t_s,
             clock: ClockVec::zeros(),
             clock_initialised: false,
             gnss_differential: false,

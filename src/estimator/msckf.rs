@@ -58,6 +58,7 @@ impl Estimator {
         let still = std::mem::take(&mut self.still);
         if self.zero_velocity_update(&still, obs) {
             self.monitor.push_frame(t_s, &[], 0);
+            report.zupt = true;
             return Ok(report);
         }
 

@@ -93,6 +93,8 @@ pub struct Settings {
     /// they cannot be triangulated, and say nothing about health.
     pub min_parallax_rad: f64,
     pub zupt: ZuptSettings,
+    /// The motion an IMU gap hides (eq. N3).
+    pub imu_gap: super::propagate::GapNoise,
     /// Time after the start during which the divergence monitor does not
     /// judge (s): the first tracks are short and the prior still settling.
     pub health_grace_s: f64,

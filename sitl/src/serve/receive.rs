@@ -28,6 +28,18 @@ pub(super) struct Received {
     pub(super) p: Vector3<f64>,
     pub(super) cov: [f32; 21],
     pub(super) reset_counter: u8,
+    /// `ODOMETRY.quality` (VISION_POSITION_ESTIMATE has none).
+    pub(super) quality: Option<i8>,
+}
+
+impl Received {
+    /// The position's 1σ per axis (m) as ArduPilot reduces the pose
+    /// covariance (GCS_Common.cpp, before PR #32084; measured on its SITL):
+    /// `cbrt(c₀² + c₆² + c₁₁²)` from the diagonal of the upper-triangular
+    /// layout (x 0, y 6, z 11), the same for every axis.
+    pub(super) fn ardupilot_position_sigma_m(&self) -> f64 {
+        ((self.cov[0] as f64).powi(2) + (self.cov[6] as f64).powi(2) + (self.cov[11] as f64).powi(2)).cbrt()
+    }
 }
 
 /// One HEARTBEAT from the daemon.
@@ -134,7 +146,7 @@ impl Inbox {
     }
 
     /// Records an estimate.
-    fn estimate(&self, t_us: u64, p: Vector3<f64>, cov: [f32; 21], reset_counter: u8) {
+    fn estimate(&self, t_us: u64, p: Vector3<f64>, cov: [f32; 21], reset_counter: u8, quality: Option<i8>) {
         if let Ok(mut v) = self.received.lock() {
             v.push(Received {
                 wall: Instant::now(),
@@ -143,6 +155,7 @@ impl Inbox {
                 p,
                 cov,
                 reset_counter,
+                quality,
             });
         }
     }
@@ -155,7 +168,7 @@ impl Inbox {
             apm::MavMessage::VISION_POSITION_ESTIMATE(d) => {
                 self.count(|c| c.vision_position_estimate += 1);
                 let p = Vector3::new(d.x as f64, d.y as f64, d.z as f64);
-                self.estimate(d.usec, p, d.covariance, d.reset_counter);
+                self.estimate(d.usec, p, d.covariance, d.reset_counter, None);
             }
             apm::MavMessage::ODOMETRY(d) => {
                 let malformed =
@@ -165,7 +178,7 @@ impl Inbox {
                     c.odometry_malformed += malformed as usize;
                 });
                 let p = Vector3::new(d.x as f64, d.y as f64, d.z as f64);
-                self.estimate(d.time_usec, p, d.pose_covariance, d.reset_counter);
+                self.estimate(d.time_usec, p, d.pose_covariance, d.reset_counter, Some(d.quality));
             }
             apm::MavMessage::VISION_SPEED_ESTIMATE(_) => self.count(|c| c.vision_speed_estimate += 1),
             apm::MavMessage::HEARTBEAT(hb) => {

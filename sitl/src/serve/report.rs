@@ -60,6 +60,16 @@ pub struct Report {
     pub time_to_first_estimate_s: f64,
     pub reset_count: u32,
     pub covariance_ok: bool,
+    /// The position error normalised by the covariance as ArduPilot reads
+    /// it (one σ per axis, `cbrt(c₀² + c₆² + c₁₁²)`): `|e|²/σ²` per
+    /// estimate, whose mean is 3 when our covariance is honest; its mean,
+    /// and the fraction of estimates inside its 95% bound (7.81). NaN
+    /// without estimates.
+    pub position_nees_mean: f64,
+    pub position_nees_in95: f64,
+    /// The lowest `ODOMETRY.quality` sent (−1 failed … 100 best; `null`
+    /// with VISION_POSITION_ESTIMATE, which has none).
+    pub quality_min: Option<i8>,
     pub imu_sent: usize,
     pub frames_sent: usize,
     pub speedup: f64,
@@ -161,10 +171,16 @@ fn score(
     let mut resets = 0;
     let mut cov_ok = true;
     let mut last_reset = rec.first().map(|r| r.reset_counter);
+    let mut nees = Vec::with_capacity(rec.len());
     for r in rec {
         let t = r.t_s;
         est.push(r.p);
-        truth.push(ds.trajectory.sample(t).p_B_in_W);
+        let p_true = ds.trajectory.sample(t).p_B_in_W;
+        truth.push(p_true);
+        let sigma_m = r.ardupilot_position_sigma_m();
+        if sigma_m > 0.0 {
+            nees.push((r.p - p_true).norm_squared() / (sigma_m * sigma_m));
+        }
         let k = (t * rate_imu).round();
         if k >= 0.0 {
             if let Some(Some(w)) = sent_wall.get(k as usize) {
@@ -202,6 +218,18 @@ fn score(
         time_to_first_estimate_s: t_first,
         reset_count: resets,
         covariance_ok: cov_ok && !rec.is_empty(),
+        position_nees_mean: if nees.is_empty() {
+            f64::NAN
+        } else {
+            nees.iter().sum::<f64>() / nees.len() as f64
+        },
+        position_nees_in95: if nees.is_empty() {
+            f64::NAN
+        } else {
+            // χ²₀.₉₅(3).
+            nees.iter().filter(|n| **n <= 7.815).count() as f64 / nees.len() as f64
+        },
+        quality_min: rec.iter().filter_map(|r| r.quality).min(),
         imu_sent,
         frames_sent,
         speedup,

@@ -94,13 +94,8 @@ impl Streamer<'_> {
                 .iter()
                 .skip(self.estimates_seen)
                 .map(|r| {
-                    // As ArduPilot reduces it (GCS_Common.cpp, before PR
-                    // #32084; measured on its SITL): one position error
-                    // cbrt(c₀² + c₆² + c₁₁²) from the diagonal of the
-                    // upper-triangular layout (x 0, y 6, z 11), the 1σ of
-                    // every axis.
-                    let pos_err_m =
-                        ((r.cov[0] as f64).powi(2) + (r.cov[6] as f64).powi(2) + (r.cov[11] as f64).powi(2)).cbrt();
+                    // As ArduPilot reduces it: one sigma for every axis.
+                    let pos_err_m = r.ardupilot_position_sigma_m();
                     let var_m2 = nalgebra::Vector3::repeat(pos_err_m * pos_err_m);
                     (
                         r.t_us,
