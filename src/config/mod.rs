@@ -375,6 +375,17 @@ pub struct GnssConfig {
     /// Error of the troposphere model at zenith, one sigma (m); grows as
     /// 1/sin(el). Added to single-point codes; a base nearby removes it.
     pub troposphere_sigma_m: f64,
+    /// The broadcast and troposphere errors, and a range rate's persistent
+    /// part, hold for the whole flight: fused epoch after epoch as white
+    /// noise, they would be believed once per epoch. So their variance is
+    /// scaled by the epochs in this window (s), at least 1: whatever the
+    /// receiver's rate, they count as one measurement per window (§8c, eq.
+    /// DG6). 4 s keeps the position NEES honest at 1, 5 and 10 Hz.
+    pub correlation_window_s: f64,
+    /// The persistent part of a range rate at zenith, one sigma (m/s): the
+    /// troposphere's rate and the signal's flight time, which the model
+    /// leaves out; grows as 1/sin(el), scaled as above.
+    pub range_rate_correlated_sigma_mps: f64,
     /// Receiver clock bias white-frequency noise (m/√s).
     pub clock_bias_rw_m_per_sqrt_s: f64,
     /// Receiver clock drift random walk (m/s/√s).
@@ -423,6 +434,8 @@ impl Default for GnssConfig {
             range_rate_sigma_mps: 0.05,
             broadcast_sigma_m: 2.4,
             troposphere_sigma_m: 0.1,
+            correlation_window_s: 4.0,
+            range_rate_correlated_sigma_mps: 0.005,
             clock_bias_rw_m_per_sqrt_s: 0.02,
             clock_drift_rw_mps_per_sqrt_s: 0.01,
             isb_rw_m_per_sqrt_s: 0.001,

@@ -36,6 +36,8 @@ impl Config {
             range_rate_sigma_mps: c.gnss.range_rate_sigma_mps,
             broadcast_sigma_m: c.gnss.broadcast_sigma_m,
             troposphere_sigma_m: c.gnss.troposphere_sigma_m,
+            gnss_correlation_window_s: c.gnss.correlation_window_s,
+            range_rate_correlated_sigma_mps: c.gnss.range_rate_correlated_sigma_mps,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
             async_rebase: false,
             time_offset_s: c.estimator.time_offset_s,

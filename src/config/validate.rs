@@ -220,6 +220,13 @@ impl Config {
         c.range("broadcast_sigma_m", g.broadcast_sigma_m, 0.0, 100.0)?;
         c.range("troposphere_sigma_m", g.troposphere_sigma_m, 0.0, 10.0)?;
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
+        c.range("correlation_window_s", g.correlation_window_s, 0.0, 600.0)?;
+        c.range(
+            "range_rate_correlated_sigma_mps",
+            g.range_rate_correlated_sigma_mps,
+            0.0,
+            10.0,
+        )?;
         c.positive("clock_bias_rw_m_per_sqrt_s", g.clock_bias_rw_m_per_sqrt_s, 1e3)?;
         c.positive("clock_drift_rw_mps_per_sqrt_s", g.clock_drift_rw_mps_per_sqrt_s, 1e3)?;
         c.positive("isb_rw_m_per_sqrt_s", g.isb_rw_m_per_sqrt_s, 1e3)?;

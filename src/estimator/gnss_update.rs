@@ -70,10 +70,21 @@ fn reject(rep: &mut GnssReport, st: &mut Stats, why: Counter) {
 }
 
 /// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`.
-fn gated<const N: usize>(h: &[f64; N], r: f64, sigma: f64, p: &DMatrix<f64>, gate: f64) -> Option<([f64; N], f64)> {
+///
+/// The gate takes the measurement's sigma for one epoch, `gate_sigma`; the
+/// row is whitened with `sigma`, which may be wider (eq. DG6: an error that
+/// holds over many epochs is believed once per window).
+fn gated<const N: usize>(
+    h: &[f64; N],
+    r: f64,
+    gate_sigma: f64,
+    sigma: f64,
+    p: &DMatrix<f64>,
+    gate: f64,
+) -> Option<([f64; N], f64)> {
     let hv = nalgebra::DVector::from_column_slice(h);
-    let s = (hv.transpose() * p * &hv)[0] + sigma * sigma;
-    if !(r.is_finite() && s > 0.0) || r * r / s > gate {
+    let s = (hv.transpose() * p * &hv)[0] + gate_sigma * gate_sigma;
+    if !(r.is_finite() && s > 0.0 && sigma > 0.0) || r * r / s > gate {
         return None;
     }
     let mut w = *h;
@@ -478,6 +489,11 @@ impl Estimator {
             return;
         }
         let sin_el = pred.elevation_rad.sin().max(0.1);
+        // DG6: errors that hold for the flight, fused once per epoch, are
+        // believed `w` times per window of `correlation_window_s`: their
+        // variance is scaled by the epochs in the window, at least 1.
+        let period_s = self.gnss_grid.map_or(self.s.gnss_period_s, |g| g.period_s);
+        let w = (self.s.gnss_correlation_window_s / period_s).max(1.0);
         let mut res = (s.prn, None, None);
         if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
             // σ² = (σ_P·k / sin el)² + σ_I² [+ σ_eph² + (σ_T / sin el)²] (§8c, eq. DG5):
@@ -488,13 +504,16 @@ impl Estimator {
             } else {
                 self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2)
             };
-            let sigma =
-                ((self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2 + common_var_m2).sqrt();
+            let white_var_m2 = (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2;
+            // One epoch's sigma screens and gates (a 30 m multipath code
+            // stays an outlier at any rate); DG6's weighs.
+            let epoch_sigma = (white_var_m2 + common_var_m2).sqrt();
+            let sigma = (white_var_m2 + w * common_var_m2).sqrt();
             let r = z - pred.pseudorange_m;
             res.1 = Some(r);
-            if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * sigma) {
+            if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * epoch_sigma) {
                 reject(rep, &mut self.stats, Counter::GnssPseudorangeOutlier);
-            } else if let Some(row) = gated(&pred.h_pseudorange, r, sigma, p_sub, gate) {
+            } else if let Some(row) = gated(&pred.h_pseudorange, r, epoch_sigma, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.pseudoranges_used += 1;
             } else {
@@ -502,10 +521,14 @@ impl Estimator {
             }
         }
         if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {
-            let sigma = self.s.range_rate_sigma_mps / sin_el;
+            // σ² = (σ_D / sin el)² + w (σ_Dc / sin el)² (DG6).
+            let white_var = (self.s.range_rate_sigma_mps / sin_el).powi(2);
+            let corr_var = (self.s.range_rate_correlated_sigma_mps / sin_el).powi(2);
+            let epoch_sigma = (white_var + corr_var).sqrt();
+            let sigma = (white_var + w * corr_var).sqrt();
             let r = z - pred.range_rate_mps;
             res.2 = Some(r);
-            if let Some(row) = gated(&pred.h_range_rate, r, sigma, p_sub, gate) {
+            if let Some(row) = gated(&pred.h_range_rate, r, epoch_sigma, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.range_rates_used += 1;
             } else {

@@ -74,6 +74,10 @@ pub struct Settings {
     /// (§8c, eq. DG5).
     pub broadcast_sigma_m: f64,
     pub troposphere_sigma_m: f64,
+    /// The window (s) in which those errors, and a range rate's persistent
+    /// part (m/s at zenith), count as one measurement (§8c, eq. DG6).
+    pub gnss_correlation_window_s: f64,
+    pub range_rate_correlated_sigma_mps: f64,
     pub elevation_mask_deg: f64,
     /// Compressed mode: rebases are computed by whoever takes the job
     /// ([`Estimator::take_rebase_job`]) instead of at once (§5 R4).
