@@ -18,9 +18,11 @@ use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use nalgebra::{Matrix3, Vector3};
 use tokio::sync::mpsc;
 
 use super::autopilot::AutopilotView;
+use super::cross_check::VelocityCrossCheck;
 use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
 use super::init::{Start, Starter, Waiting};
@@ -32,6 +34,7 @@ use super::{FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, REBOOT_JUMP_S
 use crate::config::{Config, FeatureClock};
 use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
+use crate::estimator::imu_covariance::velocity_block;
 use crate::estimator::{Estimator, ImuMeas};
 use crate::io::feature_pipe::FeatureFrame;
 use crate::io::mcap_log::input::{FeaturesRecord, ImuRecord, InputRecord, RtcmRecord};
@@ -73,6 +76,8 @@ pub struct Fusion {
     starter: Starter,
     queue: MeasurementQueue,
     pacer: OutputPacer,
+    /// Our velocity against the autopilot's own, when it has a fix.
+    cross_check: VelocityCrossCheck,
     log: FlightLog,
 }
 
@@ -165,6 +170,7 @@ impl Fusion {
             starter: Starter::default(),
             queue: MeasurementQueue::default(),
             pacer: OutputPacer::new(&cfg),
+            cross_check: VelocityCrossCheck::default(),
             log: FlightLog::new(log),
             cfg,
         }
@@ -408,8 +414,21 @@ impl Fusion {
             est.propagate_to(m.t_s - MAX_FILTER_LAG_S);
         }
         // Once per IMU sample, after this sample's measurements (a GNSS-only
-        // divergence is caught as soon as a vision one).
-        if let Err(why) = est.check_health() {
+        // divergence is caught as soon as a vision one); then our velocity
+        // against the autopilot's own, when it has a fix (D4).
+        let health = est.check_health().and_then(|()| {
+            let own_fix = self.autopilot.has_own_fix(m.t_s);
+            let autopilot_v = self.autopilot.local().map(|(_, v, t)| (v, t));
+            if !own_fix || autopilot_v.is_none() {
+                return self
+                    .cross_check
+                    .judge(m.t_s, &Vector3::zeros(), &Matrix3::zeros(), None, false);
+            }
+            let cov_v = velocity_block(&est.imu_covariance());
+            self.cross_check
+                .judge(m.t_s, &est.imu_state().v_B_in_W, &cov_v, autopilot_v, own_fix)
+        });
+        if let Err(why) = health {
             counters.add(Counter::FilterReset, 1);
             tracing::error!(reason = %why, "filter unhealthy: resetting");
             self.restart(m.t_s, &why, Restart::Unhealthy, out);
@@ -479,6 +498,7 @@ impl Fusion {
             text: format!("cmsckf reset: {why}"),
         });
         self.est = None;
+        self.cross_check.reset();
         self.starter.plan_restart(t_s, kind, &self.cfg, &self.autopilot);
         self.autopilot.forget_for_restart(kind);
         self.pacer.on_reset();
