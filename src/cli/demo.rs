@@ -34,6 +34,11 @@ pub struct DemoArgs {
     mode: String,
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Simulator settings (TOML), e.g. config/sim-armed.toml (an armed
+    /// multirotor's biased, vibrating IMU); the camera and IMU noise stay
+    /// the config's.
+    #[arg(long)]
+    sim_config: Option<PathBuf>,
     /// MCAP log path.
     #[arg(long)]
     log: Option<PathBuf>,
@@ -69,6 +74,7 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
         scenario,
         mode,
         config,
+        sim_config,
         log,
         json,
         frontend,
@@ -88,7 +94,14 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
         // the front-end and the daemon.
         cfg.camera.rate_hz = 20.0;
     }
-    let sim = eval::sim_config_for(&cfg);
+    let mut sim = eval::sim_config_for(&cfg);
+    if let Some(p) = sim_config {
+        // The daemon's config describes the sensors; the simulator's, how
+        // they and the world behave.
+        sim = super::load_sim_config(&p)?;
+        sim.camera = cfg.camera.clone();
+        sim.imu = cfg.imu.clone();
+    }
     // The antenna's place on the airframe is measured and configured; the
     // camera's time offset is not (the filter estimates it).
     cfg.gnss.p_A_in_B_m = sim.gnss.p_A_in_B_m;

@@ -1,7 +1,7 @@
 //! `cmsckf evaluate`: simulated flights through every mode, summarised as an
 //! accuracy table (or JSON, or CSV). Needs the `sim` feature.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
@@ -64,7 +64,7 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     let modes = parse_modes(&modes)?;
     let mut sim = eval::sim_config_for(&cfg);
     if let Some(p) = sim_config {
-        sim = load_sim_config(&p)?;
+        sim = super::load_sim_config(&p)?;
     }
     let quiet = json;
     let spec = eval::EvalSpec {
@@ -114,11 +114,4 @@ fn parse_modes(modes: &str) -> anyhow::Result<Vec<Mode>> {
         .split(',')
         .map(|m| m.trim().parse::<Mode>().map_err(anyhow::Error::msg))
         .collect::<anyhow::Result<_>>()
-}
-
-/// `--sim-config`: simulator settings replacing those derived from the config.
-fn load_sim_config(p: &Path) -> anyhow::Result<cmsckf_sitl::config::SimConfig> {
-    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-    let over = cmsckf_sitl::config::SimConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-    Ok(over)
 }

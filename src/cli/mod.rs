@@ -73,6 +73,15 @@ fn load_config(path: &Option<PathBuf>) -> anyhow::Result<Config> {
     })
 }
 
+/// `--sim-config`: simulator settings (TOML) replacing those derived from
+/// the config.
+#[cfg(feature = "sim")]
+fn load_sim_config(p: &std::path::Path) -> anyhow::Result<cmsckf_sitl::config::SimConfig> {
+    use anyhow::Context;
+    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+    cmsckf_sitl::config::SimConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+}
+
 /// Refuses a flight length outside (1, 86400] s.
 #[cfg(feature = "sim")]
 fn check_duration(d: Option<f64>) -> anyhow::Result<()> {
