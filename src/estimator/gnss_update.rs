@@ -47,6 +47,10 @@ pub struct GnssReport {
 /// Shortest epoch period the grid takes (s): 20 Hz, beyond any receiver's
 /// raw-measurement rate on a drone.
 const MIN_GNSS_PERIOD_S: f64 = 0.05;
+/// Spacings in a row longer than the learnt period by half again that make
+/// it theirs (a stray early epoch once fixed a 1 Hz receiver's period at
+/// 50 ms for the rest of the flight).
+const GNSS_PERIOD_RELEARN: u32 = 5;
 /// Farthest ahead of the filter an epoch may be and still set the grid (s).
 const MAX_GNSS_LEAD_S: f64 = 2.0;
 
@@ -306,29 +310,12 @@ impl Estimator {
             .map(|(i, _)| i)
     }
 
-    /// Learns the epoch grid from an epoch at `t_s` (§8b): the period is the
-    /// smallest spacing seen (a dropped epoch doubles one spacing, never
-    /// halves it), `gnss_period_s` until two epochs are seen; the next clone
-    /// is due one period after the epoch, or the first instant of the grid
-    /// still ahead of the filter.
+    /// Learns the epoch grid from an epoch at `t_s` (§8b, see
+    /// [`GnssGrid::learn`]); the next clone is due one period after the
+    /// epoch, or the first instant of the grid still ahead of the filter.
     pub(super) fn learn_gnss_grid(&mut self, t_s: f64) {
-        let default = self.s.gnss_period_s;
-        let mut g = self.gnss_grid.unwrap_or(GnssGrid {
-            last_epoch_s: f64::NEG_INFINITY,
-            period_s: default,
-            measured: false,
-            next_s: f64::INFINITY,
-        });
-        let spacing = t_s - g.last_epoch_s;
-        if spacing.is_finite() && spacing > 1e-3 {
-            // At most 20 Hz: a bogus tag cannot make the grid dense.
-            let spacing = spacing.max(MIN_GNSS_PERIOD_S);
-            g.period_s = if g.measured { g.period_s.min(spacing) } else { spacing };
-            g.measured = true;
-        }
-        if t_s > g.last_epoch_s {
-            g.last_epoch_s = t_s;
-        }
+        let mut g = self.gnss_grid.unwrap_or(GnssGrid::new(self.s.gnss_period_s));
+        g.learn(t_s);
         // Clones already taken cover the instants up to the filter time.
         let k = ((self.t_s - g.last_epoch_s) / g.period_s).floor().max(0.0) + 1.0;
         g.next_s = g.last_epoch_s + k * g.period_s;
@@ -536,5 +523,88 @@ impl Estimator {
             }
         }
         rep.residuals.push(res);
+    }
+}
+
+impl GnssGrid {
+    /// A grid of `default_period_s` until two epochs are seen.
+    fn new(default_period_s: f64) -> Self {
+        GnssGrid {
+            last_epoch_s: f64::NEG_INFINITY,
+            period_s: default_period_s,
+            measured: false,
+            longer: 0,
+            longer_min_s: f64::INFINITY,
+            next_s: f64::INFINITY,
+        }
+    }
+
+    /// Learns from an epoch at `t_s`: the period is the smallest spacing
+    /// seen (a dropped epoch doubles one spacing, never halves it), until
+    /// [`GNSS_PERIOD_RELEARN`] spacings in a row are all longer by half again
+    /// (a stray early epoch, or a receiver that slowed down: the period is
+    /// then the shortest of them).
+    fn learn(&mut self, t_s: f64) {
+        let spacing = t_s - self.last_epoch_s;
+        if spacing.is_finite() && spacing > 1e-3 {
+            // At most 20 Hz: a bogus tag cannot make the grid dense.
+            let spacing = spacing.max(MIN_GNSS_PERIOD_S);
+            if self.measured && spacing > 1.5 * self.period_s {
+                self.longer += 1;
+                self.longer_min_s = self.longer_min_s.min(spacing);
+                if self.longer >= GNSS_PERIOD_RELEARN {
+                    self.period_s = self.longer_min_s;
+                    (self.longer, self.longer_min_s) = (0, f64::INFINITY);
+                }
+            } else {
+                self.period_s = if self.measured {
+                    self.period_s.min(spacing)
+                } else {
+                    spacing
+                };
+                (self.longer, self.longer_min_s) = (0, f64::INFINITY);
+            }
+            self.measured = true;
+        }
+        if t_s > self.last_epoch_s {
+            self.last_epoch_s = t_s;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_epoch_period_is_learnt_and_relearnt() {
+        // A 1 Hz receiver: the period is 1 s, and a dropped epoch (one 2 s
+        // spacing) leaves it so.
+        let mut g = GnssGrid::new(1.0);
+        for t in [10.0, 11.0, 12.0, 14.0, 15.0, 16.0] {
+            g.learn(t);
+        }
+        assert_eq!(g.period_s, 1.0);
+        // A stray epoch 50 ms after another: the period is 50 ms at once
+        // (the grid must not miss a faster receiver's epochs) ...
+        g.learn(16.05);
+        assert!((g.period_s - 0.05).abs() < 1e-9);
+        // ... and 1 s again after five 1 s spacings in a row.
+        for k in 1..=4 {
+            g.learn(16.05 + k as f64);
+            assert!((g.period_s - 0.05).abs() < 1e-9, "after {k}");
+        }
+        g.learn(21.05);
+        assert!((g.period_s - 1.0).abs() < 1e-9, "{}", g.period_s);
+        // A receiver that goes from 10 Hz to 2 Hz is followed.
+        let mut g = GnssGrid::new(1.0);
+        for k in 0..20 {
+            g.learn(k as f64 * 0.1);
+        }
+        assert!((g.period_s - 0.1).abs() < 1e-9);
+        for k in 1..=5 {
+            g.learn(1.9 + k as f64 * 0.5);
+        }
+        assert!((g.period_s - 0.5).abs() < 1e-9, "{}", g.period_s);
     }
 }

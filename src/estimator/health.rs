@@ -66,7 +66,7 @@ impl Default for MonitorSettings {
             window_s: 1.0,
             min_tracks: 60,
             max_window_s: 3.0,
-            min_tracks_long: 20,
+            min_tracks_long: 40,
             max_reject_fraction_long: 0.8,
             min_zupts: 10,
             max_reject_fraction: 0.5,
@@ -82,7 +82,10 @@ impl Default for MonitorSettings {
 struct FrameGate {
     t_s: f64,
     accepted: u64,
-    rejected: u64,
+    /// Tracks the χ² gate refused, and tracks that failed to triangulate to
+    /// a valid depth or fit.
+    chi2_rejected: u64,
+    tri_failed: u64,
     nis_sum: f64,
     dof_sum: u64,
 }
@@ -115,8 +118,9 @@ impl NisMonitor {
     }
 
     /// Records a frame: the NIS and degrees of freedom of each accepted
-    /// track, and the number of tracks rejected as inconsistent.
-    pub fn push_frame(&mut self, t_s: f64, nis: &[(f64, usize)], rejected: u64) {
+    /// track, and the numbers of tracks the χ² gate refused and that failed
+    /// to triangulate.
+    pub fn push_frame(&mut self, t_s: f64, nis: &[(f64, usize)], chi2_rejected: u64, tri_failed: u64) {
         while self
             .frames
             .front()
@@ -131,7 +135,8 @@ impl NisMonitor {
         self.frames.push_back(FrameGate {
             t_s,
             accepted: nis.len() as u64,
-            rejected,
+            chi2_rejected,
+            tri_failed,
             nis_sum: nis.iter().map(|n| n.0).sum(),
             dof_sum: nis.iter().map(|n| n.1 as u64).sum(),
         });
@@ -157,50 +162,65 @@ impl NisMonitor {
         self.gnss.push_back((accepted, rejected));
     }
 
-    /// `Err(reason)` when the innovations say the filter has diverged.
-    pub fn verdict(&self) -> Result<(), String> {
+    /// `Err(reason)` when the innovations say the filter has diverged:
+    /// D2 always, D1 and D3 when `judge_vision` (not in the grace after an
+    /// IMU gap, whose tracks meet poses it left off).
+    pub fn verdict(&self, judge_vision: bool) -> Result<(), String> {
+        if judge_vision {
+            self.vision_verdict()?;
+        }
+        self.gnss_verdict()
+    }
+
+    /// D1 and D3.
+    fn vision_verdict(&self) -> Result<(), String> {
         let s = &self.settings;
         // D1: the newest frames back to `window_s`, and on past it while
         // they hold fewer than `min_tracks`, up to `max_window_s`.
         let t_last = self.frames.back().map_or(0.0, |f| f.t_s);
-        let (mut acc, mut rej, mut nis, mut dof, mut span_s) = (0, 0, 0.0, 0, 0.0);
+        let (mut acc, mut chi2, mut tri, mut nis, mut dof, mut span_s) = (0, 0, 0, 0.0, 0, 0.0);
         for f in self.frames.iter().rev() {
             let age_s = t_last - f.t_s;
-            if age_s > s.max_window_s || (age_s > s.window_s && acc + rej >= s.min_tracks) {
+            if age_s > s.max_window_s || (age_s > s.window_s && acc + chi2 + tri >= s.min_tracks) {
                 break;
             }
-            (acc, rej, nis, dof, span_s) = (
+            (acc, chi2, tri, nis, dof, span_s) = (
                 acc + f.accepted,
-                rej + f.rejected,
+                chi2 + f.chi2_rejected,
+                tri + f.tri_failed,
                 nis + f.nis_sum,
                 dof + f.dof_sum,
                 age_s,
             );
         }
-        let n = acc + rej;
-        let long = span_s > s.window_s;
-        if n >= s.min_tracks.min(s.min_tracks_long) && (n >= s.min_tracks || long) {
-            let frac = rej as f64 / n as f64;
-            if frac
-                > if long {
-                    s.max_reject_fraction_long
-                } else {
-                    s.max_reject_fraction
-                }
-            {
+        let window_s = span_s.max(s.window_s);
+        if span_s <= s.window_s {
+            // The last second holds enough: all inconsistent tracks count.
+            let n = acc + chi2 + tri;
+            if n >= s.min_tracks && (chi2 + tri) as f64 > s.max_reject_fraction * n as f64 {
                 return Err(format!(
-                    "divergence: {:.0}% of {n} tracks inconsistent in {:.1} s",
-                    100.0 * frac,
-                    span_s.max(s.window_s)
+                    "divergence: {:.0}% of {n} tracks inconsistent in {window_s:.1} s",
+                    100.0 * (chi2 + tri) as f64 / n as f64
                 ));
             }
-            if dof > 0 && nis / dof as f64 > s.max_nis_per_dof {
+        } else {
+            // Few tracks over a longer window: only the gate's verdicts
+            // (a hover's few tracks fail to triangulate for want of
+            // parallax, at 80% and more, on a healthy filter).
+            let n = acc + chi2;
+            if n >= s.min_tracks_long && chi2 as f64 > s.max_reject_fraction_long * n as f64 {
                 return Err(format!(
-                    "divergence: mean NIS per degree of freedom {:.1} over {acc} tracks in {:.1} s",
-                    nis / dof as f64,
-                    span_s.max(s.window_s)
+                    "divergence: {:.0}% of {n} tracks refused by the gate in {window_s:.1} s",
+                    100.0 * chi2 as f64 / n as f64
                 ));
             }
+        }
+        let judged = acc + chi2 + tri >= s.min_tracks || (span_s > s.window_s && acc >= s.min_tracks_long);
+        if judged && dof > 0 && nis / dof as f64 > s.max_nis_per_dof {
+            return Err(format!(
+                "divergence: mean NIS per degree of freedom {:.1} over {acc} tracks in {window_s:.1} s",
+                nis / dof as f64
+            ));
         }
         // D3.
         let still = self.zupts.len() as u64;
@@ -211,6 +231,12 @@ impl NisMonitor {
                 s.window_s
             ));
         }
+        Ok(())
+    }
+
+    /// D2.
+    fn gnss_verdict(&self) -> Result<(), String> {
+        let s = &self.settings;
         let (acc, rej) = self.gnss.iter().fold((0, 0), |a, g| (a.0 + g.0, a.1 + g.1));
         if acc + rej >= s.min_gnss_codes && rej as f64 > s.max_reject_fraction * (acc + rej) as f64 {
             return Err(format!(
@@ -285,7 +311,9 @@ impl Estimator {
         if self.t_s - self.t_start_s < self.s.health_grace_s {
             return Ok(());
         }
-        self.monitor.verdict()
+        // After an IMU gap, the tracks across it wait their grace (§2, N3).
+        self.monitor
+            .verdict(self.t_s - self.vision_grace_from_s >= self.s.health_grace_s)
     }
 
     /// Starts the monitor's grace period at `t_s` (a filter restarted from
@@ -304,20 +332,20 @@ mod tests {
         let mut m = NisMonitor::new(MonitorSettings::default());
         // 90 frames of 50 tracks with NIS ≈ dof and 2% rejected: healthy.
         for k in 0..90 {
-            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 49], 1);
-            assert!(m.verdict().is_ok());
+            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 49], 1, 0);
+            assert!(m.verdict(true).is_ok());
         }
         // Nothing at all (an outage) is not a divergence.
         let mut quiet = NisMonitor::new(MonitorSettings::default());
         for k in 0..90 {
-            quiet.push_frame(k as f64 / 30.0, &[], 0);
+            quiet.push_frame(k as f64 / 30.0, &[], 0, 0);
         }
-        assert!(quiet.verdict().is_ok());
+        assert!(quiet.verdict(true).is_ok());
         // Then most tracks fail the gate: diverged within the window.
         let mut fired = None;
         for k in 90..200 {
-            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 10], 40);
-            if m.verdict().is_err() {
+            m.push_frame(k as f64 / 30.0, &[(3.8, 4); 10], 40, 0);
+            if m.verdict(true).is_err() {
                 fired = Some(k);
                 break;
             }
@@ -327,9 +355,9 @@ mod tests {
         // Accepted but far too large innovations also count.
         let mut big = NisMonitor::new(MonitorSettings::default());
         for k in 0..30 {
-            big.push_frame(k as f64 / 30.0, &[(40.0, 4); 20], 0);
+            big.push_frame(k as f64 / 30.0, &[(40.0, 4); 20], 0, 0);
         }
-        assert!(big.verdict().unwrap_err().contains("mean NIS"));
+        assert!(big.verdict(true).unwrap_err().contains("mean NIS"));
     }
 
     #[test]
@@ -338,21 +366,21 @@ mod tests {
         // Two outliers in 16 (a multipath-heavy sky) is healthy.
         for _ in 0..10 {
             m.push_gnss(14, 2);
-            assert!(m.verdict().is_ok());
+            assert!(m.verdict(true).is_ok());
         }
         for _ in 0..2 {
             m.push_gnss(4, 12);
         }
-        assert!(m.verdict().is_ok(), "two bad epochs of five");
+        assert!(m.verdict(true).is_ok(), "two bad epochs of five");
         m.push_gnss(4, 12);
         m.push_gnss(4, 12);
-        assert!(m.verdict().unwrap_err().contains("pseudoranges"));
+        assert!(m.verdict(true).unwrap_err().contains("pseudoranges"));
         // Too few satellites to judge never fires.
         let mut few = NisMonitor::new(MonitorSettings::default());
         for _ in 0..20 {
             few.push_gnss(0, 3);
         }
-        assert!(few.verdict().is_ok());
+        assert!(few.verdict(true).is_ok());
     }
 
     #[test]
@@ -361,16 +389,16 @@ mod tests {
         // 1 s window never holds 60, so the monitor looks back up to 3 s.
         let mut m = NisMonitor::new(MonitorSettings::default());
         for k in 0..200 {
-            m.push_frame(k as f64 / 20.0, &[(4.2, 4)], 0);
-            assert!(m.verdict().is_ok(), "healthy at frame {k}");
+            m.push_frame(k as f64 / 20.0, &[(4.2, 4)], 0, 0);
+            assert!(m.verdict(true).is_ok(), "healthy at frame {k}");
         }
         let mut fired = None;
         for k in 200..400 {
             // Then seven tracks of eight fail the gate.
             let accepted: &[(f64, usize)] = if k % 8 == 0 { &[(4.2, 4)] } else { &[] };
-            m.push_frame(k as f64 / 20.0, accepted, u64::from(k % 8 != 0));
-            if let Err(e) = m.verdict() {
-                assert!(e.contains("inconsistent"), "{e}");
+            m.push_frame(k as f64 / 20.0, accepted, u64::from(k % 8 != 0), 0);
+            if let Err(e) = m.verdict(true) {
+                assert!(e.contains("refused by the gate"), "{e}");
                 fired = Some(k - 200);
                 break;
             }
@@ -382,15 +410,15 @@ mod tests {
         let mut hover = NisMonitor::new(MonitorSettings::default());
         for k in 0..200 {
             let accepted: &[(f64, usize)] = if k % 2 == 0 { &[(4.2, 4)] } else { &[] };
-            hover.push_frame(k as f64 / 20.0, accepted, u64::from(k % 2 != 0));
-            assert!(hover.verdict().is_ok(), "hover flagged at frame {k}");
+            hover.push_frame(k as f64 / 20.0, accepted, 0, u64::from(k % 2 != 0));
+            assert!(hover.verdict(true).is_ok(), "hover flagged at frame {k}");
         }
         // 10 tracks in 3 s are too few to judge, whatever they say.
         let mut sparse = NisMonitor::new(MonitorSettings::default());
         for k in 0..200 {
-            sparse.push_frame(k as f64 / 20.0, &[], u64::from(k % 6 == 0));
+            sparse.push_frame(k as f64 / 20.0, &[], u64::from(k % 6 == 0), 0);
         }
-        assert!(sparse.verdict().is_ok());
+        assert!(sparse.verdict(true).is_ok());
     }
 
     #[test]
@@ -399,19 +427,19 @@ mod tests {
         // Standing, one update in ten refused: healthy.
         for k in 0..100 {
             m.push_zupt(k as f64 / 20.0, k % 10 == 0);
-            assert!(m.verdict().is_ok());
+            assert!(m.verdict(true).is_ok());
         }
         // A few refused at a take-off's first frames: too few to judge.
         let mut takeoff = NisMonitor::new(MonitorSettings::default());
         for k in 0..5 {
             takeoff.push_zupt(k as f64 / 20.0, true);
         }
-        assert!(takeoff.verdict().is_ok());
+        assert!(takeoff.verdict(true).is_ok());
         // Every update refused for a second: the filter cannot believe the
         // vehicle stands.
         for k in 100..120 {
             m.push_zupt(k as f64 / 20.0, true);
         }
-        assert!(m.verdict().unwrap_err().contains("zero-velocity"));
+        assert!(m.verdict(true).unwrap_err().contains("zero-velocity"));
     }
 }

@@ -162,6 +162,11 @@ struct GnssGrid {
     period_s: f64,
     /// Whether `period_s` was measured from two epochs (else the setting).
     measured: bool,
+    /// Spacings in a row longer than half again `period_s`, and the
+    /// shortest of them: enough of them and the period is theirs (a stray
+    /// early epoch, or a receiver that slowed down).
+    longer: u32,
+    longer_min_s: f64,
     /// The next instant to clone at.
     next_s: f64,
 }
@@ -374,9 +379,11 @@ pub struct Estimator {
     gnss_clones: VecDeque<GnssClone>,
     gnss_grid: Option<GnssGrid>,
     still: Stillness,
-    /// Time the filter started, or the end of its last IMU gap (the
-    /// monitor's grace period runs from it).
+    /// Time the filter started (the monitor's grace period runs from it).
     t_start_s: f64,
+    /// The end of the last IMU gap of [`propagate::GAP_GRACE_MIN_S`] or
+    /// more: the monitor's vision checks wait their grace from it (§2, N3).
+    vision_grace_from_s: f64,
     /// Time of the last IMU sample stepped through (not an interpolated
     /// one): the spacing of the samples tells an IMU gap (§2, eq. N3).
     last_sample_t_s: f64,
@@ -405,6 +412,7 @@ impl Estimator {
             gnss_grid: None,
             still: Stillness::default(),
             t_start_s: t_s,
+            vision_grace_from_s: f64::NEG_INFINITY,
             last_sample_t_s: t_s,
             clock: ClockVec::zeros(),
             clock_initialised: false,

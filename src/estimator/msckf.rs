@@ -57,7 +57,7 @@ impl Estimator {
         self.global_update_if_due(&mut report);
         let still = std::mem::take(&mut self.still);
         if self.zero_velocity_update(&still, obs) {
-            self.monitor.push_frame(t_s, &[], 0);
+            self.monitor.push_frame(t_s, &[], 0, 0);
             report.zupt = true;
             return Ok(report);
         }
@@ -92,11 +92,10 @@ impl Estimator {
         }
         // Tracks the poses cannot explain: failed the χ² gate, or failed to
         // triangulate to a depth or a fit (§9 D1).
-        let inconsistent = [Reject::Chi2, Reject::BadDepth, Reject::NotConverged]
-            .iter()
-            .filter_map(|r| report.rejected.get(r))
-            .sum::<u64>();
-        self.monitor.push_frame(t_s, &report.nis, inconsistent);
+        let count = |r: Reject| report.rejected.get(&r).copied().unwrap_or(0);
+        let tri_failed = count(Reject::BadDepth) + count(Reject::NotConverged);
+        self.monitor
+            .push_frame(t_s, &report.nis, count(Reject::Chi2), tri_failed);
         Ok(report)
     }
 

@@ -191,9 +191,15 @@ pub fn transition(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, imu: &ImuConfig) -> 
     (f, q)
 }
 
-/// An IMU step longer than this (s) is a gap: the samples at its ends say
-/// nothing of the motion in between (a 20 Hz IMU still samples it).
-pub const MAX_SAMPLED_STEP_S: f64 = 0.05;
+/// Samples further apart than this (s) leave a gap: the samples at its ends
+/// say nothing of the motion in between (a 20 Hz IMU, 50 ms apart with
+/// jitter, still samples it).
+pub const MAX_SAMPLED_STEP_S: f64 = 0.06;
+/// A gap this long (s) or longer leaves the poses off by more than the
+/// tracks across it can be judged against at once: the monitor's vision
+/// checks wait their grace period from its end (§9). Shorter gaps, however
+/// many, never hold the monitor off.
+pub const GAP_GRACE_MIN_S: f64 = 0.25;
 
 /// The motion an IMU gap hides (eq. N3): over a gap of 1 s the body rate
 /// and the specific force differ from their interpolation by a vehicle's
@@ -213,22 +219,23 @@ impl Default for GapNoise {
     }
 }
 
-/// Adds to the `Q` of a step of `dt_s` within a gap (samples more than
-/// [`MAX_SAMPLED_STEP_S`] apart) the motion the gap hides (README §2, eq. N3): the rate and specific-force
-/// errors of the interpolation as white noise of densities `σ_ω² τ` and
-/// `σ_a² τ` (τ = 1 s, so a 1 s gap turns the attitude by `σ_ω` and moves the
-/// velocity by `σ_a`, 1σ): `Q_θθ += σ_ω² τ T`, `Q_vv += σ_a² τ T`,
-/// `Q_pv += σ_a² τ T²/2`, `Q_pp += σ_a² τ T³/3` (Q1's form, so that a gap
-/// split at a frame's time adds up to the whole). Without it a 1 s gap
+/// Adds to the `Q` of a step of `dt_s` within a gap of `gap_s` (samples
+/// more than [`MAX_SAMPLED_STEP_S`] apart) the motion the gap hides (README
+/// §2, eq. N3): rate and specific-force errors of the interpolation, `σ_ω`
+/// and `σ_a`, held over the gap, turn the attitude by `σ_ω S` and move the
+/// velocity by `σ_a S` over the whole gap `S`; each step takes its share
+/// `dt/S` of that variance, so that a gap split at a frame's time adds up to
+/// the whole: Q1's form with densities `σ_ω² S` and `σ_a² S`,
+/// `Q_θθ += σ_ω² S dt`, `Q_vv += σ_a² S dt`, `Q_pv += σ_a² S dt²/2`,
+/// `Q_pp += σ_a² S dt³/3`. Without it a 1 s gap
 /// bridged by interpolation left 6–10° of tilt error under a 0.25° sigma,
 /// and the frames after it tripped the divergence monitor, restart after
 /// restart.
-pub fn add_gap_noise(q: &mut Mat15, dt_s: f64, gap: &GapNoise) {
-    const TAU_S: f64 = 1.0;
+pub fn add_gap_noise(q: &mut Mat15, dt_s: f64, gap_s: f64, gap: &GapNoise) {
     let t = dt_s;
     let (qw, qa) = (
-        gap.sigma_rate_radps.powi(2) * TAU_S,
-        gap.sigma_accel_mps2.powi(2) * TAU_S,
+        gap.sigma_rate_radps.powi(2) * gap_s,
+        gap.sigma_accel_mps2.powi(2) * gap_s,
     );
     for i in 0..3 {
         q[(TH + i, TH + i)] += qw * t;
@@ -326,10 +333,14 @@ impl Estimator {
         // The clock: bias integrates drift, both random walks (§8, eq. K1).
         let dt = m.t_s - m0.t_s;
         if spacing_s > MAX_SAMPLED_STEP_S {
-            add_gap_noise(&mut q15, dt, &self.s.imu_gap);
-            // The monitor judges again once the updates have had the grace
-            // period to pull the poses the gap left off back in (§9).
-            self.t_start_s = self.t_start_s.max(m.t_s);
+            add_gap_noise(&mut q15, dt, spacing_s, &self.s.imu_gap);
+            if spacing_s >= GAP_GRACE_MIN_S {
+                // The tracks the gap spans are judged again once the updates
+                // have had the grace period to pull the poses it left off
+                // back in (§9; the GNSS and the state's sanity are judged
+                // throughout).
+                self.vision_grace_from_s = self.vision_grace_from_s.max(m.t_s);
+            }
         }
         // First-estimate Jacobians (§3d, eq. F5): the step's velocity and
         // position increments measured from the values before the last
