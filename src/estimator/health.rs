@@ -16,11 +16,13 @@
 //!   fail to triangulate at about half that rate), or the accepted tracks'
 //!   mean NIS per degree of freedom above `max_nis_per_dof`;
 //! - **D3 (standstill):** over the last `window_s`, with at least
-//!   `min_zupts` frames that the IMU and the image call still, more than
-//!   `max_reject_fraction` of their zero-velocity updates rejected by the χ²
-//!   gate: a standing vehicle whose filter cannot believe it stands (a tilt
-//!   or a gyro bias far beyond its sigma) sees no parallax either, so D1
-//!   has nothing to judge;
+//!   `min_zupts` frames that the IMU and the image call still, and two
+//!   thirds of the frames at least (a hover's gusts let a few through), more than
+//!   `max_reject_fraction` of their zero-velocity updates refused by the χ²
+//!   gate of their gyro rows: a standing vehicle whose filter cannot believe
+//!   the rate its gyro measures (a gyro bias far beyond its sigma) sees no
+//!   parallax either, so D1 has nothing to judge (a refusal by the velocity
+//!   rows, a hover's slow drift, counts for nothing);
 //! - **D2 (GNSS):** over the last `gnss_epochs` epochs, with at least
 //!   `min_gnss_codes` pseudoranges gated, the fraction rejected above
 //!   `max_reject_fraction`.
@@ -222,10 +224,17 @@ impl NisMonitor {
                 nis / dof as f64
             ));
         }
-        // D3.
+        // D3: most frames of the last second still (a standing vehicle's
+        // are all; a hover's gusts let a few through), most refused.
         let still = self.zupts.len() as u64;
         let refused = self.zupts.iter().filter(|z| z.rejected).count() as u64;
-        if still >= s.min_zupts && refused as f64 > s.max_reject_fraction * still as f64 {
+        let frames = self
+            .frames
+            .iter()
+            .rev()
+            .take_while(|f| f.t_s > t_last - s.window_s)
+            .count() as u64;
+        if still >= s.min_zupts && 3 * still >= 2 * frames && refused as f64 > s.max_reject_fraction * still as f64 {
             return Err(format!(
                 "divergence: {refused} of {still} zero-velocity updates refused in {} s while still",
                 s.window_s

@@ -149,13 +149,24 @@ impl Estimator {
         let mut p_sub = DMatrix::zeros(6, 6);
         math::gather_block(&self.P, &cols, &mut p_sub);
         let s = &h * p_sub * h.transpose() + DMatrix::identity(6, 6);
-        let Some(ch) = s.cholesky() else {
+        let Some(ch) = s.clone().cholesky() else {
             return false;
         };
         let nis = r.dot(&ch.solve(&r));
         if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 6) {
             *self.stats.rejected.entry(Counter::ZuptChi2).or_default() += 1;
-            self.monitor.push_zupt(self.t_s, true);
+            // For the monitor (§9, D3), only a refusal by the gyro rows
+            // alone: a still gyro measuring a rate its bias estimate cannot
+            // explain. A hover's slow drift fails the velocity rows, and is
+            // no divergence (ZUPTs are allowed in the air when the autopilot
+            // reports no landed state).
+            let s_gyro = s.view((3, 3), (3, 3)).into_owned();
+            let r_gyro = r.rows(3, 3).into_owned();
+            let nis_gyro = s_gyro.cholesky().map_or(f64::NAN, |c| r_gyro.dot(&c.solve(&r_gyro)));
+            let gyro_passes = nis_gyro <= cmsckf_models::stats::chi2_quantile(ZUPT_GATE_PROB, 3);
+            if !gyro_passes {
+                self.monitor.push_zupt(self.t_s, true);
+            }
             return false;
         }
         self.monitor.push_zupt(self.t_s, false);
