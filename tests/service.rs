@@ -25,7 +25,8 @@ fn the_binary_says_ready_and_pings_the_watchdog() {
     let mut got = Vec::new();
     let started = Instant::now();
     let mut buf = [0u8; 256];
-    while started.elapsed() < Duration::from_secs(3) {
+    // Loose: on a loaded 2-core machine the binary once took over 3 s to start.
+    while started.elapsed() < Duration::from_secs(15) {
         if let Ok(n) = notify.recv(&mut buf) {
             got.push(String::from_utf8_lossy(&buf[..n]).trim().to_string());
         }
