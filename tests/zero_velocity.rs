@@ -5,6 +5,8 @@ use cmsckf::estimator::Mode;
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 
+mod common;
+
 /// What a standstill did: how far the estimate moved after its first
 /// second, the ZUPTs taken of how many frames, and the gyro bias's error
 /// against three sigmas.
@@ -83,10 +85,7 @@ fn standstill_is_held_by_zero_velocity_updates() {
 #[test]
 fn an_armed_vibrating_standstill_is_held_by_zero_velocity_updates() {
     let cfg = Config::default();
-    let mut sim = eval::sim_config_for(&cfg);
-    sim.imu_rate_hz = 200.0;
-    sim.gyro_bias0_sigma = 0.08;
-    sim.vibration = cmsckf_sitl::imu::VibrationConfig::armed_multirotor();
+    let sim = common::flights::armed_sim(&cfg);
     for seed in [2, 5] {
         let s = stand(sim.clone(), &cfg, seed, 32.0);
         eprintln!(

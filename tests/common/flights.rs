@@ -17,3 +17,13 @@ pub fn scenario(scenario: &str, seed: u64, duration_s: f64) -> (Dataset, Config)
 pub fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
     scenario("racetrack", seed, duration_s)
 }
+
+/// The simulator of `config/sim-armed.toml` (an armed multirotor's IMU:
+/// 200 Hz, a 0.08 rad/s σ turn-on gyro bias, motor vibration), with the
+/// camera and IMU noise of `cfg`.
+pub fn armed_sim(cfg: &Config) -> cmsckf_sitl::config::SimConfig {
+    let mut sim = cmsckf_sitl::config::SimConfig::from_toml(include_str!("../../config/sim-armed.toml")).unwrap();
+    sim.camera = cfg.camera.clone();
+    sim.imu = cfg.imu.clone();
+    sim
+}
