@@ -85,6 +85,14 @@ fn nees_is_consistent_over_ten_seeds() {
                 "{m}: position NEES ({what}) {pos:.2} outside [{lo3:.2}, {hi3:.2}]"
             );
         }
+        // The tracks' NIS per degree of freedom (evaluate's `nis_per_dof`):
+        // the oracle's pixel noise is the filter's, so about 1 (issue 37
+        // asks [0.5, 2]).
+        assert!(
+            (0.5..=2.0).contains(&r.nis_per_dof),
+            "{m}: NIS per degree of freedom {:.2}",
+            r.nis_per_dof
+        );
         assert!(
             r.nees_yaw_in_bounds_per_time >= PER_TIME_MIN && r.nees_position_in_bounds_per_time >= PER_TIME_MIN,
             "{m}: yaw and position NEES inside their per-time bounds at {:.2} and {:.2} of the frames",

@@ -93,6 +93,10 @@ pub struct FlightResult {
     pub rebase_us: Vec<(usize, f64)>,
     pub stats: Stats,
     pub keyframes: usize,
+    /// The accepted tracks' NIS and degrees of freedom, summed over the
+    /// flight: their ratio is the NIS per degree of freedom.
+    pub nis_sum: f64,
+    pub nis_dof: u64,
     /// Largest relative difference from `full` at any global update
     /// (compressed runs in lockstep with full only).
     pub max_rel_diff_vs_full: Option<f64>,
@@ -415,8 +419,18 @@ fn empty(mode: Mode) -> FlightResult {
         rebase_us: vec![],
         stats: Stats::default(),
         keyframes: 0,
+        nis_sum: 0.0,
+        nis_dof: 0,
         max_rel_diff_vs_full: None,
         clock_errors: Vec::new(),
+    }
+}
+
+/// Adds a frame's accepted tracks' NIS and degrees of freedom.
+fn add_nis(r: &mut FlightResult, rep: &crate::estimator::FrameReport) {
+    for (nis, dof) in &rep.nis {
+        r.nis_sum += nis;
+        r.nis_dof += *dof as u64;
     }
 }
 
@@ -449,8 +463,9 @@ pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -
     let c = &ds.cfg.gnss.canyon_s;
     r.canyon_s = (c.len() == 2).then(|| (c[0], c[1]));
     for k in 0..ds.frames.len() {
-        let (us, _) = runner.step_frame(k);
+        let (us, rep) = runner.step_frame(k);
         r.frame_us.push(us);
+        add_nis(&mut r, &rep);
         record(&mut r, ds, &runner.est);
     }
     finish(&mut r, ds, &runner);
@@ -466,9 +481,11 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: 
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
         let (us_c, rep) = rc.step_frame(k);
-        let (us_f, _) = rf.step_frame(k);
+        let (us_f, rep_f) = rf.step_frame(k);
         c.frame_us.push(us_c);
         f.frame_us.push(us_f);
+        add_nis(&mut c, &rep);
+        add_nis(&mut f, &rep_f);
         record(&mut c, ds, &rc.est);
         record(&mut f, ds, &rf.est);
         if rep.global_updates > 0 {
