@@ -181,14 +181,7 @@ fn start_16_sigma_off(seed: u64, standstill_s: f64, knock_radps: f64) -> BiasSta
         }
         max_error_m = max_error_m.max((run.est.imu_state().p_B_in_W - ds.trajectory.sample(t).p_B_in_W).norm());
     }
-    let b_err = run.est.imu_state().b_g - ds.truth.last().unwrap().bias.b_g;
-    let b_sig = run
-        .est
-        .imu_covariance()
-        .fixed_view::<3, 3>(9, 9)
-        .diagonal()
-        .map(f64::sqrt);
-    let bias_error_sigmas = (0..3).map(|k| (b_err[k] / b_sig[k]).abs()).fold(0.0, f64::max);
+    let bias_error_sigmas = common::flights::gyro_bias_error_sigmas(&run.est, &ds).max();
     eprintln!(
         "seed {seed}, standing {standstill_s} s: never flagged; largest error {max_error_m:.2} m, gyro bias {bias_error_sigmas:.1} σ off at the end"
     );

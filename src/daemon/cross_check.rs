@@ -31,24 +31,23 @@ pub(super) struct VelocityCrossCheck {
 }
 
 impl VelocityCrossCheck {
-    /// Judges our velocity `v_ours` (m/s, NED) with covariance `cov_v` at
-    /// IMU time `t_s` against the autopilot's `(v, t)`, when it has a fix
-    /// of its own (`own_fix`): `Err(reason)` once they have disagreed for
-    /// [`DISAGREE_FOR_S`].
+    /// Judges our velocity at IMU time `t_s` against the autopilot's
+    /// `(v, t)`, given only when it has a fix of its own: `Err(reason)` once
+    /// they have disagreed for [`DISAGREE_FOR_S`]. `ours` gives our velocity
+    /// (m/s, NED) and its covariance, asked for only when there is an
+    /// autopilot velocity to judge it against.
     pub(super) fn judge(
         &mut self,
         t_s: f64,
-        v_ours: &Vector3<f64>,
-        cov_v: &Matrix3<f64>,
         autopilot: Option<(Vector3<f64>, f64)>,
-        own_fix: bool,
+        ours: impl FnOnce() -> (Vector3<f64>, Matrix3<f64>),
     ) -> Result<(), String> {
-        let fresh =
-            |(v, t): &(Vector3<f64>, f64)| own_fix && (t_s - t).abs() < FRESH_S && v.iter().all(|c| c.is_finite());
+        let fresh = |(v, t): &(Vector3<f64>, f64)| (t_s - t).abs() < FRESH_S && v.iter().all(|c| c.is_finite());
         let Some((v_ap, _)) = autopilot.filter(fresh) else {
             self.since_s = None;
             return Ok(());
         };
+        let (v_ours, cov_v) = ours();
         let diff_mps = (v_ours - v_ap).norm();
         // σ of |Δv|: both covariances, summed over the axes.
         let sigma_mps = (cov_v.trace().max(0.0) + 3.0 * AUTOPILOT_VELOCITY_SIGMA_MPS.powi(2)).sqrt();
@@ -86,37 +85,31 @@ mod tests {
         // Agreeing within a metre a second: never.
         for k in 0..500 {
             let t = k as f64 * 0.01;
-            assert!(c
-                .judge(t, &Vector3::new(10.5, 0.0, 0.0), &cov, ap(10.0, t), true)
-                .is_ok());
+            assert!(c.judge(t, ap(10.0, t), || (Vector3::new(10.5, 0.0, 0.0), cov)).is_ok());
         }
         // 8 m/s off, but the autopilot has no fix of its own (its velocity
         // may be our echo), or its message is stale: never.
         for k in 0..500 {
             let t = 5.0 + k as f64 * 0.01;
+            assert!(c.judge(t, None, || (Vector3::new(18.0, 0.0, 0.0), cov)).is_ok());
             assert!(c
-                .judge(t, &Vector3::new(18.0, 0.0, 0.0), &cov, ap(10.0, t), false)
-                .is_ok());
-            assert!(c
-                .judge(t, &Vector3::new(18.0, 0.0, 0.0), &cov, ap(10.0, t - 1.0), true)
+                .judge(t, ap(10.0, t - 1.0), || (Vector3::new(18.0, 0.0, 0.0), cov))
                 .is_ok());
         }
         // 8 m/s off for a second (a gust, a late message): not yet.
         let mut c = VelocityCrossCheck::default();
         for k in 0..100 {
             let t = 10.0 + k as f64 * 0.01;
-            assert!(c
-                .judge(t, &Vector3::new(18.0, 0.0, 0.0), &cov, ap(10.0, t), true)
-                .is_ok());
+            assert!(c.judge(t, ap(10.0, t), || (Vector3::new(18.0, 0.0, 0.0), cov)).is_ok());
         }
         assert!(c
-            .judge(11.0, &Vector3::new(10.0, 0.0, 0.0), &cov, ap(10.0, 11.0), true)
+            .judge(11.0, ap(10.0, 11.0), || (Vector3::new(10.0, 0.0, 0.0), cov))
             .is_ok());
         // 8 m/s off for 2 s with a fix: a divergence, said once.
         let mut fired = None;
         for k in 0..300 {
             let t = 12.0 + k as f64 * 0.01;
-            if let Err(e) = c.judge(t, &Vector3::new(18.0, 0.0, 0.0), &cov, ap(10.0, t), true) {
+            if let Err(e) = c.judge(t, ap(10.0, t), || (Vector3::new(18.0, 0.0, 0.0), cov)) {
                 assert!(e.contains("off the autopilot's own"), "{e}");
                 fired = Some(t);
                 break;
@@ -130,9 +123,7 @@ mod tests {
         let wide = Matrix3::identity() * 3.0;
         for k in 0..500 {
             let t = 20.0 + k as f64 * 0.01;
-            assert!(c
-                .judge(t, &Vector3::new(18.0, 0.0, 0.0), &wide, ap(10.0, t), true)
-                .is_ok());
+            assert!(c.judge(t, ap(10.0, t), || (Vector3::new(18.0, 0.0, 0.0), wide)).is_ok());
         }
     }
 }

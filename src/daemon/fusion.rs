@@ -18,7 +18,6 @@ use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Matrix3, Vector3};
 use tokio::sync::mpsc;
 
 use super::autopilot::AutopilotView;
@@ -417,16 +416,13 @@ impl Fusion {
         // divergence is caught as soon as a vision one); then our velocity
         // against the autopilot's own, when it has a fix (D4).
         let health = est.check_health().and_then(|()| {
-            let own_fix = self.autopilot.has_own_fix(m.t_s);
-            let autopilot_v = self.autopilot.local().map(|(_, v, t)| (v, t));
-            if !own_fix || autopilot_v.is_none() {
-                return self
-                    .cross_check
-                    .judge(m.t_s, &Vector3::zeros(), &Matrix3::zeros(), None, false);
-            }
-            let cov_v = velocity_block(&est.imu_covariance());
-            self.cross_check
-                .judge(m.t_s, &est.imu_state().v_B_in_W, &cov_v, autopilot_v, own_fix)
+            let autopilot_v = (self.autopilot.has_own_fix(m.t_s))
+                .then(|| self.autopilot.local())
+                .flatten()
+                .map(|(_, v, t)| (v, t));
+            self.cross_check.judge(m.t_s, autopilot_v, || {
+                (est.imu_state().v_B_in_W, velocity_block(&est.imu_covariance()))
+            })
         });
         if let Err(why) = health {
             counters.add(Counter::FilterReset, 1);

@@ -62,15 +62,7 @@ pub fn loosen_for_flight(p: &mut Mat15, sigma_gyro_bias_radps: f64) {
     for k in 0..3 {
         p[(TH + k, TH + k)] *= 4.0;
         p[(V + k, V + k)] = 0.2f64.powi(2);
-    }
-    raise_gyro_bias_sigma(p, sigma_gyro_bias_radps);
-}
-
-/// Raises the gyro bias's sigma to at least `sigma_radps` on each axis
-/// (its cross terms kept: a covariance plus a non-negative diagonal is one).
-pub fn raise_gyro_bias_sigma(p: &mut Mat15, sigma_radps: f64) {
-    for k in 0..3 {
-        p[(BG + k, BG + k)] = p[(BG + k, BG + k)].max(sigma_radps.powi(2));
+        p[(BG + k, BG + k)] = p[(BG + k, BG + k)].max(sigma_gyro_bias_radps.powi(2));
     }
 }
 

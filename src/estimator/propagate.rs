@@ -210,15 +210,6 @@ pub struct GapNoise {
     pub sigma_accel_mps2: f64,
 }
 
-impl Default for GapNoise {
-    fn default() -> Self {
-        Self {
-            sigma_rate_radps: 0.3,
-            sigma_accel_mps2: 3.0,
-        }
-    }
-}
-
 /// Adds to the `Q` of a step of `dt_s` within a gap of `gap_s` (samples
 /// more than [`MAX_SAMPLED_STEP_S`] apart) the motion the gap hides (README
 /// §2, eq. N3): rate and specific-force errors of the interpolation, `σ_ω`

@@ -27,3 +27,11 @@ pub fn armed_sim(cfg: &Config) -> cmsckf_sitl::config::SimConfig {
     sim.imu = cfg.imu.clone();
     sim
 }
+
+/// The gyro bias's error at the end of `ds` in the filter's own sigmas,
+/// per axis: `|b̂_g − b_g| / σ`.
+pub fn gyro_bias_error_sigmas(est: &cmsckf::estimator::Estimator, ds: &Dataset) -> nalgebra::Vector3<f64> {
+    let err = est.imu_state().b_g - ds.truth.last().unwrap().bias.b_g;
+    let sigma = est.imu_covariance().fixed_view::<3, 3>(9, 9).diagonal().map(f64::sqrt);
+    err.component_div(&sigma).abs()
+}
