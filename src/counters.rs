@@ -196,6 +196,39 @@ counters! {
     GnssNoSystemTime = "gnss_no_system_time", event;
     GnssDgnssEpochs = "gnss_dgnss_epochs", event;
     GnssDgnssUnavailable = "gnss_dgnss_unavailable", event;
+    /// A base epoch that copies one already held (a base relayed by two
+    /// ground stations): dropped.
+    GnssBaseDuplicateEpoch = "gnss_base_duplicate_epoch", event;
+    /// A base epoch older than the newest held of its station: dropped.
+    GnssBaseOutOfOrderEpoch = "gnss_base_out_of_order_epoch", event;
+    /// A base correction that came out non-finite: dropped.
+    GnssBaseNonFiniteCorrection = "gnss_base_non_finite_correction", reject;
+    /// A rover epoch without differential codes while the base's announced
+    /// position is not yet checked against its own fixes.
+    GnssBasePositionUnchecked = "gnss_base_position_unchecked", event;
+    /// A rover epoch without differential codes because the base's
+    /// announced position is too far from its own fixes.
+    GnssBasePositionWrong = "gnss_base_position_wrong", event;
+    /// The base set aside for `gnss.base_holdoff_s` because most of its
+    /// corrected codes failed the filter's gate.
+    GnssBaseSetAside = "gnss_base_set_aside", event;
+    /// A rover epoch fused as single point while the base is set aside.
+    GnssBaseSetAsideEpochs = "gnss_base_set_aside_epochs", event;
+    /// A rover satellite's code left out of a differential epoch because the
+    /// base has no correction for it (its range rate is still fused).
+    GnssDgnssSatNotAtBase = "gnss_dgnss_sat_not_at_base", event;
+    /// A constellation the base does not serve, fused as single point in a
+    /// differential epoch.
+    GnssDgnssSystemNotAtBase = "gnss_dgnss_system_not_at_base", event;
+    /// Another system's station claiming the rover's station id (an antenna
+    /// position, MT1005/1006, from a ground station): ignored.
+    GnssStationIdConflict = "gnss_station_id_conflict", reject;
+    /// An epoch that gave the filter no usable measurement (no ephemeris,
+    /// a wrong week, every code refused).
+    GnssEpochUnusable = "gnss_epoch_unusable", event;
+    /// The GPS week taken from the autopilot's clock (SYSTEM_TIME) or a
+    /// Galileo ephemeris, overruling the hint.
+    GnssWeekResolved = "gnss_week_resolved", event;
     GnssRoverMsmFromReceiver = "gnss_rover_msm_from_receiver", event;
     GnssRoverMsmFromLink = "gnss_rover_msm_from_link", event;
     GnssBaseMsmFromLink = "gnss_base_msm_from_link", event;

@@ -43,6 +43,13 @@ pub enum Degraded {
     /// fused for [`DEAD_RECKONING_S`]: its position is the IMU's alone, and
     /// its error grows with the cube of the time (ODOMETRY's quality is 1).
     DeadReckoning = 8,
+    /// The base station's corrections are not used: its announced antenna
+    /// position disagrees with its own fixes, or its corrected codes kept
+    /// failing the gate (single point meanwhile).
+    GnssBaseRefused = 9,
+    /// Three GNSS epochs in a row gave no usable measurement (held 2 s): no
+    /// ephemeris, a wrong week, or every code refused.
+    GnssUnusable = 10,
 }
 
 /// Without a fused measurement for this long, a running filter is dead
@@ -50,7 +57,7 @@ pub enum Degraded {
 pub const DEAD_RECKONING_S: f64 = 1.0;
 
 impl Degraded {
-    pub const ALL: [Degraded; 9] = [
+    pub const ALL: [Degraded; 11] = [
         Degraded::ImuGap,
         Degraded::CameraStale,
         Degraded::GnssStale,
@@ -60,6 +67,8 @@ impl Degraded {
         Degraded::LinkDown,
         Degraded::LogDiskFull,
         Degraded::DeadReckoning,
+        Degraded::GnssBaseRefused,
+        Degraded::GnssUnusable,
     ];
 
     pub fn name(self) -> &'static str {
@@ -73,6 +82,8 @@ impl Degraded {
             Degraded::LinkDown => "link_down",
             Degraded::LogDiskFull => "log_disk_full",
             Degraded::DeadReckoning => "dead_reckoning",
+            Degraded::GnssBaseRefused => "gnss_base_refused",
+            Degraded::GnssUnusable => "gnss_unusable",
         }
     }
 
@@ -137,6 +148,8 @@ pub struct Tracker {
     next_check_t: f64,
     /// Consecutive GNSS epochs with two or more codes rejected.
     bad_epochs: u32,
+    /// Consecutive GNSS epochs with nothing usable.
+    unusable_epochs: u32,
     /// The reasons last published.
     bits: u32,
 }
@@ -151,6 +164,7 @@ impl Default for Tracker {
             rejections: 0,
             next_check_t: f64::NEG_INFINITY,
             bad_epochs: 0,
+            unusable_epochs: 0,
             bits: 0,
         }
     }
@@ -159,7 +173,22 @@ impl Default for Tracker {
 impl Tracker {
     /// Sets a transient reason for [`HOLD_S`] from `t_s`.
     pub fn hold_reason(&mut self, why: Degraded, t_s: f64) {
-        self.held_until[why as usize] = t_s + HOLD_S;
+        self.hold_reason_until(why, t_s + HOLD_S);
+    }
+
+    /// Sets a reason until `until_s` (or longer, if already held longer).
+    pub fn hold_reason_until(&mut self, why: Degraded, until_s: f64) {
+        let held = &mut self.held_until[why as usize];
+        *held = held.max(until_s);
+    }
+
+    /// A GNSS epoch at `t_s` that gave the filter nothing usable (`true`)
+    /// or something: three in a row degrade the HEARTBEAT.
+    pub fn gnss_epoch_usable(&mut self, t_s: f64, usable: bool) {
+        self.unusable_epochs = if usable { 0 } else { self.unusable_epochs + 1 };
+        if self.unusable_epochs >= 3 {
+            self.hold_reason(Degraded::GnssUnusable, t_s);
+        }
     }
 
     /// A filter was (re)initialised at `t_s`: from then on, no camera frame

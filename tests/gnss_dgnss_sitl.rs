@@ -11,73 +11,7 @@
 
 mod common;
 
-use std::time::Duration;
-
-use cmsckf::config::{Config, GnssSource};
-use cmsckf::eval;
-use cmsckf_sitl::dataset::Dataset;
-use cmsckf_sitl::serve::{serve, Report, ServeOptions};
-
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Gnss {
-    Off,
-    SinglePoint,
-    Differential,
-}
-
-/// Flies `seed`'s racetrack at 10× with the daemon in-process: the SITL's
-/// report and the daemon's counters.
-async fn fly(seed: u64, mode: Gnss) -> (Report, std::collections::BTreeMap<String, u64>) {
-    let dir = tempfile::tempdir().unwrap();
-    let (mut cfg, port) = common::loopback_config(dir.path());
-    let mut sim = eval::sim_config_for(&cfg);
-    sim.gnss.ionosphere = true;
-    sim.gnss.base.enabled = true;
-    let rx_port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    configure(&mut cfg, &sim, mode, rx_port);
-    let (stop_tx, daemon) = common::spawn_daemon(cfg.clone());
-    for _ in 0..100 {
-        if std::path::Path::new(&cfg.features.socket).exists() {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    let ds = Dataset::generate("racetrack", seed, Some(60.0), &sim).unwrap();
-    let report = serve(
-        &ServeOptions {
-            mavlink: format!("udpout:127.0.0.1:{port}"),
-            feature_socket: cfg.features.socket.clone().into(),
-            speedup: 10.0,
-            faults: Vec::new(),
-            gnss_stream: Some(format!("127.0.0.1:{rx_port}")),
-            camera_socket: None,
-        },
-        &ds,
-    )
-    .await
-    .unwrap();
-    let _ = stop_tx.send(());
-    let summary = daemon.await.unwrap().unwrap();
-    (report, summary.counters)
-}
-
-/// The daemon's GNSS settings for `mode`: the receiver on its own TCP port,
-/// the ionosphere handled as a single-frequency receiver must (`auto`:
-/// inflated variance), the antenna's lever arm as measured.
-fn configure(cfg: &mut Config, sim: &cmsckf_sitl::config::SimConfig, mode: Gnss, rx_port: u16) {
-    cfg.gnss.p_A_in_B_m = sim.gnss.p_A_in_B_m;
-    cfg.gnss.iono = cmsckf::gnss::IonoMode::Auto;
-    cfg.gnss.source = GnssSource::Stream;
-    cfg.gnss.stream = format!("tcp:127.0.0.1:{rx_port}");
-    cfg.gnss.dgnss = mode == Gnss::Differential;
-    if mode == Gnss::Off {
-        cfg.gnss.source = GnssSource::Off;
-    }
-}
+use common::gnss_flights::{Gnss, GnssFlight};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn differential_gnss_from_a_base_on_the_link() {
@@ -85,7 +19,7 @@ async fn differential_gnss_from_a_base_on_the_link() {
     for seed in [1, 2] {
         let mut ate = Vec::new();
         for mode in [Gnss::Off, Gnss::SinglePoint, Gnss::Differential] {
-            let (report, c) = fly(seed, mode).await;
+            let (report, c) = GnssFlight::new(seed).fly(mode).await;
             let n = |k: &str| c.get(k).copied().unwrap_or(0);
             eprintln!(
                 "seed {seed} {mode:?}: ATE {:.3} m (4-DoF {:.3} m), resets {}, epochs {}, differential {}, \

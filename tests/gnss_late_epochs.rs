@@ -32,7 +32,7 @@ fn sat(system: System) -> (NedFrame, SatMeas) {
             range_rate_mps: None,
             noise_scale: 1.0,
             extra_var_m2: 0.0,
-            differential: false,
+            correction: None,
         },
     )
 }

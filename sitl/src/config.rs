@@ -165,6 +165,9 @@ pub struct BaseSimConfig {
     /// Delay from an epoch to its arrival at the vehicle (s), drawn per epoch:
     /// a radio link and the ground station's relay.
     pub latency_s: [f64; 2],
+    /// Whether the base tracks Galileo (many older bases and CORS sites
+    /// send GPS only, while the rover tracks both).
+    pub galileo: bool,
 }
 
 impl Default for BaseSimConfig {
@@ -174,6 +177,7 @@ impl Default for BaseSimConfig {
             p_base_in_W_m: [2000.0, -1500.0, 0.0],
             station_id: 100,
             latency_s: [0.3, 0.8],
+            galileo: true,
         }
     }
 }

@@ -115,9 +115,13 @@ impl Dataset {
             let n = (duration * cfg.gnss.rate_hz).floor() as usize + 1;
             let epochs = (0..n)
                 .map(|k| {
-                    model
+                    let mut ep = model
                         .static_epoch_at(&p_base, k as f64 / cfg.gnss.rate_hz, &mut rng)
-                        .delivered(uniform_in(base.latency_s, &mut rng_latency))
+                        .delivered(uniform_in(base.latency_s, &mut rng_latency));
+                    if !base.galileo {
+                        ep.sats.retain(|s| s.system != cmsckf_models::gnss::System::Galileo);
+                    }
+                    ep
                 })
                 .collect();
             (epochs, Some(gnss_model.frame.to_ecef(&p_base).into()))

@@ -82,7 +82,7 @@ pub fn gnss(args: &GnssArgs) -> anyhow::Result<()> {
             args.base_max_age_s
         );
     }
-    rx.dgnss_max_age_s = args.base_max_age_s;
+    rx.base_limits.max_age_s = args.base_max_age_s;
     let mut dec = StreamDecoder::default();
     let mut base_dec = StreamDecoder::default();
     let base_bytes = match &args.base {
@@ -341,13 +341,21 @@ fn base_report(dec: &StreamDecoder, b: &dgnss::BaseStation, rx: &ReceiverStats) 
     format!(
         "
 base format: {}{}
-base: {arp}  epochs: {}  positions: {} (changes: {})
+base: {arp}  epochs: {}  positions: {} (changes: {})  duplicate epochs: {}  out of order: {}
+base position check: {}
 differential solutions: {}  skipped: {:?}",
         dec.formats(),
         (rtcm_counts(&dec.rtcm.stats) + &ubx_counts(&dec.ubx.stats)).replace('\n', "\nbase "),
         b.stats.epochs,
         b.stats.positions,
         b.stats.position_changes,
+        b.stats.duplicate_epochs,
+        b.stats.out_of_order_epochs,
+        match b.position_check() {
+            dgnss::PositionCheck::Pending => "pending (fewer than 3 fixes of the base)".to_string(),
+            dgnss::PositionCheck::Checked(d) =>
+                format!("the announced position is {d:.2} m from the base's own fixes (median of the last 5)"),
+        },
         rx.dgnss_solved,
         rx.dgnss_skipped
     )

@@ -359,7 +359,9 @@ pub struct GnssConfig {
     /// Satellites below this elevation are not used (deg).
     pub elevation_mask_deg: f64,
     /// Full GPS week near the data, to resolve MT1019's 10-bit week; 0 =
-    /// resolve against the system clock.
+    /// the companion's clock until better is known. The autopilot's
+    /// SYSTEM_TIME (its GNSS time) and a Galileo ephemeris's 12-bit week
+    /// overrule either, with a warning when they disagree.
     pub week_hint: u32,
     /// Pseudorange noise at zenith, one sigma (m); it grows as 1/sin(el).
     pub pseudorange_sigma_m: f64,
@@ -414,8 +416,23 @@ pub struct GnssConfig {
     /// rover's codes less the base's corrections instead of the raw codes.
     pub dgnss: bool,
     /// Oldest base epoch a differential code may use (s); older, the epoch
-    /// falls back to single-point codes.
+    /// falls back to single-point codes. A base epoch's correction is held,
+    /// never extrapolated, until a newer one comes.
     pub dgnss_max_age_s: f64,
+    /// How fast a held correction drifts from the truth, one sigma (m/s):
+    /// the satellites' clock and orbit errors and the atmosphere change
+    /// while the base is late or silent; its variance grows as
+    /// `(σ·age)²` (§8c, eq. DG2′).
+    pub dgnss_correction_rate_sigma_mps: f64,
+    /// Farthest the base's announced antenna position (MT1005/1006) may be
+    /// from its own single-point fixes (m, median of the last five): beyond
+    /// it the base is refused (a badly surveyed or mistyped position moves
+    /// the rover by as much) and single point is used.
+    pub base_max_position_error_m: f64,
+    /// When most of a base's corrected codes keep failing the filter's gate,
+    /// the base is set aside for this long (s) and single point used, with
+    /// a STATUSTEXT; it never causes a filter reset.
+    pub base_holdoff_s: f64,
 }
 
 impl Default for GnssConfig {
@@ -426,6 +443,9 @@ impl Default for GnssConfig {
             rover_station_id: 0,
             dgnss: true,
             dgnss_max_age_s: 10.0,
+            dgnss_correction_rate_sigma_mps: 0.01,
+            base_max_position_error_m: 20.0,
+            base_holdoff_s: 30.0,
             systems: "G,E,R,C,J".into(),
             iono: IonoMode::Auto,
             elevation_mask_deg: 10.0,

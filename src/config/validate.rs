@@ -216,6 +216,14 @@ impl Config {
         }
         c.range("elevation_mask_deg", g.elevation_mask_deg, 0.0, 60.0)?;
         c.range("dgnss_max_age_s", g.dgnss_max_age_s, 0.1, 60.0)?;
+        c.range(
+            "dgnss_correction_rate_sigma_mps",
+            g.dgnss_correction_rate_sigma_mps,
+            0.0,
+            10.0,
+        )?;
+        c.range("base_max_position_error_m", g.base_max_position_error_m, 1.0, 10_000.0)?;
+        c.range("base_holdoff_s", g.base_holdoff_s, 0.0, 3600.0)?;
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
         c.range("broadcast_sigma_m", g.broadcast_sigma_m, 0.0, 100.0)?;
         c.range("troposphere_sigma_m", g.troposphere_sigma_m, 0.0, 10.0)?;

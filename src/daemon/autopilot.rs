@@ -196,7 +196,10 @@ impl AutopilotView {
                     .unix_minus_boot
                     .offer(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3)
                 {
-                    Some(offset_s) => gnss.set_unix_minus_boot(Some(offset_s)),
+                    Some(offset_s) => {
+                        gnss.set_unix_minus_boot(Some(offset_s));
+                        gnss.set_autopilot_unix_time(unix_us as f64 * 1e-6, counters);
+                    }
                     None => {
                         counters.add(Counter::SystemTimeOutlier, 1);
                         tracing::warn!(reason = "system_time_outlier", unix_us, boot_ms, "SYSTEM_TIME rejected");

@@ -216,14 +216,13 @@ impl Fusion {
                 stream,
             }),
         );
-        let mut epochs = Vec::new();
-        self.gnss.on_rtcm(
+        let epochs = self.gnss.on_rtcm(
             bytes,
             stream,
             self.est.as_ref(),
             self.log.logger(),
             counters,
-            &mut epochs,
+            &mut self.tracker,
         );
         for (t, sats) in epochs {
             self.queue.enqueue(t, Pending::Gnss(sats), counters);
@@ -404,6 +403,7 @@ impl Fusion {
             log: self.log.logger(),
             frame: self.gnss.frame(),
             counters,
+            base: self.gnss.base_use_mut(),
         };
         self.queue.fuse_covered(m.t_s, est, cx);
         // Without measurements (camera and GNSS both out) nothing moved the

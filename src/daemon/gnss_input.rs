@@ -10,6 +10,7 @@ use serde_json::json;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use super::base_use::BaseUse;
 use super::{DaemonError, FusionMsg, RtcmStream};
 use crate::config::{Config, GnssSource};
 use crate::counters::{Counter, Counters};
@@ -19,6 +20,7 @@ use crate::gnss::rtcm::{GnssMessage, RtcmDecoder, System};
 use crate::gnss::spp::{SppOptions, SppSolution};
 use crate::gnss::{Epoch, IonoMode, IonoPolicy, RawSat, Receiver, StreamDecoder};
 use crate::io::mcap_log::{McapLogger, Topic};
+use crate::status::Tracker;
 
 /// The stream reader's task and its forwarder's.
 pub(super) type StreamTasks = (JoinHandle<()>, JoinHandle<()>);
@@ -91,13 +93,48 @@ pub(super) struct GnssIn {
     /// `gnss.source = "mavlink"`: the rover's observations may come on the
     /// link; with a receiver of its own, every observation there is a base's.
     rover_on_link: bool,
+    /// Whether the base's corrections are used, and how much believed.
+    base_use: BaseUse,
+    /// `gnss.week_hint` as configured (0: none).
+    configured_week: u32,
+    /// Where the week now comes from, once better than the hint.
+    week_source: Option<WeekSource>,
 }
+
+/// What settled the GPS week.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum WeekSource {
+    Autopilot,
+    Galileo,
+}
+
+/// Where a decoded message goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Destination {
+    Rover,
+    Base,
+    /// Nowhere: counted and dropped.
+    Ignored,
+}
+
+/// Unix time (s) before which an autopilot's SYSTEM_TIME is not a real
+/// date (2015-01-01): a board that booted without GNSS or NTP.
+const UNIX_PLAUSIBLE_S: f64 = 1_420_070_400.0;
 
 /// Base stations remembered (more are still kept apart by stream and id).
 const MAX_BASES: usize = 8;
 
 impl GnssIn {
     pub(super) fn new(cfg: &Config) -> Self {
+        let mut gnss = Self::with_receiver(cfg);
+        gnss.rx.base_limits = dgnss::BaseLimits {
+            max_age_s: cfg.gnss.dgnss_max_age_s,
+            max_position_error_m: cfg.gnss.base_max_position_error_m,
+        };
+        gnss
+    }
+
+    fn with_receiver(cfg: &Config) -> Self {
         GnssIn {
             dec: RtcmDecoder::new(),
             stream_dec: StreamDecoder::default(),
@@ -128,6 +165,9 @@ impl GnssIn {
             bases: Vec::new(),
             dgnss: cfg.gnss.dgnss,
             rover_on_link: cfg.gnss.source == GnssSource::Mavlink,
+            base_use: BaseUse::new(cfg.gnss.base_holdoff_s),
+            configured_week: cfg.gnss.week_hint,
+            week_source: None,
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -160,22 +200,72 @@ impl GnssIn {
         self.unix_minus_boot_s = offset_s;
     }
 
+    /// The autopilot's Unix time (s, from SYSTEM_TIME, its GNSS time): the
+    /// GPS week, which a companion without a network cannot know, and a
+    /// wrong `gnss.week_hint` must not hide. A Galileo ephemeris's week
+    /// stands above it.
+    pub(super) fn set_autopilot_unix_time(&mut self, unix_s: f64, counters: &Counters) {
+        if !(unix_s.is_finite() && unix_s > UNIX_PLAUSIBLE_S) || self.week_source == Some(WeekSource::Galileo) {
+            return;
+        }
+        let week = ((unix_s - 315_964_800.0) / 604_800.0) as u32;
+        if week == self.rx.week_hint {
+            self.week_source = Some(WeekSource::Autopilot);
+            return;
+        }
+        if self.configured_week != 0 && self.week_source.is_none() {
+            tracing::warn!(
+                reason = "gnss_week_resolved",
+                configured = self.configured_week,
+                autopilot = week,
+                "gnss.week_hint disagrees with the autopilot's clock (SYSTEM_TIME): the autopilot's week is used; \
+                 set gnss.week_hint = 0 or correct it"
+            );
+        } else {
+            tracing::info!(week, "GPS week from the autopilot's clock (SYSTEM_TIME)");
+        }
+        counters.add(Counter::GnssWeekResolved, 1);
+        self.rx.set_week_hint(week);
+        self.week_source = Some(WeekSource::Autopilot);
+    }
+
+    /// The base's use, for the fused epochs' verdicts.
+    pub(super) fn base_use_mut(&mut self) -> &mut BaseUse {
+        &mut self.base_use
+    }
+
     /// The sigma (m) of the single-point fix the world origin was just
     /// placed at, once: the filter takes it as a prior (§7).
     pub(super) fn take_origin_fix_sigma(&mut self) -> Option<f64> {
         self.origin_fix_sigma_m.take()
     }
 
-    /// Whether a decoded message goes to the rover's receiver model.
-    /// Ephemerides do from any stream (broadcast orbits are the same
+    /// Where a decoded message goes. Ephemerides go to the rover's
+    /// receiver model from any stream (broadcast orbits are the same
     /// whoever relays them: a base's serve a rover that sends none).
     /// Observations do only when they are the rover's (see
     /// [`RtcmStream`]); a base station's are counted and kept apart, and a
     /// station that sends its antenna position (MT1005/1006) is a base,
-    /// whatever its id.
-    fn is_rovers(&mut self, m: &GnssMessage, stream: RtcmStream, counters: &Counters) -> bool {
+    /// whatever its id. The rover's own id is the rover's: another system
+    /// (a ground station) announcing a position under it is counted and
+    /// ignored, never taken as a reason to stop using the rover's codes.
+    fn destination(&mut self, m: &GnssMessage, stream: RtcmStream, counters: &Counters) -> Destination {
         match m {
             GnssMessage::Station { station_id, arp_ecef_m } => {
+                if self.rover_on_link
+                    && self.rover_station_id != 0
+                    && *station_id == self.rover_station_id
+                    && stream == RtcmStream::LinkOther
+                {
+                    counters.add(Counter::GnssStationIdConflict, 1);
+                    tracing::warn!(
+                        station_id,
+                        reason = "gnss_station_id_conflict",
+                        "a ground station announces an antenna position under the rover's station id \
+                         (gnss.rover_station_id): ignored; give the base another id"
+                    );
+                    return Destination::Ignored;
+                }
                 counters.add(Counter::GnssBaseStationPosition, 1);
                 if self.bases.len() < MAX_BASES && !self.bases.iter().any(|(id, _)| id == station_id) {
                     self.bases.push((*station_id, *arp_ecef_m));
@@ -198,7 +288,7 @@ impl GnssIn {
                         );
                     }
                 }
-                false
+                Destination::Base
             }
             GnssMessage::Msm(e) => {
                 let is_base = self.bases.iter().any(|(id, _)| *id == e.station_id);
@@ -221,17 +311,22 @@ impl GnssIn {
                     },
                     1,
                 );
-                rovers
+                if rovers {
+                    Destination::Rover
+                } else {
+                    Destination::Base
+                }
             }
-            GnssMessage::Eph(_) | GnssMessage::GlonassEph(_) | GnssMessage::Other(_) => true,
+            GnssMessage::Eph(_) | GnssMessage::GlonassEph(_) | GnssMessage::Other(_) => Destination::Rover,
         }
     }
 
     /// Decodes a stream's bytes (RTCM3 or UBX) and completes epochs; each becomes the satellites'
     /// measurements at its autopilot time (GPS tag → Unix (leap seconds) →
-    /// boot clock (SYSTEM_TIME), less the receiver clock offset), pushed to
-    /// `out` for the fusion loop to queue. `est` places the world origin at
-    /// the first fix when none is configured; fixes go to `log`.
+    /// boot clock (SYSTEM_TIME), less the receiver clock offset), returned
+    /// for the fusion loop to queue. `est` places the world origin at the
+    /// first fix when none is configured; fixes go to `log`; an epoch with
+    /// nothing usable is counted and told to `tracker`.
     pub(super) fn on_rtcm(
         &mut self,
         bytes: &[u8],
@@ -239,20 +334,34 @@ impl GnssIn {
         est: Option<&Estimator>,
         log: Option<&McapLogger>,
         counters: &Counters,
-        out: &mut Vec<(f64, Vec<SatMeas>)>,
-    ) {
+        tracker: &mut Tracker,
+    ) -> Vec<(f64, Vec<SatMeas>)> {
+        let mut out = Vec::new();
         self.decode(bytes, stream, counters);
+        let base_before = self.base_stats();
+        let galileo_weeks = self.rx.stats.week_from_galileo;
         let mut msgs = std::mem::take(&mut self.msgs);
         for m in msgs.drain(..) {
-            if self.is_rovers(&m, stream, counters) {
-                self.rx.push(m, &mut self.epochs);
-            } else {
+            match self.destination(&m, stream, counters) {
+                Destination::Rover => self.rx.push(m, &mut self.epochs),
                 // A base station's: its position and epochs make the
                 // corrections of the differential solution.
-                self.rx.push_base(m);
+                Destination::Base => self.rx.push_base(m),
+                Destination::Ignored => {}
             }
         }
         self.msgs = msgs;
+        self.count_base(base_before, counters);
+        if self.rx.stats.week_from_galileo > galileo_weeks {
+            counters.add(Counter::GnssWeekResolved, 1);
+            self.week_source = Some(WeekSource::Galileo);
+            tracing::warn!(
+                reason = "gnss_week_resolved",
+                week = self.rx.week_hint,
+                "a Galileo ephemeris's week overrules the week in use (gnss.week_hint, the autopilot's or the \
+                 companion's clock)"
+            );
+        }
         let epochs: Vec<_> = self.epochs.drain(..).collect();
         for ep in epochs {
             counters.add(Counter::GnssEpochs, 1);
@@ -268,69 +377,136 @@ impl GnssIn {
             if self.frame.is_none() {
                 self.origin_from_fix(&ep, est, counters);
             }
-            let sats = self.measurements(&ep, counters);
-            if !sats.is_empty() {
+            let sats = self.measurements(&ep, t, counters, tracker);
+            if sats.is_empty() {
+                counters.add(Counter::GnssEpochUnusable, 1);
+                tracker.gnss_epoch_usable(t, false);
+                tracing::warn!(
+                    reason = "gnss_epoch_unusable",
+                    satellites = ep.sats.len(),
+                    week = ep.week,
+                    "GNSS epoch with no usable measurement (no ephemeris for its time: a wrong week?)"
+                );
+            } else {
                 out.push((t, sats));
             }
         }
+        out
     }
 
-    /// The filter's measurements of an epoch: differential codes (§8c) when
-    /// `gnss.dgnss` is on and a base has corrections for it, each with the
-    /// base's noise added (σ·√2) and no ionosphere left; else the raw codes
-    /// with the ionosphere handled per `gnss.iono`. Range rates are the
-    /// rover's own either way.
-    fn measurements(&self, ep: &Epoch, counters: &Counters) -> Vec<SatMeas> {
-        let corrections = match (&self.rx.base, self.dgnss) {
-            (Some(base), true) => {
-                let mask = self.rx.opts.elevation_mask_deg.to_radians();
-                let c = dgnss::corrections(
-                    ep.week,
-                    ep.tow_s,
-                    base,
-                    &self.rx.ephs,
-                    mask,
-                    self.rx.dgnss_max_age_s,
-                    CodeModel::Single,
-                );
-                if let Err(e) = &c {
-                    counters.add(Counter::GnssDgnssUnavailable, 1);
-                    tracing::debug!(reason = %e, "no differential codes for this epoch");
-                }
-                c.ok().filter(|c| !c.is_empty())
-            }
-            _ => None,
-        };
+    /// The base's counts before a batch of messages.
+    fn base_stats(&self) -> (u64, u64) {
+        self.rx
+            .base
+            .as_ref()
+            .map_or((0, 0), |b| (b.stats.duplicate_epochs, b.stats.out_of_order_epochs))
+    }
+
+    /// Counts the base epochs the batch dropped, by reason.
+    fn count_base(&self, (dup0, late0): (u64, u64), counters: &Counters) {
+        let (dup, late) = self.base_stats();
+        if dup > dup0 {
+            counters.add(Counter::GnssBaseDuplicateEpoch, dup - dup0);
+        }
+        if late > late0 {
+            counters.add(Counter::GnssBaseOutOfOrderEpoch, late - late0);
+        }
+    }
+
+    /// The filter's measurements of an epoch at autopilot time `t`:
+    /// differential codes (§8c) when `gnss.dgnss` is on and a usable base
+    /// has corrections for it, else the raw codes with the ionosphere
+    /// handled per `gnss.iono`. In a differential epoch, a constellation
+    /// the base does not serve is fused as single point, and a satellite
+    /// the base lacks keeps its range rate; range rates are always the
+    /// rover's own.
+    fn measurements(&mut self, ep: &Epoch, t: f64, counters: &Counters, tracker: &mut Tracker) -> Vec<SatMeas> {
         let rx_ecef_m = ep.fix.as_ref().ok().map(|f| f.r_ecef_m);
-        let Some(corr) = corrections else {
+        let corrections = self.corrections_for(ep, t, counters, tracker);
+        let single = |obs: Vec<RawSat>| {
             let policy = IonoPolicy {
                 mode: self.iono,
                 klobuchar: self.klobuchar.as_ref(),
                 rx_ecef_m,
             };
-            let obs = ep.sats.iter().map(RawSat::from_obs);
-            return crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
+            crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs)
+        };
+        let obs: Vec<RawSat> = ep.sats.iter().map(RawSat::from_obs).collect();
+        let Some((corr, shared_by)) = corrections else {
+            return single(obs);
         };
         counters.add(Counter::GnssDgnssEpochs, 1);
-        let obs = ep.sats.iter().map(RawSat::from_obs).filter_map(|s| {
-            let c = corr.iter().find(|(k, _)| *k == (s.system, s.prn))?.1;
-            Some(RawSat {
-                l1_pseudorange_m: Some(s.l1_pseudorange_m? - c),
+        let served = |sys: System| corr.values.iter().any(|(k, _)| k.0 == sys);
+        let (diff_obs, spp_obs): (Vec<RawSat>, Vec<RawSat>) = obs.into_iter().partition(|s| served(s.system));
+        let mut systems_alone: Vec<char> = spp_obs.iter().map(|s| s.system.letter()).collect();
+        systems_alone.dedup();
+        if !systems_alone.is_empty() {
+            counters.add(Counter::GnssDgnssSystemNotAtBase, systems_alone.len() as u64);
+        }
+        let mut missing = 0;
+        let corrected = diff_obs.into_iter().map(|s| {
+            let c = corr
+                .values
+                .iter()
+                .find(|(k, _)| *k == (s.system, s.prn))
+                .map(|(_, c)| *c);
+            if c.is_none() && s.l1_pseudorange_m.is_some() {
+                missing += 1;
+            }
+            RawSat {
+                l1_pseudorange_m: s.l1_pseudorange_m.zip(c).map(|(p, c)| p - c),
                 l2_pseudorange: None,
                 ..s
-            })
+            }
         });
         let policy = IonoPolicy {
             mode: IonoMode::Off,
             klobuchar: None,
             rx_ecef_m,
         };
-        let mut sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, obs);
-        for s in &mut sats {
-            s.noise_scale *= std::f64::consts::SQRT_2;
-            s.differential = true;
+        let mut sats = crate::gnss::sat_measurements(&self.rx.ephs, ep.week, ep.tow_s, policy, corrected);
+        if missing > 0 {
+            counters.add(Counter::GnssDgnssSatNotAtBase, missing);
         }
+        let correction = cmsckf_models::gnss::CodeCorrection {
+            base_tow_s: corr.base_tow_s,
+            age_s: corr.age_s,
+            shared_by,
+            reference_step_m: corr.reference_step_m,
+        };
+        for s in sats.iter_mut().filter(|s| s.pseudorange_m.is_some()) {
+            s.correction = Some(correction);
+        }
+        sats.extend(single(spp_obs));
         sats
+    }
+
+    /// The base's corrections for epoch `ep` at autopilot time `t`, and how
+    /// many rover epochs share them, when `gnss.dgnss` is on and the base
+    /// is usable; refusals are counted by [`BaseUse`].
+    fn corrections_for(
+        &mut self,
+        ep: &Epoch,
+        t: f64,
+        counters: &Counters,
+        tracker: &mut Tracker,
+    ) -> Option<(dgnss::BaseCorrections, f64)> {
+        let base = self.rx.base.as_ref().filter(|_| self.dgnss)?;
+        if !self.base_use.usable(t, counters) {
+            return None;
+        }
+        let mask = self.rx.opts.elevation_mask_deg.to_radians();
+        let c = dgnss::corrections(
+            ep.week,
+            ep.tow_s,
+            base,
+            &self.rx.ephs,
+            mask,
+            self.rx.base_limits,
+            CodeModel::Single,
+        );
+        let shared_by = self.base_use.take(ep.tow_s, t, &c, counters, tracker)?;
+        c.ok().map(|c| (c, shared_by))
     }
 
     /// Decodes one stream's bytes into `self.msgs`, counting the frames whose

@@ -9,6 +9,7 @@ use cmsckf_models::gnss::SatMeas;
 use cmsckf_models::stats::chi2_quantile;
 use serde_json::json;
 
+use super::base_use::BaseUse;
 use super::frames::LandmarkCloud;
 use super::rebase::{dispatch_rebase, RebaseExec};
 use super::PENDING_FRAMES;
@@ -45,6 +46,8 @@ pub(super) struct FuseCtx<'a> {
     pub(super) log: Option<&'a McapLogger>,
     pub(super) frame: Option<NedFrame>,
     pub(super) counters: &'a Counters,
+    /// The base's use: told how its corrected codes fared.
+    pub(super) base: &'a mut BaseUse,
 }
 
 impl Default for MeasurementQueue {
@@ -137,13 +140,28 @@ fn fuse_gnss(est: &mut Estimator, t: f64, sats: &[SatMeas], cx: &mut FuseCtx<'_>
                     }),
                 );
             }
-            counters.add(Counter::GnssEpochsFused, 1);
-            cx.tracker.gnss_fused(t);
             let codes_rejected = [Counter::GnssPseudorangeChi2, Counter::GnssPseudorangeOutlier]
                 .iter()
                 .filter_map(|k| rep.rejected.get(k))
                 .sum::<u64>();
+            let usable = rep.pseudoranges_used + rep.range_rates_used > 0;
+            cx.tracker.gnss_epoch_usable(t, usable);
+            if usable {
+                counters.add(Counter::GnssEpochsFused, 1);
+                cx.tracker.gnss_fused(t);
+            } else {
+                counters.add(Counter::GnssEpochUnusable, 1);
+                tracing::warn!(
+                    reason = "gnss_epoch_unusable",
+                    refused = codes_rejected,
+                    "GNSS epoch with no measurement the filter could use"
+                );
+            }
             cx.tracker.gnss_codes_rejected(t, codes_rejected);
+            if rep.differential {
+                cx.base
+                    .on_fused(t, rep.pseudoranges_used, codes_rejected, counters, cx.tracker);
+            }
             counters.add(Counter::GnssPseudorangesUsed, rep.pseudoranges_used as u64);
             counters.add(Counter::GnssRangeRatesUsed, rep.range_rates_used as u64);
             for (k, v) in &rep.rejected {

@@ -23,6 +23,7 @@
 //! future completes.
 
 mod autopilot;
+mod base_use;
 mod cross_check;
 mod estimate_message;
 mod features;

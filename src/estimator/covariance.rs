@@ -299,12 +299,26 @@ impl Estimator {
     /// += var · u uᵀ`, `u` one at each copy of the bias. Like process noise,
     /// it touches the local part only.
     pub(super) fn shift_clock_bias(&mut self, delta_m: f64, var_m2: f64) {
+        self.shift_clock_state(CLK_B, delta_m);
+        self.add_clock_state_variance(CLK_B, var_m2);
+    }
+
+    /// Moves clock state `k` by `delta_m`, live and in every GNSS clone.
+    fn shift_clock_state(&mut self, k: usize, delta_m: f64) {
+        self.clock[k - CLK_B] += delta_m;
+        for c in self.gnss_clones.iter_mut() {
+            c.nom.clock[k - CLK_B] += delta_m;
+        }
+    }
+
+    /// Adds a common error of variance `var_m2` to clock state `k`, live
+    /// and in every GNSS clone alike: `P += var · u uᵀ`, `u` one at each
+    /// copy of the state (process noise: the local part only).
+    pub(super) fn add_clock_state_variance(&mut self, k: usize, var_m2: f64) {
         let go = self.gnss_clones_offset();
-        self.clock.x += delta_m;
-        let mut idx = vec![CLK_B];
-        for (i, c) in self.gnss_clones.iter_mut().enumerate() {
-            c.nom.clock.x += delta_m;
-            idx.push(go + GNSS_CLONE_DIM * i + 12);
+        let mut idx = vec![k];
+        for i in 0..self.gnss_clones.len() {
+            idx.push(go + GNSS_CLONE_DIM * i + 12 + (k - CLK_B));
         }
         for &a in &idx {
             for &b in &idx {

@@ -206,7 +206,7 @@ pub(super) mod tests {
                 range_rate_mps: None,
                 noise_scale: 1.0,
                 extra_var_m2: 0.0,
-                differential: false,
+                correction: None,
             },
         )
     }

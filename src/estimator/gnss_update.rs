@@ -42,6 +42,8 @@ pub struct GnssReport {
     pub clock_initialised: bool,
     /// How far behind the filter the epoch arrived (s; 0 when on time).
     pub late_s: f64,
+    /// The codes were differential (corrected by a base station).
+    pub differential: bool,
 }
 
 /// Shortest epoch period the grid takes (s): 20 Hz, beyond any receiver's
@@ -255,7 +257,7 @@ impl Estimator {
         rep: &mut GnssReport,
     ) -> bool {
         let (nom, _, _) = self.epoch_states(states, t_s);
-        let differential = sats.iter().any(|s| s.differential);
+        let differential = sats.iter().any(|s| s.differential());
         if self.clock_initialised && differential != self.gnss_differential {
             // DG4: differential codes see the clock less the base
             // corrections' common part, a few metres from the raw codes'
@@ -264,8 +266,11 @@ impl Estimator {
             // same either way, is kept.
             self.rebase_clock_bias(frame, sats, &nom);
             rep.clock_initialised = true;
+        } else if self.clock_initialised && differential {
+            self.follow_base_reference(sats, &nom, frame);
         }
         self.gnss_differential = differential;
+        self.gnss_base_tow_s = sats.iter().find_map(|s| s.correction.map(|c| c.base_tow_s));
         if !self.init_clock_states(frame, sats, &nom, rep) {
             return false;
         }
@@ -274,7 +279,14 @@ impl Estimator {
         let mut rows = self.gnss_rows(frame, sats, &nom, &cols, rep);
         let pr_rejected = rep.rejected.get(&Counter::GnssPseudorangeChi2).copied().unwrap_or(0)
             + rep.rejected.get(&Counter::GnssPseudorangeOutlier).copied().unwrap_or(0);
-        self.monitor.push_gnss(rep.pseudoranges_used, pr_rejected as usize);
+        // D2 judges the filter by its own receiver's codes only: refused
+        // differential codes may be the base's fault, and the daemon sets
+        // such a base aside (single point then shows whether the filter
+        // itself is wrong). A base never resets the filter.
+        if !differential {
+            self.monitor.push_gnss(rep.pseudoranges_used, pr_rejected as usize);
+        }
+        rep.differential = differential;
         if rows.is_empty() {
             return false;
         }
@@ -416,6 +428,41 @@ impl Estimator {
         self.isb_initialised = [false; ISB_SYSTEMS.len()];
     }
 
+    /// DG8: a new base epoch moves the differential codes' common part (each
+    /// constellation's median correction, DG1′) by its noise and by any
+    /// change of the base's satellite set, which no clock random walk
+    /// explains. The clock bias (live and in every clone, as DG4) and the
+    /// inter-system biases take it as a common error of variance
+    /// `s² + 2·(π/2)·mean(σ_b,i²)/n`: the step `s` seen on the satellites
+    /// both base epochs share, plus the noise of two medians of `n` codes.
+    fn follow_base_reference(&mut self, sats: &[SatMeas], nom: &GnssNominal, frame: &NedFrame) {
+        let Some(c) = sats.iter().find_map(|s| s.correction) else {
+            return;
+        };
+        if self.gnss_base_tow_s == Some(c.base_tow_s) {
+            return;
+        }
+        let lever = self.s.p_A_in_B_m;
+        let base_vars: Vec<f64> = sats
+            .iter()
+            .filter(|s| s.differential() && s.pseudorange_m.is_some())
+            .map(|s| {
+                let sin_el = predict_sat(frame, nom, &lever, s).elevation_rad.sin().max(0.1);
+                (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2)
+            })
+            .collect();
+        if base_vars.is_empty() {
+            return;
+        }
+        let n = base_vars.len() as f64;
+        let mean_var = base_vars.iter().sum::<f64>() / n;
+        let var = c.reference_step_m.powi(2) + 2.0 * std::f64::consts::FRAC_PI_2 * mean_var / n;
+        self.shift_clock_bias(0.0, var);
+        for k in 0..ISB_SYSTEMS.len() {
+            self.add_clock_state_variance(CLK_E + k, var);
+        }
+    }
+
     /// The gated, whitened rows of an epoch's measurements against `nom`,
     /// gated with the covariance of the columns `cols`. Robust pre-screen
     /// (K5): each constellation's median code residual stands for its clock
@@ -486,12 +533,23 @@ impl Estimator {
             // σ² = (σ_P·k / sin el)² + σ_I² [+ σ_eph² + (σ_T / sin el)²] (§8c, eq. DG5):
             // the broadcast and troposphere terms only for single-point
             // codes, since a base station's corrections remove them.
-            let common_var_m2 = if s.differential {
-                0.0
-            } else {
-                self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2)
+            let code_var_m2 = (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2);
+            let white_var_m2 = code_var_m2 + s.extra_var_m2;
+            let (common_var_m2, w) = match s.correction {
+                None => (
+                    self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2),
+                    w,
+                ),
+                // DG2′: a held correction carries the base's code noise
+                // (the rover's own, at the same elevation over a short
+                // baseline) and its drift over its age, σ_ċ² a². DG7: every
+                // rover epoch it corrects shares that error, so it is
+                // believed `shared_by` times, at most the window's epochs.
+                Some(c) => (
+                    code_var_m2 + (self.s.dgnss_correction_rate_sigma_mps * c.age_s).powi(2),
+                    c.shared_by.clamp(1.0, w),
+                ),
             };
-            let white_var_m2 = (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2) + s.extra_var_m2;
             // One epoch's sigma screens and gates (a 30 m multipath code
             // stays an outlier at any rate); DG6's weighs.
             let epoch_sigma = (white_var_m2 + common_var_m2).sqrt();

@@ -78,6 +78,8 @@ pub struct Settings {
     /// part (m/s at zenith), count as one measurement (§8c, eq. DG6).
     pub gnss_correlation_window_s: f64,
     pub range_rate_correlated_sigma_mps: f64,
+    /// How fast a held base correction drifts, one sigma (m/s; §8c, DG2′).
+    pub dgnss_correction_rate_sigma_mps: f64,
     pub elevation_mask_deg: f64,
     /// Compressed mode: rebases are computed by whoever takes the job
     /// ([`Estimator::take_rebase_job`]) instead of at once (§5 R4).

@@ -10,10 +10,12 @@
 //! - DG1: `c_b,i = P_b,i − (ρ_b,i + sagnac − c·δt_i(t_b) + T_b,i)` at the base's
 //!   epoch `t_b`, with the base at its ARP and the rover's ephemeris; DG1′:
 //!   less each constellation's median over the epoch (the base's clock);
-//! - DG2: `P̃_r,i = P_r,i − c_b,i(t_r)`, with `c_b,i(t_r)` the correction of a
-//!   base epoch within [`PAIR_TOLERANCE_S`] of the rover's, else the newest
-//!   older one extrapolated linearly from the two before `t_r` (up to
-//!   `max_age_s` old);
+//! - DG2′: `P̃_r,i = P_r,i − c_b,i(t_b)`, with `t_b` the newest base epoch at
+//!   most [`PAIR_TOLERANCE_S`] after the rover's and at most `max_age_s`
+//!   before it: the correction is held, never extrapolated (a rate from two
+//!   noisy epochs multiplies the base's code noise by √((1+a)² + a²) at an
+//!   age of `a` periods), and the filter grows its variance with the age
+//!   instead (estimator README §8c);
 //! - DG3: `P̃_r,i = ρ_r,i + sagnac − c·δt_i(t_r) + T_r,i + c·(δt_r − δt_b) + ε`,
 //!   solved like a single-point epoch for the position and one clock per
 //!   constellation, with no ionosphere term and the differential weights of
@@ -45,16 +47,28 @@ pub type Corrections = Vec<((System, u8), f64)>;
 /// Base and rover epochs this close (s) are the same epoch: receivers' time
 /// tags drift by milliseconds (RTKLIB pairs within 25 ms).
 pub const PAIR_TOLERANCE_S: f64 = 0.05;
-/// Base epochs kept: enough to extrapolate from the two newest.
-const EPOCHS_KEPT: usize = 3;
+/// Base epochs kept: the newest per station for the corrections, and a
+/// few before it to tell duplicates and stragglers.
+const EPOCHS_KEPT: usize = 4;
+/// The base's own single-point fixes the antenna-position check takes its
+/// median over, and how many it needs before a base is used at all.
+const POSITION_CHECK_FIXES: usize = 5;
+const POSITION_CHECK_MIN_FIXES: usize = 3;
 
-/// One base epoch: its time and each satellite's first-frequency code.
+/// One base epoch: its time and each satellite's observations.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BaseEpoch {
     pub station_id: u16,
     pub week: u32,
     pub tow_s: f64,
-    pub sats: Vec<RawSat>,
+    pub sats: Vec<SatObs>,
+}
+
+impl BaseEpoch {
+    /// Seconds from this epoch to `week`/`tow_s`.
+    fn age_s(&self, week: u32, tow_s: f64) -> f64 {
+        (week as f64 - self.week as f64) * 604_800.0 + tow_s - self.tow_s
+    }
 }
 
 /// Counts kept by the base station model.
@@ -67,6 +81,23 @@ pub struct BaseStats {
     /// Antenna positions that moved the base by more than 1 m, or named
     /// another station.
     pub position_changes: u64,
+    /// Base epochs dropped as a copy of one already held (a base relayed by
+    /// two ground stations).
+    pub duplicate_epochs: u64,
+    /// Base epochs dropped as older than the newest held of their station.
+    pub out_of_order_epochs: u64,
+}
+
+/// Whether the announced antenna position agrees with the base's own
+/// observations.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PositionCheck {
+    /// Fewer than [`POSITION_CHECK_MIN_FIXES`] single-point fixes of the
+    /// base since its position was announced.
+    Pending,
+    /// The median distance (m) from the announced position to the base's
+    /// own fixes.
+    Checked(f64),
 }
 
 /// A base station as its RTCM stream describes it: its antenna reference
@@ -79,22 +110,65 @@ pub struct BaseStation {
     pub arp: Option<(u16, Vector3<f64>)>,
     epochs: VecDeque<BaseEpoch>,
     assembler: EpochAssembler,
+    /// Distances (m) from the announced antenna position to the base's own
+    /// single-point fixes since it was announced, newest last.
+    fix_distances_m: VecDeque<f64>,
     pub stats: BaseStats,
 }
 
 /// Why an epoch has no differential solution.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum DgnssError {
     #[error("no base antenna position (MT1005/1006) yet")]
     NoBasePosition,
     #[error("no base epoch within the maximum age")]
     NoBaseEpoch,
+    #[error("the base's antenna position is not checked yet against its own fixes")]
+    BasePositionUnchecked,
+    #[error("the base's announced antenna position is {distance_m:.1} m from its own fixes (limit {limit_m} m)")]
+    BasePositionWrong { distance_m: f64, limit_m: f64 },
     #[error(transparent)]
     Solve(#[from] SppError),
 }
 
+/// What a base must satisfy for its corrections to be used.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BaseLimits {
+    /// Oldest base epoch (s) a rover epoch may use.
+    pub max_age_s: f64,
+    /// Farthest (m) the announced antenna position may be from the base's
+    /// own single-point fixes.
+    pub max_position_error_m: f64,
+}
+
+impl Default for BaseLimits {
+    fn default() -> Self {
+        BaseLimits {
+            max_age_s: 10.0,
+            max_position_error_m: 20.0,
+        }
+    }
+}
+
+/// The base's corrections for one rover epoch (DG2′), by satellite, and
+/// what their errors depend on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BaseCorrections {
+    /// The base epoch they come from, and its age at the rover epoch (s).
+    pub base_tow_s: f64,
+    pub age_s: f64,
+    /// Spacing of the base's last two epochs (s; `None` with one).
+    pub base_period_s: Option<f64>,
+    /// How far the common part moved since the previous base epoch (DG8).
+    pub reference_step_m: f64,
+    pub values: Corrections,
+    /// Corrections left out as non-finite.
+    pub non_finite: u64,
+}
+
 impl BaseStation {
-    /// A reference station's antenna position (MT1005/1006).
+    /// A reference station's antenna position (MT1005/1006). A new station
+    /// or a position moved by more than 1 m is checked afresh.
     pub fn set_position(&mut self, station_id: u16, arp_ecef_m: [f64; 3]) {
         let arp = Vector3::from(arp_ecef_m);
         self.stats.positions += 1;
@@ -103,55 +177,106 @@ impl BaseStation {
             .is_some_and(|(id, old)| id != station_id || (old - arp).norm() > 1.0)
         {
             self.stats.position_changes += 1;
+            self.fix_distances_m.clear();
         }
         self.arp = Some((station_id, arp));
     }
 
     /// One base MSM; `week_of` resolves a time of week to its full week.
-    pub fn push_msm(&mut self, e: MsmEpoch, systems: &[System], week_of: impl Fn(f64) -> u32) {
+    /// The epochs it completed and kept (not duplicates or stragglers).
+    pub fn push_msm(&mut self, e: MsmEpoch, systems: &[System], week_of: impl Fn(f64) -> u32) -> Vec<BaseEpoch> {
         let mut done = Vec::new();
         self.assembler
             .push(e, systems, |id, tow_s, sats| done.push((id, tow_s, sats)));
-        for (id, tow_s, sats) in done {
-            self.push_epoch(id, tow_s, &sats, &week_of);
-        }
+        done.into_iter()
+            .filter_map(|(id, tow_s, sats)| self.push_epoch(id, tow_s, sats, &week_of))
+            .collect()
     }
 
     /// Closes a pending base epoch (at the end of a stream).
     pub fn flush(&mut self, week_of: impl Fn(f64) -> u32) {
         if let Some((id, tow_s, sats)) = self.assembler.take() {
-            self.push_epoch(id, tow_s, &sats, &week_of);
+            self.push_epoch(id, tow_s, sats, &week_of);
         }
     }
 
-    fn push_epoch(&mut self, station_id: u16, tow_s: f64, sats: &[SatObs], week_of: impl Fn(f64) -> u32) {
+    /// Keeps a completed epoch, unless its station already has one at the
+    /// same time (a copy: counted) or a newer one (a straggler: counted).
+    fn push_epoch(
+        &mut self,
+        station_id: u16,
+        tow_s: f64,
+        sats: Vec<SatObs>,
+        week_of: impl Fn(f64) -> u32,
+    ) -> Option<BaseEpoch> {
         let e = BaseEpoch {
             station_id,
             week: week_of(tow_s),
             tow_s,
-            sats: sats.iter().map(RawSat::from_obs).collect(),
+            sats,
         };
+        let newest_age = self
+            .epochs
+            .iter()
+            .rev()
+            .find(|o| o.station_id == station_id)
+            .map(|o| e.age_s(o.week, o.tow_s));
+        match newest_age {
+            Some(a) if a.abs() < 1e-3 => {
+                self.stats.duplicate_epochs += 1;
+                return None;
+            }
+            Some(a) if a > 0.0 => {
+                self.stats.out_of_order_epochs += 1;
+                return None;
+            }
+            _ => {}
+        }
         self.stats.epochs += 1;
-        self.epochs.push_back(e);
+        self.epochs.push_back(e.clone());
         while self.epochs.len() > EPOCHS_KEPT {
             self.epochs.pop_front();
         }
+        Some(e)
     }
 
-    /// The base epochs a rover epoch at `week`/`tow_s` uses: the newest of
+    /// Records a single-point fix of the base's own epoch (ECEF, m) of the
+    /// station that announced the position.
+    pub fn record_fix(&mut self, station_id: u16, r_ecef_m: &Vector3<f64>) {
+        let Some((id, arp)) = self.arp else { return };
+        if id != station_id || !r_ecef_m.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        self.fix_distances_m.push_back((r_ecef_m - arp).norm());
+        while self.fix_distances_m.len() > POSITION_CHECK_FIXES {
+            self.fix_distances_m.pop_front();
+        }
+    }
+
+    /// The antenna-position check: the median distance from the announced
+    /// position to the base's own recent fixes, once there are enough.
+    pub fn position_check(&self) -> PositionCheck {
+        if self.fix_distances_m.len() < POSITION_CHECK_MIN_FIXES {
+            return PositionCheck::Pending;
+        }
+        let mut v: Vec<f64> = self.fix_distances_m.iter().copied().collect();
+        v.sort_by(f64::total_cmp);
+        PositionCheck::Checked(v[v.len() / 2])
+    }
+
+    /// The base epoch a rover epoch at `week`/`tow_s` uses: the newest of
     /// the base's own station at most [`PAIR_TOLERANCE_S`] after it and at
-    /// most `max_age_s` before it, and the one before that (for the rate).
+    /// most `max_age_s` before it, and the one before that (for the
+    /// reference step and the period).
     fn epochs_for(&self, week: u32, tow_s: f64, max_age_s: f64) -> Option<(&BaseEpoch, Option<&BaseEpoch>)> {
         let (id, _) = self.arp?;
-        let age = |e: &BaseEpoch| (week as f64 - e.week as f64) * 604_800.0 + tow_s - e.tow_s;
         let mut own = self
             .epochs
             .iter()
             .rev()
-            .filter(|e| e.station_id == id && age(e) >= -PAIR_TOLERANCE_S);
-        let newest = own.next().filter(|e| age(e) <= max_age_s)?;
-        let before = own.next().filter(|e| age(e) - age(newest) <= max_age_s);
-        Some((newest, before))
+            .filter(|e| e.station_id == id && e.age_s(week, tow_s) >= -PAIR_TOLERANCE_S);
+        let newest = own.next().filter(|e| e.age_s(week, tow_s) <= max_age_s)?;
+        Some((newest, own.next()))
     }
 }
 
@@ -196,17 +321,23 @@ fn epoch_corrections(
     let mut out: Corrections = e
         .sats
         .iter()
-        .filter_map(|s| {
+        .filter_map(|obs| {
+            let s = RawSat::from_obs(obs);
             let orbit = ephs.orbit(s.system, s.prn, week, tow_s)?;
-            Some(((s.system, s.prn), correction_at(e, s, arp, orbit, mask, model)?))
+            Some(((s.system, s.prn), correction_at(e, &s, arp, orbit, mask, model)?))
         })
         .collect();
     let mut systems: Vec<System> = out.iter().map(|(k, _)| k.0).collect();
+    systems.sort_by_key(|s| s.letter());
     systems.dedup();
     for sys in systems {
-        let mut v: Vec<f64> = out.iter().filter(|(k, _)| k.0 == sys).map(|(_, c)| *c).collect();
+        let mut v: Vec<f64> = out
+            .iter()
+            .filter(|(k, c)| k.0 == sys && c.is_finite())
+            .map(|(_, c)| *c)
+            .collect();
         v.sort_by(f64::total_cmp);
-        let median = v[v.len() / 2];
+        let Some(&median) = v.get(v.len() / 2) else { continue };
         out.iter_mut()
             .filter(|(k, _)| k.0 == sys)
             .for_each(|(_, c)| *c -= median);
@@ -214,9 +345,29 @@ fn epoch_corrections(
     out
 }
 
-/// The base's corrections at the rover epoch `week`/`tow_s` (DG2), by
-/// satellite: the matched base epoch's, else the newest's extrapolated from
-/// the one before it, with base epochs at most `max_age_s` old and the
+/// How far each constellation's common part moved from `before` to
+/// `now` (DG8): the median over their shared satellites of the change of
+/// each one's correction, the largest over the constellations (m).
+fn reference_step_m(now: &Corrections, before: &Corrections) -> f64 {
+    let mut systems: Vec<System> = now.iter().map(|(k, _)| k.0).collect();
+    systems.sort_by_key(|s| s.letter());
+    systems.dedup();
+    systems
+        .into_iter()
+        .filter_map(|sys| {
+            let mut d: Vec<f64> = now
+                .iter()
+                .filter(|(k, _)| k.0 == sys)
+                .filter_map(|(k, c)| Some(c - before.iter().find(|(b, _)| b == k)?.1))
+                .collect();
+            d.sort_by(f64::total_cmp);
+            d.get(d.len() / 2).map(|m| m.abs())
+        })
+        .fold(0.0, f64::max)
+}
+
+/// The base's corrections at the rover epoch `week`/`tow_s` (DG2′), by
+/// satellite: the newest base epoch's, held, within `limits`, with the
 /// troposphere of `model` (the one the corrected codes will be predicted
 /// with).
 pub fn corrections(
@@ -225,36 +376,42 @@ pub fn corrections(
     base: &BaseStation,
     ephs: &EphStore,
     mask: f64,
-    max_age_s: f64,
+    limits: BaseLimits,
     model: CodeModel,
-) -> Result<Corrections, DgnssError> {
+) -> Result<BaseCorrections, DgnssError> {
     let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
-    let (newest, before) = base.epochs_for(week, tow_s, max_age_s).ok_or(DgnssError::NoBaseEpoch)?;
-    let age = |e: &BaseEpoch| (week as f64 - e.week as f64) * 604_800.0 + tow_s - e.tow_s;
-    let c1 = epoch_corrections(newest, &arp, ephs, (week, tow_s), mask, model);
-    let c0 = match before {
-        Some(b) if age(newest).abs() > PAIR_TOLERANCE_S => {
-            let span = age(b) - age(newest);
-            Some((span, epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model)))
+    match base.position_check() {
+        PositionCheck::Pending => return Err(DgnssError::BasePositionUnchecked),
+        PositionCheck::Checked(d) if d > limits.max_position_error_m => {
+            return Err(DgnssError::BasePositionWrong {
+                distance_m: d,
+                limit_m: limits.max_position_error_m,
+            })
         }
-        _ => None,
-    };
-    Ok(c1
-        .into_iter()
-        .map(|(sat, c)| {
-            let prior = c0
-                .as_ref()
-                .and_then(|(span, v)| Some((span, v.iter().find(|(k, _)| *k == sat)?.1)));
-            match prior {
-                Some((span, c_before)) => (sat, c + (c - c_before) / span * age(newest)),
-                None => (sat, c),
-            }
-        })
-        .collect())
+        PositionCheck::Checked(_) => {}
+    }
+    let (newest, before) = base
+        .epochs_for(week, tow_s, limits.max_age_s)
+        .ok_or(DgnssError::NoBaseEpoch)?;
+    let mut values = epoch_corrections(newest, &arp, ephs, (week, tow_s), mask, model);
+    let before_filter = values.len();
+    values.retain(|(_, c)| c.is_finite());
+    let non_finite = (before_filter - values.len()) as u64;
+    let step = before.map_or(0.0, |b| {
+        reference_step_m(&values, &epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model))
+    });
+    Ok(BaseCorrections {
+        base_tow_s: newest.tow_s,
+        age_s: newest.age_s(week, tow_s),
+        base_period_s: before.map(|b| b.age_s(newest.week, newest.tow_s)),
+        reference_step_m: step,
+        values,
+        non_finite,
+    })
 }
 
 /// The differential solution (DG1–DG3) of a rover epoch `sats` at
-/// `week`/`tow_s` against `base`, with base epochs at most `max_age_s` old.
+/// `week`/`tow_s` against `base`, within `limits`.
 /// The first-frequency codes are used whatever `opt.iono` says: the
 /// ionosphere cancels in the difference.
 pub fn solve(
@@ -264,13 +421,13 @@ pub fn solve(
     base: &BaseStation,
     ephs: &EphStore,
     opt: &SppOptions,
-    max_age_s: f64,
+    limits: BaseLimits,
 ) -> Result<SppSolution, DgnssError> {
     let mask = opt.elevation_mask_deg.to_radians();
     let model = CodeModel::Differential {
         doy: gps_day_of_year(week, tow_s),
     };
-    let corr = corrections(week, tow_s, base, ephs, mask, max_age_s, model)?;
+    let corr = corrections(week, tow_s, base, ephs, mask, limits, model)?.values;
     let mut meas = Vec::new();
     for s in sats.iter().filter(|s| opt.systems.contains(&s.system)) {
         let Some((pr, _)) = RawSat::from_obs(s).code(IonoMode::Off) else {

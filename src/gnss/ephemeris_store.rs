@@ -112,6 +112,21 @@ impl EphStore {
             .map(|(e, _)| e)
     }
 
+    /// Resolves the GPS and QZSS ephemerides' 10-bit weeks again near
+    /// `hint_week` (the hint they were stored with was wrong).
+    pub fn resolve_gps_weeks(&mut self, hint_week: u32) {
+        for ((system, _), v) in self.by_sat.iter_mut() {
+            if matches!(system, System::Gps | System::Qzss) {
+                for e in v.iter_mut() {
+                    e.week = super::rtcm::resolve_week((e.week % 1024) as u16, hint_week);
+                }
+            }
+        }
+        if let Some((w, toe)) = self.last {
+            self.last = Some((super::rtcm::resolve_week((w % 1024) as u16, hint_week), toe));
+        }
+    }
+
     /// The full week of a time of week near the latest ephemeris.
     pub fn week_for_tow(&self, tow_s: f64) -> Option<u32> {
         let (w, toe) = self.last?;

@@ -57,6 +57,8 @@ pub struct ReceiverStats {
     /// Differential solutions, and epochs without one by reason.
     pub dgnss_solved: u64,
     pub dgnss_skipped: BTreeMap<String, u64>,
+    /// Times a Galileo ephemeris's full week overruled the week hint.
+    pub week_from_galileo: u64,
 }
 
 /// A stream-order GNSS receiver model: ephemerides, epochs and solutions.
@@ -74,8 +76,8 @@ pub struct Receiver {
     pending_glonass: Vec<rtcm::Msg1020>,
     /// The base station, when a base stream is attached.
     pub base: Option<BaseStation>,
-    /// Oldest base epoch (s) a differential solution may use.
-    pub dgnss_max_age_s: f64,
+    /// What a base must satisfy for a differential solution.
+    pub base_limits: dgnss::BaseLimits,
     pub stats: ReceiverStats,
 }
 
@@ -90,7 +92,7 @@ impl Receiver {
             last_time: None,
             pending_glonass: Vec::new(),
             base: None,
-            dgnss_max_age_s: 10.0,
+            base_limits: dgnss::BaseLimits::default(),
             stats: ReceiverStats::default(),
         }
     }
@@ -99,6 +101,15 @@ impl Receiver {
     pub fn push(&mut self, m: GnssMessage, out: &mut Vec<Epoch>) {
         match m {
             GnssMessage::Eph(raw) => {
+                // Galileo's 12-bit week is unambiguous for 78 years: it
+                // settles a hint that is 1024 weeks off.
+                if raw.eph.system == rtcm::System::Galileo {
+                    let week = raw.full_week(self.week_hint);
+                    if week.abs_diff(self.week_hint) >= 512 {
+                        self.set_week_hint(week);
+                        self.stats.week_from_galileo += 1;
+                    }
+                }
                 let week = raw.full_week(self.week_hint);
                 let mut eph = raw.eph;
                 eph.week = week;
@@ -154,6 +165,17 @@ impl Receiver {
         }
     }
 
+    /// Sets the full week near the data (from the autopilot's clock or a
+    /// Galileo ephemeris): the GPS ephemerides already stored, whose 10-bit
+    /// weeks were resolved with the old hint, are resolved again.
+    pub fn set_week_hint(&mut self, week: u32) {
+        if week == self.week_hint {
+            return;
+        }
+        self.week_hint = week;
+        self.ephs.resolve_gps_weeks(week);
+    }
+
     /// Feeds one message of the base station's stream: its ephemerides
     /// join the rover's, its antenna position and epochs make the base
     /// (attached at the first call).
@@ -171,7 +193,14 @@ impl Receiver {
                 }
                 let (ephs, hint) = (&self.ephs, self.week_hint);
                 let base = self.base.get_or_insert_with(BaseStation::default);
-                base.push_msm(e, &self.opts.systems, |tow| ephs.week_for_tow(tow).unwrap_or(hint));
+                let kept = base.push_msm(e, &self.opts.systems, |tow| ephs.week_for_tow(tow).unwrap_or(hint));
+                // Each epoch's own single-point fix checks the base's
+                // announced antenna position.
+                for ep in kept {
+                    if let Ok(fix) = spp::solve(&ep.sats, ep.week, ep.tow_s, &self.ephs, &self.opts) {
+                        base.record_fix(ep.station_id, &fix.r_ecef_m);
+                    }
+                }
             }
         }
     }
@@ -218,7 +247,7 @@ impl Receiver {
             Err(error) => *self.stats.skipped.entry(error.to_string()).or_default() += 1,
         }
         let dgnss = self.base.as_ref().map(|b| {
-            let r = dgnss::solve(&sats, week, tow_s, b, &self.ephs, &self.opts, self.dgnss_max_age_s);
+            let r = dgnss::solve(&sats, week, tow_s, b, &self.ephs, &self.opts, self.base_limits);
             match &r {
                 Ok(_) => self.stats.dgnss_solved += 1,
                 Err(error) => *self.stats.dgnss_skipped.entry(error.to_string()).or_default() += 1,

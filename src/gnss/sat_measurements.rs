@@ -72,7 +72,7 @@ pub fn sat_measurements(
                 range_rate_mps: s.l1_range_rate_mps,
                 noise_scale,
                 extra_var_m2,
-                differential: false,
+                correction: None,
             })
         })
         .collect()

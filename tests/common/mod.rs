@@ -3,6 +3,7 @@
 
 pub mod autopilot;
 pub mod flights;
+pub mod gnss_flights;
 pub mod harness;
 
 use cmsckf::config::Config;

@@ -150,10 +150,38 @@ pub struct SatMeas {
     pub noise_scale: f64,
     /// Added pseudorange variance (m²): an unmodelled ionosphere.
     pub extra_var_m2: f64,
-    /// The code is differential: the rover's less a base station's
-    /// correction, so satellite orbit, clock and atmosphere errors are gone
-    /// and its clock offset differs from a raw code's by a few metres.
-    pub differential: bool,
+    /// `Some` when the code is differential: the rover's less a base
+    /// station's correction, so satellite orbit, clock and atmosphere errors
+    /// are gone and its clock offset differs from a raw code's by a few
+    /// metres. How the correction was taken sets its variance.
+    pub correction: Option<CodeCorrection>,
+}
+
+impl SatMeas {
+    /// Whether the code is differential.
+    pub fn differential(&self) -> bool {
+        self.correction.is_some()
+    }
+}
+
+/// How a differential code's base correction was taken: what its error
+/// depends on (estimator README §8c, eqs. DG2′, DG7, DG8).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CodeCorrection {
+    /// The base epoch's time of week (s): the codes it corrects share its
+    /// errors.
+    pub base_tow_s: f64,
+    /// The rover epoch's time less the base epoch's (s): the correction is
+    /// held, never extrapolated, and its error grows with this.
+    pub age_s: f64,
+    /// Rover epochs that share this base epoch's correction (≥ 1): those
+    /// corrected by it so far, or the base's period over the rover's,
+    /// whichever is more.
+    pub shared_by: f64,
+    /// How far the corrections' common part (each constellation's median,
+    /// DG1′) moved at this base epoch, on the satellites it shares with the
+    /// previous one (m): a satellite set change, or the base's noise.
+    pub reference_step_m: f64,
 }
 
 #[cfg(test)]

@@ -32,6 +32,21 @@ pub enum FaultKind {
     /// IMU samples sent in swapped pairs and twice each; camera lines and
     /// RTCM messages sent twice.
     DupReorder,
+    /// The base station falls silent (its radio or the ground station's
+    /// relay stops).
+    BaseSilent,
+    /// The base station's messages arrive twice, injected by two ground
+    /// stations (systems 255 and 254).
+    BaseDoubled,
+    /// The base station announces an antenna position 28 m from where it
+    /// stands (a badly surveyed or mistyped position).
+    BaseMoved,
+    /// A ground station announces an antenna position (MT1005) under the
+    /// rover's own station id.
+    BaseClaimsRoverId,
+    /// The base loses its lowest-numbered GPS satellite (it sets, or is
+    /// blocked, at the base): its satellite set changes twice.
+    BaseDropsSatellite,
 }
 
 impl FaultKind {
@@ -48,10 +63,15 @@ impl FaultKind {
             FaultKind::ClockJump => "clock_jump",
             FaultKind::DupReorder => "dup_reorder",
             FaultKind::ImuSpike => "imu_spike",
+            FaultKind::BaseSilent => "base_silent",
+            FaultKind::BaseDoubled => "base_doubled",
+            FaultKind::BaseMoved => "base_moved",
+            FaultKind::BaseClaimsRoverId => "base_claims_rover_id",
+            FaultKind::BaseDropsSatellite => "base_drops_satellite",
         }
     }
 
-    pub const ALL: [FaultKind; 11] = [
+    pub const ALL: [FaultKind; 16] = [
         FaultKind::LinkDrop,
         FaultKind::GnssOutage,
         FaultKind::CameraOutage,
@@ -63,6 +83,11 @@ impl FaultKind {
         FaultKind::ClockJump,
         FaultKind::DupReorder,
         FaultKind::ImuSpike,
+        FaultKind::BaseSilent,
+        FaultKind::BaseDoubled,
+        FaultKind::BaseMoved,
+        FaultKind::BaseClaimsRoverId,
+        FaultKind::BaseDropsSatellite,
     ];
 }
 
@@ -148,6 +173,25 @@ impl<'a> Active<'a> {
         } else {
             1
         }
+    }
+}
+
+/// `base_moved`: how far the announced antenna position is from the
+/// base's true one (m, east in the world frame's NED).
+pub const BASE_MOVED_M: f64 = 28.0;
+
+/// `base_drops_satellite`: the epoch without its lowest-numbered GPS
+/// satellite.
+pub(super) fn drop_first_gps(ep: &mut GnssEpoch) {
+    let first = ep
+        .sats
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.system == cmsckf_models::gnss::System::Gps)
+        .min_by_key(|(_, s)| s.prn)
+        .map(|(i, _)| i);
+    if let Some(i) = first {
+        ep.sats.remove(i);
     }
 }
 

@@ -77,6 +77,13 @@ const GCS_HEADER: MavHeader = MavHeader {
     sequence: 0,
 };
 
+/// A second ground station relaying the same base (`base_doubled`).
+const SECOND_GCS_HEADER: MavHeader = MavHeader {
+    system_id: 254,
+    component_id: 190,
+    sequence: 0,
+};
+
 /// Settings of one served flight.
 #[derive(Clone, Debug)]
 pub struct ServeOptions {

@@ -8,9 +8,9 @@
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{AsyncMavConnection, MavHeader};
 
-use super::fault::{add_pr_outliers, break_crc, Active, FaultKind};
+use super::fault::{add_pr_outliers, break_crc, drop_first_gps, Active, FaultKind, BASE_MOVED_M};
 use super::stream::Streamer;
-use super::{GCS_HEADER, HEADER, ROVER_STATION_ID};
+use super::{GCS_HEADER, HEADER, ROVER_STATION_ID, SECOND_GCS_HEADER};
 
 /// Splits an RTCM message into `GPS_RTCM_DATA` fragments (MAVLink spec):
 /// flags bit 0 = fragmented, bits 1–2 = fragment id, bits 3–7 = sequence.
@@ -74,24 +74,53 @@ impl Streamer<'_> {
     }
 
     /// Delivers the next base-station epoch (at its `t_delivered_s`): its
-    /// MT1005 and MSM7, from the ground station's system id.
+    /// MT1005 and MSM7, from the ground station's system id, with the base
+    /// faults in force at delivery applied.
     pub(super) async fn send_base_epoch(&mut self, active: &Active<'_>) {
         let Some(ep) = self.next_base_epoch() else { return };
         self.k_base += 1;
-        let (Some(arp), false) = (self.ds.base_arp_ecef_m, active.link_down()) else {
+        let (Some(mut arp), false) = (self.ds.base_arp_ecef_m, active.link_down()) else {
             return;
         };
+        if active.has(FaultKind::BaseSilent) {
+            return;
+        }
+        if active.has(FaultKind::BaseMoved) {
+            arp = self.moved_arp(arp);
+        }
         let id = self.ds.cfg.gnss.base.station_id;
-        for bytes in [
+        let mut ep = ep.clone();
+        if active.has(FaultKind::BaseDropsSatellite) {
+            drop_first_gps(&mut ep);
+        }
+        let mut messages = vec![
             crate::rtcm_out::encode_station(id, arp),
-            crate::rtcm_out::encode_epoch(ep, id),
-        ]
-        .into_iter()
-        .flatten()
-        {
-            self.send_rtcm(&GCS_HEADER, &bytes).await;
+            crate::rtcm_out::encode_epoch(&ep, id),
+        ];
+        if active.has(FaultKind::BaseClaimsRoverId) {
+            messages.push(crate::rtcm_out::encode_station(ROVER_STATION_ID, arp));
+        }
+        let stations: &[MavHeader] = if active.has(FaultKind::BaseDoubled) {
+            &[GCS_HEADER, SECOND_GCS_HEADER]
+        } else {
+            &[GCS_HEADER]
+        };
+        for bytes in messages.into_iter().flatten() {
+            for header in stations {
+                self.send_rtcm(header, &bytes).await;
+            }
             self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
         }
+    }
+
+    /// `base_moved`: the base's antenna position `arp` (ECEF, m) moved
+    /// [`BASE_MOVED_M`] east.
+    fn moved_arp(&self, arp: [f64; 3]) -> [f64; 3] {
+        let o = self.ds.cfg.gnss.origin_llh;
+        let frame = cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]);
+        let east =
+            frame.to_ecef(&nalgebra::Vector3::new(0.0, BASE_MOVED_M, 0.0)) - frame.to_ecef(&nalgebra::Vector3::zeros());
+        [arp[0] + east.x, arp[1] + east.y, arp[2] + east.z]
     }
 
     /// One message of the rover's receiver: to its own port when it has
