@@ -20,13 +20,17 @@ async fn base_only_helps(name: &str, flight: &GnssFlight) -> BTreeMap<String, u6
     let (spp, _) = flight.fly(Gnss::SinglePoint).await;
     let (dgnss, c) = flight.fly(Gnss::Differential).await;
     eprintln!(
-        "{name} (seed {}): single point ATE {:.3} m, {} resets; differential ATE {:.3} m, {} resets; \
-         differential epochs {} of {}; counters {:?}",
+        "{name} (seed {}): single point ATE {:.3} m, {} resets, NEES {:.2} ({:.0}% in 95%); differential ATE \
+         {:.3} m, {} resets, NEES {:.2} ({:.0}% in 95%); differential epochs {} of {}; counters {:?}",
         flight.seed,
         spp.ate_m,
         spp.reset_count,
+        spp.position_nees_mean,
+        100.0 * spp.position_nees_in95,
         dgnss.ate_m,
         dgnss.reset_count,
+        dgnss.position_nees_mean,
+        100.0 * dgnss.position_nees_in95,
         count(&c, "gnss_dgnss_epochs"),
         count(&c, "gnss_epochs"),
         c.iter().filter(|(k, _)| k.starts_with("gnss")).collect::<Vec<_>>()

@@ -212,6 +212,56 @@ fn gmsd7_gps_and_glonass() {
     assert!(counts.contains("1020:16"), "{counts}");
 }
 
+/// Legacy RTCM (1004 GPS L1/L2 with its code ambiguity, 1012 GLONASS,
+/// 1019/1020 ephemerides, 1005): what many CORS networks and NTRIP casters
+/// still send. RTKLIB's `testglo.rtcm3` against RTKLIB 2.4.3's single-point
+/// solution of the same stream. The ephemerides arrive one per ten seconds,
+/// so the comparison takes the epochs with every satellite RTKLIB used (9
+/// GPS; 14 with GLONASS), as RTKLIB had all of them from its navigation
+/// file.
+#[test]
+fn legacy_1004_gps_against_rtklib() {
+    let (n, med, p95, counts) = compare_filtered(
+        "testglo.rtcm3",
+        &[],
+        "off",
+        "1562",
+        "testglo_rtklib_spp_gps_ionooff.pos",
+        |n_sats| n_sats == 9,
+    );
+    eprintln!("{counts}\nlegacy GPS: {n} matched, median {med:.4} m, p95 {p95:.4} m");
+    assert!(n >= 80, "{n} epochs with all nine satellites");
+    assert_agrees("testglo 1004", n, med, p95);
+    assert!(counts.contains("1004:186") && counts.contains("1012:186"), "{counts}");
+    assert!(counts.contains("undecodable: 0"), "{counts}");
+}
+
+#[test]
+fn legacy_1004_and_1012_gps_and_glonass_against_rtklib() {
+    let (n, med, p95, counts) = compare_filtered(
+        "testglo.rtcm3",
+        &["--systems", "G,R"],
+        "off",
+        "1562",
+        "testglo_rtklib_spp_gr_ionooff.pos",
+        |n_sats| n_sats == 14,
+    );
+    eprintln!("{counts}\nlegacy GPS + GLONASS, 14 satellites: {n} matched, median {med:.4} m, p95 {p95:.4} m");
+    assert!(n >= 80, "{n} epochs with all fourteen satellites");
+    assert!(med <= 0.05 && p95 <= 0.1, "median {med} m, p95 {p95} m from RTKLIB");
+    // Every epoch solved, whatever the satellites it had so far: at least
+    // 80 % of RTKLIB's, within 1 m (median) of its.
+    let (n, med, _, _) = compare_with(
+        "testglo.rtcm3",
+        &["--systems", "G,R"],
+        "off",
+        "1562",
+        "testglo_rtklib_spp_gr_ionooff.pos",
+    );
+    eprintln!("legacy GPS + GLONASS, every epoch: {n} of 186 matched, median {med:.4} m");
+    assert!(n as f64 >= 0.8 * 186.0 && med <= 1.0, "{n} epochs, median {med} m");
+}
+
 /// 3040's RINEX-header position (ECEF, m): the antenna's surveyed point.
 const SURVEYED_3040: &str = "-3978242.4348,3382841.1715,3649902.7667";
 

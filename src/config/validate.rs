@@ -229,6 +229,7 @@ impl Config {
         c.range("troposphere_sigma_m", g.troposphere_sigma_m, 0.0, 10.0)?;
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.range("correlation_window_s", g.correlation_window_s, 0.0, 600.0)?;
+        c.range("ionosphere_window_s", g.ionosphere_window_s, 0.0, 3600.0)?;
         c.range(
             "range_rate_correlated_sigma_mps",
             g.range_rate_correlated_sigma_mps,

@@ -534,10 +534,17 @@ impl Estimator {
             // the broadcast and troposphere terms only for single-point
             // codes, since a base station's corrections remove them.
             let code_var_m2 = (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2);
-            let white_var_m2 = code_var_m2 + s.extra_var_m2;
+            let white_var_m2 = code_var_m2;
+            // DG6′: the ionosphere a single-frequency code leaves (σ_I²,
+            // `extra_var_m2`: unmodelled, or Klobuchar's residual) holds
+            // for tens of minutes along each line of sight, and is metres:
+            // it counts once per `ionosphere_window_s`.
+            let w_iono = (self.s.ionosphere_window_s / period_s).max(1.0);
             let (common_var_m2, w) = match s.correction {
                 None => (
-                    self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2),
+                    self.s.broadcast_sigma_m.powi(2)
+                        + (self.s.troposphere_sigma_m / sin_el).powi(2)
+                        + s.extra_var_m2 * w_iono / w,
                     w,
                 ),
                 // DG2′: a held correction carries the base's code noise

@@ -78,6 +78,9 @@ pub struct Settings {
     /// part (m/s at zenith), count as one measurement (§8c, eq. DG6).
     pub gnss_correlation_window_s: f64,
     pub range_rate_correlated_sigma_mps: f64,
+    /// The window (s) in which a single-frequency code's ionosphere error
+    /// counts as one measurement (§8c, eq. DG6′).
+    pub ionosphere_window_s: f64,
     /// How fast a held base correction drifts, one sigma (m/s; §8c, DG2′).
     pub dgnss_correction_rate_sigma_mps: f64,
     pub elevation_mask_deg: f64,

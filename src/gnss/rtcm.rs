@@ -309,6 +309,72 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         Message::Msg1127(v) => {
             msm_epoch!(t, v, System::BeiDou, tow: (bdt_to_gps_tow(v.bds_epoch_time_ms), false), gnss_signal_fine_pseudorange_ext_ms, rate: yes, cnr: gnss_signal_cnr_ext_dbhz)
         }
+        // Legacy observations: the code's ambiguity (in 1002/1004 and
+        // 1010/1012) makes the full pseudorange; without it (1001/1003,
+        // 1009/1011) the code is known only modulo one (GPS) or two
+        // (GLONASS) light-milliseconds, and is left out.
+        Message::Msg1001(v) => legacy_epoch(
+            t,
+            LegacyHeader::gps(v.reference_station_id, v.gps_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites
+                .iter()
+                .map(|s| LegacySat::gps(s.gps_satellite_id, None, None, None)),
+        ),
+        Message::Msg1002(v) => legacy_epoch(
+            t,
+            LegacyHeader::gps(v.reference_station_id, v.gps_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites.iter().map(|s| {
+                let l1 = s.l1_pseudorange_m.map(|p| p + s.l1_pseudorange_amb_m);
+                LegacySat::gps(s.gps_satellite_id, l1, None, s.l1_cnr_dbhz)
+            }),
+        ),
+        Message::Msg1003(v) => legacy_epoch(
+            t,
+            LegacyHeader::gps(v.reference_station_id, v.gps_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites
+                .iter()
+                .map(|s| LegacySat::gps(s.gps_satellite_id, None, None, None)),
+        ),
+        Message::Msg1004(v) => legacy_epoch(
+            t,
+            LegacyHeader::gps(v.reference_station_id, v.gps_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites.iter().map(|s| {
+                let l1 = s.l1_pseudorange_m.map(|p| p + s.l1_pseudorange_amb_m);
+                let l2 = l1.zip(s.l2_l1_pseudorange_diff_m).map(|(p, d)| p + d as f64);
+                LegacySat::gps(s.gps_satellite_id, l1, l2, s.l1_cnr_dbhz)
+            }),
+        ),
+        Message::Msg1009(v) => legacy_epoch(
+            t,
+            LegacyHeader::glonass(v.reference_station_id, v.glo_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites
+                .iter()
+                .map(|s| LegacySat::glonass(s.glo_satellite_id, None, None, None)),
+        ),
+        Message::Msg1010(v) => legacy_epoch(
+            t,
+            LegacyHeader::glonass(v.reference_station_id, v.glo_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites.iter().map(|s| {
+                let l1 = s.l1_pseudorange_m.map(|p| p + s.l1_pseudorange_amb_m);
+                LegacySat::glonass(s.glo_satellite_id, l1, None, s.l1_cnr_dbhz)
+            }),
+        ),
+        Message::Msg1011(v) => legacy_epoch(
+            t,
+            LegacyHeader::glonass(v.reference_station_id, v.glo_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites
+                .iter()
+                .map(|s| LegacySat::glonass(s.glo_satellite_id, None, None, None)),
+        ),
+        Message::Msg1012(v) => legacy_epoch(
+            t,
+            LegacyHeader::glonass(v.reference_station_id, v.glo_epoch_time_ms, v.synchronous_gnss_msg_flag),
+            v.satellites.iter().map(|s| {
+                let l1 = s.l1_pseudorange_m.map(|p| p + s.l1_pseudorange_amb_m);
+                let l2 = l1.zip(s.l2_l1_pseudorange_diff_m).map(|(p, d)| p + d as f64);
+                LegacySat::glonass(s.glo_satellite_id, l1, l2, s.l1_cnr_dbhz)
+            }),
+        ),
         // The weeks stay truncated until the receiver resolves them.
         Message::Msg1019(e) => Some(GnssMessage::Eph(RawEph {
             week_field: e.gps_week_number,
@@ -354,6 +420,111 @@ fn convert(t: u16, m: Message) -> Option<GnssMessage> {
         Message::Empty | Message::Corrupt => None,
         _ => Some(GnssMessage::Other(t)),
     }
+}
+
+/// The header of a legacy observation message (1001–1004, 1009–1012).
+struct LegacyHeader {
+    system: System,
+    station_id: u16,
+    /// Time of week (GPS) or of the day (GLONASS, UTC), and whether the day
+    /// is unknown (GLONASS: always).
+    tow: (f64, bool),
+    /// DF005: more observation messages of this epoch follow.
+    synchronous: bool,
+}
+
+impl LegacyHeader {
+    fn gps(station_id: u16, tow_ms: u32, sync: u8) -> Self {
+        LegacyHeader {
+            system: System::Gps,
+            station_id,
+            tow: (tow_ms as f64 * 1e-3, false),
+            synchronous: sync != 0,
+        }
+    }
+
+    /// GLONASS: DF034 is milliseconds of the Moscow day, with no day.
+    fn glonass(station_id: u16, tod_ms: u32, sync: u8) -> Self {
+        LegacyHeader {
+            system: System::Glonass,
+            station_id,
+            tow: glonass_tow(None, tod_ms),
+            synchronous: sync != 0,
+        }
+    }
+}
+
+/// One satellite of a legacy observation message: its full codes (the
+/// ambiguity added), as the MSM path's signals.
+struct LegacySat {
+    system: System,
+    /// DF009 (GPS 1–32; 40–58 are SBAS, not used) or DF038 (GLONASS slot).
+    id: u8,
+    l1_m: Option<f64>,
+    l2_m: Option<f64>,
+    cnr_dbhz: Option<f32>,
+}
+
+impl LegacySat {
+    fn gps(id: u8, l1_m: Option<f64>, l2_m: Option<f64>, cnr_dbhz: Option<f32>) -> Self {
+        LegacySat {
+            system: System::Gps,
+            id,
+            l1_m,
+            l2_m,
+            cnr_dbhz,
+        }
+    }
+
+    fn glonass(id: u8, l1_m: Option<f64>, l2_m: Option<f64>, cnr_dbhz: Option<f32>) -> Self {
+        LegacySat {
+            system: System::Glonass,
+            id,
+            l1_m,
+            l2_m,
+            cnr_dbhz,
+        }
+    }
+}
+
+/// A legacy observation message as an [`MsmEpoch`]: L1 C/A (`1C`) and,
+/// where present, L2 P (`2P`) codes, no Doppler (the legacy messages carry
+/// none). SBAS satellites (GPS ids 40–58) are left out. The lock-time
+/// indicators and the phases matter to carrier-phase users only, and are
+/// not kept.
+fn legacy_epoch(t: u16, h: LegacyHeader, sats: impl Iterator<Item = LegacySat>) -> Option<GnssMessage> {
+    let valid_id = |s: &LegacySat| match s.system {
+        System::Gps => (1..=32).contains(&s.id),
+        _ => (1..=24).contains(&s.id),
+    };
+    let sats = sats
+        .filter(valid_id)
+        .map(|s| SatObs {
+            system: s.system,
+            prn: s.id,
+            signals: [(1, 'C', s.l1_m, s.cnr_dbhz), (2, 'P', s.l2_m, None)]
+                .into_iter()
+                .filter(|(band, _, p, _)| *band == 1 || p.is_some())
+                .map(|(band, attribute, pseudorange_m, cnr)| SignalObs {
+                    band,
+                    attribute,
+                    pseudorange_m: pseudorange_m.filter(|p| p.is_finite()),
+                    range_rate_mps: None,
+                    cnr_dbhz: cnr.map(f64::from),
+                })
+                .collect(),
+        })
+        .collect();
+    Some(GnssMessage::Msm(MsmEpoch {
+        system: h.system,
+        msg_type: t,
+        station_id: h.station_id,
+        tow_s: h.tow.0,
+        utc: h.system == System::Glonass,
+        day_unknown: h.tow.1,
+        multiple: h.synchronous,
+        sats,
+    }))
 }
 
 /// BeiDou time of week (ms of BDT) on the GPS scale: BDT = GPST − 14 s.
