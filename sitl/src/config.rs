@@ -168,6 +168,9 @@ pub struct BaseSimConfig {
     /// Whether the base tracks Galileo (many older bases and CORS sites
     /// send GPS only, while the rover tracks both).
     pub galileo: bool,
+    /// The base sends legacy MT1004 (GPS L1 with its ambiguity) instead of
+    /// MSM7, as many CORS networks and NTRIP casters do: GPS only.
+    pub legacy: bool,
 }
 
 impl Default for BaseSimConfig {
@@ -178,6 +181,7 @@ impl Default for BaseSimConfig {
             station_id: 100,
             latency_s: [0.3, 0.8],
             galileo: true,
+            legacy: false,
         }
     }
 }

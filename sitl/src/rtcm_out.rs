@@ -10,7 +10,8 @@
 //! the daemon's decoder uses too.
 
 use rtcm_rs::msg::{
-    GalSigId, GpsSigId, Msg1077Data, Msg1077Sig, Msg1077T, Msg1097Data, Msg1097Sig, Msg1097T, Msm57Sat,
+    GalSigId, GpsSigId, Msg1004Sat, Msg1004T, Msg1077Data, Msg1077Sig, Msg1077T, Msg1097Data, Msg1097Sig, Msg1097T,
+    Msm57Sat,
 };
 use rtcm_rs::util::DataVec;
 use rtcm_rs::{Message, MessageBuilder};
@@ -76,6 +77,43 @@ pub fn encode_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmEnco
             .map_err(RtcmEncodeError::Encode)?,
     );
     Ok(out)
+}
+
+/// One light-millisecond (m): the unit of MT1004's code ambiguity (DF014).
+const LIGHT_MS_M: f64 = 299_792.458;
+
+/// Frames one epoch's GPS satellites as the legacy MT1004 (L1 C/A code with
+/// its ambiguity, CNR; no L2, no phase), as older bases and many CORS
+/// casters send it. Legacy RTCM has no Galileo message: a legacy base
+/// serves GPS only.
+pub fn encode_legacy_epoch(ep: &GnssEpoch, station_id: u16) -> Result<Vec<u8>, RtcmEncodeError> {
+    let mut gps: Vec<_> = ep
+        .sats
+        .iter()
+        .filter(|s| s.system == System::Gps && (1..=32).contains(&s.prn))
+        .collect();
+    gps.sort_by_key(|s| s.prn);
+    let mut sats: DataVec<Msg1004Sat, 31> = DataVec::new();
+    for s in gps.into_iter().take(31) {
+        let ambiguity = (s.pseudorange_m / LIGHT_MS_M).floor();
+        sats.push(Msg1004Sat {
+            gps_satellite_id: s.prn,
+            l1_pseudorange_m: Some(s.pseudorange_m - ambiguity * LIGHT_MS_M),
+            l1_pseudorange_amb_m: ambiguity * LIGHT_MS_M,
+            l1_cnr_dbhz: Some(s.cn0_dbhz as f32),
+            ..Default::default()
+        });
+    }
+    let msg = Msg1004T {
+        reference_station_id: station_id,
+        gps_epoch_time_ms: (ep.tow_s * 1e3).round() as u32,
+        satellites: sats,
+        ..Default::default()
+    };
+    let mut b = MessageBuilder::new();
+    b.build_message(&Message::Msg1004(msg))
+        .map(<[u8]>::to_vec)
+        .map_err(RtcmEncodeError::Encode)
 }
 
 /// The 1077 message (GPS L1 C/A) of the satellites `gps`, in PRN order;

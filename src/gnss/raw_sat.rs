@@ -48,9 +48,10 @@ impl RawSat {
                     .iter()
                     .find(|g| g.band == band && g.attribute == attributes[0])
             });
+        // QZSS transmits on GPS's frequencies.
         let second = |band: u8| match (s.system, band) {
-            (System::Gps, 2) => Some(F_L2_HZ),
-            (System::Gps | System::Galileo, 5) => Some(F_L5_HZ),
+            (System::Gps | System::Qzss, 2) => Some(F_L2_HZ),
+            (System::Gps | System::Galileo | System::Qzss, 5) => Some(F_L5_HZ),
             (System::Galileo, 7) => Some(F_E5B_HZ),
             _ => None,
         };

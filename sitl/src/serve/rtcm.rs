@@ -93,10 +93,12 @@ impl Streamer<'_> {
         if active.has(FaultKind::BaseDropsSatellite) {
             drop_first_gps(&mut ep);
         }
-        let mut messages = vec![
-            crate::rtcm_out::encode_station(id, arp),
-            crate::rtcm_out::encode_epoch(&ep, id),
-        ];
+        let observations = if self.ds.cfg.gnss.base.legacy {
+            crate::rtcm_out::encode_legacy_epoch(&ep, id)
+        } else {
+            crate::rtcm_out::encode_epoch(&ep, id)
+        };
+        let mut messages = vec![crate::rtcm_out::encode_station(id, arp), observations];
         if active.has(FaultKind::BaseClaimsRoverId) {
             messages.push(crate::rtcm_out::encode_station(ROVER_STATION_ID, arp));
         }
