@@ -158,7 +158,7 @@ mod tests {
             base_tow_s,
             age_s: 0.5,
             base_period_s,
-            reference_step_m: 0.0,
+            reference_steps_m: Vec::new(),
             values: vec![((crate::gnss::rtcm::System::Gps, 1), 0.3)],
             non_finite: 0,
         }

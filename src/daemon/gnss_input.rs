@@ -468,14 +468,14 @@ impl GnssIn {
         if missing > 0 {
             counters.add(Counter::GnssDgnssSatNotAtBase, missing);
         }
-        let correction = cmsckf_models::gnss::CodeCorrection {
-            base_tow_s: corr.base_tow_s,
-            age_s: corr.age_s,
-            shared_by,
-            reference_step_m: corr.reference_step_m,
-        };
         for s in sats.iter_mut().filter(|s| s.pseudorange_m.is_some()) {
-            s.correction = Some(correction);
+            let step = corr.reference_steps_m.iter().find(|(sys, _)| *sys == s.system);
+            s.correction = Some(cmsckf_models::gnss::CodeCorrection {
+                base_tow_s: corr.base_tow_s,
+                age_s: corr.age_s,
+                shared_by,
+                reference_step_m: step.map_or(0.0, |(_, d)| *d),
+            });
         }
         sats.extend(single(spp_obs));
         sats

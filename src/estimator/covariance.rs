@@ -304,7 +304,7 @@ impl Estimator {
     }
 
     /// Moves clock state `k` by `delta_m`, live and in every GNSS clone.
-    fn shift_clock_state(&mut self, k: usize, delta_m: f64) {
+    pub(super) fn shift_clock_state(&mut self, k: usize, delta_m: f64) {
         self.clock[k - CLK_B] += delta_m;
         for c in self.gnss_clones.iter_mut() {
             c.nom.clock[k - CLK_B] += delta_m;

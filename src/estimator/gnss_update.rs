@@ -431,10 +431,11 @@ impl Estimator {
     /// DG8: a new base epoch moves the differential codes' common part (each
     /// constellation's median correction, DG1′) by its noise and by any
     /// change of the base's satellite set, which no clock random walk
-    /// explains. The clock bias (live and in every clone, as DG4) and the
-    /// inter-system biases take it as a common error of variance
-    /// `s² + 2·(π/2)·mean(σ_b,i²)/n`: the step `s` seen on the satellites
-    /// both base epochs share, plus the noise of two medians of `n` codes.
+    /// explains. The step `d_X` of constellation X, seen on the satellites
+    /// both base epochs share, moves every corrected code of X by `−d_X`: the
+    /// clock bias takes `−d_G` and each inter-system bias `−(d_X − d_G)`,
+    /// live and in every clone (as DG4), and, for the noise of the two
+    /// medians it was measured with, a common variance `2·(π/2)·mean(σ_b,i²)/n`.
     fn follow_base_reference(&mut self, sats: &[SatMeas], nom: &GnssNominal, frame: &NedFrame) {
         let Some(c) = sats.iter().find_map(|s| s.correction) else {
             return;
@@ -455,10 +456,19 @@ impl Estimator {
             return;
         }
         let n = base_vars.len() as f64;
-        let mean_var = base_vars.iter().sum::<f64>() / n;
-        let var = c.reference_step_m.powi(2) + 2.0 * std::f64::consts::FRAC_PI_2 * mean_var / n;
-        self.shift_clock_bias(0.0, var);
-        for k in 0..ISB_SYSTEMS.len() {
+        let var = 2.0 * std::f64::consts::FRAC_PI_2 * base_vars.iter().sum::<f64>() / n / n;
+        let step = |system: System| {
+            sats.iter()
+                .filter(|s| s.system == system)
+                .find_map(|s| s.correction.map(|c| c.reference_step_m))
+                .filter(|d| d.is_finite())
+        };
+        let d_gps = step(System::Gps).unwrap_or(0.0);
+        self.shift_clock_bias(-d_gps, var);
+        for (k, &system) in ISB_SYSTEMS.iter().enumerate() {
+            if let Some(d) = step(system) {
+                self.shift_clock_state(CLK_E + k, -(d - d_gps));
+            }
             self.add_clock_state_variance(CLK_E + k, var);
         }
     }

@@ -159,8 +159,9 @@ pub struct BaseCorrections {
     pub age_s: f64,
     /// Spacing of the base's last two epochs (s; `None` with one).
     pub base_period_s: Option<f64>,
-    /// How far the common part moved since the previous base epoch (DG8).
-    pub reference_step_m: f64,
+    /// How far each constellation's common part moved since the previous
+    /// base epoch (m, signed; DG8).
+    pub reference_steps_m: Vec<(System, f64)>,
     pub values: Corrections,
     /// Corrections left out as non-finite.
     pub non_finite: u64,
@@ -346,9 +347,9 @@ fn epoch_corrections(
 }
 
 /// How far each constellation's common part moved from `before` to
-/// `now` (DG8): the median over their shared satellites of the change of
-/// each one's correction, the largest over the constellations (m).
-fn reference_step_m(now: &Corrections, before: &Corrections) -> f64 {
+/// `now` (DG8): the median over its shared satellites of the change of each
+/// one's correction (m, signed), by constellation.
+fn reference_steps(now: &Corrections, before: &Corrections) -> Vec<(System, f64)> {
     let mut systems: Vec<System> = now.iter().map(|(k, _)| k.0).collect();
     systems.sort_by_key(|s| s.letter());
     systems.dedup();
@@ -359,11 +360,12 @@ fn reference_step_m(now: &Corrections, before: &Corrections) -> f64 {
                 .iter()
                 .filter(|(k, _)| k.0 == sys)
                 .filter_map(|(k, c)| Some(c - before.iter().find(|(b, _)| b == k)?.1))
+                .filter(|d| d.is_finite())
                 .collect();
             d.sort_by(f64::total_cmp);
-            d.get(d.len() / 2).map(|m| m.abs())
+            d.get(d.len() / 2).map(|m| (sys, *m))
         })
-        .fold(0.0, f64::max)
+        .collect()
 }
 
 /// The base's corrections at the rover epoch `week`/`tow_s` (DG2′), by
@@ -397,14 +399,14 @@ pub fn corrections(
     let before_filter = values.len();
     values.retain(|(_, c)| c.is_finite());
     let non_finite = (before_filter - values.len()) as u64;
-    let step = before.map_or(0.0, |b| {
-        reference_step_m(&values, &epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model))
+    let steps = before.map_or(Vec::new(), |b| {
+        reference_steps(&values, &epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model))
     });
     Ok(BaseCorrections {
         base_tow_s: newest.tow_s,
         age_s: newest.age_s(week, tow_s),
         base_period_s: before.map(|b| b.age_s(newest.week, newest.tow_s)),
-        reference_step_m: step,
+        reference_steps_m: steps,
         values,
         non_finite,
     })

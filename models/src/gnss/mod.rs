@@ -178,9 +178,11 @@ pub struct CodeCorrection {
     /// corrected by it so far, or the base's period over the rover's,
     /// whichever is more.
     pub shared_by: f64,
-    /// How far the corrections' common part (each constellation's median,
-    /// DG1′) moved at this base epoch, on the satellites it shares with the
-    /// previous one (m): a satellite set change, or the base's noise.
+    /// How far the corrections' common part of this satellite's
+    /// constellation (its median, DG1′) moved at this base epoch, on the
+    /// satellites it shares with the previous one (m, signed): a satellite
+    /// set change, or the base's noise. Every corrected code of the
+    /// constellation moves by its negative.
     pub reference_step_m: f64,
 }
 
