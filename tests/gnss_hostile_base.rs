@@ -117,6 +117,28 @@ async fn a_legacy_base_only_helps() {
     );
 }
 
+/// A 10 Hz receiver keeps several GNSS clones alive; each switch between
+/// single point and differential codes re-initialised the inter-system
+/// bias in all of them, and the clone-to-clone terms left at zero made the
+/// covariance indefinite (11 resets, "covariance diagonal 17 is −899").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ten_hz_rover_with_a_base_only_helps() {
+    let mut f = GnssFlight::new(1);
+    f.sim = |s| s.gnss.rate_hz = 10.0;
+    let c = base_only_helps("a 10 Hz rover", &f).await;
+    assert!(count(&c, "gnss_dgnss_epochs") >= 400);
+}
+
+/// The same with the rover's epochs 2.5–3 s late (fused through clones).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_rover_with_a_base_only_helps() {
+    let mut f = GnssFlight::new(1);
+    f.sim = |s| s.gnss.latency_s = [2.5, 3.0];
+    f.cfg = |c| c.gnss.max_delay_s = 5.0;
+    let c = base_only_helps("a rover 2.5–3 s late", &f).await;
+    assert!(count(&c, "gnss_dgnss_epochs") >= 40);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_week_1024_off_is_resolved() {
     let mut f = GnssFlight::new(1);

@@ -270,22 +270,27 @@ impl Estimator {
     pub(super) fn reset_clock_states(&mut self, ks: &[usize], values: &[f64], var: &[f64]) {
         let go = self.gnss_clones_offset();
         for ((&k, &x), &v) in ks.iter().zip(values).zip(var) {
-            self.clock[k - CLK_B] = x;
-            self.P.row_mut(k).fill(0.0);
-            self.P.column_mut(k).fill(0.0);
-            if let Some(g) = self.global.as_mut() {
-                g.Phi.row_mut(k).fill(0.0);
-            }
-            self.P[(k, k)] = v;
+            // Every copy of the state: live, and one in each GNSS clone.
+            let mut copies = vec![k];
             for (i, c) in self.gnss_clones.iter_mut().enumerate() {
-                let ck = go + GNSS_CLONE_DIM * i + 12 + (k - CLK_B);
                 c.nom.clock[k - CLK_B] = x;
-                self.P.row_mut(ck).fill(0.0);
-                self.P.column_mut(ck).fill(0.0);
+                copies.push(go + GNSS_CLONE_DIM * i + 12 + (k - CLK_B));
+            }
+            self.clock[k - CLK_B] = x;
+            for &a in &copies {
+                self.P.row_mut(a).fill(0.0);
+                self.P.column_mut(a).fill(0.0);
                 if let Some(g) = self.global.as_mut() {
-                    g.Phi.row_mut(ck).fill(0.0);
+                    g.Phi.row_mut(a).fill(0.0);
                 }
-                for (a, b) in [(k, ck), (ck, k), (ck, ck)] {
+            }
+            // One value known to `v` held by all its copies: `P = v u uᵀ` on
+            // them, `u` one at each. With the clone-to-clone terms left at 0
+            // (as before) two clones made P indefinite, and fusing through
+            // both drove the state's variance to −v (a reset each time a
+            // 10 Hz receiver switched to differential codes).
+            for &a in &copies {
+                for &b in &copies {
                     self.P[(a, b)] = v;
                 }
             }
