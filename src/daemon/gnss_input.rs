@@ -117,6 +117,10 @@ enum Destination {
     Ignored,
 }
 
+/// Farthest ahead of the filter (s) a GNSS epoch may map and still wait
+/// for IMU to cover it.
+const MAX_EPOCH_LEAD_S: f64 = 10.0;
+
 /// Unix time (s) before which an autopilot's SYSTEM_TIME is not a real
 /// date (2015-01-01): a board that booted without GNSS or NTP.
 const UNIX_PLAUSIBLE_S: f64 = 1_420_070_400.0;
@@ -201,14 +205,16 @@ impl GnssIn {
     }
 
     /// The autopilot's Unix time (s, from SYSTEM_TIME, its GNSS time): the
-    /// GPS week, which a companion without a network cannot know, and a
-    /// wrong `gnss.week_hint` must not hide. A Galileo ephemeris's week
-    /// stands above it.
+    /// GPS week, which a companion without a network cannot know, and which
+    /// neither a wrong `gnss.week_hint` nor an ephemeris (a ground station's
+    /// may be anything) overrules. Before it, a Galileo ephemeris's week
+    /// overrules the hint.
     pub(super) fn set_autopilot_unix_time(&mut self, unix_s: f64, counters: &Counters) {
-        if !(unix_s.is_finite() && unix_s > UNIX_PLAUSIBLE_S) || self.week_source == Some(WeekSource::Galileo) {
+        if !(unix_s.is_finite() && unix_s > UNIX_PLAUSIBLE_S) {
             return;
         }
         let week = ((unix_s - 315_964_800.0) / 604_800.0) as u32;
+        self.rx.week_from_clock = true;
         if week == self.rx.week_hint {
             self.week_source = Some(WeekSource::Autopilot);
             return;
@@ -371,6 +377,18 @@ impl GnssIn {
             };
             let clock_m = ep.fix.as_ref().map_or(0.0, |f| f.clock_bias_m);
             let t = gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / C_MPS;
+            // An epoch far ahead of the filter (a wrong week, a bad tag)
+            // would wait for IMU that never comes, holding a queue slot.
+            if est.is_some_and(|e| !(t <= e.time_s() + MAX_EPOCH_LEAD_S)) {
+                counters.add(Counter::GnssTimeInvalid, 1);
+                tracing::warn!(
+                    reason = "gnss_time_invalid",
+                    week = ep.week,
+                    tow_s = ep.tow_s,
+                    "GNSS epoch far ahead of the autopilot's clock: refused"
+                );
+                continue;
+            }
             if let (Ok(fix), Some(l)) = (&ep.fix, log) {
                 log_fix(l, t, fix);
             }

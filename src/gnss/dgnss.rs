@@ -54,6 +54,9 @@ const EPOCHS_KEPT: usize = 4;
 /// median over, and how many it needs before a base is used at all.
 const POSITION_CHECK_FIXES: usize = 5;
 const POSITION_CHECK_MIN_FIXES: usize = 3;
+/// Base epochs in a row older than the newest held that make the newest a
+/// stray, forgotten.
+const STRAGGLERS_TO_FORGET: u32 = 3;
 
 /// One base epoch: its time and each satellite's observations.
 #[derive(Clone, Debug, PartialEq)]
@@ -113,6 +116,8 @@ pub struct BaseStation {
     /// Distances (m) from the announced antenna position to the base's own
     /// single-point fixes since it was announced, newest last.
     fix_distances_m: VecDeque<f64>,
+    /// Epochs in a row older than the newest held.
+    stragglers_in_a_row: u32,
     pub stats: BaseStats,
 }
 
@@ -216,6 +221,10 @@ impl BaseStation {
             tow_s,
             sats,
         };
+        if !(0.0..604_800.0).contains(&tow_s) {
+            self.stats.out_of_order_epochs += 1;
+            return None;
+        }
         let newest_age = self
             .epochs
             .iter()
@@ -228,11 +237,19 @@ impl BaseStation {
                 return None;
             }
             Some(a) if a > 0.0 => {
-                self.stats.out_of_order_epochs += 1;
-                return None;
+                // A held epoch that every later one is older than was the
+                // stray (a time tag far ahead): forget it rather than refuse
+                // the base for the rest of the flight.
+                self.stragglers_in_a_row += 1;
+                if self.stragglers_in_a_row < STRAGGLERS_TO_FORGET {
+                    self.stats.out_of_order_epochs += 1;
+                    return None;
+                }
+                self.epochs.retain(|o| o.station_id != station_id);
             }
             _ => {}
         }
+        self.stragglers_in_a_row = 0;
         self.stats.epochs += 1;
         self.epochs.push_back(e.clone());
         while self.epochs.len() > EPOCHS_KEPT {

@@ -66,6 +66,9 @@ pub struct Receiver {
     pub opts: SppOptions,
     /// Full GPS week near the data, for the 10-bit weeks.
     pub week_hint: u32,
+    /// The week hint comes from a clock that knows the date (the
+    /// autopilot's GNSS time): an ephemeris does not overrule it.
+    pub week_from_clock: bool,
     /// Accept observations only from this RTCM station (0 = any).
     pub station_id: u16,
     pub ephs: EphStore,
@@ -86,6 +89,7 @@ impl Receiver {
         Self {
             opts,
             week_hint,
+            week_from_clock: false,
             station_id,
             ephs: EphStore::default(),
             assembler: EpochAssembler::default(),
@@ -103,7 +107,7 @@ impl Receiver {
             GnssMessage::Eph(raw) => {
                 // Galileo's 12-bit week is unambiguous for 78 years: it
                 // settles a hint that is 1024 weeks off.
-                if raw.eph.system == rtcm::System::Galileo {
+                if raw.eph.system == rtcm::System::Galileo && !self.week_from_clock {
                     let week = raw.full_week(self.week_hint);
                     if week.abs_diff(self.week_hint) >= 512 {
                         self.set_week_hint(week);

@@ -84,3 +84,73 @@ fn ionosphere_handling_of_filter_measurements() {
         .pseudorange_m
         .is_none());
 }
+
+/// One GPS MSM of station `id` at `tow_s` with one satellite, the last of
+/// its epoch.
+fn base_msm(id: u16, tow_s: f64) -> super::rtcm::MsmEpoch {
+    super::rtcm::MsmEpoch {
+        system: System::Gps,
+        msg_type: 1077,
+        station_id: id,
+        tow_s,
+        utc: false,
+        day_unknown: false,
+        multiple: false,
+        sats: vec![super::rtcm::SatObs {
+            system: System::Gps,
+            prn: 1,
+            signals: Vec::new(),
+        }],
+    }
+}
+
+/// A base epoch stamped far ahead (a bad tag, or a hostile ground station)
+/// was held as the newest, and every real epoch after it refused as older:
+/// the base was lost for the flight. Three in a row make it a stray,
+/// forgotten; an impossible time of week is refused outright; copies are
+/// dropped.
+#[test]
+fn a_stray_future_base_epoch_is_forgotten() {
+    let mut b = super::dgnss::BaseStation::default();
+    let sys = [System::Gps];
+    let week = |_: f64| 2443;
+    let kept = |b: &mut super::dgnss::BaseStation, tow: f64| b.push_msm(base_msm(100, tow), &sys, week).len();
+    assert_eq!(kept(&mut b, 1000.0), 1);
+    assert_eq!(kept(&mut b, 1000.0), 0, "a copy");
+    assert_eq!(kept(&mut b, 2000.0), 1, "the stray, ahead");
+    assert_eq!(kept(&mut b, 1001.0), 0);
+    assert_eq!(kept(&mut b, 1002.0), 0);
+    assert_eq!(kept(&mut b, 1003.0), 1, "the third in a row forgets the stray");
+    assert_eq!(kept(&mut b, 1004.0), 1);
+    assert_eq!(kept(&mut b, 700_000.0), 0, "not a time of week");
+    assert_eq!(kept(&mut b, 1005.0), 1);
+    assert_eq!((b.stats.duplicate_epochs, b.stats.out_of_order_epochs), (1, 3));
+}
+
+/// A Galileo ephemeris's 12-bit week settles a hint 1024 weeks off, but not
+/// a week the autopilot's clock gave (a ground station's ephemeris may
+/// carry any week).
+#[test]
+fn a_galileo_week_overrules_a_hint_but_not_the_autopilots_clock() {
+    let eph = |week: u32| {
+        let mut e = cmsckf_sitl::gnss::galileo_constellation(week, 0.0).remove(0);
+        let field = (week - 1024) as u16;
+        e.week = field as u32;
+        super::rtcm::GnssMessage::Eph(super::rtcm::RawEph {
+            week_field: field,
+            eph: e,
+        })
+    };
+    let opts = || super::spp::SppOptions {
+        elevation_mask_deg: 10.0,
+        iono: IonoMode::Off,
+        systems: vec![System::Gps, System::Galileo],
+    };
+    let mut rx = Receiver::new(opts(), 1419, 0);
+    rx.push(eph(2443), &mut Vec::new());
+    assert_eq!((rx.week_hint, rx.stats.week_from_galileo), (2443, 1));
+    let mut rx = Receiver::new(opts(), 2443, 0);
+    rx.week_from_clock = true;
+    rx.push(eph(2443 + 1024), &mut Vec::new());
+    assert_eq!((rx.week_hint, rx.stats.week_from_galileo), (2443, 0));
+}
