@@ -91,6 +91,17 @@ async fn a_mis_surveyed_base_only_helps() {
     assert!(count(&c, "gnss_dgnss_epochs") <= 15, "used only before it moved");
 }
 
+/// 15 m east: within the old 20 m 3-D check, and the rover followed it
+/// (13.5 m ATE, twice single point's). The horizontal check refuses it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_base_announced_15_m_east_is_refused() {
+    let mut f = GnssFlight::new(1);
+    f.sim = |s| s.gnss.base.announced_error_m = [0.0, 15.0, 0.0];
+    let c = base_only_helps("announced 15 m east", &f).await;
+    assert!(count(&c, "gnss_base_position_wrong") >= 40);
+    assert_eq!(count(&c, "gnss_dgnss_epochs"), 0);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_base_without_galileo_only_helps() {
     let mut f = GnssFlight::new(1);

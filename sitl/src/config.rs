@@ -171,6 +171,9 @@ pub struct BaseSimConfig {
     /// The base sends legacy MT1004 (GPS L1 with its ambiguity) instead of
     /// MSM7, as many CORS networks and NTRIP casters do: GPS only.
     pub legacy: bool,
+    /// How far the antenna position the base announces (MT1005) is from
+    /// where it stands (NED, m): a badly surveyed base.
+    pub announced_error_m: [f64; 3],
 }
 
 impl Default for BaseSimConfig {
@@ -182,6 +185,7 @@ impl Default for BaseSimConfig {
             latency_s: [0.3, 0.8],
             galileo: true,
             legacy: false,
+            announced_error_m: [0.0; 3],
         }
     }
 }
@@ -266,6 +270,7 @@ impl Validate for GnssSimConfig {
         c.within("canyon_keep", self.canyon_keep as u64, 0, 64, "set 0..64")?;
         c.all_finite("base.p_base_in_W_m", &self.base.p_base_in_W_m, -1e5, 1e5)?;
         latency_range(&c, "base.latency_s", &self.base.latency_s, 10.0)?;
+        c.all_finite("base.announced_error_m", &self.base.announced_error_m, -1e5, 1e5)?;
         c.all_finite("p_A_in_B_m", &self.p_A_in_B_m, -5.0, 5.0)
     }
 }

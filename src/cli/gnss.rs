@@ -353,8 +353,13 @@ differential solutions: {}  skipped: {:?}",
         b.stats.out_of_order_epochs,
         match b.position_check() {
             dgnss::PositionCheck::Pending => "pending (fewer than 3 fixes of the base)".to_string(),
-            dgnss::PositionCheck::Checked(d) =>
-                format!("the announced position is {d:.2} m from the base's own fixes (median of the last 5)"),
+            dgnss::PositionCheck::Checked {
+                horizontal_m,
+                vertical_m,
+            } => format!(
+                "the announced position is {horizontal_m:.2} m horizontally and {vertical_m:.2} m vertically from \
+                 the base's own fixes (median of the last 5)"
+            ),
         },
         rx.dgnss_solved,
         rx.dgnss_skipped

@@ -432,10 +432,18 @@ pub struct GnssConfig {
     /// `(σ·age)²` (§8c, eq. DG2′).
     pub dgnss_correction_rate_sigma_mps: f64,
     /// Farthest the base's announced antenna position (MT1005/1006) may be
-    /// from its own single-point fixes (m, median of the last five): beyond
-    /// it the base is refused (a badly surveyed or mistyped position moves
-    /// the rover by as much) and single point is used.
+    /// from its own single-point fixes horizontally (m, median of the last
+    /// five; twice this vertically, where a single-frequency fix is
+    /// biased by the ionosphere): beyond it the base is refused (a badly
+    /// surveyed or mistyped position moves the rover by as much) and single
+    /// point is used.
     pub base_max_position_error_m: f64,
+    /// How well the base's announced position is known, one sigma per axis
+    /// (m): every differential code, and so the rover, is off by its error
+    /// for the whole flight, and no check can see an error of a few metres.
+    /// A surveyed mark: 0.05; a receiver's survey-in: its accuracy limit
+    /// (1–2 m). MT1005 does not say (§8c, eq. DG9′).
+    pub base_position_sigma_m: f64,
     /// When most of a base's corrected codes keep failing the filter's gate,
     /// the base is set aside for this long (s) and single point used, with
     /// a STATUSTEXT; it never causes a filter reset.
@@ -451,7 +459,8 @@ impl Default for GnssConfig {
             dgnss: true,
             dgnss_max_age_s: 10.0,
             dgnss_correction_rate_sigma_mps: 0.01,
-            base_max_position_error_m: 20.0,
+            base_max_position_error_m: 10.0,
+            base_position_sigma_m: 0.5,
             base_holdoff_s: 30.0,
             systems: "G,E,R,C,J".into(),
             iono: IonoMode::Auto,

@@ -39,6 +39,7 @@ impl Config {
             gnss_correlation_window_s: c.gnss.correlation_window_s,
             dgnss_correction_rate_sigma_mps: c.gnss.dgnss_correction_rate_sigma_mps,
             ionosphere_window_s: c.gnss.ionosphere_window_s,
+            base_position_sigma_m: c.gnss.base_position_sigma_m,
             range_rate_correlated_sigma_mps: c.gnss.range_rate_correlated_sigma_mps,
             elevation_mask_deg: c.gnss.elevation_mask_deg,
             async_rebase: false,

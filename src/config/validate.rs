@@ -223,6 +223,7 @@ impl Config {
             10.0,
         )?;
         c.range("base_max_position_error_m", g.base_max_position_error_m, 1.0, 10_000.0)?;
+        c.range("base_position_sigma_m", g.base_position_sigma_m, 0.0, 100.0)?;
         c.range("base_holdoff_s", g.base_holdoff_s, 0.0, 3600.0)?;
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
         c.range("broadcast_sigma_m", g.broadcast_sigma_m, 0.0, 100.0)?;

@@ -213,8 +213,9 @@ mod tests {
         let (c, mut t) = (Counters::default(), Tracker::default());
         let mut b = BaseUse::new(30.0);
         let wrong = Err(DgnssError::BasePositionWrong {
-            distance_m: 28.0,
-            limit_m: 20.0,
+            horizontal_m: 28.0,
+            vertical_m: 3.0,
+            limit_m: 10.0,
         });
         assert_eq!(b.take(1.0, 1.0, &wrong, &c, &mut t), None);
         assert_eq!(

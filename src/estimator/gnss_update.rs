@@ -562,10 +562,18 @@ impl Estimator {
                 // baseline) and its drift over its age, σ_ċ² a². DG7: every
                 // rover epoch it corrects shares that error, so it is
                 // believed `shared_by` times, at most the window's epochs.
-                Some(c) => (
-                    code_var_m2 + (self.s.dgnss_correction_rate_sigma_mps * c.age_s).powi(2),
-                    c.shared_by.clamp(1.0, w),
-                ),
+                // DG9′: the base's announced position is known to σ_A,
+                // moving every corrected code (and so the rover) by as much
+                // for the whole flight: windowed like DG5's terms.
+                Some(c) => {
+                    let w_b = c.shared_by.clamp(1.0, w);
+                    (
+                        code_var_m2
+                            + (self.s.dgnss_correction_rate_sigma_mps * c.age_s).powi(2)
+                            + self.s.base_position_sigma_m.powi(2) * w / w_b,
+                        w_b,
+                    )
+                }
             };
             // One epoch's sigma screens and gates (a 30 m multipath code
             // stays an outlier at any rate); DG6's weighs.

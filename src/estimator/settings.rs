@@ -81,6 +81,9 @@ pub struct Settings {
     /// The window (s) in which a single-frequency code's ionosphere error
     /// counts as one measurement (§8c, eq. DG6′).
     pub ionosphere_window_s: f64,
+    /// How well the base's announced antenna position is known, one sigma
+    /// per axis (m; §8c, DG9′).
+    pub base_position_sigma_m: f64,
     /// How fast a held base correction drifts, one sigma (m/s; §8c, DG2′).
     pub dgnss_correction_rate_sigma_mps: f64,
     pub elevation_mask_deg: f64,

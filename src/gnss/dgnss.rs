@@ -30,7 +30,7 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
-use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, C_MPS, OMEGA_E_RADPS};
+use cmsckf_models::geodesy::{ecef_to_llh, elevation_azimuth, R_ecef_ned, C_MPS, OMEGA_E_RADPS};
 use cmsckf_models::gnss::gps_day_of_year;
 
 pub use super::spp::CodeModel;
@@ -57,6 +57,10 @@ const POSITION_CHECK_MIN_FIXES: usize = 3;
 /// Base epochs in a row older than the newest held that make the newest a
 /// stray, forgotten.
 const STRAGGLERS_TO_FORGET: u32 = 3;
+/// The vertical limit of the position check, in horizontal limits: a
+/// single-frequency base's own fix is biased in height by the ionosphere
+/// (metres, mostly vertical).
+const VERTICAL_CHECK_FACTOR: f64 = 2.0;
 
 /// One base epoch: its time and each satellite's observations.
 #[derive(Clone, Debug, PartialEq)]
@@ -98,9 +102,9 @@ pub enum PositionCheck {
     /// Fewer than [`POSITION_CHECK_MIN_FIXES`] single-point fixes of the
     /// base since its position was announced.
     Pending,
-    /// The median distance (m) from the announced position to the base's
-    /// own fixes.
-    Checked(f64),
+    /// The median horizontal and vertical distances (m) from the announced
+    /// position to the base's own fixes.
+    Checked { horizontal_m: f64, vertical_m: f64 },
 }
 
 /// A base station as its RTCM stream describes it: its antenna reference
@@ -113,9 +117,10 @@ pub struct BaseStation {
     pub arp: Option<(u16, Vector3<f64>)>,
     epochs: VecDeque<BaseEpoch>,
     assembler: EpochAssembler,
-    /// Distances (m) from the announced antenna position to the base's own
-    /// single-point fixes since it was announced, newest last.
-    fix_distances_m: VecDeque<f64>,
+    /// Horizontal and vertical distances (m) from the announced antenna
+    /// position to the base's own single-point fixes since it was announced,
+    /// newest last.
+    fix_distances_m: VecDeque<(f64, f64)>,
     /// Epochs in a row older than the newest held.
     stragglers_in_a_row: u32,
     pub stats: BaseStats,
@@ -130,8 +135,15 @@ pub enum DgnssError {
     NoBaseEpoch,
     #[error("the base's antenna position is not checked yet against its own fixes")]
     BasePositionUnchecked,
-    #[error("the base's announced antenna position is {distance_m:.1} m from its own fixes (limit {limit_m} m)")]
-    BasePositionWrong { distance_m: f64, limit_m: f64 },
+    #[error(
+        "the base's announced antenna position is {horizontal_m:.1} m horizontally and {vertical_m:.1} m \
+         vertically from its own fixes (limits {limit_m} m and twice that)"
+    )]
+    BasePositionWrong {
+        horizontal_m: f64,
+        vertical_m: f64,
+        limit_m: f64,
+    },
     #[error(transparent)]
     Solve(#[from] SppError),
 }
@@ -142,7 +154,7 @@ pub struct BaseLimits {
     /// Oldest base epoch (s) a rover epoch may use.
     pub max_age_s: f64,
     /// Farthest (m) the announced antenna position may be from the base's
-    /// own single-point fixes.
+    /// own single-point fixes horizontally; twice this vertically.
     pub max_position_error_m: f64,
 }
 
@@ -150,7 +162,7 @@ impl Default for BaseLimits {
     fn default() -> Self {
         BaseLimits {
             max_age_s: 10.0,
-            max_position_error_m: 20.0,
+            max_position_error_m: 10.0,
         }
     }
 }
@@ -265,7 +277,9 @@ impl BaseStation {
         if id != station_id || !r_ecef_m.iter().all(|v| v.is_finite()) {
             return;
         }
-        self.fix_distances_m.push_back((r_ecef_m - arp).norm());
+        let (lat, lon, _) = ecef_to_llh(&arp);
+        let d_ned = R_ecef_ned(lat, lon).transpose() * (r_ecef_m - arp);
+        self.fix_distances_m.push_back((d_ned.x.hypot(d_ned.y), d_ned.z.abs()));
         while self.fix_distances_m.len() > POSITION_CHECK_FIXES {
             self.fix_distances_m.pop_front();
         }
@@ -277,9 +291,15 @@ impl BaseStation {
         if self.fix_distances_m.len() < POSITION_CHECK_MIN_FIXES {
             return PositionCheck::Pending;
         }
-        let mut v: Vec<f64> = self.fix_distances_m.iter().copied().collect();
-        v.sort_by(f64::total_cmp);
-        PositionCheck::Checked(v[v.len() / 2])
+        let median = |f: fn(&(f64, f64)) -> f64| {
+            let mut v: Vec<f64> = self.fix_distances_m.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        PositionCheck::Checked {
+            horizontal_m: median(|d| d.0),
+            vertical_m: median(|d| d.1),
+        }
     }
 
     /// The base epoch a rover epoch at `week`/`tow_s` uses: the newest of
@@ -401,13 +421,19 @@ pub fn corrections(
     let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
     match base.position_check() {
         PositionCheck::Pending => return Err(DgnssError::BasePositionUnchecked),
-        PositionCheck::Checked(d) if d > limits.max_position_error_m => {
+        PositionCheck::Checked {
+            horizontal_m,
+            vertical_m,
+        } if horizontal_m > limits.max_position_error_m
+            || vertical_m > VERTICAL_CHECK_FACTOR * limits.max_position_error_m =>
+        {
             return Err(DgnssError::BasePositionWrong {
-                distance_m: d,
+                horizontal_m,
+                vertical_m,
                 limit_m: limits.max_position_error_m,
             })
         }
-        PositionCheck::Checked(_) => {}
+        PositionCheck::Checked { .. } => {}
     }
     let (newest, before) = base
         .epochs_for(week, tow_s, limits.max_age_s)

@@ -85,8 +85,9 @@ impl Streamer<'_> {
         if active.has(FaultKind::BaseSilent) {
             return;
         }
+        arp = self.offset_arp(arp, self.ds.cfg.gnss.base.announced_error_m);
         if active.has(FaultKind::BaseMoved) {
-            arp = self.moved_arp(arp);
+            arp = self.offset_arp(arp, [0.0, BASE_MOVED_M, 0.0]);
         }
         let id = self.ds.cfg.gnss.base.station_id;
         let mut ep = ep.clone();
@@ -115,14 +116,12 @@ impl Streamer<'_> {
         }
     }
 
-    /// `base_moved`: the base's antenna position `arp` (ECEF, m) moved
-    /// [`BASE_MOVED_M`] east.
-    fn moved_arp(&self, arp: [f64; 3]) -> [f64; 3] {
+    /// The base's antenna position `arp` (ECEF, m) moved by `d_ned_m` (NED).
+    fn offset_arp(&self, arp: [f64; 3], d_ned_m: [f64; 3]) -> [f64; 3] {
         let o = self.ds.cfg.gnss.origin_llh;
         let frame = cmsckf_models::geodesy::NedFrame::from_llh_deg(o[0], o[1], o[2]);
-        let east =
-            frame.to_ecef(&nalgebra::Vector3::new(0.0, BASE_MOVED_M, 0.0)) - frame.to_ecef(&nalgebra::Vector3::zeros());
-        [arp[0] + east.x, arp[1] + east.y, arp[2] + east.z]
+        let d = frame.to_ecef(&nalgebra::Vector3::from(d_ned_m)) - frame.to_ecef(&nalgebra::Vector3::zeros());
+        [arp[0] + d.x, arp[1] + d.y, arp[2] + d.z]
     }
 
     /// One message of the rover's receiver: to its own port when it has
