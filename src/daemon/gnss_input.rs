@@ -379,7 +379,7 @@ impl GnssIn {
             let t = gps_to_unix_s(ep.week, ep.tow_s) - offset - clock_m / C_MPS;
             // An epoch far ahead of the filter (a wrong week, a bad tag)
             // would wait for IMU that never comes, holding a queue slot.
-            if est.is_some_and(|e| !(t <= e.time_s() + MAX_EPOCH_LEAD_S)) {
+            if est.is_some_and(|e| t.is_nan() || t > e.time_s() + MAX_EPOCH_LEAD_S) {
                 counters.add(Counter::GnssTimeInvalid, 1);
                 tracing::warn!(
                     reason = "gnss_time_invalid",
