@@ -229,6 +229,9 @@ counters! {
     /// The GPS week taken from the autopilot's clock (SYSTEM_TIME) or a
     /// Galileo ephemeris, overruling the hint.
     GnssWeekResolved = "gnss_week_resolved", event;
+    /// An ephemeris from a ground station left out: the rover's own stream
+    /// gives that satellite's.
+    GnssEphemerisFromOtherIgnored = "gnss_ephemeris_from_other_ignored", event;
     GnssRoverMsmFromReceiver = "gnss_rover_msm_from_receiver", event;
     GnssRoverMsmFromLink = "gnss_rover_msm_from_link", event;
     GnssBaseMsmFromLink = "gnss_base_msm_from_link", event;

@@ -113,6 +113,9 @@ enum WeekSource {
 enum Destination {
     Rover,
     Base,
+    /// An ephemeris from another system: it only fills in satellites the
+    /// rover's own stream has not given.
+    OtherEphemeris,
     /// Nowhere: counted and dropped.
     Ignored,
 }
@@ -323,6 +326,9 @@ impl GnssIn {
                     Destination::Base
                 }
             }
+            // A ground station's ephemerides only fill in (red-team F6: a
+            // shifted one reset the filter 13 times).
+            GnssMessage::Eph(_) if stream == RtcmStream::LinkOther => Destination::OtherEphemeris,
             GnssMessage::Eph(_) | GnssMessage::GlonassEph(_) | GnssMessage::Other(_) => Destination::Rover,
         }
     }
@@ -346,6 +352,7 @@ impl GnssIn {
         self.decode(bytes, stream, counters);
         let base_before = self.base_stats();
         let galileo_weeks = self.rx.stats.week_from_galileo;
+        let others_ignored = self.rx.stats.ephemerides_from_others_ignored;
         let mut msgs = std::mem::take(&mut self.msgs);
         for m in msgs.drain(..) {
             match self.destination(&m, stream, counters) {
@@ -353,11 +360,16 @@ impl GnssIn {
                 // A base station's: its position and epochs make the
                 // corrections of the differential solution.
                 Destination::Base => self.rx.push_base(m),
+                Destination::OtherEphemeris => self.rx.push_other_ephemeris(m),
                 Destination::Ignored => {}
             }
         }
         self.msgs = msgs;
         self.count_base(base_before, counters);
+        let ignored = self.rx.stats.ephemerides_from_others_ignored - others_ignored;
+        if ignored > 0 {
+            counters.add(Counter::GnssEphemerisFromOtherIgnored, ignored);
+        }
         if self.rx.stats.week_from_galileo > galileo_weeks {
             counters.add(Counter::GnssWeekResolved, 1);
             self.week_source = Some(WeekSource::Galileo);

@@ -24,6 +24,9 @@ pub struct EphStore {
     glonass: BTreeMap<u8, Vec<GlonassEphemeris>>,
     /// Week and toe of the latest ephemeris, to place a time of week.
     last: Option<(u32, f64)>,
+    /// Satellites whose ephemerides came only from another station's
+    /// stream (a ground station's): the rover's own replace them.
+    from_others: std::collections::BTreeSet<(System, u8)>,
 }
 
 /// A satellite's broadcast orbit and clock: a Kepler ephemeris (GPS,
@@ -88,8 +91,30 @@ impl EphStore {
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(e, _)| Orbit::Glonass(e))
     }
-    /// Adds an ephemeris, replacing one with the same `toe` and IODE.
+    /// Adds an ephemeris from another station's stream (a ground station
+    /// relaying a base): only for a satellite the rover's own stream has
+    /// given none, which a hostile or wrong one cannot then displace.
+    /// Whether it was taken.
+    pub fn insert_from_other(&mut self, eph: BroadcastEphemeris) -> bool {
+        let key = (eph.system, eph.prn);
+        if self.by_sat.contains_key(&key) && !self.from_others.contains(&key) {
+            return false;
+        }
+        self.from_others.insert(key);
+        self.insert_kept(eph);
+        true
+    }
+
+    /// Adds an ephemeris of the rover's own, replacing one with the same
+    /// `toe` and IODE, and any another station gave for the satellite.
     pub fn insert(&mut self, eph: BroadcastEphemeris) {
+        if self.from_others.remove(&(eph.system, eph.prn)) {
+            self.by_sat.remove(&(eph.system, eph.prn));
+        }
+        self.insert_kept(eph);
+    }
+
+    fn insert_kept(&mut self, eph: BroadcastEphemeris) {
         self.last = Some((eph.week, eph.toe_s));
         let v = self.by_sat.entry((eph.system, eph.prn)).or_default();
         v.retain(|e| !(e.toe_s == eph.toe_s && e.week == eph.week && e.iode == eph.iode));

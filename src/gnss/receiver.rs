@@ -59,6 +59,9 @@ pub struct ReceiverStats {
     pub dgnss_skipped: BTreeMap<String, u64>,
     /// Times a Galileo ephemeris's full week overruled the week hint.
     pub week_from_galileo: u64,
+    /// Ephemerides from another station's stream left out: the rover's own
+    /// stream gives that satellite's.
+    pub ephemerides_from_others_ignored: u64,
 }
 
 /// A stream-order GNSS receiver model: ephemerides, epochs and solutions.
@@ -166,6 +169,27 @@ impl Receiver {
             let eph = cmsckf_models::gnss::rtcm_eph::glonass_from_1020(&m, week, tow);
             self.ephs.insert_glonass(eph);
             self.stats.ephemerides += 1;
+        }
+    }
+
+    /// An ephemeris from another station's stream (a ground station's):
+    /// it fills in a satellite the rover's own stream has not given, and
+    /// never replaces or outvotes the rover's (a wrong or hostile one would
+    /// move every code of that satellite). Its week never overrules the
+    /// hint. GLONASS's are kept as the rover's.
+    pub fn push_other_ephemeris(&mut self, m: GnssMessage) {
+        match m {
+            GnssMessage::Eph(raw) => {
+                let mut eph = raw.eph.clone();
+                eph.week = raw.full_week(self.week_hint);
+                if self.ephs.insert_from_other(eph) {
+                    self.stats.ephemerides += 1;
+                } else {
+                    self.stats.ephemerides_from_others_ignored += 1;
+                }
+            }
+            GnssMessage::GlonassEph(_) => self.push(m, &mut Vec::new()),
+            _ => {}
         }
     }
 

@@ -154,3 +154,32 @@ fn a_galileo_week_overrules_a_hint_but_not_the_autopilots_clock() {
     rx.push(eph(2443 + 1024), &mut Vec::new());
     assert_eq!((rx.week_hint, rx.stats.week_from_galileo), (2443, 0));
 }
+
+/// A ground station's ephemeris fills in a satellite the rover's stream has
+/// not given, never displaces the rover's (a shifted one reset the filter),
+/// and gives way to the rover's own when it comes.
+#[test]
+fn another_stations_ephemeris_only_fills_in() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let good = cmsckf_sitl::gnss::constellation(2443, 345_600.0, &mut rng).remove(0);
+    let mut shifted = good.clone();
+    shifted.toe_s += 16.0;
+    shifted.iode += 1;
+    let (sys, prn, week, tow) = (good.system, good.prn, 2443, good.toe_s);
+    let mut store = EphStore::default();
+    store.insert(good.clone());
+    assert!(!store.insert_from_other(shifted.clone()), "the rover's own stands");
+    assert_eq!(store.select(sys, prn, week, tow + 16.0).unwrap().iode, good.iode);
+    let mut store = EphStore::default();
+    assert!(
+        store.insert_from_other(shifted.clone()),
+        "a satellite the rover has not given"
+    );
+    assert_eq!(store.select(sys, prn, week, tow).unwrap().iode, shifted.iode);
+    store.insert(good.clone());
+    assert_eq!(
+        store.select(sys, prn, week, tow + 16.0).unwrap().iode,
+        good.iode,
+        "the rover's replaces it"
+    );
+}
