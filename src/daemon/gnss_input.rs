@@ -99,6 +99,8 @@ pub(super) struct GnssIn {
     configured_week: u32,
     /// Where the week now comes from, once better than the hint.
     week_source: Option<WeekSource>,
+    /// The station-id conflict was logged (it is counted every time).
+    said_id_conflict: bool,
 }
 
 /// What settled the GPS week.
@@ -175,6 +177,7 @@ impl GnssIn {
             base_use: BaseUse::new(cfg.gnss.base_holdoff_s),
             configured_week: cfg.gnss.week_hint,
             week_source: None,
+            said_id_conflict: false,
             msgs: Vec::new(),
             epochs: Vec::new(),
             iono: cfg.gnss.iono,
@@ -267,6 +270,9 @@ impl GnssIn {
                     && stream == RtcmStream::LinkOther
                 {
                     counters.add(Counter::GnssStationIdConflict, 1);
+                    if std::mem::replace(&mut self.said_id_conflict, true) {
+                        return Destination::Ignored;
+                    }
                     tracing::warn!(
                         station_id,
                         reason = "gnss_station_id_conflict",
