@@ -102,6 +102,17 @@ async fn a_base_announced_15_m_east_is_refused() {
     assert_eq!(count(&c, "gnss_dgnss_epochs"), 0);
 }
 
+/// A second ground station relays the same observations under another
+/// station id with a position 40 m off: it used to clear the base's checks
+/// at every message (0 differential epochs). Stations are kept apart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_station_on_the_link_never_displaces_the_base() {
+    let mut f = GnssFlight::new(1);
+    f.sim = |s| s.gnss.base.second_station_id = 200;
+    let c = base_only_helps("a second station, 40 m off", &f).await;
+    assert!(count(&c, "gnss_dgnss_epochs") >= 40, "the good base is used");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_base_without_galileo_only_helps() {
     let mut f = GnssFlight::new(1);

@@ -174,6 +174,9 @@ pub struct BaseSimConfig {
     /// How far the antenna position the base announces (MT1005) is from
     /// where it stands (NED, m): a badly surveyed base.
     pub announced_error_m: [f64; 3],
+    /// A second ground station (system 254) relays the same base under
+    /// this other station id, announcing a position 40 m away (0: none).
+    pub second_station_id: u16,
 }
 
 impl Default for BaseSimConfig {
@@ -186,6 +189,7 @@ impl Default for BaseSimConfig {
             galileo: true,
             legacy: false,
             announced_error_m: [0.0; 3],
+            second_station_id: 0,
         }
     }
 }

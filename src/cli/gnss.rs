@@ -334,9 +334,15 @@ GPS subframes without preamble: {}  subframe sets of mixed issues: {}",
 
 /// The base stream's counts and the differential solutions'.
 fn base_report(dec: &StreamDecoder, b: &dgnss::BaseStation, rx: &ReceiverStats) -> String {
-    let arp = match b.arp {
-        Some((id, p)) => format!("station {id} at ECEF {:.4}, {:.4}, {:.4} m", p.x, p.y, p.z),
-        None => "no antenna position (MT1005/1006)".into(),
+    let positions = b.positions();
+    let arp = if positions.is_empty() {
+        "no antenna position (MT1005/1006)".to_string()
+    } else {
+        positions
+            .iter()
+            .map(|(id, p)| format!("station {id} at ECEF {:.4}, {:.4}, {:.4} m", p.x, p.y, p.z))
+            .collect::<Vec<_>>()
+            .join("; ")
     };
     format!(
         "

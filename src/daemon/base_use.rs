@@ -28,9 +28,9 @@ pub(super) struct BaseUse {
     /// The last differential epochs fused: whether most of their codes were
     /// refused.
     recent_bad: VecDeque<bool>,
-    /// The base epoch (time of week) of the last corrections and the rover
-    /// epochs they have corrected.
-    current: Option<(f64, u32)>,
+    /// The base station and epoch (time of week) of the last corrections
+    /// and the rover epochs they have corrected.
+    current: Option<(u16, f64, u32)>,
     /// The rover's last epoch (time of week) and its period (s).
     last_rover_tow_s: Option<f64>,
     rover_period_s: Option<f64>,
@@ -104,10 +104,10 @@ impl BaseUse {
             counters.add(Counter::GnssBaseNonFiniteCorrection, c.non_finite);
         }
         let uses = match self.current {
-            Some((tow, n)) if tow == c.base_tow_s => n + 1,
+            Some((id, tow, n)) if id == c.station_id && tow == c.base_tow_s => n + 1,
             _ => 1,
         };
-        self.current = Some((c.base_tow_s, uses));
+        self.current = Some((c.station_id, c.base_tow_s, uses));
         // Shared by the rover epochs between two base epochs at least.
         let per_base_epoch = match (c.base_period_s, self.rover_period_s) {
             (Some(b), Some(r)) if r > 0.0 => b / r,
@@ -155,6 +155,7 @@ mod tests {
 
     fn corrections(base_tow_s: f64, base_period_s: Option<f64>) -> BaseCorrections {
         BaseCorrections {
+            station_id: 100,
             base_tow_s,
             age_s: 0.5,
             base_period_s,

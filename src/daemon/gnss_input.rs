@@ -507,6 +507,7 @@ impl GnssIn {
         for s in sats.iter_mut().filter(|s| s.pseudorange_m.is_some()) {
             let step = corr.reference_steps_m.iter().find(|(sys, _)| *sys == s.system);
             s.correction = Some(cmsckf_models::gnss::CodeCorrection {
+                base_station_id: corr.station_id,
                 base_tow_s: corr.base_tow_s,
                 age_s: corr.age_s,
                 shared_by,

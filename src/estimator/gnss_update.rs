@@ -267,10 +267,20 @@ impl Estimator {
             self.rebase_clock_bias(frame, sats, &nom);
             rep.clock_initialised = true;
         } else if self.clock_initialised && differential {
-            self.follow_base_reference(sats, &nom, frame);
+            let station = sats.iter().find_map(|s| s.correction.map(|c| c.base_station_id));
+            if self.gnss_base.is_some_and(|(id, _)| Some(id) != station) {
+                // Another base: its corrections' common part is another
+                // station's clock and satellite set (DG4 again).
+                self.rebase_clock_bias(frame, sats, &nom);
+                rep.clock_initialised = true;
+            } else {
+                self.follow_base_reference(sats, &nom, frame);
+            }
         }
         self.gnss_differential = differential;
-        self.gnss_base_tow_s = sats.iter().find_map(|s| s.correction.map(|c| c.base_tow_s));
+        self.gnss_base = sats
+            .iter()
+            .find_map(|s| s.correction.map(|c| (c.base_station_id, c.base_tow_s)));
         if !self.init_clock_states(frame, sats, &nom, rep) {
             return false;
         }
@@ -440,7 +450,7 @@ impl Estimator {
         let Some(c) = sats.iter().find_map(|s| s.correction) else {
             return;
         };
-        if self.gnss_base_tow_s == Some(c.base_tow_s) {
+        if self.gnss_base == Some((c.base_station_id, c.base_tow_s)) {
             return;
         }
         let lever = self.s.p_A_in_B_m;

@@ -346,9 +346,10 @@ pub struct Estimator {
     isb_initialised: [bool; ISB_SYSTEMS.len()],
     /// Whether the last fused epoch's codes were differential (§8c).
     gnss_differential: bool,
-    /// The base epoch (time of week, s) of the last differential epoch's
-    /// corrections: a new one moves their common part (§8c, DG8).
-    gnss_base_tow_s: Option<f64>,
+    /// The base station and epoch (time of week, s) of the last
+    /// differential epoch's corrections: a new epoch moves their common part
+    /// (§8c, DG8), a new station sets it anew (DG4).
+    gnss_base: Option<(u16, f64)>,
     clones: VecDeque<CloneState>,
     next_seq: u64,
     keyframes: BTreeMap<u64, Keyframe>,
@@ -423,7 +424,7 @@ impl Estimator {
             clock: ClockVec::zeros(),
             clock_initialised: false,
             gnss_differential: false,
-            gnss_base_tow_s: None,
+            gnss_base: None,
             isb_initialised: [false; ISB_SYSTEMS.len()],
             g_W: Vector3::new(0.0, 0.0, s.imu.gravity_mps2),
             t_s,

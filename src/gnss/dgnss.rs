@@ -85,8 +85,7 @@ pub struct BaseStats {
     pub epochs: u64,
     /// Antenna positions received (MT1005/1006).
     pub positions: u64,
-    /// Antenna positions that moved the base by more than 1 m, or named
-    /// another station.
+    /// Antenna positions that moved their station by more than 1 m.
     pub position_changes: u64,
     /// Base epochs dropped as a copy of one already held (a base relayed by
     /// two ground stations).
@@ -107,22 +106,56 @@ pub enum PositionCheck {
     Checked { horizontal_m: f64, vertical_m: f64 },
 }
 
-/// A base station as its RTCM stream describes it: its antenna reference
-/// point and its last few epochs. The base is the station that announced
-/// an antenna position; epochs of other stations are kept apart by id.
+/// Stations kept apart at once: the base, a second ground station's, and
+/// strays; the least recently heard is forgotten first.
+const MAX_STATIONS: usize = 8;
+
+/// One station as its messages describe it.
 #[derive(Default)]
-pub struct BaseStation {
-    /// The station id and antenna reference point (ECEF, m) of the last
-    /// MT1005/1006.
-    pub arp: Option<(u16, Vector3<f64>)>,
-    epochs: VecDeque<BaseEpoch>,
-    assembler: EpochAssembler,
+struct Station {
+    /// The antenna reference point (ECEF, m) of its last MT1005/1006.
+    arp: Option<Vector3<f64>>,
     /// Horizontal and vertical distances (m) from the announced antenna
-    /// position to the base's own single-point fixes since it was announced,
-    /// newest last.
+    /// position to the station's own single-point fixes since it was
+    /// announced, newest last.
     fix_distances_m: VecDeque<(f64, f64)>,
+    /// Its last few epochs, oldest first.
+    epochs: VecDeque<BaseEpoch>,
     /// Epochs in a row older than the newest held.
     stragglers_in_a_row: u32,
+    /// When it was last heard, in messages (for forgetting).
+    last_heard: u64,
+}
+
+impl Station {
+    /// The antenna-position check: the median distances from the announced
+    /// position to the station's own recent fixes, once there are enough.
+    fn position_check(&self) -> PositionCheck {
+        if self.arp.is_none() || self.fix_distances_m.len() < POSITION_CHECK_MIN_FIXES {
+            return PositionCheck::Pending;
+        }
+        let median = |f: fn(&(f64, f64)) -> f64| {
+            let mut v: Vec<f64> = self.fix_distances_m.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        PositionCheck::Checked {
+            horizontal_m: median(|d| d.0),
+            vertical_m: median(|d| d.1),
+        }
+    }
+}
+
+/// The base stations as their RTCM streams describe them: each station's
+/// antenna reference point, the checks on it and its last few epochs, kept
+/// apart by id, so that a second ground station or another station's
+/// epochs never displace a good base. The base used is the lowest-numbered
+/// station whose announced position checks out and that has a recent epoch.
+#[derive(Default)]
+pub struct BaseStation {
+    stations: std::collections::BTreeMap<u16, Station>,
+    assembler: EpochAssembler,
+    heard: u64,
     pub stats: BaseStats,
 }
 
@@ -171,6 +204,8 @@ impl Default for BaseLimits {
 /// what their errors depend on.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BaseCorrections {
+    /// The station they come from.
+    pub station_id: u16,
     /// The base epoch they come from, and its age at the rover epoch (s).
     pub base_tow_s: f64,
     pub age_s: f64,
@@ -185,19 +220,41 @@ pub struct BaseCorrections {
 }
 
 impl BaseStation {
-    /// A reference station's antenna position (MT1005/1006). A new station
-    /// or a position moved by more than 1 m is checked afresh.
+    /// The station `id`, made if new (forgetting the least recently heard
+    /// beyond [`MAX_STATIONS`]).
+    fn station(&mut self, id: u16) -> &mut Station {
+        self.heard += 1;
+        if !self.stations.contains_key(&id) && self.stations.len() >= MAX_STATIONS {
+            if let Some(oldest) = self.stations.iter().min_by_key(|(_, s)| s.last_heard).map(|(k, _)| *k) {
+                self.stations.remove(&oldest);
+            }
+        }
+        let heard = self.heard;
+        let st = self.stations.entry(id).or_default();
+        st.last_heard = heard;
+        st
+    }
+
+    /// Every station that announced a position: id and antenna reference
+    /// point (ECEF, m).
+    pub fn positions(&self) -> Vec<(u16, Vector3<f64>)> {
+        self.stations.iter().filter_map(|(id, s)| Some((*id, s.arp?))).collect()
+    }
+
+    /// A reference station's antenna position (MT1005/1006). A position
+    /// moved by more than 1 m is checked afresh.
     pub fn set_position(&mut self, station_id: u16, arp_ecef_m: [f64; 3]) {
         let arp = Vector3::from(arp_ecef_m);
         self.stats.positions += 1;
-        if self
-            .arp
-            .is_some_and(|(id, old)| id != station_id || (old - arp).norm() > 1.0)
-        {
-            self.stats.position_changes += 1;
-            self.fix_distances_m.clear();
+        let st = self.station(station_id);
+        let moved = st.arp.is_some_and(|old| (old - arp).norm() > 1.0);
+        if moved {
+            st.fix_distances_m.clear();
         }
-        self.arp = Some((station_id, arp));
+        st.arp = Some(arp);
+        if moved {
+            self.stats.position_changes += 1;
+        }
     }
 
     /// One base MSM; `week_of` resolves a time of week to its full week.
@@ -227,22 +284,18 @@ impl BaseStation {
         sats: Vec<SatObs>,
         week_of: impl Fn(f64) -> u32,
     ) -> Option<BaseEpoch> {
+        if !(0.0..604_800.0).contains(&tow_s) {
+            self.stats.out_of_order_epochs += 1;
+            return None;
+        }
         let e = BaseEpoch {
             station_id,
             week: week_of(tow_s),
             tow_s,
             sats,
         };
-        if !(0.0..604_800.0).contains(&tow_s) {
-            self.stats.out_of_order_epochs += 1;
-            return None;
-        }
-        let newest_age = self
-            .epochs
-            .iter()
-            .rev()
-            .find(|o| o.station_id == station_id)
-            .map(|o| e.age_s(o.week, o.tow_s));
+        let st = self.station(station_id);
+        let newest_age = st.epochs.back().map(|o| e.age_s(o.week, o.tow_s));
         match newest_age {
             Some(a) if a.abs() < 1e-3 => {
                 self.stats.duplicate_epochs += 1;
@@ -252,69 +305,102 @@ impl BaseStation {
                 // A held epoch that every later one is older than was the
                 // stray (a time tag far ahead): forget it rather than refuse
                 // the base for the rest of the flight.
-                self.stragglers_in_a_row += 1;
-                if self.stragglers_in_a_row < STRAGGLERS_TO_FORGET {
+                st.stragglers_in_a_row += 1;
+                if st.stragglers_in_a_row < STRAGGLERS_TO_FORGET {
                     self.stats.out_of_order_epochs += 1;
                     return None;
                 }
-                self.epochs.retain(|o| o.station_id != station_id);
+                st.epochs.clear();
             }
             _ => {}
         }
-        self.stragglers_in_a_row = 0;
-        self.stats.epochs += 1;
-        self.epochs.push_back(e.clone());
-        while self.epochs.len() > EPOCHS_KEPT {
-            self.epochs.pop_front();
+        st.stragglers_in_a_row = 0;
+        st.epochs.push_back(e.clone());
+        while st.epochs.len() > EPOCHS_KEPT {
+            st.epochs.pop_front();
         }
+        self.stats.epochs += 1;
         Some(e)
     }
 
-    /// Records a single-point fix of the base's own epoch (ECEF, m) of the
-    /// station that announced the position.
+    /// Records a single-point fix (ECEF, m) of station `station_id`'s own
+    /// epoch, once it has announced a position.
     pub fn record_fix(&mut self, station_id: u16, r_ecef_m: &Vector3<f64>) {
-        let Some((id, arp)) = self.arp else { return };
-        if id != station_id || !r_ecef_m.iter().all(|v| v.is_finite()) {
+        if !r_ecef_m.iter().all(|v| v.is_finite()) {
             return;
         }
+        let Some(st) = self.stations.get_mut(&station_id) else {
+            return;
+        };
+        let Some(arp) = st.arp else { return };
         let (lat, lon, _) = ecef_to_llh(&arp);
         let d_ned = R_ecef_ned(lat, lon).transpose() * (r_ecef_m - arp);
-        self.fix_distances_m.push_back((d_ned.x.hypot(d_ned.y), d_ned.z.abs()));
-        while self.fix_distances_m.len() > POSITION_CHECK_FIXES {
-            self.fix_distances_m.pop_front();
+        st.fix_distances_m.push_back((d_ned.x.hypot(d_ned.y), d_ned.z.abs()));
+        while st.fix_distances_m.len() > POSITION_CHECK_FIXES {
+            st.fix_distances_m.pop_front();
         }
     }
 
-    /// The antenna-position check: the median distance from the announced
-    /// position to the base's own recent fixes, once there are enough.
+    /// The antenna-position check of the base in use, else of the station
+    /// that announced a position last.
     pub fn position_check(&self) -> PositionCheck {
-        if self.fix_distances_m.len() < POSITION_CHECK_MIN_FIXES {
-            return PositionCheck::Pending;
-        }
-        let median = |f: fn(&(f64, f64)) -> f64| {
-            let mut v: Vec<f64> = self.fix_distances_m.iter().map(f).collect();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        PositionCheck::Checked {
-            horizontal_m: median(|d| d.0),
-            vertical_m: median(|d| d.1),
-        }
+        self.stations
+            .values()
+            .filter(|s| s.arp.is_some())
+            .max_by_key(|s| (s.position_check() != PositionCheck::Pending, s.last_heard))
+            .map_or(PositionCheck::Pending, Station::position_check)
     }
 
-    /// The base epoch a rover epoch at `week`/`tow_s` uses: the newest of
-    /// the base's own station at most [`PAIR_TOLERANCE_S`] after it and at
-    /// most `max_age_s` before it, and the one before that (for the
-    /// reference step and the period).
-    fn epochs_for(&self, week: u32, tow_s: f64, max_age_s: f64) -> Option<(&BaseEpoch, Option<&BaseEpoch>)> {
-        let (id, _) = self.arp?;
-        let mut own = self
-            .epochs
-            .iter()
-            .rev()
-            .filter(|e| e.station_id == id && e.age_s(week, tow_s) >= -PAIR_TOLERANCE_S);
-        let newest = own.next().filter(|e| e.age_s(week, tow_s) <= max_age_s)?;
-        Some((newest, own.next()))
+    /// The base for a rover epoch at `week`/`tow_s`: the lowest-numbered
+    /// station whose announced position checks out within `limits` and
+    /// that has an epoch at most [`PAIR_TOLERANCE_S`] after the rover's and
+    /// at most `max_age_s` before it. Its id, position, that epoch and the
+    /// one before it (for the reference step and the period); else why
+    /// there is none (the most telling reason over the stations).
+    pub(crate) fn base_for(
+        &self,
+        week: u32,
+        tow_s: f64,
+        limits: BaseLimits,
+    ) -> Result<(u16, Vector3<f64>, &BaseEpoch, Option<&BaseEpoch>), DgnssError> {
+        let mut why = DgnssError::NoBasePosition;
+        for (id, st) in &self.stations {
+            let Some(arp) = st.arp else { continue };
+            match st.position_check() {
+                PositionCheck::Pending => {
+                    if why == DgnssError::NoBasePosition {
+                        why = DgnssError::BasePositionUnchecked;
+                    }
+                    continue;
+                }
+                PositionCheck::Checked {
+                    horizontal_m,
+                    vertical_m,
+                } if horizontal_m > limits.max_position_error_m
+                    || vertical_m > VERTICAL_CHECK_FACTOR * limits.max_position_error_m =>
+                {
+                    if matches!(why, DgnssError::NoBasePosition | DgnssError::BasePositionUnchecked) {
+                        why = DgnssError::BasePositionWrong {
+                            horizontal_m,
+                            vertical_m,
+                            limit_m: limits.max_position_error_m,
+                        };
+                    }
+                    continue;
+                }
+                PositionCheck::Checked { .. } => {}
+            }
+            let mut own = st
+                .epochs
+                .iter()
+                .rev()
+                .filter(|e| e.age_s(week, tow_s) >= -PAIR_TOLERANCE_S);
+            match own.next().filter(|e| e.age_s(week, tow_s) <= limits.max_age_s) {
+                Some(newest) => return Ok((*id, arp, newest, own.next())),
+                None => why = DgnssError::NoBaseEpoch,
+            }
+        }
+        Err(why)
     }
 }
 
@@ -418,26 +504,7 @@ pub fn corrections(
     limits: BaseLimits,
     model: CodeModel,
 ) -> Result<BaseCorrections, DgnssError> {
-    let (_, arp) = base.arp.ok_or(DgnssError::NoBasePosition)?;
-    match base.position_check() {
-        PositionCheck::Pending => return Err(DgnssError::BasePositionUnchecked),
-        PositionCheck::Checked {
-            horizontal_m,
-            vertical_m,
-        } if horizontal_m > limits.max_position_error_m
-            || vertical_m > VERTICAL_CHECK_FACTOR * limits.max_position_error_m =>
-        {
-            return Err(DgnssError::BasePositionWrong {
-                horizontal_m,
-                vertical_m,
-                limit_m: limits.max_position_error_m,
-            })
-        }
-        PositionCheck::Checked { .. } => {}
-    }
-    let (newest, before) = base
-        .epochs_for(week, tow_s, limits.max_age_s)
-        .ok_or(DgnssError::NoBaseEpoch)?;
+    let (station_id, arp, newest, before) = base.base_for(week, tow_s, limits)?;
     let mut values = epoch_corrections(newest, &arp, ephs, (week, tow_s), mask, model);
     let before_filter = values.len();
     values.retain(|(_, c)| c.is_finite());
@@ -446,6 +513,7 @@ pub fn corrections(
         reference_steps(&values, &epoch_corrections(b, &arp, ephs, (week, tow_s), mask, model))
     });
     Ok(BaseCorrections {
+        station_id,
         base_tow_s: newest.tow_s,
         age_s: newest.age_s(week, tow_s),
         base_period_s: before.map(|b| b.age_s(newest.week, newest.tow_s)),

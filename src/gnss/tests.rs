@@ -183,3 +183,47 @@ fn another_stations_ephemeris_only_fills_in() {
         "the rover's replaces it"
     );
 }
+
+/// A second station on the link (a second ground station with its own
+/// position, or another station's epochs in a flood) used to clear the
+/// base's checks or push its epochs out of a shared buffer: the base was
+/// lost. Each station is kept apart; the base used is the lowest-numbered
+/// one whose position checks out.
+#[test]
+fn a_second_station_never_displaces_a_good_base() {
+    use nalgebra::Vector3;
+    let mut b = super::dgnss::BaseStation::default();
+    let sys = [System::Gps];
+    let week = |_: f64| 2443;
+    let arp = [-4_646_000.0, 2_553_000.0, -3_534_000.0];
+    let far = [arp[0] + 40.0, arp[1], arp[2]];
+    b.set_position(200, far);
+    b.set_position(100, arp);
+    for k in 0..5 {
+        let tow = 1000.0 + k as f64;
+        // A flood of a third station's epochs between the base's.
+        for j in 0..10 {
+            b.push_msm(base_msm(300, tow + 0.05 * j as f64), &sys, week);
+        }
+        for id in [100, 200] {
+            assert_eq!(b.push_msm(base_msm(id, tow), &sys, week).len(), 1);
+            // Each station's own fix: 2 m from the base's announced
+            // position, and so 40 m from the other's.
+            b.record_fix(id, &(Vector3::from(arp) + Vector3::new(2.0, 0.0, 0.0)));
+        }
+    }
+    let limits = super::dgnss::BaseLimits::default();
+    let (id, _, newest, before) = b.base_for(2443, 1004.5, limits).unwrap();
+    assert_eq!((id, newest.tow_s, before.map(|e| e.tow_s)), (100, 1004.0, Some(1003.0)));
+    // The good base alone announcing a wrong position: nothing is used.
+    let mut lone = super::dgnss::BaseStation::default();
+    lone.set_position(200, far);
+    for k in 0..3 {
+        lone.push_msm(base_msm(200, 1000.0 + k as f64), &sys, week);
+        lone.record_fix(200, &Vector3::from(arp));
+    }
+    assert!(matches!(
+        lone.base_for(2443, 1002.5, limits),
+        Err(super::dgnss::DgnssError::BasePositionWrong { .. })
+    ));
+}

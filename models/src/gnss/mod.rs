@@ -168,8 +168,9 @@ impl SatMeas {
 /// depends on (estimator README §8c, eqs. DG2′, DG7, DG8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CodeCorrection {
-    /// The base epoch's time of week (s): the codes it corrects share its
-    /// errors.
+    /// The base station, and its epoch's time of week (s): the codes it
+    /// corrects share its errors.
+    pub base_station_id: u16,
     pub base_tow_s: f64,
     /// The rover epoch's time less the base epoch's (s): the correction is
     /// held, never extrapolated, and its error grows with this.

@@ -114,6 +114,18 @@ impl Streamer<'_> {
             }
             self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
         }
+        let second = self.ds.cfg.gnss.base.second_station_id;
+        if second != 0 {
+            let wrong = self.offset_arp(arp, [0.0, 40.0, 0.0]);
+            let second_messages = [
+                crate::rtcm_out::encode_station(second, wrong),
+                crate::rtcm_out::encode_epoch(&ep, second),
+            ];
+            for bytes in second_messages.into_iter().flatten() {
+                self.send_rtcm(&SECOND_GCS_HEADER, &bytes).await;
+                self.rtcm_seq = self.rtcm_seq.wrapping_add(1);
+            }
+        }
     }
 
     /// The base's antenna position `arp` (ECEF, m) moved by `d_ned_m` (NED).
