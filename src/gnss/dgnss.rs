@@ -146,6 +146,15 @@ impl Station {
     }
 }
 
+/// The base a rover epoch uses: its station, announced position (ECEF, m),
+/// newest usable epoch and the one before it.
+pub(crate) struct ChosenBase<'a> {
+    pub station_id: u16,
+    pub arp: Vector3<f64>,
+    pub newest: &'a BaseEpoch,
+    pub before: Option<&'a BaseEpoch>,
+}
+
 /// The base stations as their RTCM streams describe them: each station's
 /// antenna reference point, the checks on it and its last few epochs, kept
 /// apart by id, so that a second ground station or another station's
@@ -354,15 +363,10 @@ impl BaseStation {
     /// The base for a rover epoch at `week`/`tow_s`: the lowest-numbered
     /// station whose announced position checks out within `limits` and
     /// that has an epoch at most [`PAIR_TOLERANCE_S`] after the rover's and
-    /// at most `max_age_s` before it. Its id, position, that epoch and the
-    /// one before it (for the reference step and the period); else why
-    /// there is none (the most telling reason over the stations).
-    pub(crate) fn base_for(
-        &self,
-        week: u32,
-        tow_s: f64,
-        limits: BaseLimits,
-    ) -> Result<(u16, Vector3<f64>, &BaseEpoch, Option<&BaseEpoch>), DgnssError> {
+    /// at most `max_age_s` before it, with the epoch before that (for the
+    /// reference step and the period); else why there is none (the most
+    /// telling reason over the stations).
+    pub(crate) fn base_for(&self, week: u32, tow_s: f64, limits: BaseLimits) -> Result<ChosenBase<'_>, DgnssError> {
         let mut why = DgnssError::NoBasePosition;
         for (id, st) in &self.stations {
             let Some(arp) = st.arp else { continue };
@@ -396,7 +400,14 @@ impl BaseStation {
                 .rev()
                 .filter(|e| e.age_s(week, tow_s) >= -PAIR_TOLERANCE_S);
             match own.next().filter(|e| e.age_s(week, tow_s) <= limits.max_age_s) {
-                Some(newest) => return Ok((*id, arp, newest, own.next())),
+                Some(newest) => {
+                    return Ok(ChosenBase {
+                        station_id: *id,
+                        arp,
+                        newest,
+                        before: own.next(),
+                    })
+                }
                 None => why = DgnssError::NoBaseEpoch,
             }
         }
@@ -504,7 +515,12 @@ pub fn corrections(
     limits: BaseLimits,
     model: CodeModel,
 ) -> Result<BaseCorrections, DgnssError> {
-    let (station_id, arp, newest, before) = base.base_for(week, tow_s, limits)?;
+    let ChosenBase {
+        station_id,
+        arp,
+        newest,
+        before,
+    } = base.base_for(week, tow_s, limits)?;
     let mut values = epoch_corrections(newest, &arp, ephs, (week, tow_s), mask, model);
     let before_filter = values.len();
     values.retain(|(_, c)| c.is_finite());

@@ -213,8 +213,11 @@ fn a_second_station_never_displaces_a_good_base() {
         }
     }
     let limits = super::dgnss::BaseLimits::default();
-    let (id, _, newest, before) = b.base_for(2443, 1004.5, limits).unwrap();
-    assert_eq!((id, newest.tow_s, before.map(|e| e.tow_s)), (100, 1004.0, Some(1003.0)));
+    let chosen = b.base_for(2443, 1004.5, limits).unwrap();
+    assert_eq!(
+        (chosen.station_id, chosen.newest.tow_s, chosen.before.map(|e| e.tow_s)),
+        (100, 1004.0, Some(1003.0))
+    );
     // The good base alone announcing a wrong position: nothing is used.
     let mut lone = super::dgnss::BaseStation::default();
     lone.set_position(200, far);
