@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Writes docs/foxglove-layout.json, the Foxglove layout for a cmsckf log.
+"""Writes docs/foxglove-layout.sdk.json, the Foxglove SDK/notebook layout for a cmsckf log
+(the desktop app imports docs/foxglove-layout.json instead: see docs/foxglove.md).
 
 Why a script: the layout is built from the typed panel classes of
 Foxglove's own Python SDK (`foxglove-sdk`, module `foxglove.layouts`), so
@@ -103,7 +104,7 @@ def layout() -> fl.Layout:
 
 
 def main() -> int:
-    out = sys.argv[1] if len(sys.argv) > 1 else "docs/foxglove-layout.json"
+    out = sys.argv[1] if len(sys.argv) > 1 else "docs/foxglove-layout.sdk.json"
     doc = json.loads(layout().to_json())
     with open(out, "w", encoding="utf-8") as f:
         json.dump(doc, f, indent=2, ensure_ascii=False)

@@ -23,7 +23,10 @@ use crate::estimator::frontend::Normaliser;
 use crate::estimator::ImuMeas;
 use crate::estimator::Mode;
 use crate::io::feature_pipe::FeatureFrame;
-use crate::io::mcap_log::input::{cmsckf_metadata, log_format_of, AutopilotRecord, InputRecord, RecordError};
+use crate::io::mcap_log::input::{
+    cmsckf_metadata, log_format_of, AutopilotRecord, InputRecord, RecordError, FORMAT_TIME_ORDERED,
+};
+use crate::io::mcap_log::reorder::SequenceOrder;
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::io::messages::{Outbound, SimTruth};
 
@@ -59,6 +62,11 @@ pub struct ReplayReport {
     pub realtime_factor: f64,
     /// Input records that did not parse, skipped (each named in a warning).
     pub malformed_inputs: u64,
+    /// Inputs given to the fusion loop at or before the sequence number of
+    /// one given before them: the log's sequences are not as cmsckf writes
+    /// them (parts of a flight joined, a log sorted by another tool), so the
+    /// replay may not follow the flight's order (said in a warning).
+    pub out_of_sequence_inputs: u64,
 }
 
 /// The config stored in a log's `cmsckf` metadata record (as
@@ -112,16 +120,19 @@ fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
                 armed: Some(a),
                 on_ground: None,
                 kind: None,
+                mode: None,
             },
             AutopilotRecord::OnGround(g) => FusionMsg::VehicleState {
                 armed: None,
                 on_ground: Some(g),
                 kind: None,
+                mode: None,
             },
             AutopilotRecord::Autopilot(k) => FusionMsg::VehicleState {
                 armed: None,
                 on_ground: None,
                 kind: Some(k),
+                mode: None,
             },
             AutopilotRecord::UnixDays(unix_days) => FusionMsg::Date { unix_days },
             // Unknown accuracies are logged as null (NaN).
@@ -138,6 +149,17 @@ fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
                 lat_deg,
                 lon_deg,
                 alt_m,
+            },
+            AutopilotRecord::EstimatorStatus(s) => FusionMsg::EstimatorStatus(s),
+            AutopilotRecord::Mode(m) => FusionMsg::VehicleState {
+                armed: None,
+                on_ground: None,
+                kind: None,
+                mode: Some(m),
+            },
+            AutopilotRecord::StatusText(t) => FusionMsg::AutopilotText {
+                severity: t.severity,
+                text: t.text,
             },
             AutopilotRecord::SimState(s) => FusionMsg::SimState(SimTruth {
                 lat_deg: s.lat_deg,
@@ -173,16 +195,25 @@ pub fn replay(
     output: &Path,
     mode: Option<Mode>,
     config: Option<Config>,
+    overwrite: bool,
     mut progress: impl FnMut(u64, Option<u64>),
 ) -> Result<ReplayReport, ReplayError> {
     let name = input.display().to_string();
-    let bytes = std::fs::read(input).map_err(|e| ReplayError::Io(name.clone(), e))?;
+    let checked = crate::io::mcap_log::read_checked(input).map_err(crate::io::mcap_log::LogError::from)?;
+    checked.report.warn(&name);
+    let bytes = checked.bytes;
     // Refused before anything is written, whichever config is replayed under.
     let metadata = cmsckf_metadata(&bytes);
-    log_format_of(metadata.as_ref().ok().and_then(Option::as_ref)).map_err(|e| ReplayError::Format(name.clone(), e))?;
+    let format = log_format_of(metadata.as_ref().ok().and_then(Option::as_ref))
+        .map_err(|e| ReplayError::Format(name.clone(), e))?;
+    let time_ordered = format >= FORMAT_TIME_ORDERED;
     let total = input_total(&bytes);
     let cfg = replay_config(&metadata, &name, mode, config)?;
-    let log = McapLogger::create(output, &cfg.log_header())?.blocking();
+    // Never over the input (whatever `overwrite` says), nor over another
+    // file unless asked.
+    let file =
+        crate::io::mcap_log::create_output(output, input, overwrite).map_err(crate::io::mcap_log::LogError::from)?;
+    let log = McapLogger::create_stamped(file, output, &cfg.log_header())?.blocking();
     let (out_tx, mut out_rx) = tokio::sync::mpsc::channel(1024);
     let ctx = Ctx {
         counters: Counters::default(),
@@ -195,13 +226,14 @@ pub fn replay(
     let mut fusion = Fusion::new(cfg, Some(log)).for_replay();
     let start = Instant::now();
     let mut tally = Tally::new();
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReplayError::Mcap(name.clone(), e.to_string()))?;
+    let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
+        .map_err(|e| ReplayError::Mcap(name.clone(), e.to_string()))?;
     // Reading the log (decompressing its chunks and parsing each input's
     // JSON) runs on a thread of its own, a batch at a time, so the fusion
     // loop here does nothing but fuse; the order is kept.
     let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Vec<FusionMsg>>(REPLAY_QUEUE_BATCHES);
     let malformed = std::thread::scope(|scope| {
-        let reader = scope.spawn(move || read_inputs(stream, &normaliser, batch_tx));
+        let reader = scope.spawn(move || read_inputs(stream, &normaliser, batch_tx, time_ordered));
         for batch in batch_rx {
             for msg in batch {
                 tally.fuse(msg, &mut fusion, &ctx, &mut out_rx);
@@ -215,7 +247,16 @@ pub fn replay(
     });
     fusion.finish_log(&ctx.counters);
     let mut report = tally.report(start.elapsed().as_secs_f64());
+    let (malformed, out_of_sequence) = malformed;
+    if out_of_sequence > 0 {
+        tracing::warn!(
+            out_of_sequence,
+            "{name}: its sequence numbers are not as cmsckf writes them (joined or re-sorted?): \
+             the replay may not follow the order the flight consumed its inputs"
+        );
+    }
     report.malformed_inputs = malformed;
+    report.out_of_sequence_inputs = out_of_sequence;
     Ok(report)
 }
 
@@ -239,41 +280,67 @@ fn replay_config(
 }
 
 /// The reading thread: turns the log's inputs back into fusion messages, in
-/// order, and sends them in batches of [`REPLAY_BATCH`] until the log ends
-/// (or the fusion loop hangs up).
-fn read_inputs(stream: mcap::MessageStream, normaliser: &Normaliser, batch_tx: SyncSender<Vec<FusionMsg>>) -> u64 {
+/// the order the fusion loop consumed them (a log written in log-time order
+/// is put back in the order of its sequence numbers), and sends them in
+/// batches of [`REPLAY_BATCH`] until the log ends (or the fusion loop hangs
+/// up). Returns the number of malformed inputs skipped and of inputs given
+/// out of sequence ([`SequenceOrder::out_of_sequence`]).
+fn read_inputs(
+    stream: mcap::MessageStream,
+    normaliser: &Normaliser,
+    batch_tx: SyncSender<Vec<FusionMsg>>,
+    time_ordered: bool,
+) -> (u64, u64) {
     let mut malformed = 0u64;
-    let malformed = &mut malformed;
     let mut batch = Vec::with_capacity(REPLAY_BATCH);
+    let mut order = SequenceOrder::default();
+    // Queues one message; false once the fusion loop has hung up.
+    let emit = |msg: FusionMsg, batch: &mut Vec<FusionMsg>| {
+        batch.push(msg);
+        if batch.len() < REPLAY_BATCH {
+            return true;
+        }
+        let full = std::mem::replace(batch, Vec::with_capacity(REPLAY_BATCH));
+        batch_tx.send(full).is_ok()
+    };
     for m in stream {
         // A log cut short ends the replay at its last whole chunk.
         let Ok(m) = m else { break };
-        let Some(topic) = Topic::from_name(&m.channel.topic).filter(|t| t.is_input()) else {
-            continue;
-        };
-        let rec = match InputRecord::parse(topic, &m.data) {
-            Ok(rec) => rec,
+        let topic = Topic::from_name(&m.channel.topic).filter(|t| t.is_input());
+        let msg = topic.and_then(|topic| match InputRecord::parse(topic, &m.data) {
+            Ok(rec) => Some(to_msg(rec, normaliser)),
             Err(e) => {
                 // Counted in the report; the replay goes on without it.
-                *malformed += 1;
-                if *malformed <= 10 {
+                malformed += 1;
+                if malformed <= 10 {
                     tracing::warn!(error = %e, "input record skipped");
                 }
-                continue;
+                None
             }
-        };
-        batch.push(to_msg(rec, normaliser));
-        if batch.len() == REPLAY_BATCH {
-            let full = std::mem::replace(&mut batch, Vec::with_capacity(REPLAY_BATCH));
-            if batch_tx.send(full).is_err() {
-                return *malformed;
+        });
+        if time_ordered {
+            // Every record's sequence counts, kept or not.
+            order.push(m.sequence, msg);
+            while let Some(msg) = order.pop(false) {
+                if !emit(msg, &mut batch) {
+                    return (malformed, order.out_of_sequence);
+                }
             }
+        } else if let Some(msg) = msg {
+            if !emit(msg, &mut batch) {
+                return (malformed, order.out_of_sequence);
+            }
+        }
+    }
+    while let Some(msg) = order.pop(true) {
+        if !emit(msg, &mut batch) {
+            return (malformed, order.out_of_sequence);
         }
     }
     if !batch.is_empty() {
         let _ = batch_tx.send(batch);
     }
-    *malformed
+    (malformed, order.out_of_sequence)
 }
 
 /// What the fusion loop counts: inputs in, estimates out, and the span of
@@ -327,6 +394,7 @@ impl Tally {
             wall_s: wall,
             realtime_factor: if wall > 0.0 { flight / wall } else { 0.0 },
             malformed_inputs: 0,
+            out_of_sequence_inputs: 0,
         }
     }
 }
@@ -355,19 +423,97 @@ mod tests {
     #[test]
     fn a_newer_log_format_is_refused_by_replay_and_review_whatever_the_config() {
         let dir = tempfile::tempdir().unwrap();
-        let newer = log_of_format(dir.path(), "3");
+        let newer_format = LOG_FORMAT_NOW + 1;
+        let newer = log_of_format(dir.path(), &newer_format.to_string());
         let out = dir.path().join("out.mcap");
+        let named = format!("format {newer_format}");
         for config in [None, Some(Config::default())] {
-            let e = replay(&newer, &out, None, config, |_, _| {}).unwrap_err();
-            assert!(e.to_string().contains("format 3"), "{e}");
+            let e = replay(&newer, &out, None, config, false, |_, _| {}).unwrap_err();
+            assert!(e.to_string().contains(&named), "{e}");
             assert!(!out.exists(), "nothing is written for a refused log");
         }
         let e = crate::review::review(&newer, None, None, None).unwrap_err();
-        assert!(e.to_string().contains("format 3"), "{e}");
+        assert!(e.to_string().contains(&named), "{e}");
         // This build's own format is read.
         let own = log_of_format(dir.path(), &LOG_FORMAT_NOW.to_string());
         assert!(crate::review::review(&own, None, None, None).is_ok());
     }
 
     const LOG_FORMAT_NOW: u32 = crate::io::mcap_log::LOG_FORMAT;
+
+    /// IMU samples (stamped 0, 1, 2, … ms in the order they came), written
+    /// with `sequence` numbers in `file_order`, plus a non-input record per
+    /// sample; what `read_inputs` gives the fusion loop, as sample stamps.
+    fn read_back(file_order: &[u32], time_ordered: bool) -> (Vec<u32>, u64) {
+        let mut buf = Vec::new();
+        {
+            let mut w = mcap::Writer::new(std::io::Cursor::new(&mut buf)).unwrap();
+            let imu = w
+                .add_channel(0, Topic::InputImu.name(), "json", &std::collections::BTreeMap::new())
+                .unwrap();
+            let pose = w
+                .add_channel(0, Topic::Pose.name(), "json", &std::collections::BTreeMap::new())
+                .unwrap();
+            for &seq in file_order {
+                // Odd sequences are the fusion loop's outputs, even ones its
+                // inputs (sample seq / 2).
+                let (channel_id, data) = if seq % 2 == 0 {
+                    let t_us = u64::from(seq / 2) * 1000;
+                    (
+                        imu,
+                        format!(r#"{{"t_us":{t_us},"accel_mps2":[0,0,-9.8],"gyro_radps":[0,0,0]}}"#),
+                    )
+                } else {
+                    (pose, "{}".to_string())
+                };
+                let header = mcap::records::MessageHeader {
+                    channel_id,
+                    sequence: seq,
+                    log_time: 0,
+                    publish_time: 0,
+                };
+                w.write_to_known_channel(&header, data.as_bytes()).unwrap();
+            }
+            w.finish().unwrap();
+        }
+        let stream = mcap::MessageStream::new(&buf).unwrap();
+        let normaliser = Normaliser::new(&Config::default().camera);
+        let (tx, rx) = std::sync::mpsc::sync_channel(1 << 16);
+        let (malformed, out_of_sequence) = read_inputs(stream, &normaliser, tx, time_ordered);
+        assert_eq!(malformed, 0);
+        let got = rx
+            .iter()
+            .flatten()
+            .map(|m| match m {
+                FusionMsg::Imu(i) => (i.t_s * 1000.0).round() as u32,
+                _ => panic!("only IMU samples were logged"),
+            })
+            .collect();
+        (got, out_of_sequence)
+    }
+
+    #[test]
+    fn replay_gives_a_time_ordered_log_back_in_the_order_it_was_consumed() {
+        // Each block of 2000 records written in reverse: a record as far as
+        // 2000 records from its place, inside the writer's bound.
+        let n = 30_000u32;
+        let file_order: Vec<u32> = (1..=n)
+            .collect::<Vec<_>>()
+            .chunks(2000)
+            .flat_map(|c| c.iter().rev().copied().collect::<Vec<_>>())
+            .collect();
+        let got = read_back(&file_order, true);
+        let want: Vec<u32> = (1..=n).filter(|s| s % 2 == 0).map(|s| s / 2).collect();
+        assert_eq!(got, (want, 0));
+        // A log of format 2 or older is read in file order, as it was written.
+        let got = read_back(&file_order, false);
+        let file: Vec<u32> = file_order.iter().filter(|s| *s % 2 == 0).map(|s| s / 2).collect();
+        assert_eq!(got, (file, 0));
+        // A log whose sequences break the writer's bound (here all reversed:
+        // re-sorted by another tool, or parts joined) is counted, not
+        // silently taken as the flight's order.
+        let reversed: Vec<u32> = (1..=n).rev().collect();
+        let (_, out_of_sequence) = read_back(&reversed, true);
+        assert!(out_of_sequence > 0);
+    }
 }

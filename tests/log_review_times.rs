@@ -38,7 +38,7 @@ fn fly(log: &McapLogger, a_s: f64, b_s: f64) {
 fn one_far_future_and_one_backwards_record_leave_the_duration_sane() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("bad_stamps.mcap");
-    let log = McapLogger::create(&p, &header()).unwrap();
+    let log = McapLogger::create(std::fs::File::create(&p).unwrap(), &p, &header()).unwrap();
     fly(&log, 20.0, 35.0);
     // A far-future line (its ns saturate at u64::MAX: the 18 446 744 053 s
     // of the report) and a state stamped then.
@@ -84,7 +84,7 @@ fn one_far_future_and_one_backwards_record_leave_the_duration_sane() {
 fn a_reboot_adds_its_time_and_a_cut_log_never_wraps() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("reboot.mcap");
-    let log = McapLogger::create(&p, &header()).unwrap();
+    let log = McapLogger::create(std::fs::File::create(&p).unwrap(), &p, &header()).unwrap();
     fly(&log, 20.0, 30.0);
     // The autopilot reboots: its boot clock restarts near 1 s.
     fly(&log, 1.0, 11.0);

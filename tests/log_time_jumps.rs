@@ -57,8 +57,8 @@ fn sigkill_after_clock_jumps_loses_at_most_about_a_second() {
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let Ok(m) = m else { break };
         match m.channel.topic.as_str() {
-            "/input/features" if m.log_time == u64::MAX => far_future_line = true,
-            "/input/imu" => imu_boot_s.push(m.log_time as f64 * 1e-9),
+            "/input/features" if m.publish_time == u64::MAX => far_future_line = true,
+            "/input/imu" => imu_boot_s.push(m.publish_time as f64 * 1e-9),
             _ => {}
         }
     }

@@ -30,7 +30,7 @@ def layout_refs(node, topics, paths):
     """Collects the topics and Plot paths a layout names, anywhere in it."""
     if isinstance(node, dict):
         for k, v in node.items():
-            if k in ("followTopic", "topicToRender") and isinstance(v, str):
+            if k in ("followTopic", "topicToRender", "topicPath") and isinstance(v, str):
                 topics.add(v)
             elif k == "topics" and isinstance(v, dict):
                 topics.update(t for t in v if t.startswith("/"))
@@ -73,12 +73,15 @@ def main() -> int:
     checked = 0
     counts = {}
     last = 0
+    unix_stamped = 0
     layout_topics, layout_paths, found = set(), set(), set()
     if layout_path:
         with open(layout_path, encoding="utf-8") as f:
             layout = json.load(f)
-        if layout.get("version") != 1 or "content" not in layout:
-            print(f"{layout_path}: not a version-1 Foxglove layout", file=sys.stderr)
+        sdk = layout.get("version") == 1 and "content" in layout
+        desktop = isinstance(layout.get("configById"), dict) and "layout" in layout
+        if not (sdk or desktop):
+            print(f"{layout_path}: neither a Foxglove desktop layout nor an SDK one", file=sys.stderr)
             return 1
         layout_refs(layout, layout_topics, layout_paths)
     with open(args[0], "rb") as f:
@@ -109,17 +112,27 @@ def main() -> int:
                     print(f"{channel.topic}: {errors[0].message} at {list(errors[0].path)}", file=sys.stderr)
                     return 1
                 checked += 1
-            if message.log_time != message.publish_time:
-                print(f"{channel.topic}: log and publish time differ", file=sys.stderr)
+            # Log time is Unix time (from the autopilot's SYSTEM_TIME) and
+            # publish time its boot time; before SYSTEM_TIME, both boot time.
+            offset = message.log_time - message.publish_time
+            if offset != 0 and not (1_000_000_000 * 10**9 < offset < 4_000_000_000 * 10**9):
+                print(f"{channel.topic}: log time is neither boot nor Unix time ({offset} ns apart)", file=sys.stderr)
                 return 1
+            unix_stamped += offset != 0
             for path in layout_paths - found:
                 prefix = channel.topic + "."
                 if path.startswith(prefix) and isinstance(resolve(value, steps_of(path[len(prefix) - 1 :])), (int, float)):
                     found.add(path)
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
-            last = max(last, message.log_time)
+            last = max(last, message.publish_time)
         meta = [m.name for m in reader.iter_metadata()]
-    report = {"library": header.library, "metadata": meta, "counts": counts, "last_log_time_ns": last}
+    report = {
+        "library": header.library,
+        "metadata": meta,
+        "counts": counts,
+        "last_publish_time_ns": last,
+        "unix_stamped": unix_stamped,
+    }
     if validate:
         report["validated"] = checked
     if layout_path:

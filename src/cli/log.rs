@@ -22,6 +22,9 @@ enum LogCmd {
     Recover {
         input: PathBuf,
         output: PathBuf,
+        /// Replace OUTPUT if it exists (never the input itself).
+        #[arg(long)]
+        force: bool,
         /// Print the report as one JSON object.
         #[arg(long)]
         json: bool,
@@ -30,9 +33,15 @@ enum LogCmd {
 
 /// Runs `cmsckf log`.
 pub fn log(args: LogArgs) -> anyhow::Result<()> {
+    super::init_tracing("warn");
     match args.cmd {
-        LogCmd::Recover { input, output, json } => {
-            let r = cmsckf::io::mcap_log::recover(&input, &output)
+        LogCmd::Recover {
+            input,
+            output,
+            force,
+            json,
+        } => {
+            let r = cmsckf::io::mcap_log::recover(&input, &output, force)
                 .with_context(|| format!("recovering '{}'", input.display()))?;
             if json {
                 println!("{}", serde_json::to_string(&r)?);
@@ -48,6 +57,8 @@ pub fn log(args: LogArgs) -> anyhow::Result<()> {
                 output.display(),
                 if r.input_was_complete {
                     "the input was already complete; rewritten as it was"
+                } else if r.input_was_damaged {
+                    "the input was damaged: what could be read was kept"
                 } else {
                     "the input was unfinished (no summary)"
                 }
@@ -60,7 +71,7 @@ pub fn log(args: LogArgs) -> anyhow::Result<()> {
                 println!("  {topic}: {n}");
             }
             println!(
-                "dropped: {} bytes of a record cut off at the end, {} chunks that did not decompress, {} messages on undeclared channels",
+                "dropped: {} bytes of a record cut off at the end, {} damaged chunks, {} messages on undeclared channels",
                 r.tail_bytes_dropped, r.chunks_dropped, r.messages_dropped_unknown_channel
             );
             println!("wrote {} bytes with indexes and a summary", r.output_bytes);

@@ -20,6 +20,9 @@ pub struct ReplayArgs {
     /// Another config (the log's own otherwise).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Replace OUT if it exists (never the input itself).
+    #[arg(long)]
+    force: bool,
     /// Print {"messages_in","estimates_out","flight_s","wall_s","realtime_factor","malformed_inputs"}.
     #[arg(long)]
     json: bool,
@@ -32,8 +35,10 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
         out,
         mode,
         config,
+        force,
         json,
     } = args;
+    super::init_tracing("warn");
     let mode = mode
         .map(|m| m.parse::<Mode>())
         .transpose()
@@ -43,7 +48,7 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<()> {
     // number of inputs, else a spinner; nothing in a journal or with --json.
     let bar = super::progress_bar(None, "replaying", json);
     let mut sized = false;
-    let r = cmsckf::replay::replay(&input, &out, mode, cfg, |n, total| {
+    let r = cmsckf::replay::replay(&input, &out, mode, cfg, force, |n, total| {
         if let (Some(t), false) = (total, sized) {
             bar.set_length(t);
             bar.set_style(super::bar_style("replaying inputs"));

@@ -21,8 +21,29 @@ pub struct ReviewArgs {
     /// Write one self-contained HTML report here (no network needed to view it).
     #[arg(long)]
     html: Option<PathBuf>,
+    /// Replace the --html or --tum file if it exists (never the log itself).
+    #[arg(long)]
+    force: bool,
     #[arg(long)]
     json: bool,
+}
+
+/// Refuses an output that is the log being reviewed, or (without `force`)
+/// an existing file.
+fn check_output(out: &std::path::Path, log: &std::path::Path, force: bool) -> anyhow::Result<()> {
+    if cmsckf::io::mcap_log::same_file(out, log) {
+        anyhow::bail!(
+            "'{}' is the log being reviewed: give another output path",
+            out.display()
+        );
+    }
+    if out.exists() && !force {
+        anyhow::bail!(
+            "'{}' exists: give another output path, or --force to replace it",
+            out.display()
+        );
+    }
+    Ok(())
 }
 
 /// Runs `cmsckf review` and prints the summary (JSON with `--json`, else
@@ -34,8 +55,24 @@ pub fn review(args: ReviewArgs) -> anyhow::Result<()> {
         tum,
         keyframe,
         html,
+        force,
         json,
     } = args;
+    for out in [&html, &tum].into_iter().flatten() {
+        check_output(out, &input, force)?;
+    }
+    if let Some(dir) = &plots {
+        for name in ["trajectory.png", "error.png", "figure1.png", "nis.png", "timing.png"] {
+            if cmsckf::io::mcap_log::same_file(&dir.join(name), &input) {
+                anyhow::bail!(
+                    "--plots {}: would write {name} over the log being reviewed",
+                    dir.display()
+                );
+            }
+        }
+    }
+    // Warnings (a damaged chunk left out, …) reach the user.
+    super::init_tracing("warn");
     if let Some(page) = &html {
         cmsckf::review::review_html(&input, page, keyframe)?;
     }

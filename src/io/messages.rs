@@ -77,6 +77,14 @@ pub enum Inbound {
     Heartbeat {
         armed: bool,
         kind: AutopilotKind,
+        /// Its flight mode (`custom_mode`, the autopilot's own numbering).
+        mode: u32,
+    },
+    /// A `STATUSTEXT` from the autopilot: only logged (the review's
+    /// timeline shows what the autopilot said).
+    AutopilotText {
+        severity: u8,
+        text: String,
     },
     /// `EXTENDED_SYS_STATE`'s landed state: on the ground, in the air
     /// (taking off, flying, landing), or not known (`None`).
@@ -92,9 +100,41 @@ pub enum Inbound {
     },
     /// A simulator's truth (`SIM_STATE`): only logged, never fused.
     SimState(SimTruth),
+    /// How the autopilot's own EKF takes our estimates: ArduPilot's
+    /// `EKF_STATUS_REPORT` or PX4's `ESTIMATOR_STATUS`. Only logged.
+    EstimatorStatus(EstimatorStatus),
     /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
     /// for the SITL scorer's own tests).
     Other(&'static str),
+}
+
+/// The autopilot EKF's innovation test ratios, as it reports them: over 1
+/// means the EKF rejected that measurement. ArduPilot's
+/// `EKF_STATUS_REPORT` names them variances, but fills them with the square
+/// roots of EK3's test ratios; PX4's `ESTIMATOR_STATUS` names them ratios.
+/// With external navigation as the position source, the position ratios
+/// are those of our estimates.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EstimatorStatus {
+    /// `ekf_status_report` (ArduPilot) or `estimator_status` (PX4).
+    pub source: EstimatorSource,
+    /// `None` when not finite: a field we do not use must not cost the
+    /// position ratios.
+    pub vel_ratio: Option<f64>,
+    pub pos_horiz_ratio: f64,
+    pub pos_vert_ratio: f64,
+    pub mag_ratio: Option<f64>,
+    /// The message's flags, as sent (`EKF_STATUS_FLAGS` or
+    /// `ESTIMATOR_STATUS_FLAGS`).
+    pub flags: u16,
+}
+
+/// Which message an [`EstimatorStatus`] came in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorSource {
+    EkfStatusReport,
+    EstimatorStatus,
 }
 
 /// A message to the autopilot.
@@ -230,3 +270,7 @@ pub const MSG_ID_SYSTEM_TIME: u32 = 2;
 pub const MSG_ID_LOCAL_POSITION_NED: u32 = 32;
 /// `EXTENDED_SYS_STATE` (the landed state).
 pub const MSG_ID_EXTENDED_SYS_STATE: u32 = 245;
+/// `EKF_STATUS_REPORT` (ArduPilot's EKF test ratios).
+pub const MSG_ID_EKF_STATUS_REPORT: u32 = 193;
+/// `ESTIMATOR_STATUS` (PX4's EKF test ratios).
+pub const MSG_ID_ESTIMATOR_STATUS: u32 = 230;

@@ -5,6 +5,7 @@
 pub mod base64;
 pub mod feature_pipe;
 pub mod gnss_stream;
+pub mod live_view;
 pub mod mavlink;
 pub mod mcap_log;
 pub mod messages;

@@ -55,6 +55,12 @@ pub(super) fn errors(d: &Data) -> Vec<(f64, [f64; 3], [f64; 3])> {
 /// The error's RMS (3-D, m) and the share of samples inside ±3σ on every
 /// axis, into the summary.
 pub(super) fn error_statistics(s: &mut ReviewSummary, d: &Data) {
+    s.error_reference = d.reference().1.to_string();
+    let r = &d.autopilot_ratios;
+    s.autopilot_ratio_reports = r.len() as u64;
+    s.autopilot_pos_horiz_ratio_max = r.iter().map(|x| x.1).reduce(f64::max);
+    s.autopilot_pos_vert_ratio_max = r.iter().map(|x| x.2).reduce(f64::max);
+    s.autopilot_rejected_reports = r.iter().filter(|x| x.1 > 1.0 || x.2 > 1.0).count() as u64;
     let e = errors(d);
     if e.is_empty() {
         return;

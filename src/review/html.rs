@@ -1,15 +1,23 @@
 //! `review --html`: one self-contained page to look at after a flight. Why
 //! it exists: a summary in JSON and four loose PNGs are for scripts; a
 //! person reviewing a flight wants one file to open (or mail) that needs no
-//! network at view time. The page holds the summary table, the plots as
-//! inline PNG (`data:` URIs, base64), the input rates, every rejection with
-//! its reason, and every counter of the daemon.
+//! network at view time. The page holds the summary table, the interactive
+//! plots and the event timeline (`interactive.rs`, drawn by the inlined
+//! uPlot: zoom and hover values), the static figures as inline PNG (`data:`
+//! URIs, base64), the input rates, every rejection with its reason, every
+//! counter of the daemon, and the configuration in force.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::ReviewSummary;
+use super::reader::Data;
+use super::{interactive, ReviewSummary};
 use crate::io::base64::encode as base64;
+
+/// uPlot (MIT; `assets/README.md`), its style, and the page's own script.
+const UPLOT_JS: &str = include_str!("assets/uPlot.iife.min.js");
+const UPLOT_CSS: &str = include_str!("assets/uPlot.min.css");
+const REVIEW_JS: &str = include_str!("assets/review.js");
 
 /// Text made safe for HTML.
 fn esc(s: &str) -> String {
@@ -33,7 +41,13 @@ fn table(title: &str, rows: &[(String, String)]) -> String {
 
 /// The page for the log `name` with summary `s`, the plots read from
 /// `plots_dir` (the four PNGs of [`super::plots`]).
-pub(super) fn page(name: &str, s: &ReviewSummary, plots_dir: &Path) -> std::io::Result<String> {
+pub(super) fn page(
+    name: &str,
+    s: &ReviewSummary,
+    plots_dir: &Path,
+    d: &Data,
+    config_toml: Option<&str>,
+) -> std::io::Result<String> {
     let mut summary = vec![("log".to_string(), name.to_string())];
     summary.extend(s.rows());
     let rates = s.rate_rows();
@@ -43,9 +57,7 @@ pub(super) fn page(name: &str, s: &ReviewSummary, plots_dir: &Path) -> std::io::
     let mut figures = String::new();
     for (file, caption) in [
         ("trajectory.png", "Trajectory from above, to scale: the estimate, its keyframes, the GNSS single-point fixes, the autopilot's own position and, from a simulator, the truth"),
-        ("error.png", "Position error against the truth (a simulator's SIM_STATE) or else the autopilot's position, with the filter's ±3σ"),
         ("figure1.png", "The paper's Figure 1: each keyframe's position σ over time; right, one keyframe with the vision, GNSS and global updates marked"),
-        ("nis.png", "NIS per update against its 95 % χ² band"),
         ("timing.png", "Estimator time per camera frame"),
     ] {
         let png = std::fs::read(plots_dir.join(file))?;
@@ -62,14 +74,26 @@ pub(super) fn page(name: &str, s: &ReviewSummary, plots_dir: &Path) -> std::io::
 h2{{font-size:1.2em;margin-top:1.5em}}table{{border-collapse:collapse;margin:0.5em 0}}\
 th,td{{border:1px solid #ccc;padding:3px 10px;text-align:left;font-size:0.9em}}th{{background:#f4f4f4;font-weight:normal}}\
 .cols{{display:flex;flex-wrap:wrap;gap:2em}}figure{{margin:1em 0}}img{{max-width:100%;border:1px solid #ddd}}\
-figcaption{{font-size:0.9em;color:#555}}</style></head><body>\
-<h1>cmsckf flight review: {title}</h1>{summary}<h2>Plots</h2>{figures}\
-<div class=\"cols\">{rates}{rejected}{counters}</div></body></html>\n",
+figcaption{{font-size:0.9em;color:#555}}pre{{background:#f8f8f8;padding:1em;font-size:0.8em;overflow:auto;max-height:30em}}\
+.cmsckf-timeline tr[data-t]{{cursor:pointer}}.cmsckf-timeline tr[data-t]:hover{{background:#eef}}\
+.plot{{margin:1em 0}}.plot h3{{font-size:1em;margin:0.3em 0}}{uplot_css}</style></head><body>\
+<h1>cmsckf flight review: {title}</h1>{summary}<h2>Over time</h2>\
+<p>Drag to zoom, double-click to zoom out; the values under the cursor are in each legend. Vertical lines are the \
+timeline's events.</p>{plots}{timeline}<h2>Figures</h2>{figures}\
+<div class=\"cols\">{rates}{rejected}{counters}</div>\
+<section><h2>Configuration in force</h2><pre>{config}</pre></section>\
+<script>{uplot_js}</script><script>{review_js}</script></body></html>\n",
         title = esc(name),
+        uplot_css = UPLOT_CSS,
         summary = table("Summary", &summary),
         figures = figures,
         rates = table("Input rates", &rates),
         rejected = table("Rejections, by reason", &rejected),
         counters = table("Every counter at the end of the log", &counters),
+        plots = interactive::plots(d),
+        timeline = interactive::timeline(&d.events, esc),
+        config = esc(config_toml.unwrap_or("(not in the log)")),
+        uplot_js = UPLOT_JS,
+        review_js = REVIEW_JS,
     ))
 }

@@ -29,6 +29,7 @@
 mod chart;
 mod error;
 mod html;
+mod interactive;
 mod plots;
 mod reader;
 mod text;
@@ -56,6 +57,8 @@ pub enum ReviewError {
     Plot(String, String),
     #[error("'{0}': {1}")]
     Format(String, crate::io::mcap_log::RecordError),
+    #[error(transparent)]
+    Check(#[from] crate::io::mcap_log::CheckError),
 }
 
 /// The summary `review --json` prints.
@@ -68,6 +71,13 @@ pub struct ReviewSummary {
     pub messages: u64,
     /// The log ended early (no summary): read up to the last whole chunk.
     pub truncated: bool,
+    /// Records whose log time is before the one before it in the file: written
+    /// out of log-time order (later than the writer's reordering, or off
+    /// the clock), or a log of format 2 or older, written as records came.
+    pub records_out_of_time_order: u64,
+    /// What the check of the file left out (damaged chunks, a broken
+    /// length), before anything was read.
+    pub log_check: crate::io::mcap_log::CheckReport,
     pub input_rates_hz: BTreeMap<String, f64>,
     pub vision_updates: u64,
     pub tracks_used: u64,
@@ -89,6 +99,16 @@ pub struct ReviewSummary {
     pub position_error_rms_m: Option<f64>,
     /// The share of those samples with every axis inside ±3σ.
     pub position_error_within_3sigma: Option<f64>,
+    /// What the error is measured against, or why there is no error figure.
+    pub error_reference: String,
+    /// The autopilot EKF's position test ratios of our estimates
+    /// (`EKF_STATUS_REPORT`, `ESTIMATOR_STATUS`): how many reports, their
+    /// largest horizontal and vertical ratios, and the reports over 1 (the
+    /// EKF rejected us).
+    pub autopilot_ratio_reports: u64,
+    pub autopilot_pos_horiz_ratio_max: Option<f64>,
+    pub autopilot_pos_vert_ratio_max: Option<f64>,
+    pub autopilot_rejected_reports: u64,
     /// Every counter of the daemon at the log's last `/diagnostics` record
     /// (inputs, rejections by reason, drops).
     pub counters: BTreeMap<String, u64>,
@@ -98,11 +118,12 @@ pub struct ReviewSummary {
 /// summary, the plots inline, rates, rejections and counters; `html.rs`).
 pub fn review_html(log: &Path, out: &Path, keyframe: Option<u64>) -> Result<ReviewSummary, ReviewError> {
     let dir = tempfile::tempdir().map_err(|e| ReviewError::Io("a temporary folder".into(), e))?;
-    let s = review(log, Some(dir.path()), None, keyframe)?;
+    let (s, d, config_toml) = review_data(log, Some(dir.path()), None, keyframe)?;
     let name = log
         .file_name()
         .map_or_else(|| log.display().to_string(), |n| n.to_string_lossy().into_owned());
-    let page = html::page(&name, &s, dir.path()).map_err(|e| ReviewError::Io(dir.path().display().to_string(), e))?;
+    let page = html::page(&name, &s, dir.path(), &d, config_toml.as_deref())
+        .map_err(|e| ReviewError::Io(dir.path().display().to_string(), e))?;
     std::fs::write(out, page).map_err(|e| ReviewError::Io(out.display().to_string(), e))?;
     Ok(s)
 }
@@ -115,20 +136,42 @@ pub fn review(
     tum: Option<&Path>,
     keyframe: Option<u64>,
 ) -> Result<ReviewSummary, ReviewError> {
+    review_data(log, plots, tum, keyframe).map(|r| r.0)
+}
+
+/// [`review`], with the series read and the log's config (TOML), for the
+/// page.
+fn review_data(
+    log: &Path,
+    plots: Option<&Path>,
+    tum: Option<&Path>,
+    keyframe: Option<u64>,
+) -> Result<(ReviewSummary, reader::Data, Option<String>), ReviewError> {
     let name = log.display().to_string();
-    let bytes = std::fs::read(log).map_err(|e| ReviewError::Io(name.clone(), e))?;
+    let checked = crate::io::mcap_log::read_checked(log)?;
+    checked.report.warn(&name);
+    let bytes = checked.bytes;
     let metadata = crate::io::mcap_log::input::cmsckf_metadata(&bytes).ok().flatten();
     crate::io::mcap_log::input::log_format_of(metadata.as_ref()).map_err(|e| ReviewError::Format(name.clone(), e))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReviewError::Mcap(name.clone(), e.to_string()))?;
+    let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
+        .map_err(|e| ReviewError::Mcap(name.clone(), e.to_string()))?;
     let mut reader = LogReader::new();
+    reader.s.log_check = checked.report.clone();
+    reader.s.truncated = !checked.report.finished;
+    let (mut previous_log_time, mut out_of_order) = (0u64, 0u64);
     for m in stream {
         let Ok(m) = m else {
             reader.s.truncated = true;
             break;
         };
+        // Against the record before (one far-future stamp is one record
+        // out of order, not every record after it).
+        out_of_order += u64::from(m.log_time < previous_log_time);
+        previous_log_time = m.log_time;
         reader.on_message(&m);
     }
     let (mut s, d) = reader.finish();
+    s.records_out_of_time_order = out_of_order;
     nis_statistics(&mut s, &d);
     timing_statistics(&mut s, &d);
     error::error_statistics(&mut s, &d);
@@ -142,7 +185,8 @@ pub fn review(
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
         plot_all(dir, &d, keyframe).map_err(|e| ReviewError::Plot(dir.display().to_string(), e))?;
     }
-    Ok(s)
+    let config_toml = metadata.and_then(|m| m.get("config_toml").cloned());
+    Ok((s, d, config_toml))
 }
 
 /// The mean NIS per degree of freedom and the share inside its 95% χ² band.

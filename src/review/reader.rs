@@ -11,6 +11,10 @@ use super::ReviewSummary;
 use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, SimStateRecord};
 use crate::io::mcap_log::Topic;
 
+/// Why a log without truth has no error figure.
+pub(super) const NO_REFERENCE_ECHO: &str =
+    "none: the log has no truth, and the autopilot's position is fed by our own estimates (an echo, not a reference)";
+
 /// The series kept from the log (times in s of log time).
 #[derive(Default)]
 pub(super) struct Data {
@@ -39,6 +43,85 @@ pub(super) struct Data {
     pub global_t: Vec<f64>,
     pub nis: Vec<(f64, f64, usize)>,
     pub elapsed: Vec<f64>,
+    /// Estimates we sent the autopilot (`/output/...` records).
+    pub estimates_sent: u64,
+    /// The autopilot EKF's position test ratios of our estimates:
+    /// `t, horizontal, vertical` (over 1: rejected).
+    pub autopilot_ratios: Vec<(f64, f64, f64)>,
+    /// What we sent: `t, quality, speed (m/s)`.
+    pub sent: Vec<(f64, f64, f64)>,
+    /// GNSS epochs fused: `t, code residual RMS (m), range-rate residual RMS
+    /// (m/s)` before the update (NaN when none).
+    pub gnss_residuals: Vec<(f64, f64, f64)>,
+    /// The flight's events, in log order.
+    pub events: Vec<Event>,
+    /// The degraded reasons and reset counter of the last `/diagnostics`.
+    last_degraded: Option<(String, u64)>,
+    /// Whether the last autopilot report rejected us.
+    rejected_by_autopilot: bool,
+    /// The autopilot is ArduPilot (its mode numbers are named).
+    ardupilot: bool,
+}
+
+/// ArduCopter's flight mode names (its `custom_mode` numbers).
+fn copter_mode(m: u32) -> Option<&'static str> {
+    Some(match m {
+        0 => "STABILIZE",
+        1 => "ACRO",
+        2 => "ALT_HOLD",
+        3 => "AUTO",
+        4 => "GUIDED",
+        5 => "LOITER",
+        6 => "RTL",
+        7 => "CIRCLE",
+        9 => "LAND",
+        11 => "DRIFT",
+        13 => "SPORT",
+        15 => "AUTOTUNE",
+        16 => "POSHOLD",
+        17 => "BRAKE",
+        20 => "GUIDED_NOGPS",
+        21 => "SMART_RTL",
+        _ => return None,
+    })
+}
+
+/// What kind of event a timeline row is (its filter in the report).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum EventKind {
+    /// The filter started or restarted.
+    Filter,
+    /// The daemon's degraded reasons changed (its HEARTBEAT and STATUSTEXT).
+    Degraded,
+    /// Arming, disarming, landed state, the autopilot's kind.
+    Vehicle,
+    /// The autopilot's EKF began or stopped rejecting our position.
+    Autopilot,
+    /// A `STATUSTEXT` the autopilot sent.
+    AutopilotText,
+    /// Another line of the daemon's `/log`.
+    Log,
+}
+
+impl EventKind {
+    pub(super) fn name(self) -> &'static str {
+        match self {
+            EventKind::Filter => "filter",
+            EventKind::Degraded => "degraded",
+            EventKind::Vehicle => "vehicle",
+            EventKind::Autopilot => "autopilot",
+            EventKind::AutopilotText => "autopilot says",
+            EventKind::Log => "log",
+        }
+    }
+}
+
+/// One row of the timeline.
+#[derive(Clone, Debug)]
+pub(super) struct Event {
+    pub t: f64,
+    pub kind: EventKind,
+    pub text: String,
 }
 
 /// The review's state while it reads the log.
@@ -64,8 +147,10 @@ impl LogReader {
     /// Counts one message and keeps what it carries.
     pub fn on_message(&mut self, m: &mcap::Message) {
         self.s.messages += 1;
-        let t = m.log_time as f64 * 1e-9;
-        self.timeline.push(m.log_time);
+        // The autopilot's boot time (the publish time; the log time is Unix
+        // time once SYSTEM_TIME gave it).
+        let t = m.publish_time as f64 * 1e-9;
+        self.timeline.push(m.publish_time);
         *self.counts.entry(m.channel.topic.clone()).or_default() += 1;
         let Some(topic) = Topic::from_name(&m.channel.topic) else {
             return;
@@ -78,6 +163,50 @@ impl LogReader {
                 Ok(InputRecord::Autopilot(AutopilotRecord::SimState(SimStateRecord { p_ned_m: Some(p), .. }))) => {
                     d.truth.push((t, p))
                 }
+                Ok(InputRecord::Autopilot(AutopilotRecord::EstimatorStatus(e))) => {
+                    d.autopilot_ratios.push((t, e.pos_horiz_ratio, e.pos_vert_ratio));
+                    let rejected = e.pos_horiz_ratio > 1.0 || e.pos_vert_ratio > 1.0;
+                    if rejected != d.rejected_by_autopilot {
+                        d.rejected_by_autopilot = rejected;
+                        d.event(
+                            t,
+                            EventKind::Autopilot,
+                            if rejected {
+                                format!(
+                                    "the autopilot's EKF rejects our position (test ratios {:.2} horizontal, {:.2} vertical)",
+                                    e.pos_horiz_ratio, e.pos_vert_ratio
+                                )
+                            } else {
+                                "the autopilot's EKF takes our position again".to_string()
+                            },
+                        );
+                    }
+                }
+                Ok(InputRecord::Autopilot(AutopilotRecord::Armed(a))) => {
+                    d.event(t, EventKind::Vehicle, if a { "armed" } else { "disarmed" }.into())
+                }
+                Ok(InputRecord::Autopilot(AutopilotRecord::OnGround(g))) => d.event(
+                    t,
+                    EventKind::Vehicle,
+                    if g { "on the ground" } else { "in the air" }.into(),
+                ),
+                Ok(InputRecord::Autopilot(AutopilotRecord::Autopilot(k))) => {
+                    d.ardupilot = k == crate::io::messages::AutopilotKind::ArduPilot;
+                    d.event(t, EventKind::Vehicle, format!("autopilot: {k:?}"))
+                }
+                Ok(InputRecord::Autopilot(AutopilotRecord::Mode(m))) => {
+                    let name = if d.ardupilot { copter_mode(m) } else { None };
+                    let text = match name {
+                        Some(n) => format!("mode {n} ({m})"),
+                        None => format!("mode {m}"),
+                    };
+                    d.event(t, EventKind::Vehicle, text)
+                }
+                Ok(InputRecord::Autopilot(AutopilotRecord::StatusText(s))) => d.event(
+                    t,
+                    EventKind::AutopilotText,
+                    format!("autopilot says (severity {}): {}", s.severity, s.text),
+                ),
                 _ => {}
             }
             return;
@@ -96,6 +225,16 @@ impl LogReader {
                 s.gnss_updates += 1;
                 d.gnss_t.push(t);
                 d.push_sigmas(t, &v);
+                d.push_gnss_residuals(t, &v);
+            }
+            Topic::Log => {
+                let text = v["message"].as_str().unwrap_or_default().to_string();
+                let kind = if text.starts_with("filter") || text.contains("initialis") || text.contains("started") {
+                    EventKind::Filter
+                } else {
+                    EventKind::Log
+                };
+                d.event(t, kind, text);
             }
             Topic::FilterGlobal => {
                 if v["reason"] == "Promotion" {
@@ -105,7 +244,15 @@ impl LogReader {
                     d.global_t.push(t);
                 }
             }
-            Topic::OutputVpe => s.estimates += 1,
+            Topic::OutputVpe => {
+                s.estimates += 1;
+                d.estimates_sent += 1;
+                let q = v["quality"].as_f64().unwrap_or(f64::NAN);
+                let speed = v["v_ned_mps"].as_array().map_or(f64::NAN, |a| {
+                    a.iter().filter_map(Value::as_f64).map(|x| x * x).sum::<f64>().sqrt()
+                });
+                d.sent.push((t, q, speed));
+            }
             Topic::Location => d.push_location(t, &v),
             Topic::GnssFix => d.push_fix(&v),
             Topic::Diagnostics => {
@@ -113,6 +260,7 @@ impl LogReader {
                 if let Some(c) = v["counters"].as_object() {
                     s.counters = c.iter().filter_map(|(k, n)| Some((k.clone(), n.as_u64()?))).collect();
                 }
+                d.push_diagnostics(t, &v);
             }
             _ => {}
         }
@@ -177,6 +325,10 @@ impl Data {
         self.sigma_p.retain(|p| ok(p.0));
         self.autopilot.retain(|p| ok(p.0));
         self.truth.retain(|p| ok(p.0));
+        self.autopilot_ratios.retain(|p| ok(p.0));
+        self.sent.retain(|p| ok(p.0));
+        self.gnss_residuals.retain(|p| ok(p.0));
+        self.events.retain(|e| ok(e.t));
         for v in self.kf_sigma.values_mut() {
             v.retain(|p| ok(p.0));
         }
@@ -214,6 +366,48 @@ impl Data {
     }
 
     /// An update's `keyframe_sigma_m`: `[id, σ]` pairs.
+    /// A timeline row (bounded: a log that says the same thing a million
+    /// times must not fill the page).
+    fn event(&mut self, t: f64, kind: EventKind, text: String) {
+        const MAX_EVENTS: usize = 2000;
+        if self.events.len() < MAX_EVENTS {
+            self.events.push(Event { t, kind, text });
+        }
+    }
+
+    /// A change of the degraded reasons or of the reset counter.
+    fn push_diagnostics(&mut self, t: f64, v: &Value) {
+        let degraded = v["degraded"].as_str().unwrap_or_default().to_string();
+        let resets = v["reset_counter"].as_u64().unwrap_or(0);
+        let before = self.last_degraded.replace((degraded.clone(), resets));
+        let (was, was_resets) = before.unwrap_or_default();
+        if degraded != was {
+            let text = if degraded.is_empty() {
+                "nominal".to_string()
+            } else {
+                format!("degraded: {degraded}")
+            };
+            self.event(t, EventKind::Degraded, text);
+        }
+        if resets != was_resets && (resets > 0 || was_resets > 0) {
+            self.event(t, EventKind::Filter, format!("reset counter {was_resets} → {resets}"));
+        }
+    }
+
+    /// The RMS of an epoch's code and range-rate residuals.
+    fn push_gnss_residuals(&mut self, t: f64, v: &Value) {
+        let Some(a) = v["residuals"].as_array() else { return };
+        let rms = |k: usize| {
+            let x: Vec<f64> = a.iter().filter_map(|r| r[k].as_f64()).collect();
+            if x.is_empty() {
+                f64::NAN
+            } else {
+                (x.iter().map(|e| e * e).sum::<f64>() / x.len() as f64).sqrt()
+            }
+        };
+        self.gnss_residuals.push((t, rms(1), rms(2)));
+    }
+
     fn push_sigmas(&mut self, t: f64, v: &Value) {
         if let Some(a) = v["keyframe_sigma_m"].as_array() {
             for e in a {
@@ -224,14 +418,19 @@ impl Data {
         }
     }
 
-    /// The reference the error is measured against: the simulator's truth
-    /// when the log has it, else the autopilot's local position; with its
-    /// name.
+    /// The reference the error is measured against, with its name: the
+    /// simulator's truth when the log has it. Else the autopilot's local
+    /// position, but only when we sent the autopilot nothing: fed our
+    /// estimates (external navigation), its position is an echo of our own,
+    /// and an error against it would flatter us (a replay's 0.20 m against
+    /// the autopilot was 0.78 m against the truth). Then there is none.
     pub fn reference(&self) -> (&[(f64, [f64; 3])], &'static str) {
-        if self.truth.is_empty() {
-            (&self.autopilot, "the autopilot's local position")
-        } else {
+        if !self.truth.is_empty() {
             (&self.truth, "the truth (SIM_STATE)")
+        } else if self.estimates_sent == 0 {
+            (&self.autopilot, "the autopilot's local position (we sent it nothing)")
+        } else {
+            (&[], NO_REFERENCE_ECHO)
         }
     }
 
@@ -296,4 +495,24 @@ fn location_ecef(v: &Value) -> Option<nalgebra::Vector3<f64>> {
         lon.to_radians(),
         h,
     ))
+}
+
+#[cfg(test)]
+mod reference_tests {
+    use super::*;
+
+    /// The reproducer: a replayed log scored 0.20 m against the
+    /// autopilot's position, 0.78 m against the truth. The autopilot's
+    /// position is a reference only when we sent it nothing.
+    #[test]
+    fn the_autopilots_echo_of_our_estimates_is_no_reference() {
+        let mut d = Data::default();
+        d.autopilot.push((1.0, [0.0; 3]));
+        assert_eq!(d.reference().0.len(), 1, "nothing sent: the autopilot's own position");
+        d.estimates_sent = 10;
+        assert!(d.reference().0.is_empty());
+        assert_eq!(d.reference().1, NO_REFERENCE_ECHO);
+        d.truth.push((1.0, [0.0; 3]));
+        assert_eq!(d.reference().1, "the truth (SIM_STATE)");
+    }
 }

@@ -15,11 +15,34 @@ impl ReviewSummary {
             ("messages", s.messages.to_string()),
             (
                 "complete",
-                if s.truncated {
+                if !s.log_check.chunks_dropped.is_empty() {
+                    format!(
+                        "no: {} damaged chunk(s) left out{}",
+                        s.log_check.chunks_dropped.len(),
+                        s.log_check
+                            .chunks_dropped
+                            .first()
+                            .map_or(String::new(), |(at, why)| format!(" (first at byte {at}: {why})"))
+                    )
+                } else if s.log_check.framing_broken_at.is_some() && s.log_check.finished {
+                    format!(
+                        "no: a damaged length at byte {}; {} chunks after it found through the summary",
+                        s.log_check.framing_broken_at.unwrap_or(0),
+                        s.log_check.chunks_from_summary
+                    )
+                } else if s.truncated {
                     "no: the writer was killed; read to its last whole chunk (cmsckf log recover repairs the file)"
                         .into()
                 } else {
                     "yes".into()
+                },
+            ),
+            (
+                "records in log-time order",
+                if s.records_out_of_time_order == 0 {
+                    "yes".into()
+                } else {
+                    format!("{} out of order", s.records_out_of_time_order)
                 },
             ),
             ("estimates sent", s.estimates.to_string()),
@@ -39,14 +62,26 @@ impl ReviewSummary {
             ("promotions", s.promotions.to_string()),
             ("keyframes", s.keyframes.to_string()),
             (
-                "position error, RMS (against the truth, else the autopilot's position)",
-                s.position_error_rms_m
-                    .map_or_else(|| "no reference in the log".into(), |v| format!("{v:.3} m")),
+                "position error, RMS",
+                s.position_error_rms_m.map_or_else(
+                    || s.error_reference.clone(),
+                    |v| format!("{v:.3} m against {}", s.error_reference),
+                ),
             ),
             (
                 "samples inside ±3σ on every axis",
                 s.position_error_within_3sigma
                     .map_or_else(|| "-".into(), |v| format!("{:.1} %", 100.0 * v)),
+            ),
+            (
+                "autopilot EKF's test ratios of our position (max horizontal / vertical)",
+                match (s.autopilot_pos_horiz_ratio_max, s.autopilot_pos_vert_ratio_max) {
+                    (Some(h), Some(v)) => format!(
+                        "{h:.2} / {v:.2} over {} reports; {} over 1 (rejected us)",
+                        s.autopilot_ratio_reports, s.autopilot_rejected_reports
+                    ),
+                    _ => "not in the log (no EKF_STATUS_REPORT or ESTIMATOR_STATUS)".into(),
+                },
             ),
         ]
         .map(|(k, v)| (k.to_string(), v))

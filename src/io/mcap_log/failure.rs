@@ -120,8 +120,8 @@ fn send_text(alarm: Option<&LogAlarm>, e: &std::io::Error) -> bool {
     let text = match e.kind() {
         std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded => "cmsckf: log disk full".to_string(),
         _ => match e.raw_os_error() {
-            Some(n) => format!("cmsckf: log write failed (os error {n})"),
-            None => "cmsckf: log write failed".to_string(),
+            Some(n) => format!("cmsckf: log cannot be written (os error {n})"),
+            None => "cmsckf: log cannot be written".to_string(),
         },
     };
     !matches!(

@@ -22,7 +22,14 @@ use super::Topic;
 use crate::io::messages::{AutopilotKind, RtcmStream};
 
 /// The format of the log's records that this build writes and reads.
-pub const LOG_FORMAT: u32 = 2;
+/// Format 3 writes records in log-time order, with MCAP `sequence` one
+/// counter for every channel in the order they came (replay restores it);
+/// formats 1 and 2 wrote records in the order they came, each channel
+/// counting its own.
+pub const LOG_FORMAT: u32 = 3;
+
+/// The first format written in log-time order ([`LOG_FORMAT`]).
+pub const FORMAT_TIME_ORDERED: u32 = 3;
 
 /// Errors reading an input record back.
 #[derive(Debug, thiserror::Error)]
@@ -39,6 +46,11 @@ pub enum RecordError {
          read it with a newer cmsckf"
     )]
     NewerFormat { found: u32 },
+    #[error(
+        "the log's format is named '{value}', not a format number 1 to {LOG_FORMAT}: \
+         not a cmsckf log, or a damaged one"
+    )]
+    BadFormat { value: String },
 }
 
 /// One input as the fusion loop consumed it: the payload of one `/input/*`
@@ -138,6 +150,23 @@ pub enum AutopilotRecord {
     Origin([f64; 3]),
     /// A simulator's truth (`SIM_STATE`): for the review, never fused.
     SimState(SimStateRecord),
+    /// The autopilot EKF's test ratios of our estimates
+    /// (`EKF_STATUS_REPORT`, `ESTIMATOR_STATUS`): for the review, never
+    /// fused.
+    EstimatorStatus(crate::io::messages::EstimatorStatus),
+    /// Its flight mode (`HEARTBEAT.custom_mode`), logged on change.
+    Mode(u32),
+    /// A `STATUSTEXT` it sent.
+    #[serde(rename = "statustext")]
+    StatusText(StatusTextRecord),
+}
+
+/// A `STATUSTEXT` from the autopilot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StatusTextRecord {
+    /// MAVLink severity: 0 emergency … 7 debug.
+    pub severity: u8,
+    pub text: String,
 }
 
 /// The autopilot's local position and velocity (NED) at its own time.
@@ -210,7 +239,7 @@ impl InputRecord<'static> {
 /// format), read once for all who need it: `Ok(None)` for a log without one
 /// (or cut before it), `Err` for bytes that do not start as an MCAP file.
 pub fn cmsckf_metadata(bytes: &[u8]) -> Result<Option<BTreeMap<String, String>>, mcap::McapError> {
-    for rec in mcap::read::LinearReader::new(bytes)? {
+    for rec in mcap::read::LinearReader::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into())? {
         let Ok(rec) = rec else { break };
         if let mcap::records::Record::Metadata(m) = rec {
             if m.name == "cmsckf" {
@@ -233,7 +262,14 @@ pub fn log_format_of(metadata: Option<&BTreeMap<String, String>>) -> Result<u32,
 pub fn check_format(log_format: Option<&str>) -> Result<u32, RecordError> {
     let found = match log_format {
         None => 1,
-        Some(s) => s.trim().parse().unwrap_or(u32::MAX),
+        Some(s) => match s.trim().parse::<u32>() {
+            Ok(n) if n >= 1 => n,
+            _ => {
+                return Err(RecordError::BadFormat {
+                    value: s.chars().take(40).collect(),
+                })
+            }
+        },
     };
     if found > LOG_FORMAT {
         return Err(RecordError::NewerFormat { found });
@@ -322,8 +358,15 @@ mod tests {
     fn newer_formats_are_refused_by_name() {
         assert_eq!(check_format(None).unwrap(), 1);
         assert_eq!(check_format(Some("2")).unwrap(), 2);
-        let e = check_format(Some("3")).unwrap_err().to_string();
-        assert!(e.contains("format 3"), "{e}");
+        assert_eq!(check_format(Some("3")).unwrap(), 3);
+        let e = check_format(Some("4")).unwrap_err().to_string();
+        assert!(e.contains("format 4"), "{e}");
+        // Red-team 7: not a number (or 0) is named as such, not as a
+        // format 4294967295 to read with a newer cmsckf.
+        for bad in ["3.0", "three", "-1", "", "0"] {
+            let e = check_format(Some(bad)).unwrap_err();
+            assert!(matches!(e, RecordError::BadFormat { .. }), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -5,15 +5,25 @@
 //! one that ended badly. The writer runs on its own thread, fed by a bounded
 //! channel: logging never blocks the fusion loop. When the channel is full
 //! the record is dropped and counted ([`McapLogger::dropped`]); the daemon
-//! raises an alarm if any are. Log time and publish time are both the
-//! sensor time (autopilot clock).
+//! raises an alarm if any are. Publish time is the sensor time (the
+//! autopilot's boot clock); log time is the same instant in Unix time once
+//! `SYSTEM_TIME` gives it (records wait up to 5 s for it), else boot time.
+//!
+//! Records are written in log-time order: each waits up to a second of
+//! sensor time (or of wall time) for older ones that come after it
+//! ([`reorder`]); a record later than that is written at once and counted
+//! ([`LogSummary::late`]). Each record's MCAP `sequence` is one counter for
+//! every channel, in the order the records came, so that replay can give
+//! the fusion loop its inputs in the order it consumed them
+//! ([`reorder::SequenceOrder`], [`LOG_FORMAT`] 3).
 //!
 //! A chunk is closed and written to the file once it has been open for a
 //! second of wall time (or its records span a second of sensor time, or it
-//! reaches 8 MB), so a killed writer loses at most about a second, whatever
-//! the sensor clock did (an autopilot reboot, a far-future stamp): the file
-//! is readable up to its last whole chunk. [`McapLogger::finish`] must be
-//! called on shutdown (`Drop` cannot report errors).
+//! reaches 8 MB), so a killed writer loses at most about two seconds (the
+//! reordering's and the chunk's), whatever the sensor clock did (an
+//! autopilot reboot, a far-future stamp): the file is readable up to its
+//! last whole chunk. [`McapLogger::finish`] must be called on shutdown
+//! (`Drop` cannot report errors).
 //!
 //! A write of the file that fails (a full disk) does not stop the log: the
 //! chunks wait in memory (up to 32 MiB, then records are dropped and
@@ -29,9 +39,12 @@
 //!
 //! [`Degraded::LogDiskFull`]: crate::status::Degraded::LogDiskFull
 
+mod check;
 mod failure;
+mod file;
 pub mod input;
 mod recover;
+pub mod reorder;
 mod schemas;
 mod spool;
 #[cfg(test)]
@@ -39,6 +52,8 @@ mod tests;
 mod topics;
 mod writer;
 
+pub use check::{check_bytes, read_checked, CheckError, CheckReport, CheckedLog, MAX_CHUNK_UNCOMPRESSED};
+pub use file::{create_output, create_unique, enforce_total, matches_pattern, same_file, OutputError};
 pub use input::{InputRecord, RecordError, LOG_FORMAT};
 pub use recover::{is_finished, recover, unfinished_logs, RecoverError, RecoverReport, MCAP_MAGIC};
 pub use topics::Topic;
@@ -47,7 +62,7 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -60,8 +75,9 @@ use crate::counters::{Counter, Counters};
 use crate::io::messages::Outbound;
 use crate::status::Status;
 
+use file::LogFile;
 use spool::{Spool, SpoolSink, SPOOL_MAX_BYTES};
-use writer::{LogWriter, CHUNK_MAX_BYTES};
+use writer::{LogWriter, Rotation, CHUNK_MAX_BYTES};
 
 /// Errors of the log.
 #[derive(Debug, thiserror::Error)]
@@ -81,6 +97,32 @@ pub enum LogError {
     },
     #[error("MCAP log writer thread panicked")]
     Thread,
+    /// The writer was still blocked on its file at shutdown: the log ends
+    /// where it got to (without its summary: `cmsckf log recover`).
+    #[error("MCAP log writer still blocked on its file after {waited_s} s; left behind")]
+    Stuck { waited_s: u64 },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error(transparent)]
+    Check(#[from] CheckError),
+}
+
+/// Where the writer also hands each record, as written (its topic, log
+/// time and JSON): the live view. Called on the writer's thread, never the
+/// fusion loop's; it must not block.
+pub trait RecordTap: Send {
+    fn record(&self, topic: Topic, log_time_ns: u64, json: &[u8]);
+}
+
+/// Where the daemon's logs go and how much of the disk they may take.
+#[derive(Clone, Debug)]
+pub struct LogLimits {
+    /// A log is closed and the next one begun past this size (bytes; 0:
+    /// no limit).
+    pub max_file_bytes: u64,
+    /// The logs of the directory are kept under this total, deleting the
+    /// oldest finished ones (bytes; 0: no limit).
+    pub max_total_bytes: u64,
 }
 
 /// What goes into the log's header metadata, so that the log alone can be
@@ -105,6 +147,11 @@ pub struct LogSummary {
     pub write_failures: u64,
     /// Records lost because the file could not be written.
     pub dropped_write_error: u64,
+    /// Records that came later than the reordering's window and were
+    /// written out of log-time order ([`reorder`]).
+    pub late: u64,
+    /// The files written (more than one when the log was rotated).
+    pub files: Vec<PathBuf>,
 }
 
 /// Where the writer raises the alarm when the file cannot be written: the
@@ -130,6 +177,10 @@ pub const COUNTER_DROPPED_WRITE_ERROR: Counter = Counter::LogRecordsDroppedWrite
 struct Record {
     topic: Topic,
     t_ns: u64,
+    /// Unix minus boot time (ns) when the record was logged, on the
+    /// logging thread ([`UNIX_UNKNOWN`] before `SYSTEM_TIME`): its log time
+    /// does not depend on how far behind the writer runs.
+    unix_minus_boot_ns: i64,
     data: Vec<u8>,
 }
 
@@ -141,84 +192,157 @@ pub struct McapLogger {
     /// Replay ([`Self::blocking`]): wait for room rather than drop, and the
     /// writer takes records in batches (shared with it).
     blocking: Arc<AtomicBool>,
+    /// Set by [`Self::rotate`], taken by the writer.
+    rotate: Arc<AtomicBool>,
+    /// Unix time minus the autopilot's boot time (ns; [`UNIX_UNKNOWN`]
+    /// until `SYSTEM_TIME` gives it), taken into each record as it is
+    /// logged.
+    unix_minus_boot_ns: AtomicI64,
+    /// The first such offset, shared with the writer: records logged before
+    /// it was known are stamped with it.
+    first_unix_minus_boot_ns: Arc<AtomicI64>,
+    /// The daemon's alarm, raised here when records are dropped (the writer
+    /// stalled: it cannot raise anything itself then).
+    alarm: Option<LogAlarm>,
+    /// Records are being dropped (the alarm is up).
+    stalled: AtomicBool,
 }
+
+/// How long the daemon's shutdown waits for its log writer (s): a writer
+/// whose file blocks must not keep the daemon from ending.
+const FINISH_WAIT_S: u64 = 10;
+
+/// [`McapLogger`]'s Unix offset before it is known.
+pub(super) const UNIX_UNKNOWN: i64 = i64::MIN;
+
+/// How a log is written beyond its file and header.
+struct Options {
+    /// The daemon's alarm for a file that cannot be written.
+    alarm: Option<LogAlarm>,
+    /// Bytes kept in memory while the file cannot be written.
+    spool_max_bytes: usize,
+    /// The daemon's: the next file past a size or on request.
+    rotation: Option<Rotation>,
+    /// Records wait for the Unix time (a log that hears SYSTEM_TIME).
+    wait_for_unix: bool,
+    /// The live view (or any other tap of the records).
+    live: Option<Box<dyn RecordTap>>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            alarm: None,
+            spool_max_bytes: SPOOL_MAX_BYTES,
+            rotation: None,
+            wait_for_unix: false,
+            live: None,
+        }
+    }
+}
+
+/// A log's name in a directory given as `log.path`.
+pub const DEFAULT_NAME: &str = "cmsckf-%Y%m%d-%H%M%S.mcap";
 
 /// Records queued at most (about 4 s of a busy flight).
 const QUEUE: usize = 16_384;
 
 impl McapLogger {
-    /// Creates the file and starts the writer thread.
-    pub fn create(path: &Path, header: &LogHeader) -> Result<Self, LogError> {
-        Self::open(path, header, None)
+    /// A tool's log (`cmsckf replay`) to `file`, already created at `path`
+    /// (see [`create_output`]).
+    pub fn create(file: File, path: &Path, header: &LogHeader) -> Result<Self, LogError> {
+        Self::start(Box::new(file), path, header, Options::default())
     }
 
-    /// As [`Self::create`], raising `alarm` at once when the file cannot be
-    /// written (the daemon); the log goes on in memory meanwhile and catches
-    /// up if space is freed.
-    pub fn create_with_alarm(path: &Path, header: &LogHeader, alarm: LogAlarm) -> Result<Self, LogError> {
-        Self::open(path, header, Some(alarm))
+    /// As [`Self::create`], for a log that replays `SYSTEM_TIME`
+    /// (`cmsckf replay`): its records wait for the Unix time, as the
+    /// daemon's do, so that the replayed log is stamped as the original.
+    pub fn create_stamped(file: File, path: &Path, header: &LogHeader) -> Result<Self, LogError> {
+        Self::start(
+            Box::new(file),
+            path,
+            header,
+            Options {
+                wait_for_unix: true,
+                ..Options::default()
+            },
+        )
     }
 
-    fn open(path: &Path, header: &LogHeader, alarm: Option<LogAlarm>) -> Result<Self, LogError> {
-        let file = File::create(path).map_err(|source| LogError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::start(Box::new(file), path, header, alarm, SPOOL_MAX_BYTES)
+    /// The daemon's log: a new file named from `pattern` (its `%Y%m%d…`
+    /// fields expanded), never one that exists (a suffix is added), rotated
+    /// past `limits.max_file_bytes` or on [`Self::rotate`], with the
+    /// directory kept under `limits.max_total_bytes`. A file that cannot be
+    /// created does not stop the daemon: the log waits in memory, `alarm` is
+    /// raised at the first write, and creating it is retried every second.
+    /// Returns the logger and the file's path, or why it could not be created
+    /// yet.
+    pub fn for_flight(
+        pattern: &str,
+        limits: LogLimits,
+        header: &LogHeader,
+        alarm: LogAlarm,
+        live: Option<Box<dyn RecordTap>>,
+    ) -> Result<(Self, Result<PathBuf, std::io::Error>), LogError> {
+        // A directory given as the path (one that exists, or a path ending
+        // in `/`: a card not mounted yet): the logs go into it, named as by
+        // default.
+        let pattern = if pattern.ends_with('/') || Path::new(&expand_path(pattern)).is_dir() {
+            Path::new(pattern).join(DEFAULT_NAME).display().to_string()
+        } else {
+            pattern.to_string()
+        };
+        let pattern = pattern.as_str();
+        let wanted = PathBuf::from(expand_path(pattern));
+        let (file, opened) = LogFile::new(wanted.clone());
+        let path = opened.as_ref().map_or(wanted, Clone::clone);
+        let rotation = Rotation::new(pattern, limits, header, &path);
+        let l = Self::start(
+            Box::new(file),
+            &path,
+            header,
+            Options {
+                alarm: Some(alarm),
+                rotation: Some(rotation),
+                wait_for_unix: true,
+                live,
+                ..Options::default()
+            },
+        )?;
+        Ok((l, opened))
+    }
+
+    /// Asks the writer to close this log and begin the next (a disarm: one
+    /// log per flight). Never blocks.
+    pub fn rotate(&self) {
+        self.rotate.store(true, Ordering::Relaxed);
     }
 
     /// Writes the header, schemas and channels (to memory: the writer thread
     /// writes them to `file` first) and starts the writer thread, which keeps
     /// up to `spool_max_bytes` in memory while `file` cannot be written.
-    fn start(
-        file: Box<dyn Write + Send>,
-        path: &Path,
-        header: &LogHeader,
-        alarm: Option<LogAlarm>,
-        spool_max_bytes: usize,
-    ) -> Result<Self, LogError> {
-        let mcap_err = |e: mcap::McapError| LogError::Mcap {
+    fn start(file: Box<dyn Write + Send>, path: &Path, header: &LogHeader, opts: Options) -> Result<Self, LogError> {
+        let Options {
+            alarm,
+            spool_max_bytes,
+            rotation,
+            wait_for_unix,
+            live,
+        } = opts;
+        let (w, ids, spool) = new_mcap(header, 1, None).map_err(|e| LogError::Mcap {
             path: path.to_path_buf(),
             message: e.to_string(),
-        };
-        let spool = Arc::new(Mutex::new(Spool::default()));
-        let mut w = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_threads(1)
-            .chunk_size(Some(CHUNK_MAX_BYTES))
-            .profile("")
-            .library(format!("cmsckf {}", header.version))
-            .create(SpoolSink(spool.clone()))
-            .map_err(mcap_err)?;
-        let mut meta = BTreeMap::new();
-        meta.insert("version".to_string(), header.version.clone());
-        meta.insert("mode".to_string(), header.mode.clone());
-        meta.insert("config_toml".to_string(), header.config_toml.clone());
-        meta.insert("log_format".to_string(), LOG_FORMAT.to_string());
-        w.write_metadata(&mcap::records::Metadata {
-            name: "cmsckf".into(),
-            metadata: meta,
-        })
-        .map_err(mcap_err)?;
-        let mut ids = BTreeMap::new();
-        for t in Topic::ALL {
-            let (topic, schema_name, schema) = t.spec();
-            let sid = w
-                .add_schema(schema_name, "jsonschema", schema.as_bytes())
-                .map_err(mcap_err)?;
-            let cid = w.add_channel(sid, topic, "json", &BTreeMap::new()).map_err(mcap_err)?;
-            ids.insert(t, cid);
-        }
-        // The schemas and channels as a whole chunk of their own, so the
-        // file is readable from its first write.
-        w.flush().map_err(mcap_err)?;
+        })?;
         let (tx, rx) = sync_channel(QUEUE);
         let dropped = Arc::new(AtomicU64::new(0));
         let blocking = Arc::new(AtomicBool::new(false));
+        let rotate = Arc::new(AtomicBool::new(false));
+        let first_unix_minus_boot_ns = Arc::new(AtomicI64::new(UNIX_UNKNOWN));
+        let stall_alarm = alarm.clone();
         let writer = LogWriter {
             w,
             ids,
-            seq: BTreeMap::new(),
+            order: reorder::Reorder::default(),
             spool,
             file,
             path: path.to_path_buf(),
@@ -230,7 +354,17 @@ impl McapLogger {
             alarm,
             published: (0, 0),
             last_publish: Instant::now(),
-            summary: LogSummary::default(),
+            summary: LogSummary {
+                files: vec![path.to_path_buf()],
+                ..LogSummary::default()
+            },
+            rotation,
+            rotate: rotate.clone(),
+            first_unix_minus_boot_ns: first_unix_minus_boot_ns.clone(),
+            waiting: Vec::new(),
+            waiting_since: None,
+            wait_for_unix,
+            live,
         };
         let (d2, b2) = (dropped.clone(), blocking.clone());
         let thread = std::thread::Builder::new()
@@ -245,6 +379,11 @@ impl McapLogger {
             dropped,
             thread: Some(thread),
             blocking,
+            rotate,
+            unix_minus_boot_ns: AtomicI64::new(UNIX_UNKNOWN),
+            first_unix_minus_boot_ns,
+            alarm: stall_alarm,
+            stalled: AtomicBool::new(false),
         })
     }
 
@@ -269,7 +408,12 @@ impl McapLogger {
         } else {
             0
         };
-        let rec = Record { topic, t_ns, data };
+        let rec = Record {
+            topic,
+            t_ns,
+            unix_minus_boot_ns: self.unix_minus_boot_ns.load(Ordering::Relaxed),
+            data,
+        };
         if self.blocking.load(Ordering::Relaxed) {
             if tx.send(rec).is_err() {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -277,10 +421,48 @@ impl McapLogger {
             return;
         }
         match tx.try_send(rec) {
-            Ok(()) => {}
+            Ok(()) => {
+                if self.stalled.load(Ordering::Relaxed) && self.stalled.swap(false, Ordering::Relaxed) {
+                    if let Some(a) = &self.alarm {
+                        a.status.set_io(crate::status::Degraded::LogStalled, false);
+                    }
+                }
+            }
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
+                if let Some(a) = &self.alarm {
+                    a.counters.add(crate::counters::Counter::LogDropped, 1);
+                    if !self.stalled.swap(true, Ordering::Relaxed) {
+                        a.status.set_io(crate::status::Degraded::LogStalled, true);
+                        let _ = a.out.try_send(Outbound::StatusText {
+                            severity: 2,
+                            text: "cmsckf: log stalled, records dropped".into(),
+                        });
+                    }
+                }
             }
+        }
+    }
+
+    /// The autopilot's Unix time minus its boot time (s), from its
+    /// `SYSTEM_TIME`. Records are stamped with log time = boot time + this
+    /// (so that viewers show the flight's date), and keep their boot time as
+    /// publish time, which `review` and `replay` read. Records logged before
+    /// it is known wait for it (up to 5 s of wall time, then go out in boot
+    /// time). It is taken once, and again only if it moves by more than a
+    /// second (an autopilot reboot, a clock step), so that log times do not
+    /// jitter with SYSTEM_TIME's.
+    pub fn set_unix_minus_boot(&self, offset_s: f64) {
+        if !offset_s.is_finite() || offset_s <= 0.0 {
+            return;
+        }
+        let ns = (offset_s * 1e9) as i64;
+        let now = self.unix_minus_boot_ns.load(Ordering::Relaxed);
+        if now == UNIX_UNKNOWN || (now - ns).abs() > 1_000_000_000 {
+            self.unix_minus_boot_ns.store(ns, Ordering::Relaxed);
+            let _ =
+                self.first_unix_minus_boot_ns
+                    .compare_exchange(UNIX_UNKNOWN, ns, Ordering::Relaxed, Ordering::Relaxed);
         }
     }
 
@@ -294,21 +476,76 @@ impl McapLogger {
     /// file could not be written, or if records were lost to write errors.
     pub fn finish(mut self) -> Result<LogSummary, LogError> {
         self.tx.take();
-        match self.thread.take() {
-            Some(t) => t.join().map_err(|_| LogError::Thread)?,
-            None => Ok(LogSummary::default()),
+        let Some(t) = self.thread.take() else {
+            return Ok(LogSummary::default());
+        };
+        // The daemon's shutdown waits a bounded time: a file that blocks
+        // must not keep it from ending (replay waits for its whole log).
+        if self.alarm.is_some() {
+            let deadline = Instant::now() + std::time::Duration::from_secs(FINISH_WAIT_S);
+            while !t.is_finished() {
+                if Instant::now() >= deadline {
+                    return Err(LogError::Stuck {
+                        waited_s: FINISH_WAIT_S,
+                    });
+                }
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
         }
+        t.join().map_err(|_| LogError::Thread)?
     }
 }
 
 impl Drop for McapLogger {
     fn drop(&mut self) {
-        // `finish` is the way out; this only stops the thread cleanly.
+        // `finish` is the way out; this only stops the thread cleanly (a
+        // daemon's writer stuck on its file is left behind).
         self.tx.take();
         if let Some(t) = self.thread.take() {
-            let _ = t.join();
+            if self.alarm.is_none() || t.is_finished() {
+                let _ = t.join();
+            }
         }
     }
+}
+
+/// The MCAP writer of one log file, on a spool of its own: the header
+/// metadata (this is `part` of a flight's logs, after `previous`), every
+/// schema and channel, flushed as a chunk of their own so that the file is
+/// readable from its first write.
+type NewMcap = (mcap::Writer<SpoolSink>, BTreeMap<Topic, u16>, Arc<Mutex<Spool>>);
+
+fn new_mcap(header: &LogHeader, part: u32, previous: Option<&Path>) -> Result<NewMcap, mcap::McapError> {
+    let spool = Arc::new(Mutex::new(Spool::default()));
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_threads(1)
+        .chunk_size(Some(CHUNK_MAX_BYTES))
+        .profile("")
+        .library(format!("cmsckf {}", header.version))
+        .create(SpoolSink(spool.clone()))?;
+    let mut meta = BTreeMap::new();
+    meta.insert("version".to_string(), header.version.clone());
+    meta.insert("mode".to_string(), header.mode.clone());
+    meta.insert("config_toml".to_string(), header.config_toml.clone());
+    meta.insert("log_format".to_string(), LOG_FORMAT.to_string());
+    meta.insert("part".to_string(), part.to_string());
+    if let Some(p) = previous.and_then(Path::file_name) {
+        meta.insert("previous_log".to_string(), p.to_string_lossy().into_owned());
+    }
+    w.write_metadata(&mcap::records::Metadata {
+        name: "cmsckf".into(),
+        metadata: meta,
+    })?;
+    let mut ids = BTreeMap::new();
+    for t in Topic::ALL {
+        let (topic, schema_name, schema) = t.spec();
+        let sid = w.add_schema(schema_name, "jsonschema", schema.as_bytes())?;
+        let cid = w.add_channel(sid, topic, "json", &BTreeMap::new())?;
+        ids.insert(t, cid);
+    }
+    w.flush()?;
+    Ok((w, ids, spool))
 }
 
 /// Expands `%Y %m %d %H %M %S` in a log path with the current UTC time.

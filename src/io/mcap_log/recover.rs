@@ -30,12 +30,12 @@ pub const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 pub enum RecoverError {
     #[error("'{path}': {source}")]
     Io { path: PathBuf, source: std::io::Error },
-    #[error("'{0}' is not an MCAP file (no MCAP magic at its start)")]
-    NotMcap(PathBuf),
+    #[error(transparent)]
+    Check(#[from] super::CheckError),
     #[error("'{path}': {message}")]
     Mcap { path: PathBuf, message: String },
-    #[error("'{0}': the output would overwrite the input; give another path")]
-    SamePath(PathBuf),
+    #[error(transparent)]
+    Output(#[from] super::OutputError),
 }
 
 /// What [`recover`] kept and dropped.
@@ -44,6 +44,9 @@ pub struct RecoverReport {
     pub input_bytes: u64,
     /// The input already ended with its footer and magic: nothing was lost.
     pub input_was_complete: bool,
+    /// The input had damaged chunks or a damaged record length (what was
+    /// lost is in `chunks_dropped`).
+    pub input_was_damaged: bool,
     pub messages_kept: u64,
     pub messages_by_topic: BTreeMap<String, u64>,
     pub schemas: u64,
@@ -56,6 +59,9 @@ pub struct RecoverReport {
     pub last_log_time_ns: Option<u64>,
     /// Complete chunks whose contents did not decompress or parse.
     pub chunks_dropped: u64,
+    /// Chunks found through the summary's chunk index after a damaged
+    /// length broke the file's framing.
+    pub chunks_from_summary: u64,
     /// Messages whose channel was never declared.
     pub messages_dropped_unknown_channel: u64,
     /// Bytes after the last complete record: a record cut off mid-write.
@@ -67,6 +73,10 @@ pub struct RecoverReport {
 /// does. `Ok(false)` also for a file too short to hold it.
 pub fn is_finished(path: &Path) -> std::io::Result<bool> {
     use std::io::{Read, Seek, SeekFrom};
+    // Never open a FIFO or a device to read it: that can block for ever.
+    if !std::fs::metadata(path)?.is_file() {
+        return Ok(false);
+    }
     let mut f = File::open(path)?;
     let len = f.metadata()?.len();
     if len < 16 {
@@ -89,7 +99,9 @@ pub fn unfinished_logs(dir: &Path, except: &Path, max: usize) -> Vec<PathBuf> {
         .filter_map(Result::ok)
         .take(10_000)
         .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|x| x == "mcap") && p != except)
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .filter(|p| std::fs::metadata(p).is_ok_and(|m| m.is_file()))
+        .filter(|p| !super::same_file(p, except))
         .filter(|p| matches!(is_finished(p), Ok(false)))
         .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
         .collect();
@@ -118,41 +130,47 @@ fn complete_prefix_len(bytes: &[u8]) -> usize {
 
 /// Rewrites the log `input` to `output` with full indexes and a summary,
 /// keeping every complete record (see the module's doc).
-pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecoverError> {
+pub fn recover(input: &Path, output: &Path, overwrite: bool) -> Result<RecoverReport, RecoverError> {
     let io_err = |path: &Path| {
         let path = path.to_path_buf();
         move |source| RecoverError::Io { path, source }
     };
-    if let (Ok(a), Ok(b)) = (input.canonicalize(), output.canonicalize()) {
-        if a == b {
-            return Err(RecoverError::SamePath(output.to_path_buf()));
-        }
-    }
-    let bytes = std::fs::read(input).map_err(io_err(input))?;
-    if !bytes.starts_with(MCAP_MAGIC) {
-        return Err(RecoverError::NotMcap(input.to_path_buf()));
-    }
+    let input_bytes = std::fs::metadata(input).map_err(io_err(input))?.len();
+    // Every declared length checked, damaged chunks left out and named, and
+    // past a broken length the chunks the summary indexes.
+    let checked = super::read_checked(input)?;
+    let bytes = checked.bytes;
+    let damaged_length = checked.report.framing_broken_at.is_some() && checked.report.chunks_from_summary > 0;
     let mut rep = RecoverReport {
-        input_bytes: bytes.len() as u64,
-        input_was_complete: bytes.len() >= 16 && bytes.ends_with(MCAP_MAGIC),
+        input_bytes,
+        input_was_complete: checked.report.finished
+            && checked.report.framing_broken_at.is_none()
+            && checked.report.chunks_dropped.is_empty(),
+        input_was_damaged: !checked.report.chunks_dropped.is_empty() || damaged_length,
+        // The chunk whose length was damaged is lost with it.
+        chunks_dropped: checked.report.chunks_dropped.len() as u64 + u64::from(damaged_length),
+        chunks_from_summary: checked.report.chunks_from_summary,
+        tail_bytes_dropped: if checked.report.chunks_from_summary > 0 {
+            0
+        } else {
+            checked.report.tail_bytes_dropped
+        },
         ..Default::default()
     };
     let prefix = complete_prefix_len(&bytes);
-    // A finished file's trailing magic is not a record.
-    let tail = &bytes[prefix..];
-    rep.tail_bytes_dropped = if tail == MCAP_MAGIC { 0 } else { tail.len() as u64 };
 
     let mcap_err = |e: mcap::McapError| RecoverError::Mcap {
         path: output.to_path_buf(),
         message: e.to_string(),
     };
-    let file = File::create(output).map_err(io_err(output))?;
+    // Never over the input, nor over another file unless asked.
+    let file = super::create_output(output, input, overwrite)?;
     let mut w = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .compression_threads(1)
         .chunk_size(Some(super::writer::CHUNK_MAX_BYTES))
         .profile("")
-        .library(format!("cmsckf {} (log recover)", env!("CARGO_PKG_VERSION")))
+        .library(format!("cmsckf {} (log recover)", env!("CMSCKF_BUILD")))
         .create(BufWriter::new(file))
         .map_err(mcap_err)?;
 

@@ -34,6 +34,11 @@ impl Spool {
     pub(super) fn unsent(&self) -> usize {
         self.buf.len() - self.sent
     }
+
+    /// Bytes of the log in its file.
+    pub(super) fn written(&self) -> u64 {
+        self.base + self.sent as u64
+    }
 }
 
 /// Locks the spool (a panic elsewhere poisons nothing the writer needs).
