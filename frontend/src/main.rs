@@ -1,7 +1,14 @@
 //! `cmsckf-frontend`: tracks the features of a camera's images and writes
 //! them, one protocol line a frame, to the daemon's feature socket (or a
-//! file). Image sources: a EuRoC/ASL dataset folder, or a camera process on
-//! a Unix socket (`image_wire` frames; the SITL's renderer is one).
+//! file). Image sources: a EuRoC/ASL dataset folder, a camera process on a
+//! Unix socket (`image_wire` frames; the SITL's renderer is one), or a V4L2
+//! camera.
+//!
+//! With a camera it never gives up: a camera lost (its process gone, the
+//! device unplugged, nothing for 2 s) is opened again with backoff, a bad
+//! frame is skipped, a glitched or restarted camera clock is guarded, and a
+//! daemon that is not there yet is connected to when it comes. It stops on
+//! SIGTERM (or SIGINT). A dataset ends when its frames do.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -10,7 +17,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 
 use cmsckf_frontend::run::{run, Sink, SocketSink, WriteSink};
-use cmsckf_frontend::source::{EurocSource, FrameSource, SocketSource, Stamp};
+use cmsckf_frontend::source::{EurocSource, FrameSource, Reopening, SocketSource, Stamp, FROZEN_AFTER};
 use cmsckf_frontend::tracker::{Tracker, TrackerParams};
 use cmsckf_models::camera::Camera;
 use cmsckf_models::check::Validate;
@@ -24,7 +31,8 @@ struct Args {
     #[arg(long, conflicts_with = "camera_socket")]
     euroc: Option<PathBuf>,
     /// A camera process's Unix socket, writing raw grey frames
-    /// (docs/design.md, "Camera images"); waits up to 10 s for it.
+    /// (docs/design.md, "Camera images"); waited for, and connected to
+    /// again whenever it goes away.
     #[arg(long)]
     camera_socket: Option<PathBuf>,
     /// A Video4Linux2 camera, e.g. /dev/video0, read at the camera model's
@@ -90,39 +98,23 @@ fn camera(path: &Option<PathBuf>) -> anyhow::Result<Option<Camera>> {
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let cam = camera(&args.config)?;
-    #[cfg(feature = "v4l2")]
-    let v4l2 = match (&args.v4l2, &cam) {
-        (Some(dev), Some(c)) => Some(cmsckf_frontend::v4l2::V4l2Source::open(
-            dev,
-            c.width_px as u32,
-            c.height_px as u32,
-        )?),
-        _ => None,
-    };
-    #[cfg(not(feature = "v4l2"))]
-    let v4l2: Option<cmsckf_frontend::source::EurocSource> = None;
-    let mut source: Box<dyn FrameSource> = match (v4l2, &args.euroc, &args.camera_socket) {
-        (Some(v), _, _) => Box::new(v),
-        (None, Some(root), _) => {
-            let src = EurocSource::open(root, args.cam, args.realtime)?;
-            if src.is_empty() {
-                bail!("'{}' lists no frames", root.display());
-            }
-            Box::new(src)
+    let size = cam.as_ref().map(|c| (c.width_px as usize, c.height_px as usize));
+    let mut source: Box<dyn FrameSource> = if let Some(root) = &args.euroc {
+        let src = EurocSource::open(root, args.cam, args.realtime)?;
+        if src.is_empty() {
+            bail!("'{}' lists no frames", root.display());
         }
-        (None, None, Some(path)) => {
-            let size = cam.as_ref().map(|c| (c.width_px as usize, c.height_px as usize));
-            Box::new(SocketSource::connect(path, Duration::from_secs(10), size)?)
-        }
-        (None, None, None) => {
-            bail!("give --euroc DIR, --camera-socket PATH or (built with the v4l2 feature) --v4l2 /dev/videoN")
-        }
+        Box::new(src)
+    } else if let Some(path) = args.camera_socket.clone() {
+        Box::new(Reopening::new(Box::new(move || {
+            let s = SocketSource::connect(&path, Duration::ZERO, size)?.frozen_after(FROZEN_AFTER)?;
+            Ok(Box::new(s) as Box<dyn FrameSource>)
+        })))
+    } else {
+        v4l2_source(&args, size)?
     };
     let mut sink: Box<dyn Sink> = match (&args.socket, &args.out) {
-        (Some(s), _) => Box::new(
-            SocketSink::connect(s)
-                .with_context(|| format!("cannot connect to the daemon's socket '{}'", s.display()))?,
-        ),
+        (Some(s), _) => Box::new(SocketSink::lazy(s)),
         (None, Some(o)) => Box::new(WriteSink(std::io::BufWriter::new(
             std::fs::File::create(o).with_context(|| format!("cannot create '{}'", o.display()))?,
         ))),
@@ -141,4 +133,21 @@ fn main() -> anyhow::Result<()> {
     let report = run(source.as_mut(), &mut tracker, sink.as_mut(), args.cam, args.stamp)?;
     eprintln!("{report}");
     Ok(())
+}
+
+/// The V4L2 camera, opened again whenever it is lost.
+#[cfg(feature = "v4l2")]
+fn v4l2_source(args: &Args, size: Option<(usize, usize)>) -> anyhow::Result<Box<dyn FrameSource>> {
+    let (Some(dev), Some((w, h))) = (args.v4l2.clone(), size) else {
+        bail!("give --euroc DIR, --camera-socket PATH or --v4l2 /dev/videoN (with --config for its size)")
+    };
+    Ok(Box::new(Reopening::new(Box::new(move || {
+        let s = cmsckf_frontend::v4l2::V4l2Source::open(&dev, w as u32, h as u32)?;
+        Ok(Box::new(s) as Box<dyn FrameSource>)
+    }))))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn v4l2_source(_: &Args, _: Option<(usize, usize)>) -> anyhow::Result<Box<dyn FrameSource>> {
+    bail!("give --euroc DIR or --camera-socket PATH (this build has no V4L2: build with the v4l2 feature)")
 }

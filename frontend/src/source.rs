@@ -16,7 +16,7 @@ use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use cmsckf_models::image_wire::{FrameHeader, FrameHeaderError, HEADER_BYTES};
+use cmsckf_models::image_wire::{FrameHeader, HEADER_BYTES, MAGIC};
 
 use crate::euroc::{self, EurocError, FrameEntry};
 use crate::image::Gray;
@@ -37,8 +37,8 @@ pub enum SourceError {
     Euroc(#[from] EurocError),
     #[error("camera socket '{0}': {1}")]
     Socket(PathBuf, std::io::Error),
-    #[error("camera socket '{0}': {1}")]
-    Header(PathBuf, FrameHeaderError),
+    #[error("camera '{0}': no frame for {1} s (frozen?)")]
+    Frozen(PathBuf, f64),
     #[error("camera '{0}': {1}")]
     Device(PathBuf, String),
     #[error("camera socket '{path}': a {got_w}x{got_h} image, but the camera model is {want_w}x{want_h}: give the front-end the camera's own config")]
@@ -55,7 +55,36 @@ pub enum SourceError {
 pub trait FrameSource {
     /// The next frame into `img`, and its stamp (µs); `None` at the end.
     fn next_frame(&mut self, img: &mut Gray) -> Result<Option<u64>, SourceError>;
+
+    /// What the source skipped or survived so far.
+    fn problems(&self) -> SourceProblems {
+        SourceProblems::default()
+    }
 }
+
+/// What a camera source skipped or survived, counted for the report.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SourceProblems {
+    /// Frames whose header was not one (a bad magic, an impossible size):
+    /// the stream was searched for the next header.
+    pub bad_headers: u64,
+    /// Frames of another size than the camera model's, skipped.
+    pub wrong_size: u64,
+    /// Times the camera was lost (its process exited, the device went
+    /// away, or it sent nothing for [`FROZEN_AFTER`]) and opened again.
+    pub camera_lost: u64,
+}
+
+impl std::ops::AddAssign for SourceProblems {
+    fn add_assign(&mut self, o: Self) {
+        self.bad_headers += o.bad_headers;
+        self.wrong_size += o.wrong_size;
+        self.camera_lost += o.camera_lost;
+    }
+}
+
+/// A camera that sends nothing for this long is taken as frozen: lost.
+pub const FROZEN_AFTER: Duration = Duration::from_secs(2);
 
 /// `CLOCK_MONOTONIC` now (µs).
 pub fn monotonic_us() -> u64 {
@@ -110,13 +139,19 @@ impl FrameSource for EurocSource {
 
 /// A camera process on a Unix socket, writing `image_wire` frames. The
 /// front-end connects (waiting for the camera to come up); the stream's end
-/// is the run's end.
+/// is this source's end ([`Reopening`] connects again).
+///
+/// A frame that is not one (a bad magic or an impossible size: the stream
+/// lost its framing) is skipped by searching the stream for the next
+/// header; a frame of another size than the camera model's is read past and
+/// skipped. Both are counted ([`SourceProblems`]) and said on stderr.
 pub struct SocketSource {
     path: PathBuf,
     stream: UnixStream,
     bytes: Vec<u8>,
-    /// The camera model's size: frames of another size are refused.
+    /// The camera model's size: frames of another size are skipped.
     expect: Option<(usize, usize)>,
+    problems: SourceProblems,
 }
 
 impl SocketSource {
@@ -135,41 +170,199 @@ impl SocketSource {
             stream,
             bytes: Vec::new(),
             expect,
+            problems: SourceProblems::default(),
         })
+    }
+
+    /// Takes a camera that sends nothing for [`FROZEN_AFTER`] as lost (an
+    /// error), rather than waiting for it for ever.
+    pub fn frozen_after(self, after: Duration) -> Result<Self, SourceError> {
+        self.stream
+            .set_read_timeout(Some(after))
+            .map_err(|e| SourceError::Socket(self.path.clone(), e))?;
+        Ok(self)
+    }
+
+    /// Reads exactly `buf`: `Ok(false)` at the stream's end.
+    fn read(&mut self, buf: &mut [u8]) -> Result<bool, SourceError> {
+        match self.stream.read_exact(buf) {
+            Ok(()) => Ok(true),
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                Err(SourceError::Frozen(self.path.clone(), FROZEN_AFTER.as_secs_f64()))
+            }
+            Err(e) => Err(SourceError::Socket(self.path.clone(), e)),
+        }
+    }
+
+    /// Slides `head` a byte at a time until it starts with the magic again
+    /// (then fills the rest): `Ok(false)` at the stream's end.
+    fn resync(&mut self, head: &mut [u8; HEADER_BYTES]) -> Result<bool, SourceError> {
+        let mut byte = [0u8; 1];
+        loop {
+            head.copy_within(1.., 0);
+            if !self.read(&mut byte)? {
+                return Ok(false);
+            }
+            head[HEADER_BYTES - 1] = byte[0];
+            if head[..MAGIC.len()] == MAGIC {
+                return Ok(true);
+            }
+        }
+    }
+
+    /// Reads `n` bytes and throws them away, through a small buffer.
+    fn skip(&mut self, mut n: usize) -> Result<bool, SourceError> {
+        let mut scratch = [0u8; 4096];
+        while n > 0 {
+            let k = n.min(scratch.len());
+            if !self.read(&mut scratch[..k])? {
+                return Ok(false);
+            }
+            n -= k;
+        }
+        Ok(true)
     }
 }
 
 impl FrameSource for SocketSource {
     fn next_frame(&mut self, img: &mut Gray) -> Result<Option<u64>, SourceError> {
-        let io = |e| SourceError::Socket(self.path.clone(), e);
         let mut head = [0u8; HEADER_BYTES];
-        match self.stream.read_exact(&mut head) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(None),
-            Err(e) => return Err(io(e)),
+        if !self.read(&mut head)? {
+            return Ok(None);
         }
-        let h = FrameHeader::decode(&head).map_err(|e| SourceError::Header(self.path.clone(), e))?;
-        if let Some((w, hh)) = self.expect {
-            if (h.width as usize, h.height as usize) != (w, hh) {
-                return Err(SourceError::Size {
-                    path: self.path.clone(),
-                    got_w: h.width,
-                    got_h: h.height,
-                    want_w: w,
-                    want_h: hh,
-                });
+        loop {
+            let h = match FrameHeader::decode(&head) {
+                Ok(h) => h,
+                Err(e) => {
+                    self.problems.bad_headers += 1;
+                    warn_every(self.problems.bad_headers, || {
+                        format!(
+                            "camera socket '{}': {e}; looking for the next frame",
+                            self.path.display()
+                        )
+                    });
+                    if !self.resync(&mut head)? {
+                        return Ok(None);
+                    }
+                    continue;
+                }
+            };
+            if let Some((w, hh)) = self.expect {
+                if (h.width as usize, h.height as usize) != (w, hh) {
+                    self.problems.wrong_size += 1;
+                    warn_every(self.problems.wrong_size, || {
+                        format!(
+                            "camera socket '{}': a {}x{} image, but the camera model is {w}x{hh}: skipped \
+                             (give the front-end the camera's own config)",
+                            self.path.display(),
+                            h.width,
+                            h.height
+                        )
+                    });
+                    if !self.skip(h.pixels())? || !self.read(&mut head)? {
+                        return Ok(None);
+                    }
+                    continue;
+                }
             }
+            // Bounded by the header's check (each side ≤ MAX_SIDE_PX) and,
+            // with a camera model, by its size; reused from frame to frame.
+            let mut bytes = std::mem::take(&mut self.bytes);
+            bytes.resize(h.pixels(), 0);
+            let whole = self.read(&mut bytes);
+            self.bytes = bytes;
+            if !whole? {
+                return Ok(None);
+            }
+            // The header's sides give the byte count just read.
+            img.set_from_u8(h.width as usize, h.height as usize, &self.bytes);
+            return Ok(Some(h.t_us));
         }
-        // Bounded by the header's check (each side ≤ MAX_SIDE_PX) and, with
-        // a camera model, by its size; reused from frame to frame.
-        self.bytes.resize(h.pixels(), 0);
-        match self.stream.read_exact(&mut self.bytes) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(None),
-            Err(e) => return Err(io(e)),
+    }
+
+    fn problems(&self) -> SourceProblems {
+        self.problems
+    }
+}
+
+/// Says a recurring problem on stderr (the journal): its first ten times,
+/// then every hundredth.
+pub fn warn_every(count: u64, text: impl FnOnce() -> String) {
+    if count <= 10 || count.is_multiple_of(100) {
+        eprintln!("cmsckf-frontend: {} ({count} so far)", text());
+    }
+}
+
+/// Opens a camera again whenever it is lost, for ever: a camera process
+/// that exits or restarts, a USB camera unplugged, a frozen one. A live
+/// camera has no end, so the front-end stops only when it is told to
+/// (SIGTERM). Each loss is counted and said; attempts back off from 0.1 s
+/// to 2 s.
+pub struct Reopening {
+    open: Box<dyn FnMut() -> Result<Box<dyn FrameSource>, SourceError>>,
+    current: Option<Box<dyn FrameSource>>,
+    /// What the sources closed so far met.
+    closed: SourceProblems,
+    backoff: Duration,
+    failed_opens: u64,
+}
+
+impl Reopening {
+    pub fn new(open: Box<dyn FnMut() -> Result<Box<dyn FrameSource>, SourceError>>) -> Self {
+        Self {
+            open,
+            current: None,
+            closed: SourceProblems::default(),
+            backoff: Duration::from_millis(100),
+            failed_opens: 0,
         }
-        // The header's sides give the byte count just read.
-        img.set_from_u8(h.width as usize, h.height as usize, &self.bytes);
-        Ok(Some(h.t_us))
+    }
+}
+
+impl FrameSource for Reopening {
+    fn next_frame(&mut self, img: &mut Gray) -> Result<Option<u64>, SourceError> {
+        loop {
+            let Some(src) = self.current.as_mut() else {
+                match (self.open)() {
+                    Ok(s) => {
+                        if self.failed_opens > 0 || self.closed.camera_lost > 0 {
+                            eprintln!("cmsckf-frontend: camera open again");
+                        }
+                        self.current = Some(s);
+                        self.failed_opens = 0;
+                    }
+                    Err(e) => {
+                        self.failed_opens += 1;
+                        warn_every(self.failed_opens, || format!("{e}; trying again"));
+                        std::thread::sleep(self.backoff);
+                        self.backoff = (self.backoff * 2).min(Duration::from_secs(2));
+                    }
+                }
+                continue;
+            };
+            let why = match src.next_frame(img) {
+                Ok(Some(t)) => {
+                    self.backoff = Duration::from_millis(100);
+                    return Ok(Some(t));
+                }
+                Ok(None) => "the camera's stream ended".to_string(),
+                Err(e) => e.to_string(),
+            };
+            self.closed += src.problems();
+            self.closed.camera_lost += 1;
+            self.current = None;
+            warn_every(self.closed.camera_lost, || {
+                format!("camera lost: {why}; opening it again")
+            });
+        }
+    }
+
+    fn problems(&self) -> SourceProblems {
+        let mut p = self.closed;
+        if let Some(s) = &self.current {
+            p += s.problems();
+        }
+        p
     }
 }

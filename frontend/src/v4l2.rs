@@ -15,7 +15,7 @@ use std::ffi::CString;
 use std::path::{Path, PathBuf};
 
 use crate::image::Gray;
-use crate::source::{FrameSource, SourceError};
+use crate::source::{FrameSource, SourceError, FROZEN_AFTER};
 
 const fn fourcc(c: &[u8; 4]) -> u32 {
     (c[0] as u32) | ((c[1] as u32) << 8) | ((c[2] as u32) << 16) | ((c[3] as u32) << 24)
@@ -251,8 +251,26 @@ impl V4l2Source {
 impl FrameSource for V4l2Source {
     fn next_frame(&mut self, img: &mut Gray) -> Result<Option<u64>, SourceError> {
         let mut b = self.buffer(0);
-        // SAFETY: as in `open`; blocks until a frame is captured.
         let fail = |what: String| SourceError::Device(self.path.clone(), what);
+        // A camera that captures nothing for FROZEN_AFTER is lost (the
+        // caller opens it again), not waited for for ever.
+        let mut pfd = libc::pollfd {
+            fd: self.fd,
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd.
+        let ready = unsafe { libc::poll(&mut pfd, 1, FROZEN_AFTER.as_millis() as libc::c_int) };
+        if ready == 0 {
+            return Err(SourceError::Frozen(self.path.clone(), FROZEN_AFTER.as_secs_f64()));
+        }
+        if ready < 0 || pfd.revents & (libc::POLLERR | libc::POLLHUP | libc::POLLNVAL) != 0 {
+            return Err(fail(format!(
+                "poll: the device is gone ({})",
+                std::io::Error::last_os_error()
+            )));
+        }
+        // SAFETY: as in `open`; a frame is ready.
         if unsafe { libc::ioctl(self.fd, VIDIOC_DQBUF as _, &mut b) } < 0 {
             return Err(fail(format!("VIDIOC_DQBUF: {}", std::io::Error::last_os_error())));
         }

@@ -6,12 +6,15 @@
 //!
 //! The data are not copied into this repository (Middlebury gives no
 //! licence for redistribution): the test takes scikit-image's wheel from
-//! PyPI with pip (cached in the target directory) and reads the three files
+//! PyPI with pip into the tests' own Python environment (`tests/common/python.rs`; the wheel cached in the target directory) and reads the three files
 //! out of it with numpy. The tracker's endpoint error against the truth is
 //! printed and bounded.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+#[path = "../../tests/common/python.rs"]
+mod python;
 
 use cmsckf_frontend::detect::{DetectParams, Detector};
 use cmsckf_frontend::euroc::read_png;
@@ -24,11 +27,7 @@ fn extract(dir: &Path) -> (usize, usize) {
     let script = r#"
 import glob, io, os, subprocess, sys, zipfile
 cache, out = sys.argv[1], sys.argv[2]
-try:
-    import numpy
-except ImportError:
-    subprocess.check_call([sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "numpy"])
-    import numpy
+import numpy
 wheels = glob.glob(os.path.join(cache, "scikit_image-0.26.0-*.whl"))
 if not wheels:
     subprocess.check_call([sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
@@ -44,12 +43,12 @@ print(disp.shape[1], disp.shape[0])
 "#;
     let cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pypi-wheels");
     std::fs::create_dir_all(&cache).unwrap();
-    let out = Command::new("python3")
+    let out = Command::new(python::python_with(&["numpy"]))
         .args(["-c", script])
         .arg(&cache)
         .arg(dir)
         .output()
-        .expect("python3 is needed for this test");
+        .expect("the tests' Python");
     assert!(
         out.status.success(),
         "fetching Middlebury's Motorcycle from scikit-image's wheel: {}",
