@@ -80,6 +80,9 @@ counters! {
     MavlinkRejectedForeignOrigin = "mavlink_rejected_foreign_origin", reject;
     MavlinkRejectedForeignLandedState = "mavlink_rejected_foreign_landed_state", reject;
     MavlinkRejectedForeignSimState = "mavlink_rejected_foreign_sim_state", reject;
+    MavlinkRejectedForeignEstimatorStatus = "mavlink_rejected_foreign_estimator_status", reject;
+    /// A STATUSTEXT from another system (a ground station): not the autopilot's.
+    MavlinkStatusTextOther = "mavlink_statustext_other", event;
     LinkDown = "link_down", event;
     LinkUp = "link_up", event;
     AutopilotSendsNoImu = "autopilot_sends_no_imu", event;
@@ -91,7 +94,12 @@ counters! {
     LocalPosition = "local_position", event;
     GpsAccuracy = "gps_accuracy", event;
     SimState = "sim_state", event;
+    EstimatorStatus = "autopilot_estimator_status", event;
+    /// The autopilot's EKF reported a position test ratio over 1: it
+    /// rejected our estimate.
+    AutopilotRejectedOurPosition = "autopilot_rejected_our_position", event;
     HeartbeatIn = "heartbeat_in", event;
+    StatusTextIn = "statustext_in", event;
     ExtendedSysState = "extended_sys_state", event;
     SystemTime = "system_time", event;
     SystemTimeUnset = "system_time_unset", event;
@@ -258,6 +266,9 @@ counters! {
     // The flight log and systemd.
     LogMessages = "log_messages", event;
     LogChunks = "log_chunks", event;
+    /// Records written out of log-time order (later than the writer's
+    /// one-second reordering).
+    LogLateRecords = "log_late_records", event;
     LogError = "log_error", event;
     LogDropped = "log_dropped", event;
     /// Writes that failed (disk full, an I/O error).

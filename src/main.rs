@@ -11,7 +11,7 @@ mod cli;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "cmsckf", version, about = "Compressed-MSCKF visual-inertial-GNSS estimator")]
+#[command(name = "cmsckf", version = env!("CMSCKF_BUILD"), about = "Compressed-MSCKF visual-inertial-GNSS estimator")]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,

@@ -50,6 +50,10 @@ pub enum Degraded {
     /// Three GNSS epochs in a row gave no usable measurement (held 2 s): no
     /// ephemeris, a wrong week, or every code refused.
     GnssUnusable = 10,
+    /// Flight-log records are being dropped: the writer cannot keep up, or
+    /// its file blocks (a stalled card). Set by the logger in wall time,
+    /// cleared when records go through again.
+    LogStalled = 11,
 }
 
 /// Without a fused measurement for this long, a running filter is dead
@@ -57,7 +61,7 @@ pub enum Degraded {
 pub const DEAD_RECKONING_S: f64 = 1.0;
 
 impl Degraded {
-    pub const ALL: [Degraded; 11] = [
+    pub const ALL: [Degraded; 12] = [
         Degraded::ImuGap,
         Degraded::CameraStale,
         Degraded::GnssStale,
@@ -69,6 +73,7 @@ impl Degraded {
         Degraded::DeadReckoning,
         Degraded::GnssBaseRefused,
         Degraded::GnssUnusable,
+        Degraded::LogStalled,
     ];
 
     pub fn name(self) -> &'static str {
@@ -84,6 +89,7 @@ impl Degraded {
             Degraded::DeadReckoning => "dead_reckoning",
             Degraded::GnssBaseRefused => "gnss_base_refused",
             Degraded::GnssUnusable => "gnss_unusable",
+            Degraded::LogStalled => "log_stalled",
         }
     }
 

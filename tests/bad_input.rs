@@ -98,12 +98,13 @@ async fn bad_input_is_rejected_counted_and_survived() {
         "the daemon stopped sending estimates after bad input ({after})"
     );
     // 6. The autopilot reboots: its clock restarts from 3 s. Once several
-    //    samples agree on the new clock, the filter resets (reset_counter
-    //    moves on) and, once the rebooted autopilot sends its attitude
-    //    again, estimates resume.
+    //    samples agree on the new clock over 0.25 s
+    //    (`mavlink.clock_jump_confirm_s`), the filter resets (reset_counter
+    //    moves on) and, with the rebooted autopilot's attitude (streamed at
+    //    4 Hz), estimates resume.
     let mut t2 = 3.0;
-    for k in 0..150 {
-        if k == 10 {
+    for k in 0..250 {
+        if k % 25 == 10 {
             p.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
         }
         p.imu(t2).await;

@@ -21,7 +21,18 @@ fn completions_version_and_fault_help() {
     assert!(!cmsckf(&["completions", "tcsh"]).status.success());
 
     let v = String::from_utf8_lossy(&cmsckf(&["--version"]).stdout).into_owned();
-    assert_eq!(v.trim(), format!("cmsckf {}", env!("CARGO_PKG_VERSION")));
+    // The version, the commit it was built from and the build date.
+    assert_eq!(v.trim(), format!("cmsckf {}", env!("CMSCKF_BUILD")));
+    let commit = std::process::Command::new("git")
+        .args(["rev-parse", "--short=12", "HEAD"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string());
+    if let Some(commit) = commit {
+        assert!(v.contains(&format!("({commit}, built 20")), "{v}");
+    }
 
     let help = String::from_utf8_lossy(&cmsckf(&["demo", "--help"]).stdout).into_owned();
     for k in cmsckf_sitl::serve::FaultKind::ALL {

@@ -449,3 +449,104 @@ async fn a_udp_autopilot_that_comes_back_elsewhere_is_learned_again() {
     assert_eq!(c("mavlink_autopilot_address_stale"), 1);
     assert_eq!(c("mavlink_autopilot_address_learned"), 2);
 }
+
+/// Issue 40's forged reboot: five HIGHRES_IMU forged as the autopilot,
+/// stamped 1.000–1.004 s in one burst, were believed as a reboot (a reset
+/// and a 1 s output gap; ArduPilot drops ext-nav after 0.3 s), and 13
+/// bursts gave 13 resets. A reboot is now believed only once the new clock
+/// has run on for `mavlink.clock_jump_confirm_s` with the old one silent.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_forged_samples_is_not_a_reboot() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, port) = common::loopback_config(dir.path());
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    ap.hello().await;
+    let mut t = 10.0;
+    for _ in 0..150 {
+        ap.imu(t).await;
+        t += 0.01;
+        tokio::time::sleep(Duration::from_micros(300)).await;
+    }
+    assert!(ap.drain_for(Duration::from_millis(20)).await.estimates > 10, "no start");
+    // Thirteen bursts, each between two of the autopilot's samples; the
+    // estimates must keep coming all along.
+    let mut least = usize::MAX;
+    for _ in 0..13 {
+        for k in 0..5 {
+            ap.imu(1.0 + k as f64 * 1e-3).await;
+        }
+        for _ in 0..20 {
+            ap.imu(t).await;
+            t += 0.01;
+            tokio::time::sleep(Duration::from_micros(300)).await;
+        }
+        least = least.min(ap.drain_for(Duration::from_millis(5)).await.estimates);
+    }
+    assert!(least > 0, "the estimates stopped after a burst");
+    // A genuine reboot still is one: the old clock falls silent and the new
+    // one runs on from 3 s.
+    let mut t2 = 3.0;
+    for k in 0..150 {
+        if k == 60 {
+            ap.send(&apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA::default())).await;
+        }
+        ap.imu(t2).await;
+        t2 += 0.01;
+        tokio::time::sleep(Duration::from_micros(300)).await;
+    }
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    assert!(c("imu_time_outlier") >= 65, "{:?}", summary.counters);
+    assert_eq!(
+        c("autopilot_clock_reset"),
+        1,
+        "the bursts are not reboots; the real one is"
+    );
+    assert_eq!(c("filter_reset") + c("imu_gap_restart"), 0, "{:?}", summary.counters);
+}
+
+/// Issue 40: a `tcpout:` server that is not up yet (or a serial adapter
+/// still enumerating) made the daemon exit 1 at once, and systemd gave the
+/// unit up after five such starts. The link is now opened again with
+/// backoff, as after a loss.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_that_is_not_there_yet_is_waited_for() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().unwrap();
+    let (mut cfg, _) = common::loopback_config(dir.path());
+    // A port with nobody on it: bound, then freed.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap();
+    cfg.mavlink.address = format!("tcpout:{addr}");
+    let (stop_tx, mut daemon) = common::spawn_daemon(cfg);
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(!daemon.is_finished(), "the daemon exited without its link");
+    let listener = tokio::net::TcpListener::bind(addr).await.unwrap();
+    let (mut conn, _) = tokio::time::timeout(Duration::from_secs(10), listener.accept())
+        .await
+        .expect("the daemon never connected")
+        .unwrap();
+    let mut buf = Vec::new();
+    let h = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    mavlink::write_versioned_msg(&mut buf, MavlinkVersion::V2, h, &heartbeat()).unwrap();
+    conn.write_all(&buf).await.unwrap();
+    let mut got = vec![0u8; 4096];
+    let n = tokio::time::timeout(Duration::from_secs(3), conn.read(&mut got))
+        .await
+        .expect("the daemon said nothing on its link")
+        .unwrap();
+    assert!(n > 0);
+    let _ = stop_tx.send(());
+    let summary = (&mut daemon).await.unwrap().unwrap();
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    assert!(c("mavlink_reconnected") >= 1, "{:?}", summary.counters);
+}

@@ -3,7 +3,7 @@
 //! ODOMETRY alone by default (finite covariances, a quality in −1..100),
 //! or VISION_POSITION_ESTIMATE with VISION_SPEED_ESTIMATE, with their
 //! covariance and reset_counter.
-//! Needs `python3`; `pymavlink` is installed with pip if missing.
+//! Needs `python3` with `venv`; `pymavlink` is installed into the tests' own environment (`common::python`).
 mod common;
 
 use std::process::Command;
@@ -19,10 +19,10 @@ async fn exchange(message: OutputMessage, mode: &'static str) -> serde_json::Val
     cfg.output.message = message;
     let (stop_tx, daemon) = common::spawn_daemon(cfg);
     tokio::time::sleep(Duration::from_millis(200)).await;
-    common::python_modules(&["pymavlink"]);
+    let python = common::python_with(&["pymavlink"]);
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/interop_pymavlink.py");
     let out = tokio::task::spawn_blocking(move || {
-        Command::new("python3")
+        Command::new(&python)
             .arg(script)
             .arg(port.to_string())
             .arg("3")
@@ -31,7 +31,7 @@ async fn exchange(message: OutputMessage, mode: &'static str) -> serde_json::Val
     })
     .await
     .unwrap()
-    .expect("python3 is needed for this test");
+    .expect("the tests' Python");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(

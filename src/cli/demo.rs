@@ -122,17 +122,102 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
     // left running.
     let rt = tokio::runtime::Runtime::new()?;
     let camera_socket = frontend.then(|| socket_dir.path().join("camera.sock"));
-    let (out, summary) = fly(&rt, &cfg, port, speedup, faults, &ds, camera_socket)?;
+    let (out, _) = fly(&rt, &cfg, port, speedup, faults, &ds, camera_socket)?;
     if json {
         println!("{out}");
     } else {
-        println!("{}", serde_json::to_string_pretty(&out)?);
-        eprintln!("daemon counters: {:?}", summary.counters);
+        print!("{}", human_report(&out, speedup));
         if !cfg.log.path.is_empty() {
-            eprintln!("flight log: {}", cfg.log.path);
+            println!("  flight log: {} (cmsckf review {0})", cfg.log.path);
         }
+        println!("  every figure and the daemon's counters: --json");
     }
     Ok(())
+}
+
+/// The demo's report for a person: the key figures, each with its unit and
+/// a one-line reading (`--json` gives all of them).
+fn human_report(out: &serde_json::Value, speedup: f64) -> String {
+    let f = |k: &str| out[k].as_f64().unwrap_or(f64::NAN);
+    let mut r = String::from("cmsckf demo report\n");
+    let mut line = |what: &str, value: String, reading: &str| {
+        r.push_str(&format!("  {what:<24} {value:<34} {reading}\n"));
+    };
+    line(
+        "estimates received",
+        format!("{:.0} at {:.1} Hz", f("estimates_received"), f("output_rate_hz")),
+        &format!("the first {:.2} s into the flight", f("time_to_first_estimate_s")),
+    );
+    line(
+        "position error (ATE)",
+        format!("{:.2} m; {:.2} m aligned", f("ate_m"), f("ate_aligned_m")),
+        "RMS against the simulator's truth; aligned: after the best yaw and shift (4-DoF)",
+    );
+    let (nees, in95) = (f("position_nees_mean"), f("position_nees_in95"));
+    let reading = if !nees.is_finite() {
+        "no estimate to judge"
+    } else if nees > 7.8 || in95 < 0.8 {
+        "OVERCONFIDENT: the error is larger than the covariance the autopilot is told"
+    } else if nees < 1.0 {
+        "honest, on the cautious side (3 is exact)"
+    } else {
+        "honest (3 is exact)"
+    };
+    line(
+        "confidence (NEES)",
+        format!("{nees:.2} mean; {:.0} % inside 95 %", 100.0 * in95),
+        reading,
+    );
+    let nis = f("nis_per_dof");
+    line(
+        "tracks' NIS per dof",
+        format!("{nis:.2}"),
+        if (0.5..=2.0).contains(&nis) {
+            "the pixel noise fits the tracks (1 is exact)"
+        } else {
+            "the pixel noise does not fit the tracks (1 is exact)"
+        },
+    );
+    let resets = out["reset_count"].as_u64().unwrap_or(0);
+    let alive = out["daemon_alive"].as_bool().unwrap_or(false);
+    line(
+        "filter resets",
+        resets.to_string(),
+        match (resets, alive) {
+            (_, false) => "THE DAEMON DID NOT FINISH CLEANLY",
+            (0, _) => "none: the filter ran through",
+            _ => "the filter restarted: see status_texts in --json",
+        },
+    );
+    let latency_reading = if speedup > 1.0 {
+        format!("at {speedup}x the machine runs {speedup} times a flight's load; --speedup 1 for a flight's figure")
+    } else {
+        "at 1x, as in flight".to_string()
+    };
+    line(
+        "latency, IMU to estimate",
+        format!("p50 {:.2} ms; p99 {:.2} ms", f("latency_ms_p50"), f("latency_ms_p99")),
+        &latency_reading,
+    );
+    let ap = &out["autopilot"];
+    if let Some(rms) = ap["position_error_rms_m"].as_f64() {
+        line(
+            "the autopilot's position",
+            format!(
+                "{rms:.2} m RMS; {:.2} m max",
+                ap["position_error_max_m"].as_f64().unwrap_or(f64::NAN)
+            ),
+            "the SITL autopilot's EKF, fed with our estimates, against the truth",
+        );
+    }
+    if let Some(faults) = out["faults"].as_array().filter(|a| !a.is_empty()) {
+        line(
+            "faults injected",
+            faults.len().to_string(),
+            "per-fault recovery in --json",
+        );
+    }
+    r
 }
 
 /// The daemon's config for the demo, checked: `--config` (or the defaults)
@@ -150,6 +235,15 @@ fn loopback_config(
         cfg.log.path = l.display().to_string();
     }
     cfg.log.path = cmsckf::io::mcap_log::expand_path(&cfg.log.path);
+    // The daemon never writes over a log (it would take `NAME-1.mcap`), so
+    // a name that exists is refused here, where the demo says which file it
+    // wrote.
+    if std::path::Path::new(&cfg.log.path).exists() {
+        anyhow::bail!(
+            "--log {}: the file exists; give another name (a flight log is never written over)",
+            cfg.log.path
+        );
+    }
     let dir = tempfile::Builder::new().prefix("cmsckf-demo-").tempdir()?;
     let port = free_udp_port()?;
     cfg.mavlink.address = format!("udpin:127.0.0.1:{port}");
@@ -262,4 +356,28 @@ fn spawn_frontend(
         let mut tracker = Tracker::new(TrackerParams::default(), Some(cam));
         Ok(run(&mut source, &mut tracker, &mut sink, 0, Stamp::Source)?)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_human_report_reads_each_figure_and_flags_overconfidence() {
+        let mut out = serde_json::json!({
+            "estimates_received": 2073, "output_rate_hz": 30.0, "time_to_first_estimate_s": 0.92,
+            "ate_m": 0.75, "ate_aligned_m": 0.39, "position_nees_mean": 2.9, "position_nees_in95": 0.95,
+            "nis_per_dof": 0.96, "reset_count": 0, "daemon_alive": true,
+            "latency_ms_p50": 0.28, "latency_ms_p99": 2.86, "faults": [],
+        });
+        let r = human_report(&out, 10.0);
+        assert!(
+            r.contains("2073 at 30.0 Hz") && r.contains("0.75 m; 0.39 m aligned"),
+            "{r}"
+        );
+        assert!(r.contains("honest (3 is exact)") && r.contains("at 10x"), "{r}");
+        assert!(!r.contains("OVERCONFIDENT"), "{r}");
+        out["position_nees_mean"] = serde_json::json!(25.0);
+        assert!(human_report(&out, 1.0).contains("OVERCONFIDENT"));
+    }
 }

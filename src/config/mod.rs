@@ -57,6 +57,28 @@ pub struct Config {
     pub zupt: ZuptConfig,
     pub output: OutputConfig,
     pub log: LogConfig,
+    pub live_view: LiveViewConfig,
+}
+
+/// The optional live view: a Foxglove WebSocket server streaming the
+/// flight log's channels as they are written, for a ground station.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LiveViewConfig {
+    /// Off by default.
+    pub enabled: bool,
+    /// `HOST:PORT` to listen on; loopback unless configured otherwise
+    /// (`0.0.0.0:8765` for a ground station on the vehicle's network).
+    pub address: String,
+}
+
+impl Default for LiveViewConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            address: "127.0.0.1:8765".into(),
+        }
+    }
 }
 
 /// The MAVLink link to the autopilot.
@@ -90,6 +112,10 @@ pub struct MavlinkConfig {
     /// Silence after which the daemon exits non-zero so that its service
     /// manager restarts it (s; 0 = never).
     pub link_exit_after_s: f64,
+    /// A jump of the autopilot's IMU clock (a reboot, or a link that was
+    /// down) is believed once its samples have run on this long (s) with
+    /// none on the old clock among them: a burst of forged samples is not.
+    pub clock_jump_confirm_s: f64,
 }
 
 impl Default for MavlinkConfig {
@@ -104,6 +130,7 @@ impl Default for MavlinkConfig {
             signing_link_id: 0,
             link_down_after_s: 2.0,
             link_exit_after_s: 60.0,
+            clock_jump_confirm_s: 0.25,
         }
     }
 }
@@ -626,13 +653,26 @@ impl Default for OutputConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct LogConfig {
     /// Output path, with strftime-style `%Y%m%d-%H%M%S`; empty = no log.
+    /// A name that exists is never written over: a suffix is added.
     pub path: String,
+    /// A log is closed and the next begun past this size (MiB; 0: no limit).
+    pub max_file_mb: u64,
+    /// The logs in the log's directory whose names start as `path`'s does
+    /// are kept under this total, deleting the oldest finished ones first
+    /// (MiB; 0: no limit). Unfinished (crash) logs are never deleted.
+    pub max_total_mb: u64,
+    /// Begin a new log when the vehicle disarms, so that each log holds one
+    /// flight, from the ground before arming to its disarm.
+    pub new_log_on_disarm: bool,
 }
 
 impl Default for LogConfig {
     fn default() -> Self {
         Self {
             path: "cmsckf-%Y%m%d-%H%M%S.mcap".into(),
+            max_file_mb: 1024,
+            max_total_mb: 8192,
+            new_log_on_disarm: true,
         }
     }
 }
@@ -642,7 +682,7 @@ impl Config {
     /// and replay's): this build's version, the mode and the config itself.
     pub fn log_header(&self) -> LogHeader {
         LogHeader {
-            version: env!("CARGO_PKG_VERSION").to_string(),
+            version: env!("CMSCKF_BUILD").to_string(),
             mode: self.estimator.mode.name().to_string(),
             config_toml: toml::to_string(self).unwrap_or_default(),
         }

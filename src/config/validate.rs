@@ -19,7 +19,32 @@ impl Config {
         self.validate_keyframe()?;
         self.validate_compressed()?;
         self.validate_gnss()?;
-        self.validate_output()
+        self.validate_output()?;
+        self.validate_live_view()
+    }
+
+    /// `[live_view]`: an address the server can listen on, and a log to
+    /// stream.
+    fn validate_live_view(&self) -> Result<(), FieldError> {
+        let c = Check::new("live_view");
+        if !self.live_view.enabled {
+            return Ok(());
+        }
+        if self.live_view.address.parse::<std::net::SocketAddr>().is_err() {
+            return Err(c.fail(
+                "address",
+                format!("'{}' is not an IP address and port", self.live_view.address),
+                "use HOST:PORT with an IP address, e.g. 127.0.0.1:8765 (0.0.0.0:8765 to serve the network)",
+            ));
+        }
+        if self.log.path.is_empty() {
+            return Err(c.fail(
+                "enabled",
+                "streams the flight log's channels, and log.path is empty (no log)",
+                "set log.path, or live_view.enabled = false",
+            ));
+        }
+        Ok(())
     }
 
     /// `[output]`: the rate, and the removed `odometry` switch. (`message`
@@ -67,6 +92,7 @@ impl Config {
         }
         c.positive("imu_rate_hz", m.imu_rate_hz, 2000.0)?;
         c.range("link_down_after_s", m.link_down_after_s, 0.1, 3600.0)?;
+        c.range("clock_jump_confirm_s", m.clock_jump_confirm_s, 0.0, 10.0)?;
         c.range("link_exit_after_s", m.link_exit_after_s, 0.0, 86_400.0)?;
         if m.link_exit_after_s > 0.0 && m.link_exit_after_s < m.link_down_after_s {
             return Err(c.fail(

@@ -48,6 +48,10 @@ struct OriginSend {
     tries: u32,
 }
 
+/// A disarm must last this long (s of autopilot time: two HEARTBEATs and
+/// more) before the flight's log ends.
+const DISARM_CONFIRM_S: f64 = 2.5;
+
 /// The autopilot's state as it reports it, owned here: what a start reads
 /// (attitude, local position, accuracy, magnetometer, date), what the
 /// zero-velocity updates and the outputs follow (armed, landed, its kind),
@@ -68,6 +72,10 @@ pub(super) struct AutopilotView {
     unix_days: Option<i64>,
     /// The armed and landed states, when it reports them.
     armed: Option<bool>,
+    /// Its flight mode (logged on change).
+    mode: Option<u32>,
+    /// When it disarmed after an arming, until the log is rotated.
+    disarmed_since: Option<f64>,
     on_ground: Option<bool>,
     /// Which autopilot its HEARTBEAT says it is.
     kind: Option<AutopilotKind>,
@@ -89,6 +97,8 @@ impl Default for AutopilotView {
             mag_B: VecDeque::with_capacity(MAG_READINGS),
             unix_days: None,
             armed: None,
+            mode: None,
+            disarmed_since: None,
             on_ground: None,
             kind: None,
             fix_t: None,
@@ -135,7 +145,21 @@ impl AutopilotView {
                 }
                 self.mag_B.push_back(mag_B);
             }
-            FusionMsg::VehicleState { armed, on_ground, kind } => {
+            FusionMsg::AutopilotText { severity, text } => {
+                log_autopilot(AutopilotRecord::StatusText(
+                    crate::io::mcap_log::input::StatusTextRecord { severity, text },
+                ));
+            }
+            FusionMsg::VehicleState {
+                armed,
+                on_ground,
+                kind,
+                mode,
+            } => {
+                if let Some(m) = mode.filter(|m| Some(*m) != self.mode) {
+                    log_autopilot(AutopilotRecord::Mode(m));
+                    self.mode = mode;
+                }
                 if let Some(k) = kind.filter(|k| Some(*k) != self.kind) {
                     log_autopilot(AutopilotRecord::Autopilot(k));
                     self.kind = kind;
@@ -143,7 +167,17 @@ impl AutopilotView {
                 // Logged on change only (the HEARTBEAT comes every second).
                 if let Some(a) = armed.filter(|a| Some(*a) != self.armed) {
                     log_autopilot(AutopilotRecord::Armed(a));
+                    // A disarm after an arming ends the flight's log, once it
+                    // has lasted DISARM_CONFIRM_S: a stale HEARTBEAT copy
+                    // between two armed ones must not cut the log.
+                    self.disarmed_since = (!a && self.armed == Some(true)).then_some(t_s);
                     self.armed = armed;
+                }
+                if let Some(t0) = self.disarmed_since {
+                    if armed == Some(false) && t_s - t0 >= DISARM_CONFIRM_S {
+                        self.disarmed_since = None;
+                        log.disarmed();
+                    }
                 }
                 if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
                     log_autopilot(AutopilotRecord::OnGround(g));
@@ -179,6 +213,14 @@ impl AutopilotView {
                     p_ned_m,
                 }));
             }
+            FusionMsg::EstimatorStatus(s) => {
+                // Whether the autopilot took our position: for the review and
+                // the counters, never fused.
+                if s.pos_horiz_ratio > 1.0 || s.pos_vert_ratio > 1.0 {
+                    counters.add(Counter::AutopilotRejectedOurPosition, 1);
+                }
+                log_autopilot(AutopilotRecord::EstimatorStatus(s));
+            }
             FusionMsg::GpsAccuracy { h_acc_m, v_acc_m } => {
                 // Logged for replay, kept as the prior of an in-flight start.
                 log_autopilot(AutopilotRecord::GpsAccuracy(
@@ -197,6 +239,7 @@ impl AutopilotView {
                     .offer(unix_us as f64 * 1e-6 - boot_ms as f64 * 1e-3)
                 {
                     Some(offset_s) => {
+                        log.unix_minus_boot(offset_s);
                         gnss.set_unix_minus_boot(Some(offset_s));
                         gnss.set_autopilot_unix_time(unix_us as f64 * 1e-6, counters);
                     }

@@ -32,6 +32,8 @@ pub(super) struct FlightLog {
     pre_imu: RefCell<Vec<(Topic, serde_json::Value)>>,
     /// Next autopilot time to log the counters at (`/diagnostics`).
     next_diag_t: f64,
+    /// `log.new_log_on_disarm`: each flight a log of its own.
+    new_log_on_disarm: bool,
 }
 
 /// A `/diagnostics` record: every counter and the degraded-state reasons.
@@ -55,11 +57,30 @@ struct LogLine<'a> {
 }
 
 impl FlightLog {
-    pub(super) fn new(logger: Option<McapLogger>) -> Self {
+    pub(super) fn new(logger: Option<McapLogger>, new_log_on_disarm: bool) -> Self {
         Self {
             logger,
             pre_imu: RefCell::new(Vec::new()),
             next_diag_t: f64::NEG_INFINITY,
+            new_log_on_disarm,
+        }
+    }
+
+    /// The autopilot's Unix time minus its boot time (s), from
+    /// `SYSTEM_TIME`: the log's records are stamped in Unix time from it
+    /// (their boot time stays their publish time).
+    pub(super) fn unix_minus_boot(&self, offset_s: f64) {
+        if let Some(l) = &self.logger {
+            l.set_unix_minus_boot(offset_s);
+        }
+    }
+
+    /// The vehicle disarmed: its flight's log is closed (whole, with its
+    /// summary) and the next begun, if `log.new_log_on_disarm`. The daemon's
+    /// logger only: replay's writes one file.
+    pub(super) fn disarmed(&self) {
+        if let (true, Some(l)) = (self.new_log_on_disarm, &self.logger) {
+            l.rotate();
         }
     }
 
@@ -160,14 +181,16 @@ impl FlightLog {
             Ok(s) => {
                 counters.add(Counter::LogMessages, s.messages);
                 counters.add(Counter::LogChunks, s.chunks);
+                counters.add(Counter::LogLateRecords, s.late);
             }
             Err(e) => {
                 counters.add(Counter::LogError, 1);
                 tracing::error!(error = %e, "the MCAP log could not be finished");
             }
         }
+        // Each drop was counted as it happened (`log_dropped`, and the
+        // `log_stalled` alarm).
         if dropped > 0 {
-            counters.add(Counter::LogDropped, dropped);
             tracing::error!(
                 dropped,
                 "ALARM: MCAP log records were dropped (writer could not keep up)"

@@ -162,7 +162,7 @@ impl Fusion {
             est: None,
             est_gen: 0,
             gnss: GnssIn::new(&cfg),
-            imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM),
+            imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM, cfg.mavlink.clock_jump_confirm_s),
             last_imu_t: f64::NEG_INFINITY,
             tracker: status::Tracker::default(),
             autopilot: AutopilotView::default(),
@@ -170,7 +170,7 @@ impl Fusion {
             queue: MeasurementQueue::default(),
             pacer: OutputPacer::new(&cfg),
             cross_check: VelocityCrossCheck::default(),
-            log: FlightLog::new(log),
+            log: FlightLog::new(log, cfg.log.new_log_on_disarm),
             cfg,
         }
     }

@@ -64,6 +64,9 @@ fn send_status_text(out_tx: &mpsc::Sender<Outbound>, degraded: u32) {
     let _ = out_tx.try_send(Outbound::StatusText { severity, text });
 }
 
+/// A diagnostic stream that never comes is asked for this many times.
+const DIAGNOSTIC_ASKS: u32 = 10;
+
 /// A stream silent for this many ticks (s) is asked for again.
 const STREAM_STALE_TICKS: u32 = 3;
 
@@ -81,7 +84,10 @@ pub(super) fn spawn_periodic(
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         let mut n: u64 = 0;
         // Per stream: its count at the last tick, and ticks since it moved.
-        let mut seen = [(0u64, 0u32); 5];
+        let mut seen = [(0u64, 0u32); 7];
+        // Times each stream has been asked for (bounded for the diagnostic
+        // ones, which an autopilot of the other kind never sends).
+        let mut asked = [0u32; 7];
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
             n += 1;
@@ -89,20 +95,46 @@ pub(super) fn spawn_periodic(
             // and again when it stops for STREAM_STALE_TICKS seconds (a
             // rebooted autopilot forgets the rates it was asked for).
             let wanted = [
-                (Counter::ImuHighres, mav::MSG_ID_HIGHRES_IMU, imu_interval_us),
-                (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0),
-                (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0),
-                (Counter::LocalPosition, mav::MSG_ID_LOCAL_POSITION_NED, 100_000.0),
-                (Counter::ExtendedSysState, mav::MSG_ID_EXTENDED_SYS_STATE, 500_000.0),
+                (Counter::ImuHighres, mav::MSG_ID_HIGHRES_IMU, imu_interval_us, u32::MAX),
+                (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0, u32::MAX),
+                (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0, u32::MAX),
+                (
+                    Counter::LocalPosition,
+                    mav::MSG_ID_LOCAL_POSITION_NED,
+                    100_000.0,
+                    u32::MAX,
+                ),
+                (
+                    Counter::ExtendedSysState,
+                    mav::MSG_ID_EXTENDED_SYS_STATE,
+                    500_000.0,
+                    u32::MAX,
+                ),
+                // Whether the autopilot's EKF takes our estimates, for the
+                // log: ArduPilot answers the first, PX4 the second. One that
+                // never comes is asked for at most `DIAGNOSTIC_ASKS` times.
+                (
+                    Counter::EstimatorStatus,
+                    mav::MSG_ID_EKF_STATUS_REPORT,
+                    200_000.0,
+                    DIAGNOSTIC_ASKS,
+                ),
+                (
+                    Counter::EstimatorStatus,
+                    mav::MSG_ID_ESTIMATOR_STATUS,
+                    200_000.0,
+                    DIAGNOSTIC_ASKS,
+                ),
             ];
-            for (k, (counter, id, interval)) in wanted.into_iter().enumerate() {
+            for (k, (counter, id, interval, max_asks)) in wanted.into_iter().enumerate() {
                 let count = counters.get(counter);
                 if count != seen[k].0 {
                     seen[k] = (count, 0);
                 } else {
                     seen[k].1 += 1;
                 }
-                if count == 0 || seen[k].1 >= STREAM_STALE_TICKS {
+                if (count == 0 || seen[k].1 >= STREAM_STALE_TICKS) && asked[k] < max_asks {
+                    asked[k] += 1;
                     if count > 0 && seen[k].1 == STREAM_STALE_TICKS {
                         counters.add(Counter::StreamRequestedAgain, 1);
                         tracing::warn!(stream = %counter, "a stream stopped: asking for it again");

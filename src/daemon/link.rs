@@ -258,8 +258,10 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
         Inbound::Timesync { .. } => Counter::MavlinkRejectedForeignTimesync,
         Inbound::GpsGlobalOrigin { .. } => Counter::MavlinkRejectedForeignOrigin,
         Inbound::Heartbeat { .. } => Counter::MavlinkHeartbeatOther,
+        Inbound::AutopilotText { .. } => Counter::MavlinkStatusTextOther,
         Inbound::LandedState { .. } => Counter::MavlinkRejectedForeignLandedState,
         Inbound::SimState(_) => Counter::MavlinkRejectedForeignSimState,
+        Inbound::EstimatorStatus(_) => Counter::MavlinkRejectedForeignEstimatorStatus,
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -323,6 +325,10 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             counters.add(Counter::SimState, 1);
             Some(FusionMsg::SimState(truth))
         }
+        Inbound::EstimatorStatus(s) => {
+            counters.add(Counter::EstimatorStatus, 1);
+            Some(FusionMsg::EstimatorStatus(s))
+        }
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);
             None
@@ -333,13 +339,18 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             }
             None
         }
-        Inbound::Heartbeat { armed, kind } => {
+        Inbound::Heartbeat { armed, kind, mode } => {
             counters.add(Counter::HeartbeatIn, 1);
             Some(FusionMsg::VehicleState {
                 armed: Some(armed),
                 on_ground: None,
                 kind: Some(kind),
+                mode: Some(mode),
             })
+        }
+        Inbound::AutopilotText { severity, text } => {
+            counters.add(Counter::StatusTextIn, 1);
+            Some(FusionMsg::AutopilotText { severity, text })
         }
         Inbound::LandedState { on_ground } => {
             counters.add(Counter::ExtendedSysState, 1);
@@ -347,6 +358,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
                 armed: None,
                 on_ground,
                 kind: None,
+                mode: None,
             })
         }
         Inbound::SystemTime { unix_us, boot_ms } => {

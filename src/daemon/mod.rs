@@ -111,6 +111,8 @@ pub enum FusionMsg {
     },
     /// A simulator's truth (`SIM_STATE`): logged for review, never fused.
     SimState(crate::io::messages::SimTruth),
+    /// The autopilot EKF's test ratios of our estimates: only logged.
+    EstimatorStatus(crate::io::messages::EstimatorStatus),
     LocalPosition {
         /// Autopilot boot time of the sample (s).
         t_s: f64,
@@ -130,6 +132,13 @@ pub enum FusionMsg {
         armed: Option<bool>,
         on_ground: Option<bool>,
         kind: Option<AutopilotKind>,
+        /// Its flight mode (`HEARTBEAT.custom_mode`).
+        mode: Option<u32>,
+    },
+    /// A `STATUSTEXT` from the autopilot: only logged.
+    AutopilotText {
+        severity: u8,
+        text: String,
     },
     /// Today, in Unix days, by the companion computer's clock when the
     /// daemon starts (for the declination; logged so replay uses the same).
@@ -290,7 +299,26 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         counters: counters.clone(),
         out: out_tx.clone(),
     };
-    let log = open_log(&cfg, log_alarm)?;
+    // The live view (off by default): the log's records, streamed.
+    let live = if cfg.live_view.enabled {
+        let address = cfg.live_view.address.parse().map_err(|_| {
+            DaemonError::Config(format!(
+                "live_view.address: '{}' is not HOST:PORT; use e.g. 127.0.0.1:8765",
+                cfg.live_view.address
+            ))
+        })?;
+        Some(
+            crate::io::live_view::LiveView::start(address)
+                .await
+                .map_err(|e| DaemonError::Config(e.to_string()))?,
+        )
+    } else {
+        None
+    };
+    let tap = live
+        .as_ref()
+        .map(|l| Box::new(l.sink()) as Box<dyn crate::io::mcap_log::RecordTap>);
+    let log = open_log(&cfg, log_alarm, tap)?;
     let fusion = fusion::spawn(cfg.clone(), fusion_rx, out_tx, shared, log).map_err(DaemonError::Thread)?;
     let notifier = service::spawn_notifier(fusion_progress, fusion_weak, counters.clone(), stop_rx);
 
@@ -311,6 +339,9 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     // The fusion thread ends when its input channel closes (all senders gone).
     let _ = tokio::task::spawn_blocking(move || fusion.join()).await;
     let _ = tx_task.await;
+    if let Some(l) = live {
+        l.stop().await;
+    }
     // The feature socket removed itself as its task ended, if the path was
     // still our socket.
     if let Some(why) = fatal {
@@ -321,12 +352,35 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     })
 }
 
-/// The MCAP flight log, if `log.path` is set.
-fn open_log(cfg: &Config, alarm: LogAlarm) -> Result<Option<McapLogger>, DaemonError> {
+/// The MCAP flight log, if `log.path` is set. A log that cannot be created
+/// (a read-only card, a missing mount) does not stop the daemon: it flies,
+/// with the alarm raised at the first write, and the file is tried again
+/// every second.
+fn open_log(
+    cfg: &Config,
+    alarm: LogAlarm,
+    live: Option<Box<dyn crate::io::mcap_log::RecordTap>>,
+) -> Result<Option<McapLogger>, DaemonError> {
     if cfg.log.path.is_empty() {
         return Ok(None);
     }
-    let path = PathBuf::from(crate::io::mcap_log::expand_path(&cfg.log.path));
+    let limits = crate::io::mcap_log::LogLimits {
+        max_file_bytes: cfg.log.max_file_mb.saturating_mul(1 << 20),
+        max_total_bytes: cfg.log.max_total_mb.saturating_mul(1 << 20),
+    };
+    let (l, opened) = McapLogger::for_flight(&cfg.log.path, limits, &cfg.log_header(), alarm, live)?;
+    let path = match opened {
+        Ok(p) => {
+            tracing::info!(path = %p.display(), "logging to MCAP");
+            p
+        }
+        Err(e) => {
+            tracing::error!(pattern = %cfg.log.path, error = %e,
+                "ALARM: the MCAP log cannot be created; flying without it, keeping records in memory and retrying \
+                 every second (check log.path and its disk)");
+            return Ok(Some(l));
+        }
+    };
     // A log the last run left unfinished (killed, or the power went) has
     // no summary: say so, and how to recover it, before it is forgotten.
     let dir = match path.parent() {
@@ -341,7 +395,5 @@ fn open_log(cfg: &Config, alarm: LogAlarm) -> Result<Option<McapLogger>, DaemonE
             old.display()
         );
     }
-    let l = McapLogger::create_with_alarm(&path, &cfg.log_header(), alarm)?;
-    tracing::info!(path = %path.display(), "logging to MCAP");
     Ok(Some(l))
 }

@@ -125,7 +125,7 @@ impl OutputPacer {
             quality: quality(&x, &imu_cov, m.t_s - cx.tracker.last_aided_s(), cx.tracker.bits() != 0),
         };
         if let Some(l) = cx.log {
-            log_estimate(l, &snap);
+            log_estimate(l, &snap, cfg.output.message);
         }
         for o in outputs(&snap, cfg.output.message) {
             if out.try_send(o).is_err() {
@@ -195,8 +195,9 @@ fn log_state(l: &McapLogger, t_s: f64, x: &ImuState, est: &Estimator) {
 /// whichever message carried it (`ODOMETRY` carries the same position,
 /// attitude, pose covariance and `reset_counter`), one record per output
 /// instant.
-fn log_estimate(l: &McapLogger, s: &OutputState) {
+fn log_estimate(l: &McapLogger, s: &OutputState, message: crate::config::OutputMessage) {
     let (rpy, covariance) = pose_rpy_covariance(&s.x, &s.imu_cov);
+    let sent = super::estimate_message::pose_covariance21(&covariance, s.pose_covariance);
     l.log(
         Topic::OutputVpe,
         s.t_s,
@@ -206,6 +207,10 @@ fn log_estimate(l: &McapLogger, s: &OutputState) {
             rpy_rad: rpy.as_slice(),
             covariance: upper21(&covariance).as_slice(),
             reset_counter: s.reset_counter,
+            message,
+            pose_covariance_sent: sent.as_slice(),
+            quality: s.quality,
+            v_ned_mps: s.x.v_B_in_W.as_slice(),
         },
     );
 }

@@ -62,12 +62,24 @@ pub struct Transform<'a> {
     pub rotation: Quat,
 }
 
+/// `/output/vision_position_estimate`: one record per estimate sent, with
+/// what the message carried.
 #[derive(Serialize)]
 pub struct Vpe<'a> {
     pub usec: u64,
     pub p_ned_m: &'a [f64],
     pub rpy_rad: &'a [f64],
-    /// Upper triangle of the 6×6 covariance, as sent.
+    /// Upper triangle of the 6×6 pose covariance (variances, m² and rad²).
     pub covariance: &'a [f32],
     pub reset_counter: u8,
+    /// The message that carried it: `odometry` or `vision_position_estimate`.
+    pub message: crate::config::OutputMessage,
+    /// The pose covariance exactly as the message carried it (ArduPilot's
+    /// reading of it differs: `output.covariance`).
+    pub pose_covariance_sent: &'a [f32],
+    /// `ODOMETRY.quality` (−1 failed … 100 best; with
+    /// `VISION_POSITION_ESTIMATE`, which has none, what it would have been).
+    pub quality: i8,
+    /// The velocity sent (world NED, m/s).
+    pub v_ned_mps: &'a [f64],
 }

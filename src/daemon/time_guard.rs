@@ -30,16 +30,23 @@ pub(super) struct TimeGuard {
     max_step_s: f64,
     /// Samples in a row that must agree on a jump.
     confirm: u32,
-    /// A jump being confirmed: its latest time and how many agree so far.
-    candidate: Option<(f64, u32)>,
+    /// The span of the new clock (s) those samples must cover, with none
+    /// on the old clock among them: a genuine reboot runs on, the old clock
+    /// silent, while a burst of forged samples (five stamped 1.000–1.004 s
+    /// at once) does not.
+    confirm_span_s: f64,
+    /// A jump being confirmed: its first and latest time and how many
+    /// agree so far.
+    candidate: Option<(f64, f64, u32)>,
 }
 
 impl TimeGuard {
-    pub(super) fn new(max_step_s: f64, confirm: u32) -> Self {
+    pub(super) fn new(max_step_s: f64, confirm: u32, confirm_span_s: f64) -> Self {
         Self {
             last_s: f64::NEG_INFINITY,
             max_step_s,
             confirm: confirm.max(1),
+            confirm_span_s: confirm_span_s.max(0.0),
             candidate: None,
         }
     }
@@ -70,17 +77,17 @@ impl TimeGuard {
             return Verdict::Stale;
         }
         // Far off: does it continue the jump being confirmed?
-        let agreed = match self.candidate {
-            Some((c_s, n)) if t_s > c_s && t_s - c_s <= self.max_step_s => n + 1,
-            _ => 1,
+        let (first_s, agreed) = match self.candidate {
+            Some((first_s, c_s, n)) if t_s > c_s && t_s - c_s <= self.max_step_s => (first_s, n + 1),
+            _ => (t_s, 1),
         };
-        if agreed >= self.confirm {
+        if agreed >= self.confirm && t_s - first_s >= self.confirm_span_s {
             let from_s = self.last_s;
             self.last_s = t_s;
             self.candidate = None;
             Verdict::Jump { from_s }
         } else {
-            self.candidate = Some((t_s, agreed));
+            self.candidate = Some((first_s, t_s, agreed));
             Verdict::Outlier
         }
     }
@@ -148,7 +155,7 @@ mod tests {
 
     #[test]
     fn a_single_far_stamp_is_rejected_and_never_becomes_the_reference() {
-        let mut g = TimeGuard::new(2.0, 5);
+        let mut g = TimeGuard::new(2.0, 5, 0.0);
         assert_eq!(g.check(100.0), Verdict::Next);
         assert_eq!(g.check(0.0), Verdict::Outlier, "one stamp of 0 is not a reboot");
         assert_eq!(g.check(1e12), Verdict::Outlier, "nor is one from the far future");
@@ -161,7 +168,7 @@ mod tests {
 
     #[test]
     fn a_jump_that_several_samples_agree_on_is_believed() {
-        let mut g = TimeGuard::new(2.0, 5);
+        let mut g = TimeGuard::new(2.0, 5, 0.0);
         g.check(100.0);
         // A reboot: the clock restarts at 1 s and runs on.
         for k in 0..4 {
@@ -193,5 +200,41 @@ mod tests {
         assert_eq!(v.offer(1.8e9), None);
         assert_eq!(v.offer(1.8e9), Some(1.8e9), "three agree: a new clock");
         assert_eq!(v.offer(f64::INFINITY), None);
+    }
+
+    #[test]
+    fn a_burst_of_forged_samples_is_not_a_reboot() {
+        // The autopilot's samples at 100 s, 200 Hz; five forged ones
+        // stamped 1.000–1.004 s arrive at once, between two of them, again
+        // and again: never believed, and the real stream goes on.
+        let mut g = TimeGuard::new(2.0, 5, 0.25);
+        let mut t = 100.0;
+        assert_eq!(g.check(t), Verdict::Next);
+        for _ in 0..13 {
+            for k in 0..5 {
+                assert_eq!(g.check(1.0 + k as f64 * 1e-3), Verdict::Outlier);
+            }
+            for _ in 0..40 {
+                t += 0.005;
+                assert_eq!(g.check(t), Verdict::Next);
+            }
+        }
+        // A genuine reboot: the old clock falls silent and the new one runs
+        // on; believed once it has run for 0.25 s.
+        let mut taken_at = None;
+        for k in 0..100 {
+            let t_new = 1.0 + k as f64 * 0.005;
+            match g.check(t_new) {
+                Verdict::Outlier => {}
+                Verdict::Jump { from_s } => {
+                    assert_eq!(from_s, t);
+                    taken_at = Some(t_new);
+                    break;
+                }
+                v => panic!("{v:?}"),
+            }
+        }
+        let taken_at = taken_at.expect("the reboot was believed");
+        assert!((taken_at - 1.25).abs() < 1e-9, "{taken_at}");
     }
 }

@@ -68,3 +68,9 @@ pub fn sigterm(daemon: &mut Child) -> ExitStatus {
     }
     daemon.wait().unwrap()
 }
+
+/// Waits for a background flight to end; its report.
+#[allow(dead_code)]
+pub fn join(b: Background) -> Report {
+    b.thread.join().expect("the SITL thread")
+}

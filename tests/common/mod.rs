@@ -5,6 +5,10 @@ pub mod autopilot;
 pub mod flights;
 pub mod gnss_flights;
 pub mod harness;
+pub mod python;
+
+#[allow(unused_imports)]
+pub use python::python_with;
 
 use cmsckf::config::Config;
 
@@ -167,40 +171,39 @@ pub fn level_fusion(
     (f, ctx, out_rx)
 }
 
-/// Makes sure `python3` can import each of `modules`, installing the
-/// missing ones with pip, so that `cargo test --workspace` needs no set-up
-/// of its own on a fresh machine. Once per test binary. An entry is the
-/// import name, or `import=pypi` where the two differ
-/// (`foxglove=foxglove-sdk`).
-pub fn python_modules(modules: &[&str]) {
-    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let importable = |m: &str| {
-        std::process::Command::new("python3")
-            .args(["-c", &format!("import {m}")])
+/// Opens `page` in headless Chromium and returns how many plots its script
+/// drew (the `data-plots-ready` it sets on `<body>`); `None` (and a note)
+/// when no Chromium is installed.
+#[allow(dead_code)]
+pub fn chromium_plots_drawn(page: &std::path::Path) -> Option<usize> {
+    let browser = ["chromium", "chromium-browser"].into_iter().find(|b| {
+        std::process::Command::new(b)
+            .arg("--version")
             .output()
             .is_ok_and(|o| o.status.success())
+    });
+    let Some(browser) = browser else {
+        eprintln!("no Chromium: the report's script was not run (apt-get install chromium)");
+        return None;
     };
-    fn split(m: &str) -> (&str, &str) {
-        m.split_once('=').unwrap_or((m, m))
-    }
-    let missing: Vec<&str> = modules
-        .iter()
-        .map(|m| split(m))
-        .filter(|(m, _)| !importable(m))
-        .map(|(_, pypi)| pypi)
-        .collect();
-    if missing.is_empty() {
-        return;
-    }
-    eprintln!("installing Python modules for this test: {missing:?}");
-    let ok = std::process::Command::new("python3")
-        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
-        .args(&missing)
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "pip could not install {missing:?}: this test needs them (python3 -m pip install {missing:?})"
-    );
+    let profile = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--dump-dom",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap();
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let at = dom.find("data-plots-ready=\"")? + "data-plots-ready=\"".len();
+    dom[at..].split('"').next()?.parse().ok()
 }

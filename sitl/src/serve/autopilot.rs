@@ -99,6 +99,10 @@ pub(super) struct AutopilotEkf {
     sum_sq_error_m2: f64,
     reports: usize,
     pub(super) report: AutopilotReport,
+    /// The largest position test ratios (horizontal, vertical) of the
+    /// estimates tested since the last `EKF_STATUS_REPORT`, as EK3 reports
+    /// them: `√(ν²/(g² S))`, over 1 when the estimate was rejected.
+    ratios: Option<(f64, f64)>,
 }
 
 impl AutopilotEkf {
@@ -118,6 +122,7 @@ impl AutopilotEkf {
             t_s: 0.0,
             last_fused: None,
             rejecting_since_s: None,
+            ratios: None,
             sum_sq_error_m2: 0.0,
             reports: 0,
             report: AutopilotReport::default(),
@@ -196,10 +201,19 @@ impl AutopilotEkf {
         self.report.vpe_fused += 1;
     }
 
+    /// The largest position test ratios (horizontal, vertical) since the
+    /// last call, `None` when no estimate was tested (`EKF_STATUS_REPORT`'s
+    /// `pos_horiz_variance` and `pos_vert_variance`, which ArduPilot fills
+    /// with the square roots of its test ratios).
+    pub(super) fn take_ratios(&mut self) -> Option<(f64, f64)> {
+        self.ratios.take()
+    }
+
     /// EK3's position gate: the squared innovation within `gate²` times its
     /// variance (the estimate's, floored, or VISO_POS_M_NSE's when it is
-    /// not finite, plus the drift's), horizontally and vertically.
-    fn passes_gate(&self, innovation_m: &Vector3<f64>, var_m2: &Vector3<f64>) -> bool {
+    /// not finite, plus the drift's), horizontally and vertically. Keeps the
+    /// test ratios for the status report.
+    fn passes_gate(&mut self, innovation_m: &Vector3<f64>, var_m2: &Vector3<f64>) -> bool {
         let own = self.cfg.position_drift_sigma_m.powi(2);
         let s = var_m2.map(|v| {
             if v.is_finite() {
@@ -209,9 +223,11 @@ impl AutopilotEkf {
             }
         }) + Vector3::repeat(own);
         let g2 = self.cfg.vpe_gate_sigma.powi(2);
-        let h = innovation_m.x.powi(2) + innovation_m.y.powi(2) <= g2 * (s.x + s.y);
-        let d = innovation_m.z.powi(2) <= g2 * s.z;
-        h && d
+        let ratio_h = (innovation_m.x.powi(2) + innovation_m.y.powi(2)) / (g2 * (s.x + s.y));
+        let ratio_v = innovation_m.z.powi(2) / (g2 * s.z);
+        let (h, v) = self.ratios.unwrap_or((0.0, 0.0));
+        self.ratios = Some((h.max(ratio_h.sqrt()), v.max(ratio_v.sqrt())));
+        ratio_h <= 1.0 && ratio_v <= 1.0
     }
 
     /// The reported position and velocity for the truth `s`, with white noise.

@@ -1,8 +1,9 @@
 //! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME,
 //! GPS_GLOBAL_ORIGIN and GPS_RAW_INT at 1 Hz, ATTITUDE and
 //! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
-//! [`super::autopilot`]) and SIM_STATE (the truth, as ArduPilot's SITL
-//! sends it, for review) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! [`super::autopilot`]), EKF_STATUS_REPORT (that EKF's test ratios of our
+//! estimates) and SIM_STATE (the truth, as ArduPilot's SITL sends it, for
+//! review) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
 //! the IMU faults applied. GPS_RAW_INT says the autopilot has a 3D fix of
 //! its own (none during a GNSS outage), with its accuracy unknown (0), so
 //! the daemon knows the autopilot's position is not only the echo of its
@@ -81,6 +82,24 @@ impl Streamer<'_> {
         }))
         .await;
         self.send(sim_state(&self.ds.cfg.gnss, &s)).await;
+        // As ArduPilot's EKF_STATUS_REPORT: the square roots of the position
+        // test ratios of the estimates it tested (0 when none were).
+        let (h, v) = self.ekf.take_ratios().unwrap_or((0.0, 0.0));
+        self.send(apm::MavMessage::EKF_STATUS_REPORT(apm::EKF_STATUS_REPORT_DATA {
+            velocity_variance: 0.0,
+            pos_horiz_variance: h as f32,
+            pos_vert_variance: v as f32,
+            compass_variance: 0.0,
+            terrain_alt_variance: 0.0,
+            flags: apm::EkfStatusFlags::EKF_ATTITUDE
+                | apm::EkfStatusFlags::EKF_VELOCITY_HORIZ
+                | apm::EkfStatusFlags::EKF_VELOCITY_VERT
+                | apm::EkfStatusFlags::EKF_POS_HORIZ_REL
+                | apm::EkfStatusFlags::EKF_POS_HORIZ_ABS
+                | apm::EkfStatusFlags::EKF_POS_VERT_ABS,
+            ..Default::default()
+        }))
+        .await;
     }
 
     /// One step of the autopilot's EKF at flight time `t`: its errors move

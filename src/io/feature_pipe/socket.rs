@@ -71,12 +71,17 @@ fn euid() -> u32 {
 /// Checks that the socket's directory is one only this user can change:
 /// a real directory (not a symlink, not reached through one), owned by the
 /// effective user, not writable by group or others. A missing directory is
-/// created (mode 0700, with any missing parents) and then checked.
-fn check_dir(path: &Path) -> Result<(), SocketError> {
-    let dir = match path.parent() {
+/// The directory the socket `path` lives in (`.` for a bare name).
+fn socket_dir(path: &Path) -> &Path {
+    match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
-    };
+    }
+}
+
+/// created (mode 0700, with any missing parents) and then checked.
+fn check_dir(path: &Path) -> Result<(), SocketError> {
+    let dir = socket_dir(path);
     let io = |source| SocketError::Io {
         path: path.to_path_buf(),
         source,
@@ -199,8 +204,11 @@ impl Drop for FeatureSocket {
     }
 }
 
-/// Binds the socket with mode 0600 in a directory that `check_dir` accepts. An
-/// existing path is reused only if it is a stale socket (nobody listening).
+/// Binds the socket in a directory that `check_dir` accepts. Its mode
+/// follows the directory: 0600, or, when the directory lets its group in
+/// and no one else (`RuntimeDirectoryMode=0750`: a front-end running as
+/// another user of that group), 0660 with the directory's group. An existing path is reused
+/// only if it is a stale socket (nobody listening).
 pub async fn bind(path: &Path) -> Result<FeatureSocket, SocketError> {
     let io = |source| SocketError::Io {
         path: path.to_path_buf(),
@@ -225,7 +233,16 @@ pub async fn bind(path: &Path) -> Result<FeatureSocket, SocketError> {
         ino: meta.ino(),
         closed: false,
     };
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).map_err(io)?;
+    let dir_meta = std::fs::metadata(socket_dir(path)).map_err(io)?;
+    // Group in, others out (0750, 0770): the group was meant. A directory
+    // open to all (0755) keeps the socket to us.
+    let mode = if dir_meta.mode() & 0o050 == 0o050 && dir_meta.mode() & 0o007 == 0 {
+        std::os::unix::fs::chown(path, None, Some(dir_meta.gid())).map_err(io)?;
+        0o660
+    } else {
+        0o600
+    };
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(io)?;
     Ok(socket)
 }
 
@@ -250,6 +267,27 @@ mod tests {
         drop(std::os::unix::net::UnixListener::bind(&q).unwrap());
         assert!(q.exists());
         bind(&q).await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn the_socket_lets_its_directorys_group_in_when_the_directory_does() {
+        let dir = tempfile::tempdir().unwrap();
+        let shared = dir_with_mode(dir.path(), "shared", 0o750);
+        let p = shared.join("f.sock");
+        let _l = bind(&p).await.unwrap();
+        let meta = std::fs::metadata(&p).unwrap();
+        assert_eq!(meta.permissions().mode() & 0o777, 0o660);
+        assert_eq!(meta.gid(), std::fs::metadata(&shared).unwrap().gid());
+        for (name, mode) in [("private", 0o700), ("open", 0o755)] {
+            let d = dir_with_mode(dir.path(), name, mode);
+            let q = d.join("f.sock");
+            let _m = bind(&q).await.unwrap();
+            assert_eq!(
+                std::fs::metadata(&q).unwrap().permissions().mode() & 0o777,
+                0o600,
+                "{name}"
+            );
+        }
     }
 
     fn dir_with_mode(parent: &Path, name: &str, mode: u32) -> PathBuf {

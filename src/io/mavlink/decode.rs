@@ -20,6 +20,15 @@ fn finite3(v: Vector3<f64>) -> Result<Vector3<f64>, LinkError> {
     }
 }
 
+/// A finite `f32` as `f64`, else the message is rejected as non-finite.
+fn finite(x: f32) -> Result<f64, LinkError> {
+    if x.is_finite() {
+        Ok(x as f64)
+    } else {
+        Err(LinkError::Rejected(Counter::MavlinkRejectedNonFinite))
+    }
+}
+
 /// A magnetometer reading, or `None` when the autopilot has none to give
 /// (zeros before its compass is ready) or sends something non-finite: a
 /// missing field must not stop the IMU sample it came with.
@@ -119,6 +128,22 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             v_acc_m: if d.v_acc > 0 { d.v_acc as f64 * 1e-3 } else { f64::NAN },
         },
         M::GPS_RAW_INT(_) => Inbound::Other("GPS_RAW_INT"),
+        M::EKF_STATUS_REPORT(d) => Inbound::EstimatorStatus(crate::io::messages::EstimatorStatus {
+            source: crate::io::messages::EstimatorSource::EkfStatusReport,
+            vel_ratio: d.velocity_variance.is_finite().then_some(d.velocity_variance as f64),
+            pos_horiz_ratio: finite(d.pos_horiz_variance)?,
+            pos_vert_ratio: finite(d.pos_vert_variance)?,
+            mag_ratio: d.compass_variance.is_finite().then_some(d.compass_variance as f64),
+            flags: d.flags.bits(),
+        }),
+        M::ESTIMATOR_STATUS(d) => Inbound::EstimatorStatus(crate::io::messages::EstimatorStatus {
+            source: crate::io::messages::EstimatorSource::EstimatorStatus,
+            vel_ratio: d.vel_ratio.is_finite().then_some(d.vel_ratio as f64),
+            pos_horiz_ratio: finite(d.pos_horiz_ratio)?,
+            pos_vert_ratio: finite(d.pos_vert_ratio)?,
+            mag_ratio: d.mag_ratio.is_finite().then_some(d.mag_ratio as f64),
+            flags: d.flags.bits(),
+        }),
         // The MAVLink 2 extensions lat_int/lon_int (degE7, about 1 cm) when
         // set; the f32 degrees (about 0.3 m) otherwise.
         M::SIM_STATE(d) => {
@@ -158,7 +183,16 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 data: d.data[..len].to_vec(),
             }
         }
+        M::STATUSTEXT(d) => Inbound::AutopilotText {
+            severity: d.severity as u8,
+            text: String::from_utf8_lossy(d.text.as_slice())
+                .trim_end_matches('\0')
+                .chars()
+                .take(50)
+                .collect(),
+        },
         M::HEARTBEAT(d) => Inbound::Heartbeat {
+            mode: d.custom_mode,
             armed: d.base_mode.contains(apm::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
             kind: match d.autopilot {
                 apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA => AutopilotKind::ArduPilot,
@@ -188,6 +222,30 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Red-team 08: a NaN in a field we do not use (the compass ratio) used
+    /// to drop an EKF_STATUS_REPORT that said the EKF rejected our position.
+    #[test]
+    fn an_ekf_report_keeps_its_position_ratios_whatever_its_other_fields() {
+        let m = apm::MavMessage::EKF_STATUS_REPORT(apm::EKF_STATUS_REPORT_DATA {
+            pos_horiz_variance: 2.0,
+            pos_vert_variance: 0.5,
+            compass_variance: f32::NAN,
+            velocity_variance: f32::INFINITY,
+            ..Default::default()
+        });
+        let Inbound::EstimatorStatus(s) = decode(m).unwrap() else {
+            panic!("not kept")
+        };
+        assert_eq!((s.pos_horiz_ratio, s.pos_vert_ratio), (2.0, 0.5));
+        assert_eq!((s.mag_ratio, s.vel_ratio), (None, None));
+        // A position ratio that is not a number is refused, counted.
+        let m = apm::MavMessage::EKF_STATUS_REPORT(apm::EKF_STATUS_REPORT_DATA {
+            pos_horiz_variance: f32::NAN,
+            ..Default::default()
+        });
+        assert!(decode(m).is_err());
+    }
 
     #[test]
     fn scaled_imu_units_are_converted_at_the_boundary() {

@@ -145,9 +145,19 @@ impl Link {
                     frames: VecDeque::new(),
                 }),
             },
+            // A link that is not there yet (a TCP server not up, a USB
+            // serial adapter still enumerating) is opened later, with the
+            // same backoff as after a loss: the daemon does not exit (under
+            // systemd, exits in a row end in the unit given up for good).
             None => Transport::Crate {
                 address: address.to_string(),
-                conn: tokio::sync::RwLock::new(Some(Arc::new(open_crate(address).await?))),
+                conn: tokio::sync::RwLock::new(match open_crate(address).await {
+                    Ok(c) => Some(Arc::new(c)),
+                    Err(e) => {
+                        tracing::warn!(%address, error = %e, "MAVLink link not there yet: opening it again with backoff");
+                        None
+                    }
+                }),
                 backoff: Mutex::new(BACKOFF_FIRST),
             },
         };
