@@ -253,9 +253,31 @@ enum Phase {
 struct Truth {
     frame: NedFrame,
     hist: VecDeque<(f64, Vector3<f64>)>,
+    /// The smoothed position, its velocity and time (see [`Truth::smooth`]).
+    last: Option<(f64, Vector3<f64>, Vector3<f64>)>,
 }
 
 impl Truth {
+    /// SIM_STATE's position comes in 1e-7° steps (1.1 cm north, 0.9 cm
+    /// east here): a camera fed that staircase sees every pose jitter by
+    /// up to a centimetre, all its features together, which no real camera
+    /// does. Its velocity is a float: integrate it (trapezoid) and pull the
+    /// sum towards the quantised position with a 1 s time constant, so the
+    /// steps average out and nothing drifts.
+    fn smooth(&mut self, t_s: f64, p_quantised: Vector3<f64>, v: Vector3<f64>) -> Vector3<f64> {
+        const TAU_S: f64 = 1.0;
+        let p = match self.last {
+            Some((t0, p0, v0)) if t_s > t0 && t_s - t0 < 0.5 => {
+                let dt_s = t_s - t0;
+                let predicted = p0 + (v0 + v) * (0.5 * dt_s);
+                predicted + (p_quantised - predicted) * (dt_s / TAU_S)
+            }
+            _ => p_quantised,
+        };
+        self.last = Some((t_s, p, v));
+        p
+    }
+
     fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
         let i = self.hist.partition_point(|(u, _)| *u <= t_s);
         let (t1, p1) = self.hist.get(i)?;
@@ -274,24 +296,38 @@ fn ardupilot_flies_on_cmsckf_alone() {
             return;
         }
     };
-    let dir = tempfile::tempdir().unwrap();
+    // CMSCKF_KEEP_TEST_LOGS=1 keeps the flight log and the SITL's files for
+    // `cmsckf review` after the run (the folder is printed).
+    let temp = tempfile::tempdir().unwrap();
+    let dir = temp.path().to_path_buf();
+    let keep = std::env::var_os("CMSCKF_KEEP_TEST_LOGS").is_some();
+    // With it, the truth too: autopilot time (s), NED position (m),
+    // attitude quaternion (w, x, y, z), NED velocity (m/s), one SIM_STATE
+    // a line.
+    let mut truth_csv = keep.then(|| std::fs::File::create(dir.join("truth.csv")).unwrap());
+    let _temp = if keep {
+        eprintln!("keeping the flight log in {}", temp.keep().display());
+        None
+    } else {
+        Some(temp)
+    };
     let (gcs_port, daemon_port) = (free_udp_port(), free_udp_port());
     let mut gcs = Gcs::bind(gcs_port);
 
     // The daemon: the autopilot on udpin, the origin from the config (VIO
     // only), sent to the autopilot as SET_GPS_GLOBAL_ORIGIN.
-    let (mut cfg, _) = common::loopback_config(dir.path());
+    let (mut cfg, _) = common::loopback_config(dir.as_path());
     cfg.mavlink.address = format!("udpin:127.0.0.1:{daemon_port}");
     cfg.gnss.source = cmsckf::config::GnssSource::Off;
     let h_ell = geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2]);
     cfg.gnss.origin_llh = vec![HOME[0], HOME[1], h_ell];
     cfg.output.set_gps_origin = true;
-    cfg.log.path = dir.path().join("flight.mcap").display().to_string();
+    cfg.log.path = dir.as_path().join("flight.mcap").display().to_string();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let _guard = rt.enter();
     let (stop_daemon, daemon) = common::spawn_daemon(cfg.clone());
     let started = Instant::now();
-    let _sitl = start_sitl(&fixture, dir.path(), gcs_port, daemon_port);
+    let _sitl = start_sitl(&fixture, dir.as_path(), gcs_port, daemon_port);
 
     // The camera: features of the SITL's truth, from its SIM_STATE.
     let sim = cmsckf::eval::sim_config_for(&cfg);
@@ -307,6 +343,7 @@ fn ardupilot_flies_on_cmsckf_alone() {
     let mut truth = Truth {
         frame: NedFrame::from_llh_deg(HOME[0], HOME[1], HOME[2]),
         hist: VecDeque::new(),
+        last: None,
     };
 
     let mut phase = Phase::WaitEkf;
@@ -349,8 +386,17 @@ fn ardupilot_flies_on_cmsckf_alone() {
                         (s.lon_int as f64 * 1e-7).to_radians(),
                         s.alt as f64,
                     );
-                    let p = truth.frame.to_ned(&r);
+                    let v_true = Vector3::new(s.vn as f64, s.ve as f64, s.vd as f64);
+                    let p = truth.smooth(t_s, truth.frame.to_ned(&r), v_true);
                     truth.hist.push_back((t_s, p));
+                    if let Some(f) = truth_csv.as_mut() {
+                        writeln!(
+                            f,
+                            "{t_s},{},{},{},{},{},{},{},{},{},{}",
+                            p.x, p.y, p.z, s.q1, s.q2, s.q3, s.q4, v_true.x, v_true.y, v_true.z
+                        )
+                        .unwrap();
+                    }
                     if truth.hist.len() > 2000 {
                         truth.hist.pop_front();
                     }
@@ -368,7 +414,7 @@ fn ardupilot_flies_on_cmsckf_alone() {
                     let sample = TruthSample {
                         t_s,
                         p_B_in_W: p,
-                        v_B_in_W: Vector3::new(s.vn as f64, s.ve as f64, s.vd as f64),
+                        v_B_in_W: v_true,
                         a_B_in_W: Vector3::zeros(),
                         q_W_B: q,
                         w_B: Vector3::zeros(),
@@ -592,7 +638,7 @@ fn ardupilot_flies_on_cmsckf_alone() {
     assert!(review.autopilot_pos_horiz_ratio_max.is_some_and(|r| r < 1.0));
     assert!(review.autopilot_pos_vert_ratio_max.is_some_and(|r| r < 1.0));
     // The review's timeline holds what ArduPilot said and its modes.
-    let page = dir.path().join("review.html");
+    let page = dir.as_path().join("review.html");
     cmsckf::review::review_html(std::path::Path::new(&cfg.log.path), &page, None).unwrap();
     let page = std::fs::read_to_string(&page).unwrap();
     assert!(page.contains("mode GUIDED (4)"), "the timeline has the flight modes");
