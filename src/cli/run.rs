@@ -10,6 +10,10 @@ use cmsckf::config::Config;
 pub struct RunArgs {
     #[arg(long, default_value = "config/default.toml")]
     config: PathBuf,
+    /// Load and check the config, print where it puts its log and socket,
+    /// and exit (0 when it would start, non-zero naming the field).
+    #[arg(long)]
+    check: bool,
 }
 
 /// Runs the daemon with the config file until a termination signal, then
@@ -17,6 +21,20 @@ pub struct RunArgs {
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     super::init_tracing("info");
     let cfg = Config::load(&args.config)?;
+    if args.check {
+        println!(
+            "{}: ok (autopilot {}, feature socket {}, log {})",
+            args.config.display(),
+            cfg.mavlink.address,
+            cfg.features.socket,
+            if cfg.log.path.is_empty() {
+                "off"
+            } else {
+                cfg.log.path.as_str()
+            }
+        );
+        return Ok(());
+    }
     let rt = tokio::runtime::Runtime::new()?;
     let summary = rt.block_on(cmsckf::daemon::run(cfg, termination()))?;
     tracing::info!(counters = ?summary.counters, "cmsckf stopped");
