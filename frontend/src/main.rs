@@ -115,7 +115,8 @@ fn main() -> anyhow::Result<()> {
     };
     let mut sink: Box<dyn Sink> = match (&args.socket, &args.out) {
         (Some(s), _) => Box::new(SocketSink::lazy(s)),
-        (None, Some(o)) => Box::new(WriteSink(std::io::BufWriter::new(
+        // A line a frame, written as it is tracked: a SIGTERM loses none.
+        (None, Some(o)) => Box::new(WriteSink(std::io::LineWriter::new(
             std::fs::File::create(o).with_context(|| format!("cannot create '{}'", o.display()))?,
         ))),
         (None, None) => bail!("give --socket (the daemon's features.socket) or --out FILE"),

@@ -1,0 +1,132 @@
+//! `scripts/camera-socket.py`, the bridge for cameras that are not V4L2
+//! (libcamera's `rpicam-vid`, a GStreamer pipeline): a camera command writes
+//! raw I420 frames of a moving texture to its stdout, the script serves
+//! them on a camera socket, and the real `cmsckf-frontend` tracks them. The
+//! front-end must track features through them on the script's stamps, and
+//! the script must say why it ended when the camera did.
+
+use std::io::Read;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The camera command: 60 I420 frames of 752×480 at 20 Hz, a texture of
+/// 8-px blocks moving 2 px a frame to the left.
+const CAMERA: &str = r#"
+import random, sys, time
+W, H, N = 752, 480, 60
+rng = random.Random(1)
+blocks = [[rng.randrange(256) for _ in range((W + 2 * N) // 8 + 1)] for _ in range(H // 8)]
+rows = [bytes(blocks[y // 8][x // 8] for x in range(W + 2 * N)) for y in range(H)]
+chroma = bytes([128]) * (2 * (W // 2) * (H // 2))
+out = sys.stdout.buffer
+for k in range(N):
+    x0 = 2 * k
+    out.write(b"".join(r[x0:x0 + W] for r in rows) + chroma)
+    out.flush()
+    time.sleep(0.05)
+"#;
+
+#[test]
+fn a_pipe_camera_is_served_and_tracked() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("camera.sock");
+    let out = dir.path().join("tracks.jsonl");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/camera-socket.py");
+    let mut bridge = Command::new("python3")
+        .arg(script)
+        .arg("--socket")
+        .arg(&sock)
+        .args([
+            "--width",
+            "752",
+            "--height",
+            "480",
+            "--format",
+            "i420",
+            "--latency-ms",
+            "20",
+            "--",
+        ])
+        .args(["python3", "-c", CAMERA])
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 is needed for the tests (Debian: apt install python3)");
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/euroc.toml");
+    let mut frontend = Command::new(env!("CARGO_BIN_EXE_cmsckf-frontend"))
+        .arg("--camera-socket")
+        .arg(&sock)
+        .arg("--config")
+        .arg(config)
+        .arg("--out")
+        .arg(&out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+
+    // The camera's 60 frames take 3 s and more; the bridge ends with them.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let bridge_status = loop {
+        if let Some(s) = bridge.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the bridge did not end with its camera");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let mut said = String::new();
+    bridge.stderr.take().unwrap().read_to_string(&mut said).unwrap();
+    assert_eq!(bridge_status.code(), Some(1), "a camera that ends is an error: {said}");
+    assert!(said.contains("the camera command ended"), "{said}");
+    // The front-end connects within its backoff: most of the 60 frames are
+    // served, and every frame served is tracked and written.
+    let served: usize = said
+        .split("'served': ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("the bridge did not count what it served: {said}"));
+    assert!(served >= 40, "{served} of 60 frames served");
+    let written = || std::fs::read_to_string(&out).map_or(0, |s| s.lines().count());
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while written() < served && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SIGTERM stops the front-end; each frame's line is already written.
+    Command::new("kill").arg(frontend.id().to_string()).status().unwrap();
+    let fe_status = frontend.wait().unwrap();
+    eprintln!("bridge: {said}front-end: {fe_status}");
+
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), served, "frames served and lines written");
+    let t_us: Vec<u64> = lines.iter().map(|v| v["t_us"].as_u64().unwrap()).collect();
+    assert!(t_us.windows(2).all(|w| w[1] > w[0]), "stamps not increasing: {t_us:?}");
+    let mut dt_ms: Vec<f64> = t_us.windows(2).map(|w| (w[1] - w[0]) as f64 / 1e3).collect();
+    dt_ms.sort_by(f64::total_cmp);
+    let median_ms = dt_ms[dt_ms.len() / 2];
+    assert!(
+        (35.0..150.0).contains(&median_ms),
+        "frames {median_ms} ms apart, the camera's are 50+"
+    );
+    // The texture is tracked: the same ids frame after frame, moving left.
+    let feats = |v: &serde_json::Value| v["features"].as_array().unwrap().clone();
+    let last = feats(&lines[lines.len() - 1]);
+    assert!(last.len() >= 50, "{} features in the last frame", last.len());
+    let prev = feats(&lines[lines.len() - 2]);
+    let moved: Vec<f64> = last
+        .iter()
+        .filter_map(|f| {
+            let p = prev.iter().find(|g| g[0] == f[0])?;
+            Some(f[1].as_f64()? - p[1].as_f64()?)
+        })
+        .collect();
+    assert!(
+        moved.len() >= 30,
+        "{} features kept from one frame to the next",
+        moved.len()
+    );
+    let mean_du = moved.iter().sum::<f64>() / moved.len() as f64;
+    assert!(mean_du < -1.0, "the texture moved {mean_du} px a frame, not left");
+}
