@@ -18,11 +18,15 @@ camera's latency, and serves it as an image_wire frame (docs/design.md,
         video/x-raw,width=752,height=480,framerate=20/1 ! videoconvert ! \\
         video/x-raw,format=GRAY8 ! fdsink fd=1
 
-One front-end at a time; a frame finds no reader, or a reader that is not
-taking them, is dropped and counted (never queued: the newest frame is the
-one worth tracking). The camera command ending or a short read ends this
-process with status 1 and a reason (systemd or the user restarts it; the
-front-end waits and connects again). SIGTERM ends it with status 0.
+One front-end at a time, kept until it goes (another that connects meanwhile
+is refused and counted). Writing never waits: a frame that finds no reader,
+or a reader still taking the previous frame, is dropped and counted, never
+queued, and the camera is read on time whatever the reader does. The
+socket is made mode 0660 (--mode). The camera command ending, or a short
+read, ends this process with status 1 and a reason (systemd or the user
+restarts it; the front-end waits and connects again). SIGTERM or SIGINT
+ends it with status 0, at once, whatever it is waiting on; the camera
+command is stopped and the socket removed either way.
 
 The stamp is the arrival time less --latency-ms: measure the camera's
 latency (exposure to pipe) once, or estimate it with the daemon's time
@@ -30,10 +34,12 @@ offset (`camera.t_d_s`).
 """
 
 import argparse
+import errno
 import os
 import select
 import signal
 import socket
+import stat
 import struct
 import subprocess
 import sys
@@ -41,33 +47,55 @@ import time
 
 MAGIC = b"CMSKIMG1"
 MAX_SIDE_PX = 8192
+MAX_LATENCY_MS = 10_000.0
 
-# Bytes per frame, and where the luma plane is in it, per pixel format.
-FORMATS = {
-    "grey": lambda w, h: (w * h, None),  # 8-bit grey (GRAY8)
-    "i420": lambda w, h: (w * h + 2 * ((w + 1) // 2) * ((h + 1) // 2), None),  # planar Y, U, V
-    "nv12": lambda w, h: (w * h + 2 * ((w + 1) // 2) * ((h + 1) // 2), None),  # planar Y, packed UV
-    "yuyv": lambda w, h: (2 * w * h, "yuyv"),  # packed Y0 U Y1 V
-}
+
+def frame_bytes_of(fmt, w, h):
+    """Bytes of one frame of the command's pixel format."""
+    chroma = 2 * ((w + 1) // 2) * ((h + 1) // 2)
+    return {"grey": w * h, "i420": w * h + chroma, "nv12": w * h + chroma, "yuyv": 2 * w * h}[fmt]
 
 
 def luma(frame, fmt, w, h):
-    """The frame's w*h grey bytes."""
+    """The frame's w*h grey bytes (the Y plane, or every other byte of YUYV)."""
     if fmt == "yuyv":
         return frame[0 : 2 * w * h : 2]
     return frame[: w * h]
 
 
-def read_exactly(stream, n):
-    """n bytes, or fewer at the stream's end."""
-    chunks, got = [], 0
-    while got < n:
-        b = stream.read(n - got)
-        if not b:
-            break
-        chunks.append(b)
-        got += len(b)
-    return b"".join(chunks)
+class Stop(Exception):
+    """SIGTERM or SIGINT: raised from the handler, so a blocked wait ends."""
+
+
+def on_signal(*_):
+    raise Stop()
+
+
+def say(text):
+    """A line on stderr; a closed stderr never stops the camera."""
+    try:
+        print(f"camera-socket: {text}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def claim(path):
+    """Removes a stale socket at path; refuses anything else there."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise SystemExit(f"camera-socket: {path} exists and is not a socket: not removing it")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.connect(path)
+    except OSError:
+        os.unlink(path)  # nobody listens: a stale socket from an earlier run
+        return
+    finally:
+        probe.close()
+    raise SystemExit(f"camera-socket: another camera serves {path} already")
 
 
 def main():
@@ -75,8 +103,9 @@ def main():
     p.add_argument("--socket", required=True, help="the Unix socket cmsckf-frontend --camera-socket connects to")
     p.add_argument("--width", type=int, required=True, help="frame width (px): the config's camera.width")
     p.add_argument("--height", type=int, required=True, help="frame height (px): the config's camera.height")
-    p.add_argument("--format", choices=sorted(FORMATS), required=True, help="the command's pixel format")
+    p.add_argument("--format", choices=["grey", "i420", "nv12", "yuyv"], required=True, help="the command's pixel format")
     p.add_argument("--latency-ms", type=float, default=0.0, help="exposure to arrival (ms), taken off the stamp")
+    p.add_argument("--mode", default="0660", help="the socket's mode, octal (0660: the owner and its group)")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the camera command")
     a = p.parse_args()
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
@@ -84,70 +113,100 @@ def main():
         p.error("no camera command: give it after --")
     if not (1 <= a.width <= MAX_SIDE_PX and 1 <= a.height <= MAX_SIDE_PX):
         p.error(f"--width and --height must each be 1..={MAX_SIDE_PX}")
-    if a.latency_ms < 0 or a.latency_ms != a.latency_ms:
-        p.error("--latency-ms must be a number >= 0")
-    frame_bytes, _ = FORMATS[a.format](a.width, a.height)
+    if not (0.0 <= a.latency_ms <= MAX_LATENCY_MS):
+        p.error(f"--latency-ms must be a number in 0..={MAX_LATENCY_MS:.0f}")
+    try:
+        mode = int(a.mode, 8)
+    except ValueError:
+        p.error("--mode must be octal, e.g. 0660")
+    frame_bytes = frame_bytes_of(a.format, a.width, a.height)
     latency_us = int(a.latency_ms * 1000)
 
-    if os.path.exists(a.socket):
-        os.unlink(a.socket)  # a stale socket from an earlier run
-    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    server.bind(a.socket)
-    server.listen(1)
-    server.setblocking(False)
-
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
-    camera = subprocess.Popen(cmd, stdout=subprocess.PIPE, bufsize=0)
-    client = None
-    counts = {"frames": 0, "served": 0, "no_reader": 0, "reader_slow": 0, "readers": 0}
-    last_report = time.monotonic()
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    counts = {"frames": 0, "served": 0, "no_reader": 0, "reader_slow": 0, "readers": 0, "refused": 0}
+    server = camera = client = None
+    ours = None
     status, reason = 0, "stopped"
     try:
-        while not stop:
-            raw = read_exactly(camera.stdout, frame_bytes)
-            t_us = time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000 - latency_us
-            if len(raw) < frame_bytes:
-                if not stop:
+        claim(a.socket)
+        server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            server.bind(a.socket)
+            os.chmod(a.socket, mode)
+        except OSError as e:
+            raise SystemExit(f"camera-socket: cannot serve on {a.socket}: {e.strerror}")
+        ours = os.lstat(a.socket).st_ino
+        server.listen(4)
+        server.setblocking(False)
+        try:
+            camera = subprocess.Popen(cmd, stdout=subprocess.PIPE, bufsize=0)
+        except OSError as e:
+            raise SystemExit(f"camera-socket: cannot start the camera command {cmd[0]}: {e.strerror}")
+        cam_fd = camera.stdout.fileno()
+        raw = bytearray()
+        pending = memoryview(b"")  # what is left of the frame being sent
+        last_report = time.monotonic()
+        while True:
+            readers = [cam_fd, server]
+            writers = [client] if client is not None and len(pending) else []
+            r, w, _ = select.select(readers, writers, [], 1.0)
+            if server in r:
+                conn, _ = server.accept()
+                if client is None:
+                    client = conn
+                    client.setblocking(False)
+                    counts["readers"] += 1
+                    say("a front-end connected")
+                else:
+                    conn.close()  # one reader at a time: the first keeps it
+                    counts["refused"] += 1
+            if w:
+                try:
+                    n = client.send(pending)
+                    pending = pending[n:]
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    client.close()
+                    client, pending = None, memoryview(b"")
+                    say("the front-end went away")
+            if cam_fd in r:
+                chunk = os.read(cam_fd, frame_bytes - len(raw))
+                if not chunk:
                     try:
                         code = camera.wait(timeout=1)
                     except subprocess.TimeoutExpired:
                         code = "none yet: its output closed"
                     status = 1
                     reason = f"the camera command ended (exit status {code}) after {len(raw)} of a frame's {frame_bytes} bytes"
-                break
-            counts["frames"] += 1
-            # A front-end that came (or came back) since the last frame.
-            try:
-                conn, _ = server.accept()
-                if client is not None:
-                    client.close()
-                client = conn
-                client.setblocking(True)
-                client.settimeout(0.5)
-                counts["readers"] += 1
-            except BlockingIOError:
-                pass
-            if client is None:
-                counts["no_reader"] += 1
-                continue
-            # A reader that cannot take a whole frame now is not waited for.
-            _, writable, _ = select.select([], [client], [], 0)
-            if not writable:
-                counts["reader_slow"] += 1
-                continue
-            header = MAGIC + struct.pack("<QII", max(t_us, 0), a.width, a.height)
-            try:
-                client.sendall(header + luma(raw, a.format, a.width, a.height))
-                counts["served"] += 1
-            except OSError:
-                client.close()
-                client = None
+                    break
+                raw += chunk
+                if len(raw) < frame_bytes:
+                    continue
+                t_us = time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000 - latency_us
+                counts["frames"] += 1
+                frame, raw = bytes(raw), bytearray()
+                if client is None:
+                    counts["no_reader"] += 1
+                elif len(pending):
+                    counts["reader_slow"] += 1
+                else:
+                    header = MAGIC + struct.pack("<QII", max(t_us, 0), a.width, a.height)
+                    pending = memoryview(header + luma(frame, a.format, a.width, a.height))
+                    counts["served"] += 1
             if time.monotonic() - last_report > 10:
                 last_report = time.monotonic()
-                print(f"camera-socket: {counts}", file=sys.stderr, flush=True)
+                say(str(counts))
+    except Stop:
+        status, reason = 0, "stopped by a signal"
+    except SystemExit as e:
+        status, reason = 1, str(e).removeprefix("camera-socket: ")
     finally:
-        if camera.poll() is None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if camera is not None and camera.poll() is None:
             camera.terminate()
             try:
                 camera.wait(timeout=2)
@@ -155,10 +214,14 @@ def main():
                 camera.kill()
         if client is not None:
             client.close()
-        server.close()
-        if os.path.exists(a.socket):
-            os.unlink(a.socket)
-        print(f"camera-socket: {reason}; {counts}", file=sys.stderr, flush=True)
+        if server is not None:
+            server.close()
+        try:
+            if ours is not None and os.lstat(a.socket).st_ino == ours:
+                os.unlink(a.socket)  # only our own socket, never a successor's
+        except OSError:
+            pass
+        say(f"{reason}; {counts}")
     return status
 
 

@@ -13,6 +13,8 @@
 #   --bin-dir DIR     package binaries already built there; build nothing.
 #   --out DIR         where the .deb files go (target/debian).
 #   --fast            gzip level 1 instead of xz (the test's packages).
+#   --allow-sim       accept a daemon built with the simulator (`demo`,
+#                     `evaluate`): the test packs the test build's binaries.
 #
 # What the package holds:
 #   /usr/bin/cmsckf, /usr/bin/cmsckf-frontend  stripped; their debug info is in
@@ -21,7 +23,8 @@
 #   /lib/systemd/system/cmsckf-frontend.service  the V4L2 front-end, same user
 #   /etc/cmsckf/cmsckf.toml                      the config (a conffile: kept on upgrade)
 #   /etc/default/cmsckf-frontend                 the camera device and options
-#   /usr/share/doc/cmsckf/                       README, copyright
+#   /usr/share/doc/cmsckf/                       README, copyright, changelog
+#   /usr/share/cmsckf/camera-socket.py           the bridge for cameras that are not V4L2
 # The postinst makes the system user cmsckf (groups dialout and video); the
 # units are installed but not enabled: a companion computer flies only what its
 # owner switched on (`systemctl enable --now cmsckf cmsckf-frontend`). Flight
@@ -34,6 +37,7 @@ profile="release"
 bin_dir=""
 out="target/debian"
 compress=(-Zxz)
+allow_sim=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --target) target="$2"; shift 2 ;;
@@ -41,6 +45,7 @@ while [ $# -gt 0 ]; do
     --bin-dir) bin_dir="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     --fast) compress=(-Zgzip -z1); shift ;;
+    --allow-sim) allow_sim=1; shift ;;
     *) echo "package-deb.sh: unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
 done
@@ -66,9 +71,11 @@ if [ -z "$bin_dir" ]; then
     cross_env=(CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
                CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc)
   fi
-  # The daemon that flies builds without the simulator (no demo, no evaluate).
-  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" \
-    -p cmsckf --no-default-features --bin cmsckf -p cmsckf-frontend --bin cmsckf-frontend
+  # The daemon that flies builds without the simulator (no demo, no evaluate);
+  # the front-end with its default features (V4L2). Two builds: one cargo
+  # call would apply --no-default-features to both.
+  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" -p cmsckf --no-default-features --bin cmsckf
+  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" -p cmsckf-frontend --bin cmsckf-frontend
   dir="$profile"; [ "$profile" = dev ] && dir=debug
   bin_dir="target/$target/$dir"
 fi
@@ -76,12 +83,37 @@ for b in cmsckf cmsckf-frontend; do
   [ -x "$bin_dir/$b" ] || { echo "package-deb.sh: $bin_dir/$b is not there (build it, or give --bin-dir)" >&2; exit 1; }
 done
 
+# The binaries run here (natively, or under qemu): the daemon must be the
+# flight build, the front-end must have its V4L2 camera.
+runner=()
+if [ "$target" != "$host" ]; then
+  if command -v qemu-aarch64 >/dev/null && [ "$arch" = arm64 ]; then
+    runner=(qemu-aarch64 -L /usr/aarch64-linux-gnu)
+  else
+    runner=(none)
+  fi
+fi
+if [ "${runner[0]:-}" != none ]; then
+  if [ "$allow_sim" = 0 ] && "${runner[@]}" "$bin_dir/cmsckf" evaluate --help >/dev/null 2>&1; then
+    echo "package-deb.sh: $bin_dir/cmsckf has the simulator (demo, evaluate): build it with --no-default-features" >&2
+    exit 1
+  fi
+  help="$("${runner[@]}" "$bin_dir/cmsckf-frontend" --help)"
+  case "$help" in
+    *--v4l2*) ;;
+    *) echo "package-deb.sh: $bin_dir/cmsckf-frontend has no V4L2 camera (build it with its default features)" >&2; exit 1 ;;
+  esac
+else
+  echo "package-deb.sh: cannot run $arch binaries here (no qemu-aarch64): their features are not checked" >&2
+fi
+
 stage="$(mktemp -d)"
 trap 'rm -rf "$stage"' EXIT
 pkg="$stage/cmsckf"
 dbg="$stage/cmsckf-dbgsym"
 mkdir -p "$pkg/DEBIAN" "$pkg/usr/bin" "$pkg/lib/systemd/system" "$pkg/etc/cmsckf" "$pkg/etc/default" \
-  "$pkg/usr/share/doc/cmsckf" "$dbg/DEBIAN" "$dbg/usr/lib/debug/.build-id"
+  "$pkg/usr/share/doc/cmsckf" "$pkg/usr/share/cmsckf" "$dbg/DEBIAN" "$dbg/usr/lib/debug/.build-id" \
+  "$dbg/usr/share/doc/cmsckf-dbgsym"
 
 # Stripped binaries; the debug info apart, named by build id.
 build_ids=()
@@ -98,13 +130,20 @@ for b in cmsckf cmsckf-frontend; do
 done
 
 # The daemon's unit, as the package's static user (the front-end shares its
-# socket directory), from the same file a hand install uses.
-sed -e 's|/usr/local/bin/cmsckf|/usr/bin/cmsckf|' \
+# socket directory), from the same file a hand install uses, its install
+# notes for a hand install replaced by the package's.
+{
+  echo "# systemd unit for cmsckf, installed by the Debian package (scripts/package-deb.sh)."
+  echo "# The config: /etc/cmsckf/cmsckf.toml. Flight logs: /var/log/cmsckf. The camera"
+  echo "# front-end runs as the same user (cmsckf-frontend.service) and reaches the feature"
+  echo "# socket in /run/cmsckf (0750; the socket is made 0660)."
+  sed -e '1,/^\[Unit\]$/{/^#/d}' config/cmsckf.service
+} | sed -e 's|/usr/local/bin/cmsckf|/usr/bin/cmsckf|' \
     -e 's|--config /etc/cmsckf.toml|--config /etc/cmsckf/cmsckf.toml|' \
     -e 's|^DynamicUser=yes$|User=cmsckf\nGroup=cmsckf|' \
     -e 's|^RuntimeDirectoryMode=0700$|RuntimeDirectoryMode=0750|' \
     -e 's|^RuntimeDirectory=cmsckf$|RuntimeDirectory=cmsckf\nRuntimeDirectoryPreserve=restart|' \
-    config/cmsckf.service > "$pkg/lib/systemd/system/cmsckf.service"
+    > "$pkg/lib/systemd/system/cmsckf.service"
 grep -q '^User=cmsckf$' "$pkg/lib/systemd/system/cmsckf.service" \
   && grep -q '^ExecStart=/usr/bin/cmsckf run --config /etc/cmsckf/cmsckf.toml$' "$pkg/lib/systemd/system/cmsckf.service" \
   || { echo "package-deb.sh: config/cmsckf.service changed shape; update the sed above" >&2; exit 1; }
@@ -117,6 +156,16 @@ grep -q '^clock = "monotonic"' "$pkg/etc/cmsckf/cmsckf.toml" \
 chmod 0644 "$pkg/etc/cmsckf/cmsckf.toml"
 install -m 0644 README.md "$pkg/usr/share/doc/cmsckf/README.md"
 install -m 0644 packaging/copyright "$pkg/usr/share/doc/cmsckf/copyright"
+install -m 0644 packaging/copyright "$dbg/usr/share/doc/cmsckf-dbgsym/copyright"
+# The bridge for cameras that are not V4L2 (docs/frontend.md).
+install -m 0755 scripts/camera-socket.py "$pkg/usr/share/cmsckf/camera-socket.py"
+# Debian's changelog, from the package's version and the commit it is built from.
+commit="$(git rev-parse --short=12 HEAD 2>/dev/null || echo unknown)"
+for d in "$pkg/usr/share/doc/cmsckf" "$dbg/usr/share/doc/cmsckf-dbgsym"; do
+  printf '%s (%s) unstable; urgency=medium\n\n  * Built from commit %s.\n\n -- cmsckf developers <cmsckf@users.noreply.github.com>  %s\n' \
+    "$(basename "$d")" "$version" "$commit" "$(date -R)" | gzip -9n > "$d/changelog.Debian.gz"
+  chmod 0644 "$d/changelog.Debian.gz"
+done
 
 # The newest glibc symbol version the binaries use is the libc6 they need.
 glibc="$(for b in cmsckf cmsckf-frontend; do readelf -V -W "$bin_dir/$b"; done \
@@ -128,12 +177,12 @@ cat > "$pkg/DEBIAN/control" <<EOF
 Package: cmsckf
 Version: $version
 Architecture: $arch
-Maintainer: cmsckf developers <cmsckf@localhost>
+Maintainer: cmsckf developers <cmsckf@users.noreply.github.com>
 Installed-Size: $installed_kb
 Depends: libc6 (>= $glibc), libgcc-s1, adduser, systemd
+Recommends: python3
 Section: misc
 Priority: optional
-Homepage: file:///usr/share/doc/cmsckf/README.md
 Description: Compressed MSCKF visual-inertial-GNSS estimator for a drone's autopilot
  cmsckf runs on a drone's companion computer beside ArduPilot or PX4: it
  fuses the autopilot's IMU, raw GNSS observations and a camera's feature
@@ -152,7 +201,7 @@ cat > "$dbg/DEBIAN/control" <<EOF
 Package: cmsckf-dbgsym
 Version: $version
 Architecture: $arch
-Maintainer: cmsckf developers <cmsckf@localhost>
+Maintainer: cmsckf developers <cmsckf@users.noreply.github.com>
 Installed-Size: $(du -sk --exclude=DEBIAN "$dbg" | cut -f1)
 Depends: cmsckf (= $version)
 Section: debug
@@ -162,6 +211,11 @@ Description: debug symbols for cmsckf
  symbolising a crash report (build ids ${build_ids[*]}).
 Build-Ids: ${build_ids[*]}
 EOF
+
+# Checksums, for `dpkg --verify`.
+for d in "$pkg" "$dbg"; do
+  (cd "$d" && find . -path ./DEBIAN -prune -o -type f -printf '%P\0' | sort -z | xargs -0 md5sum > DEBIAN/md5sums)
+done
 
 mkdir -p "$out"
 dpkg-deb --root-owner-group "${compress[@]}" --build "$pkg" "$out/cmsckf_${version}_${arch}.deb" >/dev/null

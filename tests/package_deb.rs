@@ -67,7 +67,10 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
         .arg(&bin_dir)
         .arg("--out")
         .arg(out.path())
-        .arg("--fast"));
+        .arg("--fast")
+        // The test build has the simulator; a user's build has not (the
+        // script refuses such a daemon without this).
+        .arg("--allow-sim"));
     let debs: Vec<PathBuf> = listed.lines().map(PathBuf::from).collect();
     assert_eq!(debs.len(), 2, "{listed}");
     let (deb, dbgsym) = (&debs[0], &debs[1]);
@@ -104,6 +107,8 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
         "etc/default/cmsckf-frontend",
         "usr/share/doc/cmsckf/copyright",
         "usr/share/doc/cmsckf/README.md",
+        "usr/share/doc/cmsckf/changelog.Debian.gz",
+        "usr/share/cmsckf/camera-socket.py",
     ] {
         assert!(root.join(f).is_file(), "the package has no /{f}");
     }
@@ -214,6 +219,9 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
             "conffile {f} is not in the package"
         );
     }
+    // Checksums of every file, for `dpkg --verify`.
+    let md5sums = std::fs::read_to_string(control.join("md5sums")).unwrap();
+    assert!(md5sums.lines().any(|l| l.ends_with("  usr/bin/cmsckf")), "{md5sums}");
     for script in ["postinst", "prerm", "postrm"] {
         run(Command::new("sh").arg("-n").arg(control.join(script)));
     }

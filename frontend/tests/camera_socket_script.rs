@@ -130,3 +130,81 @@ fn a_pipe_camera_is_served_and_tracked() {
     let mean_du = moved.iter().sum::<f64>() / moved.len() as f64;
     assert!(mean_du < -1.0, "the texture moved {mean_du} px a frame, not left");
 }
+
+fn bridge(sock: &std::path::Path, camera: &str) -> std::process::Child {
+    Command::new("python3")
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/camera-socket.py"))
+        .arg("--socket")
+        .arg(sock)
+        .args(["--width", "752", "--height", "480", "--format", "grey", "--"])
+        .args(["python3", "-c", camera])
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3")
+}
+
+fn wait_for(path: &std::path::Path) {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !path.exists() {
+        assert!(Instant::now() < deadline, "{} never came", path.display());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A reader that connects and never reads must not slow the camera: its
+/// frames are dropped and counted, the camera read on time.
+#[test]
+fn a_reader_that_never_reads_never_stalls_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("camera.sock");
+    // 40 grey frames at 20 Hz: 2 s.
+    let camera = "import sys, time\nf = bytes(752 * 480)\nfor _ in range(40):\n    sys.stdout.buffer.write(f); sys.stdout.buffer.flush(); time.sleep(0.05)\n";
+    let started = Instant::now();
+    let mut b = bridge(&sock, camera);
+    wait_for(&sock);
+    let _stuck = std::os::unix::net::UnixStream::connect(&sock).unwrap();
+    let status = b.wait().unwrap();
+    let took = started.elapsed();
+    let mut said = String::new();
+    b.stderr.take().unwrap().read_to_string(&mut said).unwrap();
+    eprintln!("{said} in {took:?}");
+    assert_eq!(status.code(), Some(1), "{said}");
+    let slow: usize = said
+        .split("'reader_slow': ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap();
+    assert!(slow >= 20, "frames to a stuck reader not dropped: {said}");
+    // The camera's own 2 s and start-up, not 0.5 s a frame.
+    assert!(took < Duration::from_secs(8), "the camera stalled: {took:?}");
+    assert!(!sock.exists(), "the socket was left behind");
+}
+
+/// SIGTERM while the camera says nothing ends the bridge at once, with
+/// its socket removed and the camera stopped; a path that is not a socket
+/// is never removed.
+#[test]
+fn sigterm_ends_a_bridge_waiting_on_a_silent_camera_and_files_are_never_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("camera.sock");
+    let mut b = bridge(&sock, "import time\ntime.sleep(60)\n");
+    wait_for(&sock);
+    std::thread::sleep(Duration::from_millis(300));
+    let t = Instant::now();
+    Command::new("kill").arg(b.id().to_string()).status().unwrap();
+    let status = b.wait().unwrap();
+    assert!(t.elapsed() < Duration::from_secs(5), "SIGTERM took {:?}", t.elapsed());
+    assert_eq!(status.code(), Some(0));
+    assert!(!sock.exists(), "the socket was left behind");
+
+    let file = dir.path().join("notes.txt");
+    std::fs::write(&file, "a pilot's notes").unwrap();
+    let mut b = bridge(&file, "import time\ntime.sleep(60)\n");
+    let status = b.wait().unwrap();
+    let mut said = String::new();
+    b.stderr.take().unwrap().read_to_string(&mut said).unwrap();
+    assert_eq!(status.code(), Some(1), "{said}");
+    assert!(said.contains("not a socket"), "{said}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "a pilot's notes");
+}
