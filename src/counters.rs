@@ -254,6 +254,12 @@ counters! {
     GpsOriginConfirmed = "gps_origin_confirmed", event;
     GpsOriginMismatch = "gps_origin_mismatch", event;
     GpsOriginUnconfirmed = "gps_origin_unconfirmed", event;
+    /// Our filter runs, the autopilot reports no EKF origin: said (with
+    /// what to do) each time this is counted.
+    AutopilotOriginMissing = "autopilot_origin_missing", event;
+    /// A start on the ground again when the origin came late, so that the
+    /// compass yaw has its declination.
+    RestartLocated = "restart_located", event;
     // Starts, restarts and outputs.
     InitStatic = "init_static", event;
     InitInFlight = "init_in_flight", event;

@@ -3,11 +3,14 @@
 //! no GPS). A synthetic camera follows the SITL's simulated truth
 //! (`SIM_STATE`) and writes feature tracks to the daemon's socket; the test
 //! plays the ground station: home, GUIDED, arm, take-off to 5 m, a 10 m
-//! box, a hover, land. It asserts that EKF3 takes the estimates, that the
-//! autopilot's LOCAL_POSITION_NED stays within 0.5 m of the truth standing
-//! and through the take-off and the box, within 1 m in the hover and the
-//! landing after it (the drift of a flight without GNSS), and that the
-//! filter never restarts.
+//! box, a hover, land. It flies twice, once for each way ArduPilot's EKF
+//! origin can come (ours from the config; the ground station's, sent too
+//! early and lost, then again when the daemon says it is missing). It
+//! asserts that EKF3 takes the estimates, that the autopilot's
+//! LOCAL_POSITION_NED stays within 0.5 m of the truth standing and through
+//! the take-off and the box, within 1.5 m in the hover and the landing
+//! after it (the drift of a flight without GNSS), and that the filter never
+//! restarts.
 //!
 //! The SITL is a GPL-3.0 test fixture beside the project, never in it: the
 //! test finds it through `CMSCKF_ARDUPILOT_SITL` (a folder holding
@@ -194,6 +197,22 @@ impl Gcs {
         }));
     }
 
+    /// The EKF origin at home, as a ground station's "Set EKF origin"
+    /// (the message Mission Planner and QGroundControl send; MAVLink calls
+    /// it superseded by a command ArduPilot 4.7 does not take for this).
+    #[allow(deprecated)]
+    fn set_origin(&mut self) {
+        self.send(&apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(
+            apm::SET_GPS_GLOBAL_ORIGIN_DATA {
+                target_system: 1,
+                latitude: (HOME[0] * 1e7).round() as i32,
+                longitude: (HOME[1] * 1e7).round() as i32,
+                altitude: (HOME[2] * 1e3).round() as i32,
+                ..Default::default()
+            },
+        ));
+    }
+
     fn stream(&mut self, id: u32, hz: f32) {
         self.command(
             apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -287,8 +306,35 @@ impl Truth {
     }
 }
 
+/// Where ArduPilot's EKF origin comes from: both paths that
+/// docs/setup-ardupilot.md offers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Origin {
+    /// Ours: `gnss.origin_llh` in the config, sent as SET_GPS_GLOBAL_ORIGIN
+    /// (`output.set_gps_origin`).
+    Ours,
+    /// The ground station's: SET_GPS_GLOBAL_ORIGIN sent once, as soon as
+    /// the autopilot is heard (as a user clicks "Set EKF origin" at once),
+    /// and the daemon with no origin of its own.
+    GroundStation,
+}
+
+/// One SITL at a time: two would share the machine's two cores.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn ardupilot_flies_on_cmsckf_alone() {
+    fly(Origin::Ours);
+}
+
+#[test]
+fn ardupilot_flies_with_the_ground_stations_origin() {
+    fly(Origin::GroundStation);
+}
+
+fn fly(origin: Origin) {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    eprintln!("origin: {origin:?}");
     let fixture = match fixture() {
         Ok(f) => f,
         Err(why) => {
@@ -320,8 +366,14 @@ fn ardupilot_flies_on_cmsckf_alone() {
     cfg.mavlink.address = format!("udpin:127.0.0.1:{daemon_port}");
     cfg.gnss.source = cmsckf::config::GnssSource::Off;
     let h_ell = geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2]);
-    cfg.gnss.origin_llh = vec![HOME[0], HOME[1], h_ell];
-    cfg.output.set_gps_origin = true;
+    if origin == Origin::Ours {
+        cfg.gnss.origin_llh = vec![HOME[0], HOME[1], h_ell];
+        cfg.output.set_gps_origin = true;
+    } else {
+        cfg.gnss.origin_llh = Vec::new();
+        cfg.output.set_gps_origin = false;
+    }
+    let mut gcs_origin_sent = false;
     cfg.log.path = dir.as_path().join("flight.mcap").display().to_string();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let _guard = rt.enter();
@@ -447,6 +499,14 @@ fn ardupilot_flies_on_cmsckf_alone() {
                         .trim_end_matches('\0')
                         .to_string();
                     eprintln!("[{:6.1} s] {text}", started.elapsed().as_secs_f64());
+                    // A user reading the daemon's word: the origin again.
+                    if origin == Origin::GroundStation && text.contains("no EKF origin") {
+                        gcs.set_origin();
+                        eprintln!(
+                            "[{:6.1} s] the ground station set the EKF origin again",
+                            started.elapsed().as_secs_f64()
+                        );
+                    }
                     if text.contains("using external nav") && accepted_after_s.is_none() {
                         accepted_after_s = Some(started.elapsed().as_secs_f64());
                     }
@@ -455,7 +515,11 @@ fn ardupilot_flies_on_cmsckf_alone() {
                 // EKF3's yaw is ours (EK3_SRC1_YAW = 6): its error against
                 // the truth while the vehicle stands shows where our first
                 // yaw came from.
-                apm::MavMessage::ATTITUDE(a) if phase == Phase::Stand => {
+                // Its last 5 s: a start made again when a late origin came
+                // (the ground station's path) has settled by then.
+                apm::MavMessage::ATTITUDE(a)
+                    if phase == Phase::Stand && phase_since.elapsed().as_secs_f64() > STAND_S - 5.0 =>
+                {
                     if let Some(y) = truth_yaw {
                         let d = a.yaw as f64 - y;
                         yaw_err_max_deg = yaw_err_max_deg.max(d.sin().atan2(d.cos()).abs().to_degrees());
@@ -494,6 +558,14 @@ fn ardupilot_flies_on_cmsckf_alone() {
                 }
             }
             streams_asked = Instant::now();
+        }
+        if origin == Origin::GroundStation && !gcs_origin_sent && gcs.peer.is_some() {
+            gcs.set_origin();
+            gcs_origin_sent = true;
+            eprintln!(
+                "[{:6.1} s] the ground station set the EKF origin",
+                started.elapsed().as_secs_f64()
+            );
         }
         let since = phase_since.elapsed();
         let resend = last_cmd.elapsed() > Duration::from_secs(1);
@@ -580,11 +652,24 @@ fn ardupilot_flies_on_cmsckf_alone() {
         HOME[3]
     );
     assert!(finished, "flight did not finish within {BUDGET:?}: stuck in {phase:?}");
-    assert_eq!(
-        c("gps_origin_confirmed"),
-        1,
-        "our origin never came back from the autopilot"
-    );
+    if origin == Origin::Ours {
+        assert_eq!(
+            c("gps_origin_confirmed"),
+            1,
+            "our origin never came back from the autopilot"
+        );
+    } else {
+        // Ours is the autopilot's, taken from its GPS_GLOBAL_ORIGIN; the
+        // ground station's first origin, sent before EKF3 started, was lost
+        // and said so, and a start made before the origin came (its yaw
+        // with no declination) was made again on the ground.
+        assert_eq!(c("gnss_origin_from_autopilot"), 1, "{:?}", summary.counters);
+        eprintln!(
+            "origin missing said {} times, starts made again for the origin {}",
+            c("autopilot_origin_missing"),
+            c("restart_located")
+        );
+    }
     // EKF3 on external navigation: "using external nav data", and its
     // status with attitude, velocity and relative and absolute position
     // (EKF_ATTITUDE … EKF_POS_VERT_ABS, 0x3f; ArduPilot reports 0x33f).
@@ -613,11 +698,21 @@ fn ardupilot_flies_on_cmsckf_alone() {
     // In the hover the camera sees no parallax and there are no
     // zero-velocity updates in the air: the error is the visual-inertial
     // drift of the flight so far (0.15–0.76 m over the runs measured), and
-    // the landing after it carries that drift (one CI run scored the
-    // landing with the box: 0.54 m from take-off to touchdown, the hover
-    // 0.47 m).
-    assert!(hovering.max_m < 1.0, "hover and landing error {hovering:?}");
-    assert!(yaw_err_max_deg < 3.0, "yaw {yaw_err_max_deg}° off while standing");
+    // the landing after it carries that drift: 0.28-0.88 m over the runs
+    // since the camera follows a smoothed truth (0.85 m in one CI run
+    // before). The hover is the filter's weak spot (issue 37): nearly every
+    // track fails for want of parallax and the drift is the IMU's.
+    assert!(hovering.max_m < 1.5, "hover and landing error {hovering:?}");
+    // EKF3 takes our yaw (EK3_SRC1_YAW = 6). On the ground station's path
+    // ours is made again on the ground when the origin comes (from 12.8°
+    // off, the compass without declination, to 0.1°), and EKF3 follows a
+    // yaw step slowly: 3.9° still 10 s on, while the box that follows
+    // flies within 0.2 m.
+    let yaw_bound_deg = if origin == Origin::Ours { 3.0 } else { 5.0 };
+    assert!(
+        yaw_err_max_deg < yaw_bound_deg,
+        "yaw {yaw_err_max_deg}° off while standing"
+    );
 
     // Did the autopilot take our estimates? EKF3's EKF_STATUS_REPORT, which
     // the daemon asks for and logs: its position test ratios (the square

@@ -36,6 +36,15 @@ const ORIGIN_RESEND_S: f64 = 2.0;
 const ORIGIN_TRIES: u32 = 30;
 /// The autopilot's origin is ours when within this (m).
 const ORIGIN_MATCH_M: f64 = 1.0;
+/// Without an origin of our own to send: GPS_GLOBAL_ORIGIN is asked for
+/// this often (s of autopilot time) until the autopilot reports one, and
+/// its absence is said once our filter has run this long, then again this
+/// often: ArduPilot without an EKF origin sets no home and will not arm
+/// ("AHRS: waiting for home"), and an origin a ground station set before
+/// EKF3 started is lost without a word.
+const ORIGIN_ASK_S: f64 = 2.0;
+const ORIGIN_MISSING_AFTER_S: f64 = 5.0;
+const ORIGIN_MISSING_REPEAT_S: f64 = 30.0;
 
 /// Sending our origin: a UDP autopilot is only heard after its first
 /// HEARTBEAT, and a message can be lost, so it is sent until the
@@ -46,6 +55,11 @@ struct OriginSend {
     settled: bool,
     next_t_s: f64,
     tries: u32,
+    /// With no origin of ours: the first IMU sample's time, the next
+    /// request for GPS_GLOBAL_ORIGIN and the next warning of its absence.
+    running_since_t_s: Option<f64>,
+    next_ask_t_s: f64,
+    next_warn_t_s: f64,
 }
 
 /// A disarm must last this long (s of autopilot time: two HEARTBEATs and
@@ -348,6 +362,46 @@ impl AutopilotView {
         }
     }
 
+    /// With no origin of ours to send (`output.set_gps_origin` off, or no
+    /// frame yet): asks for the autopilot's GPS_GLOBAL_ORIGIN until it
+    /// reports one, and [`ORIGIN_MISSING_AFTER_S`] after the first IMU
+    /// sample without it, says on STATUSTEXT, in the log and the journal
+    /// that the autopilot has no EKF origin and what to do, again every
+    /// [`ORIGIN_MISSING_REPEAT_S`].
+    pub(super) fn watch_origin(
+        &mut self,
+        t_s: f64,
+        log: &FlightLog,
+        counters: &Counters,
+        out: &mpsc::Sender<Outbound>,
+    ) {
+        let o = &mut self.origin;
+        if o.settled {
+            return;
+        }
+        let since = *o.running_since_t_s.get_or_insert(t_s);
+        if t_s >= o.next_ask_t_s {
+            o.next_ask_t_s = t_s + ORIGIN_ASK_S;
+            let _ = out.try_send(Outbound::RequestMessage { message_id: 49 });
+        }
+        // An autopilot with a GNSS receiver of its own sets its origin at
+        // its first fix: nothing to say.
+        let own_gnss = self.gps_accuracy.is_some();
+        if !own_gnss && t_s - since >= ORIGIN_MISSING_AFTER_S && t_s >= o.next_warn_t_s {
+            o.next_warn_t_s = t_s + ORIGIN_MISSING_REPEAT_S;
+            counters.add(Counter::AutopilotOriginMissing, 1);
+            let text = "the autopilot reports no EKF origin (GPS_GLOBAL_ORIGIN): it cannot set home or arm; \
+                        set the EKF origin from the ground station now, or give gnss.origin_llh with \
+                        output.set_gps_origin = true";
+            tracing::warn!(reason = "autopilot_origin_missing", "{text}");
+            log.text(Level::Warning, t_s, text);
+            let _ = out.try_send(Outbound::StatusText {
+                severity: 4,
+                text: "cmsckf: autopilot has no EKF origin: set it".to_string(),
+            });
+        }
+    }
+
     /// Roll, pitch, yaw (rad), as `ATTITUDE` last said.
     pub(super) fn attitude(&self) -> Option<(f64, f64, f64)> {
         self.attitude
@@ -388,7 +442,7 @@ impl AutopilotView {
     /// reboot, its attitude and position; after a reboot, also our origin
     /// (a rebooted autopilot has lost it) and its clock's Unix offset.
     pub(super) fn forget_for_restart(&mut self, kind: Restart) {
-        if kind != Restart::Unhealthy {
+        if matches!(kind, Restart::Reboot | Restart::Gap) {
             self.attitude = None;
             self.local = None;
             self.gps_accuracy = None;
@@ -397,5 +451,84 @@ impl AutopilotView {
             self.origin = OriginSend::default();
             self.unix_minus_boot.reset();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the watch sent over `secs` of IMU at 100 Hz.
+    fn watch(ap: &mut AutopilotView, from_s: f64, secs: f64, counters: &Counters) -> Vec<Outbound> {
+        let (tx, mut rx) = mpsc::channel(1024);
+        let log = FlightLog::new(None, false);
+        let n = (secs * 100.0) as usize;
+        for k in 0..n {
+            ap.watch_origin(from_s + k as f64 * 0.01, &log, counters, &tx);
+        }
+        let mut sent = Vec::new();
+        while let Ok(m) = rx.try_recv() {
+            sent.push(m);
+        }
+        sent
+    }
+
+    #[test]
+    fn a_missing_origin_is_asked_for_and_said_and_an_origin_ends_both() {
+        let counters = Counters::default();
+        let mut ap = AutopilotView::default();
+        let sent = watch(&mut ap, 100.0, 4.9, &counters);
+        // Asked for every 2 s; nothing said in the first 5 s.
+        let asks = sent
+            .iter()
+            .filter(|m| matches!(m, Outbound::RequestMessage { message_id: 49 }))
+            .count();
+        assert_eq!(asks, 3, "{sent:?}");
+        assert!(!sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
+        // At 5 s it is said, once, then again only after 30 s.
+        let sent = watch(&mut ap, 104.9, 30.0, &counters);
+        let said: Vec<_> = sent
+            .iter()
+            .filter_map(|m| match m {
+                Outbound::StatusText { text, severity } => Some((text.clone(), *severity)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(said[0].0.contains("no EKF origin") && said[0].1 == 4, "{said:?}");
+        assert_eq!(counters.get(Counter::AutopilotOriginMissing), 1);
+        let sent = watch(&mut ap, 134.9, 1.0, &counters);
+        assert!(sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
+        assert_eq!(counters.get(Counter::AutopilotOriginMissing), 2);
+
+        // The autopilot's origin: no more asking, nothing more said.
+        let mut gnss = GnssIn::new(&crate::config::Config::default());
+        let log = FlightLog::new(None, false);
+        ap.on_message(
+            FusionMsg::Origin {
+                lat_deg: -35.36,
+                lon_deg: 149.16,
+                alt_m: 584.0,
+            },
+            136.0,
+            &mut gnss,
+            &log,
+            &counters,
+        );
+        assert!(gnss.frame().is_some());
+        assert!(watch(&mut ap, 136.0, 60.0, &counters).is_empty());
+    }
+
+    #[test]
+    fn an_autopilot_with_its_own_gnss_is_asked_but_not_warned() {
+        let counters = Counters::default();
+        let mut ap = AutopilotView {
+            gps_accuracy: Some((2.0, 3.0)),
+            ..Default::default()
+        };
+        let sent = watch(&mut ap, 0.0, 20.0, &counters);
+        assert!(sent.iter().any(|m| matches!(m, Outbound::RequestMessage { .. })));
+        assert!(!sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
+        assert_eq!(counters.get(Counter::AutopilotOriginMissing), 0);
     }
 }

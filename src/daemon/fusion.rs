@@ -30,7 +30,7 @@ use super::output::{OutputCtx, OutputPacer};
 use super::rebase::{InstallSite, RebaseExec};
 use super::time_guard::{TimeGuard, Verdict};
 use super::{FusionMsg, Restart, RtcmStream, Shared, MAX_IMU_GAP_S, REBOOT_JUMP_S};
-use crate::config::{Config, FeatureClock};
+use crate::config::{Config, FeatureClock, GnssSource, YawSource};
 use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
 use crate::estimator::imu_covariance::velocity_block;
@@ -64,6 +64,9 @@ pub struct Fusion {
     /// Counts estimators started, so a rebase result of a filter since
     /// restarted is recognised and dropped.
     est_gen: u64,
+    /// The running filter started with no world origin known, so with no
+    /// declination for a compass yaw (see `on_located`).
+    started_unlocated: bool,
     rebase: RebaseExec,
     gnss: GnssIn,
     /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
@@ -161,6 +164,7 @@ impl Fusion {
             rebase: RebaseExec::for_config(&cfg),
             est: None,
             est_gen: 0,
+            started_unlocated: false,
             gnss: GnssIn::new(&cfg),
             imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM, cfg.mavlink.clock_jump_confirm_s),
             last_imu_t: f64::NEG_INFINITY,
@@ -200,9 +204,41 @@ impl Fusion {
             FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu(m, ctx),
-            other => self
-                .autopilot
-                .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
+            other => {
+                let had_frame = self.gnss.frame().is_some();
+                self.autopilot
+                    .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters);
+                if !had_frame && self.gnss.frame().is_some() {
+                    self.on_located(&ctx.counters, &ctx.out);
+                }
+            }
+        }
+    }
+
+    /// The world frame's origin came after the filter started (the
+    /// autopilot's GPS_GLOBAL_ORIGIN, set late by a ground station): a yaw
+    /// taken then from the compass, or from the autopilot's own compass
+    /// heading, had no declination (ArduPilot's is 0 until it knows where it
+    /// is). On the ground a restart takes the compass with the WMM
+    /// declination; in the air the yaw is kept, and said to be magnetic.
+    fn on_located(&mut self, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        if self.est.is_none() || !self.started_unlocated || self.cfg.init.yaw_source == YawSource::Config {
+            return;
+        }
+        self.started_unlocated = false;
+        let t_s = self.last_imu_t;
+        if self.autopilot.zupt_allowed() {
+            counters.add(Counter::RestartLocated, 1);
+            self.restart(
+                t_s,
+                "the origin came: yaw again, with the compass's declination",
+                Restart::Located,
+                out,
+            );
+        } else {
+            let text = "the origin came in flight: our yaw stays magnetic (no declination) until the next start";
+            tracing::warn!(reason = "yaw_without_declination", "{text}");
+            self.log.text(Level::Warning, t_s, text);
         }
     }
 
@@ -370,9 +406,15 @@ impl Fusion {
     /// known, a start when none runs, the output, then the measurements it
     /// covers, and a health check.
     fn fuse_imu(&mut self, m: ImuMeas, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        if self.cfg.output.set_gps_origin {
+        if self.cfg.output.set_gps_origin && self.gnss.frame().is_some() {
             self.autopilot
                 .send_origin(m.t_s, self.gnss.frame(), &self.log, counters, out);
+        } else if !(self.cfg.output.set_gps_origin && self.cfg.gnss.source != GnssSource::Off) {
+            // No origin of ours is coming (our own receiver's first fix
+            // would give one): the autopilot's is asked for, and its
+            // absence said, from the first IMU sample on (a compass start
+            // waits for it).
+            self.autopilot.watch_origin(m.t_s, &self.log, counters, out);
         }
         let Some(est) = self.est.as_mut() else {
             match self
@@ -457,6 +499,7 @@ impl Fusion {
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
         self.est_gen += 1;
         self.est = Some(est);
+        self.started_unlocated = self.gnss.frame().is_none();
         self.tracker.filter_started(t_s);
         self.queue.drop_before(t_s);
         counters.add(

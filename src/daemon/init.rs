@@ -190,7 +190,17 @@ pub(super) struct Starter {
     in_place_t: Option<f64>,
     /// The last reason for waiting reported, and when to report it again.
     reported: Option<(Waiting, f64)>,
+    /// The first IMU sample's time: how long a compass start has waited
+    /// for a world origin (its declination).
+    first_imu_t: Option<f64>,
 }
+
+/// A compass start waits this long after the first IMU sample (s) for a
+/// world origin to give its declination (a ground station sets
+/// ArduPilot's EKF origin, or the autopilot's GNSS does at its first fix),
+/// then takes the magnetic heading: a heading many degrees off true north
+/// that EKF3, taking our yaw, converges from only slowly once corrected.
+const ORIGIN_WAIT_FOR_COMPASS_S: f64 = 20.0;
 
 /// Why no filter has started yet, at this IMU sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -199,6 +209,9 @@ pub(super) enum Waiting {
     Window,
     /// No `ATTITUDE` from the autopilot yet.
     NoAttitude,
+    /// A compass but no world origin yet for its declination (for at most
+    /// [`ORIGIN_WAIT_FOR_COMPASS_S`]).
+    NoOrigin,
     /// `init.yaw_source` has no yaw to give (no compass reading, no world
     /// origin for the declination, no `ATTITUDE` yaw).
     NoYaw,
@@ -215,6 +228,10 @@ impl Waiting {
         match self {
             Waiting::Window => "waiting: filling the static window",
             Waiting::NoAttitude => "waiting: no ATTITUDE from the autopilot",
+            Waiting::NoOrigin => {
+                "waiting: no world origin for the compass's declination (set the EKF origin, or gnss.origin_llh); \
+                 the magnetic heading is taken 20 s after start"
+            }
             Waiting::NoYaw => "waiting: no yaw from init.yaw_source (no compass, origin or ATTITUDE yaw)",
             Waiting::NotStillNoPosition => {
                 "waiting: vehicle not still, and no autopilot position (LOCAL_POSITION_NED) for an in-flight start"
@@ -240,6 +257,7 @@ impl Default for Starter {
             good: GoodEstimates::default(),
             in_place_t: None,
             reported: None,
+            first_imu_t: None,
         }
     }
 }
@@ -379,6 +397,7 @@ impl Starter {
         frame: Option<NedFrame>,
     ) -> Result<Start, Waiting> {
         self.static_buf.push_back(m);
+        let first_imu_t = *self.first_imu_t.get_or_insert(m.t_s);
         let window = cfg.init.static_window_s;
         while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
             self.static_buf.pop_front();
@@ -399,6 +418,14 @@ impl Starter {
             .then(|| attitude_from_static(&w.acc, 0.0))
             .flatten()
             .unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
+        let compass_first = matches!(cfg.init.yaw_source, YawSource::Auto | YawSource::Compass);
+        if frame.is_none()
+            && compass_first
+            && ap.mag_direction_B().is_some()
+            && m.t_s - first_imu_t < ORIGIN_WAIT_FOR_COMPASS_S
+        {
+            return Err(Waiting::NoOrigin);
+        }
         let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
         let (x0, mut p0) =
             initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw]).ok_or(if is_static {
@@ -430,7 +457,7 @@ impl Starter {
         let good = self.good.take_best();
         // An IMU gap or a reboot makes the autopilot's state stale.
         let fresh_ap = kind == Restart::Unhealthy;
-        self.carried = if kind == Restart::Reboot {
+        self.carried = if matches!(kind, Restart::Reboot | Restart::Located) {
             None
         } else if own_fix {
             (!failed_again && fresh_ap)

@@ -204,6 +204,10 @@ pub(super) enum Restart {
     Gap,
     /// A health check failed (divergence, covariance, state).
     Unhealthy,
+    /// The world origin came while standing, after a start without it: a
+    /// fresh start (a static window, the compass with its declination),
+    /// nothing of the autopilot's forgotten.
+    Located,
 }
 
 /// The MAVLink signing key, if one is configured (validated with the config;

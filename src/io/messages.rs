@@ -157,6 +157,10 @@ pub enum Outbound {
         message_id: u32,
         interval_us: f32,
     },
+    /// `MAV_CMD_REQUEST_MESSAGE`: send `message_id` once.
+    RequestMessage {
+        message_id: u32,
+    },
     TimesyncRequest {
         ts1_ns: i64,
     },

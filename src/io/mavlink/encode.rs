@@ -35,6 +35,13 @@ pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) ->
             message_id,
             interval_us,
         } => set_message_interval(*message_id, *interval_us, target_system, target_component),
+        Outbound::RequestMessage { message_id } => apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            target_system,
+            target_component,
+            command: apm::MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            param1: *message_id as f32,
+            ..Default::default()
+        }),
         Outbound::TimesyncRequest { ts1_ns } => timesync_request(*ts1_ns, target_system, target_component),
         Outbound::TimesyncReply { tc1_ns, ts1_ns } => apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
             tc1: *tc1_ns,
