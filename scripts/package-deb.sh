@@ -71,11 +71,11 @@ if [ -z "$bin_dir" ]; then
     cross_env=(CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
                CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc)
   fi
-  # The daemon that flies builds without the simulator (no demo, no evaluate);
-  # the front-end with its default features (V4L2). Two builds: one cargo
-  # call would apply --no-default-features to both.
-  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" -p cmsckf --no-default-features --bin cmsckf
-  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" -p cmsckf-frontend --bin cmsckf-frontend
+  # The daemon that flies builds without the simulator (no demo, no evaluate),
+  # the front-end with its V4L2 camera: --no-default-features applies to both
+  # packages of the one cargo call, so the front-end's feature is named.
+  env "${cross_env[@]}" cargo build --profile "$profile" --target "$target" --no-default-features \
+    -p cmsckf --bin cmsckf -p cmsckf-frontend --bin cmsckf-frontend --features cmsckf-frontend/v4l2
   dir="$profile"; [ "$profile" = dev ] && dir=debug
   bin_dir="target/$target/$dir"
 fi

@@ -41,7 +41,7 @@ use rand::SeedableRng;
 /// placeholder shows as a rotated track.
 const HOME: [f64; 4] = [-35.363261, 149.165230, 584.0, 37.0];
 /// Seconds of standing after EKF3 takes the estimates, before arming.
-const STAND_S: f64 = 20.0;
+const STAND_S: f64 = 12.0;
 /// Seconds of hover over the start before landing.
 const HOVER_S: f64 = 8.0;
 /// The box's corners in the autopilot's local NED frame (m).
