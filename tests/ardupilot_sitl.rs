@@ -664,6 +664,7 @@ fn fly(origin: Origin) {
         // and said so, and a start made before the origin came (its yaw
         // with no declination) was made again on the ground.
         assert_eq!(c("gnss_origin_from_autopilot"), 1, "{:?}", summary.counters);
+        assert!(c("autopilot_origin_missing") >= 1, "the lost origin was never said");
         eprintln!(
             "origin missing said {} times, starts made again for the origin {}",
             c("autopilot_origin_missing"),

@@ -368,9 +368,12 @@ impl AutopilotView {
     /// sample without it, says on STATUSTEXT, in the log and the journal
     /// that the autopilot has no EKF origin and what to do, again every
     /// [`ORIGIN_MISSING_REPEAT_S`].
+    /// `warn`: no origin of ours is coming (our own receiver's first fix
+    /// would give one), so its absence is worth saying.
     pub(super) fn watch_origin(
         &mut self,
         t_s: f64,
+        warn: bool,
         log: &FlightLog,
         counters: &Counters,
         out: &mpsc::Sender<Outbound>,
@@ -385,9 +388,11 @@ impl AutopilotView {
             let _ = out.try_send(Outbound::RequestMessage { message_id: 49 });
         }
         // An autopilot with a GNSS receiver of its own sets its origin at
-        // its first fix: nothing to say.
+        // its first fix: nothing to say. The words are ArduPilot's case (no
+        // home, no arming); other autopilots are only asked.
         let own_gnss = self.gps_accuracy.is_some();
-        if !own_gnss && t_s - since >= ORIGIN_MISSING_AFTER_S && t_s >= o.next_warn_t_s {
+        let ardupilot = self.kind == Some(AutopilotKind::ArduPilot);
+        if warn && ardupilot && !own_gnss && t_s - since >= ORIGIN_MISSING_AFTER_S && t_s >= o.next_warn_t_s {
             o.next_warn_t_s = t_s + ORIGIN_MISSING_REPEAT_S;
             counters.add(Counter::AutopilotOriginMissing, 1);
             let text = "the autopilot reports no EKF origin (GPS_GLOBAL_ORIGIN): it cannot set home or arm; \
@@ -395,11 +400,19 @@ impl AutopilotView {
                         output.set_gps_origin = true";
             tracing::warn!(reason = "autopilot_origin_missing", "{text}");
             log.text(Level::Warning, t_s, text);
-            let _ = out.try_send(Outbound::StatusText {
-                severity: 4,
-                text: "cmsckf: autopilot has no EKF origin: set it".to_string(),
-            });
+            // To the pilot's screen on the ground; in the air only the log.
+            if self.armed != Some(true) {
+                let _ = out.try_send(Outbound::StatusText {
+                    severity: 4,
+                    text: "cmsckf: autopilot has no EKF origin: set it".to_string(),
+                });
+            }
         }
+    }
+
+    /// Disarmed and on the ground, by what the autopilot last said.
+    pub(super) fn disarmed_on_ground(&self) -> bool {
+        self.armed == Some(false) && self.zupt_allowed()
     }
 
     /// Roll, pitch, yaw (rad), as `ATTITUDE` last said.
@@ -464,7 +477,7 @@ mod tests {
         let log = FlightLog::new(None, false);
         let n = (secs * 100.0) as usize;
         for k in 0..n {
-            ap.watch_origin(from_s + k as f64 * 0.01, &log, counters, &tx);
+            ap.watch_origin(from_s + k as f64 * 0.01, true, &log, counters, &tx);
         }
         let mut sent = Vec::new();
         while let Ok(m) = rx.try_recv() {
@@ -476,7 +489,10 @@ mod tests {
     #[test]
     fn a_missing_origin_is_asked_for_and_said_and_an_origin_ends_both() {
         let counters = Counters::default();
-        let mut ap = AutopilotView::default();
+        let mut ap = AutopilotView {
+            kind: Some(AutopilotKind::ArduPilot),
+            ..Default::default()
+        };
         let sent = watch(&mut ap, 100.0, 4.9, &counters);
         // Asked for every 2 s; nothing said in the first 5 s.
         let asks = sent
@@ -523,12 +539,40 @@ mod tests {
     fn an_autopilot_with_its_own_gnss_is_asked_but_not_warned() {
         let counters = Counters::default();
         let mut ap = AutopilotView {
+            kind: Some(AutopilotKind::ArduPilot),
             gps_accuracy: Some((2.0, 3.0)),
             ..Default::default()
         };
         let sent = watch(&mut ap, 0.0, 20.0, &counters);
         assert!(sent.iter().any(|m| matches!(m, Outbound::RequestMessage { .. })));
         assert!(!sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
+        assert_eq!(counters.get(Counter::AutopilotOriginMissing), 0);
+    }
+
+    #[test]
+    fn px4_and_an_origin_of_ours_coming_are_asked_but_not_warned() {
+        let counters = Counters::default();
+        let mut px4 = AutopilotView {
+            kind: Some(AutopilotKind::Px4),
+            ..Default::default()
+        };
+        let sent = watch(&mut px4, 0.0, 20.0, &counters);
+        assert!(sent.iter().any(|m| matches!(m, Outbound::RequestMessage { .. })));
+        assert!(!sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
+        let mut ap = AutopilotView {
+            kind: Some(AutopilotKind::ArduPilot),
+            ..Default::default()
+        };
+        let (tx, mut rx) = mpsc::channel(1024);
+        let log = FlightLog::new(None, false);
+        for k in 0..2000 {
+            ap.watch_origin(k as f64 * 0.01, false, &log, &counters, &tx);
+        }
+        let mut said = 0;
+        while let Ok(m) = rx.try_recv() {
+            said += matches!(m, Outbound::StatusText { .. }) as usize;
+        }
+        assert_eq!(said, 0);
         assert_eq!(counters.get(Counter::AutopilotOriginMissing), 0);
     }
 }

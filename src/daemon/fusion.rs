@@ -67,6 +67,9 @@ pub struct Fusion {
     /// The running filter started with no world origin known, so with no
     /// declination for a compass yaw (see `on_located`).
     started_unlocated: bool,
+    /// The origin came after such a start: the filter starts again at the
+    /// next sample that finds the vehicle disarmed on the ground.
+    located_pending: bool,
     rebase: RebaseExec,
     gnss: GnssIn,
     /// The IMU stream's clock: single bad stamps rejected, jumps confirmed.
@@ -165,6 +168,7 @@ impl Fusion {
             est: None,
             est_gen: 0,
             started_unlocated: false,
+            located_pending: false,
             gnss: GnssIn::new(&cfg),
             imu_clock: TimeGuard::new(REBOOT_JUMP_S, IMU_JUMP_CONFIRM, cfg.mavlink.clock_jump_confirm_s),
             last_imu_t: f64::NEG_INFINITY,
@@ -201,7 +205,14 @@ impl Fusion {
                 let site = install_site(&mut self.est, self.est_gen, self.log.logger(), self.last_imu_t);
                 self.rebase.on_installed(seq, site, &ctx.counters);
             }
-            FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
+            FusionMsg::Rtcm { bytes, stream } => {
+                // Our own receiver's first fix can be the world origin too.
+                let had_frame = self.gnss.frame().is_some();
+                self.on_rtcm(&bytes, stream, &ctx.counters);
+                if !had_frame && self.gnss.frame().is_some() {
+                    self.on_located(&ctx.out);
+                }
+            }
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu(m, ctx),
             other => {
@@ -209,7 +220,7 @@ impl Fusion {
                 self.autopilot
                     .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters);
                 if !had_frame && self.gnss.frame().is_some() {
-                    self.on_located(&ctx.counters, &ctx.out);
+                    self.on_located(&ctx.out);
                 }
             }
         }
@@ -221,24 +232,28 @@ impl Fusion {
     /// heading, had no declination (ArduPilot's is 0 until it knows where it
     /// is). On the ground a restart takes the compass with the WMM
     /// declination; in the air the yaw is kept, and said to be magnetic.
-    fn on_located(&mut self, counters: &Counters, out: &mpsc::Sender<Outbound>) {
-        if self.est.is_none() || !self.started_unlocated || self.cfg.init.yaw_source == YawSource::Config {
+    fn on_located(&mut self, out: &mpsc::Sender<Outbound>) {
+        let i = &self.cfg.init;
+        let compass_now = matches!(i.yaw_source, YawSource::Auto | YawSource::Compass)
+            && self.autopilot.mag_direction_B().is_some()
+            && self.autopilot.unix_days().is_some();
+        if self.est.is_none() || !self.started_unlocated || !compass_now {
             return;
         }
         self.started_unlocated = false;
-        let t_s = self.last_imu_t;
-        if self.autopilot.zupt_allowed() {
-            counters.add(Counter::RestartLocated, 1);
-            self.restart(
-                t_s,
-                "the origin came: yaw again, with the compass's declination",
-                Restart::Located,
-                out,
-            );
-        } else {
-            let text = "the origin came in flight: our yaw stays magnetic (no declination) until the next start";
+        // Restarted at the next IMU sample that finds the vehicle disarmed
+        // on the ground (now, or after the landing).
+        self.located_pending = true;
+        if !self.autopilot.disarmed_on_ground() {
+            let t_s = self.last_imu_t;
+            let text =
+                "the origin came in flight: our yaw stays magnetic (no declination) until disarmed on the ground";
             tracing::warn!(reason = "yaw_without_declination", "{text}");
             self.log.text(Level::Warning, t_s, text);
+            let _ = out.try_send(Outbound::StatusText {
+                severity: 4,
+                text: "cmsckf: yaw magnetic until landed (origin late)".to_string(),
+            });
         }
     }
 
@@ -409,12 +424,24 @@ impl Fusion {
         if self.cfg.output.set_gps_origin && self.gnss.frame().is_some() {
             self.autopilot
                 .send_origin(m.t_s, self.gnss.frame(), &self.log, counters, out);
-        } else if !(self.cfg.output.set_gps_origin && self.cfg.gnss.source != GnssSource::Off) {
-            // No origin of ours is coming (our own receiver's first fix
-            // would give one): the autopilot's is asked for, and its
-            // absence said, from the first IMU sample on (a compass start
-            // waits for it).
-            self.autopilot.watch_origin(m.t_s, &self.log, counters, out);
+        } else {
+            // No origin yet: the autopilot's is asked for from the first
+            // IMU sample on (a compass start waits for it), and its absence
+            // said unless one of ours is coming (our own receiver's first
+            // fix gives one, sent with `output.set_gps_origin`).
+            let ours_coming = self.cfg.output.set_gps_origin && self.cfg.gnss.source != GnssSource::Off;
+            self.autopilot
+                .watch_origin(m.t_s, !ours_coming, &self.log, counters, out);
+        }
+        if self.located_pending && self.autopilot.disarmed_on_ground() {
+            self.located_pending = false;
+            counters.add(Counter::RestartLocated, 1);
+            self.restart(
+                m.t_s,
+                "the origin came: yaw again, with the compass's declination",
+                Restart::Located,
+                out,
+            );
         }
         let Some(est) = self.est.as_mut() else {
             match self
@@ -500,6 +527,7 @@ impl Fusion {
         self.est_gen += 1;
         self.est = Some(est);
         self.started_unlocated = self.gnss.frame().is_none();
+        self.located_pending = false;
         self.tracker.filter_started(t_s);
         self.queue.drop_before(t_s);
         counters.add(

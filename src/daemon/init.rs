@@ -230,7 +230,7 @@ impl Waiting {
             Waiting::NoAttitude => "waiting: no ATTITUDE from the autopilot",
             Waiting::NoOrigin => {
                 "waiting: no world origin for the compass's declination (set the EKF origin, or gnss.origin_llh); \
-                 the magnetic heading is taken 20 s after start"
+                 the autopilot's heading is taken 20 s after start"
             }
             Waiting::NoYaw => "waiting: no yaw from init.yaw_source (no compass, origin or ATTITUDE yaw)",
             Waiting::NotStillNoPosition => {
@@ -397,6 +397,10 @@ impl Starter {
         frame: Option<NedFrame>,
     ) -> Result<Start, Waiting> {
         self.static_buf.push_back(m);
+        // A clock that went back (a reboot) times the wait afresh.
+        if self.first_imu_t.is_some_and(|t| m.t_s < t) {
+            self.first_imu_t = None;
+        }
         let first_imu_t = *self.first_imu_t.get_or_insert(m.t_s);
         let window = cfg.init.static_window_s;
         while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
@@ -418,9 +422,12 @@ impl Starter {
             .then(|| attitude_from_static(&w.acc, 0.0))
             .flatten()
             .unwrap_or_else(|| UnitQuaternion::from_euler_angles(roll, pitch, 0.0));
-        let compass_first = matches!(cfg.init.yaw_source, YawSource::Auto | YawSource::Compass);
-        if frame.is_none()
-            && compass_first
+        // Only a static start on `auto` waits (`compass` waits for the
+        // origin anyway; an in-flight start must not leave the autopilot
+        // without our estimates).
+        if is_static
+            && frame.is_none()
+            && cfg.init.yaw_source == YawSource::Auto
             && ap.mag_direction_B().is_some()
             && m.t_s - first_imu_t < ORIGIN_WAIT_FOR_COMPASS_S
         {
@@ -457,6 +464,9 @@ impl Starter {
         let good = self.good.take_best();
         // An IMU gap or a reboot makes the autopilot's state stale.
         let fresh_ap = kind == Restart::Unhealthy;
+        if kind == Restart::Reboot {
+            self.first_imu_t = None;
+        }
         self.carried = if matches!(kind, Restart::Reboot | Restart::Located) {
             None
         } else if own_fix {
