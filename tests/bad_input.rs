@@ -24,11 +24,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
     p.hello().await;
     // A static second of IMU initialises the filter.
     let mut t = 10.0;
-    for _ in 0..150 {
-        p.imu(t).await;
-        t += 0.01;
-        tokio::time::sleep(Duration::from_micros(300)).await;
-    }
+    p.imu_run(&mut t, 150).await;
     assert!(
         p.drain_for(std::time::Duration::from_millis(20)).await.estimates > 10,
         "no estimates after initialisation"
@@ -87,11 +83,7 @@ async fn bad_input_is_rejected_counted_and_survived() {
     }
     // 5. An IMU gap of 1 s, then the stream goes on.
     t += 1.0;
-    for _ in 0..100 {
-        p.imu(t).await;
-        t += 0.01;
-        tokio::time::sleep(Duration::from_micros(300)).await;
-    }
+    p.imu_run(&mut t, 100).await;
     let after = p.drain_for(std::time::Duration::from_millis(20)).await.estimates;
     assert!(
         after > 10,

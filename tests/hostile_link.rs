@@ -464,11 +464,7 @@ async fn a_burst_of_forged_samples_is_not_a_reboot() {
     let mut ap = MavPeer::new(port, 1, 1).await;
     ap.hello().await;
     let mut t = 10.0;
-    for _ in 0..150 {
-        ap.imu(t).await;
-        t += 0.01;
-        tokio::time::sleep(Duration::from_micros(300)).await;
-    }
+    ap.imu_run(&mut t, 150).await;
     assert!(ap.drain_for(Duration::from_millis(20)).await.estimates > 10, "no start");
     // Thirteen bursts, each between two of the autopilot's samples; the
     // estimates must keep coming all along.
@@ -477,11 +473,7 @@ async fn a_burst_of_forged_samples_is_not_a_reboot() {
         for k in 0..5 {
             ap.imu(1.0 + k as f64 * 1e-3).await;
         }
-        for _ in 0..20 {
-            ap.imu(t).await;
-            t += 0.01;
-            tokio::time::sleep(Duration::from_micros(300)).await;
-        }
+        ap.imu_run(&mut t, 20).await;
         least = least.min(ap.drain_for(Duration::from_millis(5)).await.estimates);
     }
     assert!(least > 0, "the estimates stopped after a burst");

@@ -200,29 +200,23 @@ impl Fusion {
     pub fn handle(&mut self, msg: FusionMsg, ctx: &Ctx) {
         let site = install_site(&mut self.est, self.est_gen, self.log.logger(), self.last_imu_t);
         self.rebase.poll(site, &ctx.counters);
+        // The world origin can come with any input: the autopilot's
+        // GPS_GLOBAL_ORIGIN, or our own receiver's first fix.
+        let had_frame = self.gnss.frame().is_some();
         match msg {
             FusionMsg::RebaseInstalled { seq } => {
                 let site = install_site(&mut self.est, self.est_gen, self.log.logger(), self.last_imu_t);
                 self.rebase.on_installed(seq, site, &ctx.counters);
             }
-            FusionMsg::Rtcm { bytes, stream } => {
-                // Our own receiver's first fix can be the world origin too.
-                let had_frame = self.gnss.frame().is_some();
-                self.on_rtcm(&bytes, stream, &ctx.counters);
-                if !had_frame && self.gnss.frame().is_some() {
-                    self.on_located(&ctx.out);
-                }
-            }
+            FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu(m, ctx),
-            other => {
-                let had_frame = self.gnss.frame().is_some();
-                self.autopilot
-                    .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters);
-                if !had_frame && self.gnss.frame().is_some() {
-                    self.on_located(&ctx.out);
-                }
-            }
+            other => self
+                .autopilot
+                .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
+        }
+        if !had_frame && self.gnss.frame().is_some() {
+            self.on_located(&ctx.out);
         }
     }
 

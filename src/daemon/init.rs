@@ -397,10 +397,6 @@ impl Starter {
         frame: Option<NedFrame>,
     ) -> Result<Start, Waiting> {
         self.static_buf.push_back(m);
-        // A clock that went back (a reboot) times the wait afresh.
-        if self.first_imu_t.is_some_and(|t| m.t_s < t) {
-            self.first_imu_t = None;
-        }
         let first_imu_t = *self.first_imu_t.get_or_insert(m.t_s);
         let window = cfg.init.static_window_s;
         while self.static_buf.front().is_some_and(|f| m.t_s - f.t_s > window) {
@@ -464,6 +460,9 @@ impl Starter {
         let good = self.good.take_best();
         // An IMU gap or a reboot makes the autopilot's state stale.
         let fresh_ap = kind == Restart::Unhealthy;
+        // A reboot's clock starts over: the wait for an origin is timed
+        // afresh (the fusion loop's time guard lets no sample of a clock
+        // gone back reach the starter before this).
         if kind == Restart::Reboot {
             self.first_imu_t = None;
         }

@@ -76,6 +76,16 @@ impl MavPeer {
         self.send(&imu(t_s, -9.81)).await;
     }
 
+    /// `n` still IMU samples at 100 Hz from `*t_s` on (which it advances),
+    /// 0.3 ms apart on the wire: a second of them starts the filter.
+    pub async fn imu_run(&mut self, t_s: &mut f64, n: usize) {
+        for _ in 0..n {
+            self.imu(*t_s).await;
+            *t_s += 0.01;
+            tokio::time::sleep(Duration::from_micros(300)).await;
+        }
+    }
+
     /// The autopilot's first words: where it is, its attitude and position.
     pub async fn hello(&mut self) {
         self.send(&heartbeat()).await;
