@@ -153,6 +153,7 @@ counters! {
     // Vision updates.
     TracksUsed = "tracks_used", event;
     LoopClosureTracks = "loop_closure_tracks", event;
+    LowParallaxTracks = "low_parallax_tracks", event;
     LoopClosureDeferred = "loop_closure_deferred", event;
     KeyframesPromoted = "keyframes_promoted", event;
     GlobalUpdates = "global_updates", event;

@@ -196,6 +196,9 @@ pub struct EstimatorConfig {
     /// Tracks whose bearings span less than this are skipped, not counted
     /// against health (deg): a hover or a far landmark gives no parallax.
     pub min_parallax_deg: f64,
+    /// Use those tracks at the scene's depth, the depth unknown to them, so
+    /// a hover is held by its image (bool); off, they are skipped.
+    pub low_parallax_updates: bool,
     /// Prior of the camera–IMU time offset `t_d` (s): the IMU clock's time
     /// of a frame is its camera stamp plus `t_d`. Estimated online.
     pub time_offset_s: f64,
@@ -222,6 +225,7 @@ impl Default for EstimatorConfig {
             max_depth_m: 300.0,
             max_triangulation_cond: 1e6,
             min_parallax_deg: 0.3,
+            low_parallax_updates: true,
             time_offset_s: 0.0,
             time_offset_sigma_s: 0.02,
             health_grace_s: 2.0,

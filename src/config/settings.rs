@@ -49,6 +49,7 @@ impl Config {
             gnss_period_s: 1.0 / c.gnss.epoch_rate_hz,
             gnss_max_delay_s: c.gnss.max_delay_s,
             min_parallax_rad: c.estimator.min_parallax_deg.to_radians(),
+            low_parallax_updates: c.estimator.low_parallax_updates,
             zupt: ZuptSettings {
                 enabled: c.zupt.enabled,
                 max_gyro_radps: c.zupt.max_gyro_radps,

@@ -216,6 +216,10 @@ fn fuse_frame(est: &mut Estimator, t: f64, fr: &NormFrame, landmarks: &mut Landm
                 counters.add(Counter::TrackNisDof, dof as u64);
             }
             counters.add(Counter::GlobalUpdates, rep.global_updates as u64);
+            if rep.low_parallax_tracks > 0 {
+                // Tracks used at their remembered depth (a hover).
+                counters.add(Counter::LowParallaxTracks, rep.low_parallax_tracks as u64);
+            }
             if rep.loop_closure_tracks > 0 {
                 // Tracks that reached back to a keyframe: revisits.
                 counters.add(Counter::LoopClosureTracks, rep.loop_closure_tracks as u64);
@@ -262,6 +266,7 @@ fn log_frame(l: &McapLogger, est: &Estimator, t: f64, features: usize, rep: &Fra
             "rejected": rep.rejected, "nis": rep.nis, "residual_rms": rep.residual_rms,
             "nis_per_dof": nis_per_dof, "nis_per_dof_95": nis_per_dof_95,
             "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
+            "low_parallax_tracks": rep.low_parallax_tracks,
             "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
             "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
             "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),

@@ -288,6 +288,135 @@ pub fn nullspace_project(hx: &DMatrix<f64>, hf: &DMatrix<f64>, r: &DVector<f64>)
     )
 }
 
+/// Where a low-parallax track's landmark is taken to lie (§3e): where it
+/// was last triangulated, its inverse depth from the views known to a
+/// fraction of itself.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthPrior {
+    pub p_W: Vector3<f64>,
+    pub inverse_depth_sigma_ratio: f64,
+}
+
+/// A low-parallax track's whitened, projected rows: `r = H_x δx + n` with
+/// unit noise, and the point they were linearised at.
+#[derive(Clone, Debug)]
+pub struct LowParallaxRows {
+    pub hx: DMatrix<f64>,
+    pub r: DVector<f64>,
+    pub p_f: Vector3<f64>,
+}
+
+/// A low-parallax track's whitened rows (README §3e, eqs. LP1–LP4), with
+/// the landmark's linearisation point: the track is anchored along its mean
+/// bearing `b̄` from its views' mean centre `c̄`, at the depth
+/// `d = b̄ᵀ (p_prior − c̄)` of the remembered landmark (LP1), and refined
+/// across the bearing only; the two directions across `b̄` are projected out
+/// as `nullspace_project` does all three (LP2); the depth is a nuisance of
+/// inverse-depth sigma `κ/d` (σ_d = κ d at the linearisation point), whose
+/// column joins the noise (LP3) and is whitened away (LP4). An error when
+/// the bearings are not finite or the point falls behind a view.
+pub fn low_parallax_system(
+    views: &[View],
+    e: &Extrinsic,
+    obs: &[Obs],
+    prior: DepthPrior,
+    min_depth_m: f64,
+) -> Result<LowParallaxRows, Reject> {
+    if obs.len() < 2 {
+        return Err(Reject::TooFewObservations);
+    }
+    // LP1: p = c̄ + d̄ b̄ + U u, U spanning the plane across b̄.
+    let mut b = Vector3::zeros();
+    let mut c = Vector3::zeros();
+    for o in obs {
+        let v = &views[o.view];
+        b += (v.R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize();
+        c += v.p_B_in_W + v.R_W_B * e.p_C_in_B;
+    }
+    let b = b.normalize();
+    let c = c / obs.len() as f64;
+    let depth_m = b.dot(&(prior.p_W - c));
+    let sigma_d_m = depth_m * prior.inverse_depth_sigma_ratio;
+    if !(b.iter().chain(c.iter()).all(|x| x.is_finite()) && depth_m.is_finite() && sigma_d_m.is_finite()) {
+        return Err(Reject::NonFinite);
+    }
+    if depth_m < min_depth_m {
+        return Err(Reject::BadDepth);
+    }
+    let seed = if b.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    let u1 = b.cross(&seed).normalize();
+    let u = nalgebra::Matrix3x2::from_columns(&[u1, b.cross(&u1)]);
+    let mut p = c + b * depth_m;
+    // Gauss–Newton across the bearing (the depth stays at the prior's).
+    for _ in 0..3 {
+        let mut jtj = Matrix2::zeros();
+        let mut jtr = Vector2::zeros();
+        for o in obs {
+            let v = &views[o.view];
+            if point_in_camera(v, e, &p).z < min_depth_m {
+                return Err(Reject::BadDepth);
+            }
+            let (z, _, hf) = measure(v, e, &p);
+            let j = o.W * hf * u;
+            jtj += j.transpose() * j;
+            jtr += j.transpose() * (o.W * (o.xn - z));
+        }
+        let du = jtj.cholesky().ok_or(Reject::NonFinite)?.solve(&jtr);
+        p += u * du;
+        if !p.iter().all(|x| x.is_finite()) {
+            return Err(Reject::NonFinite);
+        }
+        if du.norm() < 1e-9 * depth_m {
+            break;
+        }
+    }
+    for o in obs {
+        if point_in_camera(&views[o.view], e, &p).z < min_depth_m {
+            return Err(Reject::BadDepth);
+        }
+    }
+    let (mut hx, hf, r) = track_system(views, e, obs, &p);
+    // The depth is the views' own, from their mean centre c̄ = Σ c_i / n,
+    // c_i = p_B_i + R_W_B_i p_C_in_B: the landmark moves along b̄ with
+    // them, ∂p/∂δp_i = b̄ b̄ᵀ / n and ∂p/∂δθ_i = −b̄ b̄ᵀ [R_W_B_i p_C_in_B]× / n
+    // (the parts across b̄ are projected out with the others), so a
+    // translation of the whole window leaves the residual as it is, as the
+    // unobservable position must (LP1′).
+    let h_d = &hf * b;
+    let n = obs.len() as f64;
+    for o in obs {
+        let v = &views[o.view];
+        let d_rot = -(b.transpose() * skew(&(v.R_W_B * e.p_C_in_B))) / n;
+        let d_pos = b.transpose() / n;
+        let mut block = hx.view_mut((0, 6 * o.view), (2 * obs.len(), 6));
+        block.columns_mut(0, 3).gemm(1.0, &h_d, &d_rot, 1.0);
+        block.columns_mut(3, 3).gemm(1.0, &h_d, &d_pos, 1.0);
+    }
+    // LP2: [H_f U | H_x | H_f b̄ | r], reflected on its first two columns.
+    let (rows, nx) = hx.shape();
+    let mut a = DMatrix::zeros(rows, 2 + nx + 2);
+    a.columns_mut(0, 2).copy_from(&(&hf * u));
+    a.columns_mut(2, nx).copy_from(&hx);
+    a.column_mut(2 + nx).copy_from(&h_d);
+    a.column_mut(3 + nx).copy_from(&r);
+    super::math::householder_in_place(&mut a, 2);
+    let keep = rows - 2;
+    let mut hx = super::math::block_owned(&a, 2, 2, keep, nx);
+    let mut r = DVector::from_column_slice(&a.column(3 + nx).as_slice()[2..]);
+    // LP3: the noise is I + v vᵀ, v = σ_d Q₂ᵀ H_f b̄, σ_d = d̄.
+    let v = DVector::from_column_slice(&a.column(2 + nx).as_slice()[2..]) * sigma_d_m;
+    // LP4: (I + v vᵀ)^(-1/2) = I − κ v vᵀ, κ = (1 − 1/√(1 + |v|²)) / |v|².
+    let s = v.norm_squared();
+    if s > 0.0 {
+        let kappa = (1.0 - 1.0 / (1.0 + s).sqrt()) / s;
+        let vt_h = v.transpose() * &hx;
+        hx -= &v * (vt_h * kappa);
+        let vt_r = v.dot(&r);
+        r -= &v * (vt_r * kappa);
+    }
+    Ok(LowParallaxRows { hx, r, p_f: p })
+}
+
 /// The χ² gate's `H P Hᵀ` for the projected track (README §3, G1):
 /// `Q₂ᵀ (H_x P H_xᵀ) Q₂`, where `Q₂` spans the left null space of `H_f` (the
 /// rows `nullspace_project` keeps) and `p` is the covariance of the track's
@@ -538,5 +667,128 @@ mod tests {
                 "{n_obs} observations of {n_views} views: {err}"
             );
         }
+    }
+
+    /// A still camera's track (1 cm between views, turning): the
+    /// low-parallax rows vanish at the truth and their Jacobian matches
+    /// central differences of the rows' residual (LP1–LP4); a landmark
+    /// remembered at the wrong depth, even at infinity, leaves a residual of
+    /// about its inverse depth's error in sigmas, the nuisance's.
+    #[test]
+    fn low_parallax_rows_vanish_at_the_truth_and_match_finite_differences() {
+        let e = ext();
+        let views: Vec<_> = (0..8)
+            .map(|i| {
+                view(
+                    0.01 * i as f64,
+                    Vector3::new(0.003 * i as f64, 0.01 * i as f64, -3.0),
+                    Matrix3::identity(),
+                )
+            })
+            .collect();
+        let obs_of = |p_f: &Vector3<f64>| -> Vec<Obs> {
+            (0..views.len())
+                .map(|i| Obs {
+                    view: i,
+                    xn: measure(&views[i], &e, p_f).0,
+                    W: Matrix2::identity() * 400.0,
+                })
+                .collect()
+        };
+        // A landmark 5 m along the first view's optical axis, a little off it.
+        let r_wc = views[0].R_W_B * e.R_B_C;
+        let c0 = views[0].p_B_in_W + views[0].R_W_B * e.p_C_in_B;
+        let along = |d: f64| c0 + r_wc * (Vector3::new(0.1, -0.05, 1.0).normalize() * d);
+        let kappa = 0.6;
+        let prior = |p_W: Vector3<f64>| DepthPrior {
+            p_W,
+            inverse_depth_sigma_ratio: kappa,
+        };
+        let p_f = along(5.0);
+        let obs = obs_of(&p_f);
+        let LowParallaxRows { hx, r, p_f: p } = low_parallax_system(&views, &e, &obs, prior(p_f), 0.1).unwrap();
+        assert_eq!(r.len(), 2 * obs.len() - 2);
+        assert!(r.norm() < 1e-6, "{}", r.norm());
+        assert!((p - p_f).norm() < 1e-6, "{p} vs {p_f}");
+        let h = 1e-6;
+        for k in 0..6 * views.len() {
+            let perturbed = |s: f64| {
+                let mut v = views.clone();
+                let (i, j) = (k / 6, k % 6);
+                if j < 3 {
+                    let mut eps = Vector3::zeros();
+                    eps[j] = s;
+                    v[i].R_W_B = exp_so3(&eps).to_rotation_matrix().into_inner() * v[i].R_W_B;
+                } else {
+                    v[i].p_B_in_W[j - 3] += s;
+                }
+                v[i].p_lin_in_W = v[i].p_B_in_W;
+                // The remembered landmark moves with the views' mean
+                // centre: its depth from them is what is known (LP1′).
+                let c_bar = |vs: &[View]| {
+                    vs.iter()
+                        .map(|x| x.p_B_in_W + x.R_W_B * e.p_C_in_B)
+                        .sum::<Vector3<f64>>()
+                        / vs.len() as f64
+                };
+                let p_W = p_f + c_bar(&v) - c_bar(&views);
+                low_parallax_system(&v, &e, &obs, prior(p_W), 0.1).unwrap().r
+            };
+            // r = W (z − h(x̂)): ∂r/∂x̂ = −H.
+            let col = (perturbed(h) - perturbed(-h)) / (2.0 * h);
+            assert!(
+                (&col + hx.column(k)).norm() < 1e-4 * (1.0 + hx.column(k).norm()),
+                "column {k}: {col} vs {}",
+                hx.column(k)
+            );
+        }
+        // Moving the whole window is unobservable: the position columns of
+        // all the views sum to zero, axis by axis.
+        for axis in 0..3 {
+            let sum: DVector<f64> = (0..views.len()).map(|i| hx.column(6 * i + 3 + axis).into_owned()).sum();
+            assert!(sum.norm() < 1e-9 * hx.norm(), "axis {axis}: {}", sum.norm());
+        }
+        // So is a turn of the whole world about gravity (C5 with the views
+        // at their first estimates): δθ_i = ĝ, δp_i = −[p_i]× ĝ.
+        let g = Vector3::z();
+        let mut yaw = DVector::zeros(6 * views.len());
+        for (i, v) in views.iter().enumerate() {
+            yaw.rows_mut(6 * i, 3).copy_from(&g);
+            yaw.rows_mut(6 * i + 3, 3).copy_from(&(-skew(&v.p_B_in_W) * g));
+        }
+        // Exactly so but for `b̄ᵀ (ĝ × U u)`: the landmark's offset across the
+        // mean bearing (centimetres here) turned by the yaw.
+        assert!(
+            (&hx * &yaw).norm() < 1e-6 * hx.norm(),
+            "yaw: {} of {}",
+            (&hx * &yaw).norm(),
+            hx.norm()
+        );
+        // Remembered at 5 m, truly at 4 m, 10 m or at infinity: the
+        // residual is about |1 − 5/d| / κ sigmas, never more.
+        for d in [4.0, 10.0, 1e6] {
+            let r = low_parallax_system(&views, &e, &obs_of(&along(d)), prior(p_f), 0.1)
+                .unwrap()
+                .r;
+            let sigmas = (1.0 - 5.0 / d).abs() / kappa;
+            assert!(
+                r.norm() < 1.05 * sigmas + 1e-3,
+                "{d} m: |r| = {} for {sigmas}",
+                r.norm()
+            );
+            assert!(r.norm() > 0.5 * sigmas, "{d} m: |r| = {} for {sigmas}", r.norm());
+        }
+        // Degenerate input is refused, never a panic.
+        let mut nan = obs.clone();
+        nan[3].xn.y = f64::NAN;
+        assert!(low_parallax_system(&views, &e, &nan, prior(p_f), 0.1).is_err());
+        let nowhere = Vector3::new(f64::NAN, 0.0, 0.0);
+        assert!(low_parallax_system(&views, &e, &obs, prior(nowhere), 0.1).is_err());
+        assert!(low_parallax_system(&views, &e, &obs[..1], prior(p_f), 0.1).is_err());
+        // Remembered behind the views.
+        assert_eq!(
+            low_parallax_system(&views, &e, &obs, prior(along(-5.0)), 0.1).map(|_| ()),
+            Err(Reject::BadDepth)
+        );
     }
 }

@@ -258,6 +258,8 @@ pub struct Stats {
     pub gnss_epochs_late: u64,
     /// Frames taken as zero-velocity updates instead of clones (§3c).
     pub zupt_updates: u64,
+    /// Tracks used at the scene's depth for want of parallax (§3e).
+    pub low_parallax_tracks: u64,
 }
 
 /// Why a global update happened.
@@ -307,6 +309,9 @@ pub struct FrameReport {
     pub keyframe_created: bool,
     pub global_updates: usize,
     pub loop_closure_tracks: usize,
+    /// Of the tracks used, those with too little parallax to triangulate,
+    /// used at the scene's depth (§3e).
+    pub low_parallax_tracks: usize,
     /// Keyframe observations left for a later track: their keyframe is in
     /// a global part that a rebase is still computing (§5 R5).
     pub deferred: usize,
@@ -368,6 +373,9 @@ pub struct Estimator {
     schmidt_downdate: SchmidtDowndate,
     centre_W: Vector3<f64>,
     tracks: BTreeMap<u64, Track>,
+    /// Each landmark's last triangulated position (m, world) and when (s):
+    /// where a track of it with too little parallax is linearised (§3e).
+    landmark_memory: BTreeMap<u64, (Vector3<f64>, f64)>,
     /// Landmark → keyframes holding an observation of it.
     kf_by_landmark: BTreeMap<u64, BTreeSet<u64>>,
     /// Landmarks seen at a recent keyframe that have not yet left view.
@@ -444,6 +452,7 @@ impl Estimator {
             rebase_runner: RebaseJob::run,
             schmidt_downdate: math::add_gram_outside_block,
             tracks: BTreeMap::new(),
+            landmark_memory: BTreeMap::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
             next_kf_id: 0,

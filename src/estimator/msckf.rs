@@ -26,6 +26,15 @@ const PARALLAX_NOISE_SIGMAS: f64 = 5.0;
 /// parallax bound counts as poor parallax, not as inconsistent (§3c).
 const WEAK_PARALLAX_FACTOR: f64 = 4.0;
 
+/// Landmarks remembered for low-parallax tracks (§3e): at most this many,
+/// each for this long after it was last triangulated (s).
+const MAX_REMEMBERED_LANDMARKS: usize = 4096;
+const LANDMARK_MEMORY_S: f64 = 30.0;
+
+/// A remembered landmark's inverse depth is known to this fraction of it
+/// (§3e, LP3).
+const REMEMBERED_INVERSE_DEPTH_SIGMA: f64 = 0.6;
+
 /// One gated track's rows: its projected Jacobian over the columns `idx` of
 /// `P`, and its projected residual.
 type TrackRows = (DMatrix<f64>, DVector<f64>, Vec<usize>);
@@ -179,8 +188,10 @@ impl Estimator {
             involved.extend(ks.iter().copied());
             rows.push(row);
         }
+        self.forget_landmarks();
         report.tracks_used = rows.len();
         self.stats.tracks_used += rows.len() as u64;
+        self.stats.low_parallax_tracks += report.low_parallax_tracks as u64;
         self.stats.loop_closure_updates += report.loop_closure_tracks as u64;
         if rows.is_empty() {
             return;
@@ -349,17 +360,15 @@ impl Estimator {
         let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
         // NaN (a non-finite bearing) is not enough parallax either.
         if parallax.is_nan() || parallax < min_parallax {
-            reject(report, &mut self.stats, Reject::PoorParallax);
-            return None;
+            return self.gate_low_parallax((l, ks), (&views, &cols, &obs), gate, report);
         }
         let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
             Ok(p) => p,
             // With little more parallax than the bound, a depth out of range
             // or a fit that does not settle is the geometry's weakness, not
-            // the poses' inconsistency: counted as poor parallax.
+            // the poses' inconsistency: a low-parallax track.
             Err(Reject::BadDepth | Reject::NotConverged) if parallax < WEAK_PARALLAX_FACTOR * min_parallax => {
-                reject(report, &mut self.stats, Reject::PoorParallax);
-                return None;
+                return self.gate_low_parallax((l, ks), (&views, &cols, &obs), gate, report);
             }
             Err(r) => {
                 reject(report, &mut self.stats, r);
@@ -397,6 +406,11 @@ impl Estimator {
         }
         report.nis.push((nis, dof));
         report.landmarks_W.push(p_f);
+        if self.s.low_parallax_updates {
+            // Where a later track of it with too little parallax is
+            // linearised (§3e).
+            self.landmark_memory.insert(l, (p_f, self.t_s));
+        }
         if !ks.is_empty() {
             report.loop_closure_tracks += 1;
             let now = self.t_s;
@@ -411,6 +425,80 @@ impl Estimator {
             }
         }
         Some((hx, r, idx))
+    }
+
+    /// A track with too little parallax to triangulate (§3e): used where
+    /// its landmark was last triangulated, with its depth a nuisance, when
+    /// the filter remembers it and the track holds no keyframe view. Its
+    /// rows if they pass the χ² gate; otherwise it counts as poor parallax,
+    /// and never against health: a landmark that was never triangulated,
+    /// or that moved, is no divergence.
+    fn gate_low_parallax(
+        &mut self,
+        (l, ks): (u64, &[u64]),
+        (views, cols, obs): (&[View], &[usize], &[Obs]),
+        gate: &mut GateCache,
+        report: &mut FrameReport,
+    ) -> Option<TrackRows> {
+        let remembered = self.landmark_memory.get(&l).map(|(p, _)| *p);
+        let prior = match remembered {
+            Some(p_W) if self.s.low_parallax_updates && ks.is_empty() => feature::DepthPrior {
+                p_W,
+                inverse_depth_sigma_ratio: REMEMBERED_INVERSE_DEPTH_SIGMA,
+            },
+            _ => {
+                reject(report, &mut self.stats, Reject::PoorParallax);
+                return None;
+            }
+        };
+        let Ok(feature::LowParallaxRows { hx, r, .. }) =
+            feature::low_parallax_system(views, &self.s.ext, obs, prior, self.s.tri.min_depth_m)
+        else {
+            reject(report, &mut self.stats, Reject::PoorParallax);
+            return None;
+        };
+        if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
+            reject(report, &mut self.stats, Reject::NonFinite);
+            return None;
+        }
+        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
+        if idx != gate.idx {
+            gate.p = DMatrix::zeros(idx.len(), idx.len());
+            math::gather_block(&self.P, &idx, &mut gate.p);
+            gate.idx.clone_from(&idx);
+        }
+        // G1 with the whitened rows of LP4: S = H P_sub Hᵀ + I.
+        let hp = &hx * &gate.p;
+        let mut s = &hp * hx.transpose();
+        for i in 0..s.nrows() {
+            s[(i, i)] += 1.0;
+        }
+        let Some(ch) = s.cholesky() else {
+            reject(report, &mut self.stats, Reject::NonFinite);
+            return None;
+        };
+        let nis = r.dot(&ch.solve(&r));
+        let dof = r.len();
+        if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(self.s.chi2_gate_prob, dof) {
+            reject(report, &mut self.stats, Reject::PoorParallax);
+            return None;
+        }
+        report.nis.push((nis, dof));
+        report.low_parallax_tracks += 1;
+        Some((hx, r, idx))
+    }
+
+    /// Forgets the landmarks triangulated longest ago once the memory is
+    /// over its bound (§3e).
+    fn forget_landmarks(&mut self) {
+        if self.landmark_memory.len() <= MAX_REMEMBERED_LANDMARKS {
+            return;
+        }
+        let oldest_s = self.t_s - LANDMARK_MEMORY_S;
+        self.landmark_memory.retain(|_, (_, t_s)| *t_s > oldest_s);
+        while self.landmark_memory.len() > MAX_REMEMBERED_LANDMARKS {
+            self.landmark_memory.pop_first();
+        }
     }
 
     /// Stacks the gated tracks over the union of their columns, in state

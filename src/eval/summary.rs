@@ -70,6 +70,9 @@ pub struct ModeSummary {
     pub gnss_epochs_late: f64,
     /// Frames taken as zero-velocity updates, per flight.
     pub zupt_updates: f64,
+    /// Tracks used at their landmark's remembered depth for want of
+    /// parallax (§3e), per flight.
+    pub low_parallax_tracks: f64,
     /// The accepted tracks' NIS per degree of freedom over all seeds: 1
     /// when the pixel noise fits the tracks (NaN with no track).
     pub nis_per_dof: f64,
@@ -263,6 +266,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         gnss_epochs_fused: runs.iter().map(|r| r.stats.gnss_epochs_fused as f64).sum::<f64>() / n,
         gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
+        low_parallax_tracks: runs.iter().map(|r| r.stats.low_parallax_tracks as f64).sum::<f64>() / n,
         nis_per_dof: runs.iter().map(|r| r.nis_sum).sum::<f64>() / runs.iter().map(|r| r.nis_dof).sum::<u64>() as f64,
         resets: runs.iter().map(|r| r.resets).sum(),
         nees_pose_in_bounds_per_time: in_bounds_per_time(runs, 6, |r, i| {
