@@ -698,7 +698,7 @@ fn fly(origin: Origin) {
     // In the hover the camera sees no parallax and there are no
     // zero-velocity updates in the air: it is held by the tracks of the
     // landmarks triangulated on the way in, used at that depth (estimator
-    // README §3e): 0.12-0.18 m over six flights, where it was 0.23-1.01 m
+    // README §3e): 0.12-0.22 m over eight flights, where it was 0.23-1.01 m
     // with those tracks skipped (the IMU's drift alone).
     assert!(hovering.max_m < 0.5, "hover and landing error {hovering:?}");
     // EKF3 takes our yaw (EK3_SRC1_YAW = 6). On the ground station's path

@@ -196,8 +196,8 @@ pub struct EstimatorConfig {
     /// Tracks whose bearings span less than this are skipped, not counted
     /// against health (deg): a hover or a far landmark gives no parallax.
     pub min_parallax_deg: f64,
-    /// Use those tracks at the scene's depth, the depth unknown to them, so
-    /// a hover is held by its image (bool); off, they are skipped.
+    /// Use those tracks at the depth their landmark was last triangulated
+    /// at, so a hover is held by its image (bool); off, they are skipped.
     pub low_parallax_updates: bool,
     /// Prior of the camera–IMU time offset `t_d` (s): the IMU clock's time
     /// of a frame is its camera stamp plus `t_d`. Estimated online.

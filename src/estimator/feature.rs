@@ -288,6 +288,10 @@ pub fn nullspace_project(hx: &DMatrix<f64>, hf: &DMatrix<f64>, r: &DVector<f64>)
     )
 }
 
+/// Largest angle between a low-parallax track's mean bearing and its
+/// remembered landmark, seen from the views (rad, §3e): 5°.
+const MAX_PRIOR_OFF_BEARING_RAD: f64 = 0.087;
+
 /// Where a low-parallax track's landmark is taken to lie (§3e): where it
 /// was last triangulated, its inverse depth from the views known to a
 /// fraction of itself.
@@ -335,7 +339,14 @@ pub fn low_parallax_system(
     }
     let b = b.normalize();
     let c = c / obs.len() as f64;
-    let depth_m = b.dot(&(prior.p_W - c));
+    // The remembered landmark must lie along the bearing: one elsewhere
+    // (a front-end that reused the id, a landmark that moved) lends no
+    // depth.
+    let to_prior = prior.p_W - c;
+    let depth_m = b.dot(&to_prior);
+    if depth_m.is_finite() && depth_m < MAX_PRIOR_OFF_BEARING_RAD.cos() * to_prior.norm() {
+        return Err(Reject::BadDepth);
+    }
     let sigma_d_m = depth_m * prior.inverse_depth_sigma_ratio;
     if !(b.iter().chain(c.iter()).all(|x| x.is_finite()) && depth_m.is_finite() && sigma_d_m.is_finite()) {
         return Err(Reject::NonFinite);
@@ -785,6 +796,13 @@ mod tests {
         let nowhere = Vector3::new(f64::NAN, 0.0, 0.0);
         assert!(low_parallax_system(&views, &e, &obs, prior(nowhere), 0.1).is_err());
         assert!(low_parallax_system(&views, &e, &obs[..1], prior(p_f), 0.1).is_err());
+        // Remembered beside the bearing (a reused id): 10 m to the side and
+        // 0.35 m ahead would lend the nearest depth of all.
+        let beside = c0 + r_wc * Vector3::new(10.0, 0.0, 0.35);
+        assert_eq!(
+            low_parallax_system(&views, &e, &obs, prior(beside), 0.1).map(|_| ()),
+            Err(Reject::BadDepth)
+        );
         // Remembered behind the views.
         assert_eq!(
             low_parallax_system(&views, &e, &obs, prior(along(-5.0)), 0.1).map(|_| ()),

@@ -258,7 +258,8 @@ pub struct Stats {
     pub gnss_epochs_late: u64,
     /// Frames taken as zero-velocity updates instead of clones (§3c).
     pub zupt_updates: u64,
-    /// Tracks used at the scene's depth for want of parallax (§3e).
+    /// Tracks used at their landmark's remembered depth for want of
+    /// parallax (§3e).
     pub low_parallax_tracks: u64,
 }
 
@@ -310,7 +311,7 @@ pub struct FrameReport {
     pub global_updates: usize,
     pub loop_closure_tracks: usize,
     /// Of the tracks used, those with too little parallax to triangulate,
-    /// used at the scene's depth (§3e).
+    /// used at their landmark's remembered depth (§3e).
     pub low_parallax_tracks: usize,
     /// Keyframe observations left for a later track: their keyframe is in
     /// a global part that a rebase is still computing (§5 R5).
@@ -376,6 +377,11 @@ pub struct Estimator {
     /// Each landmark's last triangulated position (m, world) and when (s):
     /// where a track of it with too little parallax is linearised (§3e).
     landmark_memory: BTreeMap<u64, (Vector3<f64>, f64)>,
+    /// When the memory last forgot its old landmarks (s).
+    landmarks_forgotten_s: f64,
+    /// This frame's low-parallax tracks' NIS and dof, kept apart from the
+    /// monitor's (§3e); a buffer kept between frames.
+    low_parallax_nis: Vec<(f64, usize)>,
     /// Landmark → keyframes holding an observation of it.
     kf_by_landmark: BTreeMap<u64, BTreeSet<u64>>,
     /// Landmarks seen at a recent keyframe that have not yet left view.
@@ -394,6 +400,8 @@ pub struct Estimator {
     gnss_clones: VecDeque<GnssClone>,
     gnss_grid: Option<GnssGrid>,
     still: Stillness,
+    /// The mean body rate since the last frame, its bias removed (rad/s).
+    frame_rate_B: Option<Vector3<f64>>,
     /// Time the filter started (the monitor's grace period runs from it).
     t_start_s: f64,
     /// The end of the last IMU gap of [`propagate::GAP_GRACE_MIN_S`] or
@@ -426,6 +434,7 @@ impl Estimator {
             gnss_clones: VecDeque::new(),
             gnss_grid: None,
             still: Stillness::default(),
+            frame_rate_B: None,
             t_start_s: t_s,
             vision_grace_from_s: f64::NEG_INFINITY,
             last_sample_t_s: t_s,
@@ -453,6 +462,8 @@ impl Estimator {
             schmidt_downdate: math::add_gram_outside_block,
             tracks: BTreeMap::new(),
             landmark_memory: BTreeMap::new(),
+            landmarks_forgotten_s: t_s,
+            low_parallax_nis: Vec::new(),
             kf_by_landmark: BTreeMap::new(),
             pending_eligible: BTreeSet::new(),
             next_kf_id: 0,

@@ -26,10 +26,13 @@ const PARALLAX_NOISE_SIGMAS: f64 = 5.0;
 /// parallax bound counts as poor parallax, not as inconsistent (§3c).
 const WEAK_PARALLAX_FACTOR: f64 = 4.0;
 
-/// Landmarks remembered for low-parallax tracks (§3e): at most this many,
-/// each for this long after it was last triangulated (s).
-const MAX_REMEMBERED_LANDMARKS: usize = 4096;
+/// Landmarks remembered for low-parallax tracks (§3e): each for this long
+/// after it was last triangulated (s), at most this many.
 const LANDMARK_MEMORY_S: f64 = 30.0;
+const MAX_REMEMBERED_LANDMARKS: usize = 4096;
+
+/// Fastest estimated speed at which low-parallax tracks are used (m/s, §3e).
+const LOW_PARALLAX_MAX_SPEED_MPS: f64 = 1.0;
 
 /// A remembered landmark's inverse depth is known to this fraction of it
 /// (§3e, LP3).
@@ -65,6 +68,10 @@ impl Estimator {
         let mut report = FrameReport::default();
         self.global_update_if_due(&mut report);
         let still = std::mem::take(&mut self.still);
+        // The body rate the time offset's column takes (§3b, T3): the mean
+        // since the last frame, not the last sample, which a multirotor's
+        // motors shake by more than a slow turn.
+        self.frame_rate_B = (still.span_s > 0.0).then(|| still.gyro_integral_rad / still.span_s - self.imu.b_g);
         if self.zero_velocity_update(&still, obs) {
             self.monitor.push_frame(t_s, &[], 0, 0);
             report.zupt = true;
@@ -103,8 +110,13 @@ impl Estimator {
         // triangulate to a depth or a fit (§9 D1).
         let count = |r: Reject| report.rejected.get(&r).copied().unwrap_or(0);
         let tri_failed = count(Reject::BadDepth) + count(Reject::NotConverged);
+        // The monitor judges the triangulated tracks alone, as it did before
+        // low-parallax tracks were used: those it cannot count fairly (their
+        // refusals are not counted, §3e), so their acceptances are not
+        // counted either. The report's NIS holds both.
         self.monitor
             .push_frame(t_s, &report.nis, count(Reject::Chi2), tri_failed);
+        report.nis.append(&mut self.low_parallax_nis);
         Ok(report)
     }
 
@@ -440,9 +452,14 @@ impl Estimator {
         gate: &mut GateCache,
         report: &mut FrameReport,
     ) -> Option<TrackRows> {
+        // A still track says "no motion" as firmly as its remembered depth
+        // allows. On a vehicle that is moving it is likelier a frozen camera
+        // or a scene that moves with the vehicle than a distant landmark:
+        // used only as slow as a hover.
+        let slow = self.imu.v_B_in_W.norm() <= LOW_PARALLAX_MAX_SPEED_MPS;
         let remembered = self.landmark_memory.get(&l).map(|(p, _)| *p);
         let prior = match remembered {
-            Some(p_W) if self.s.low_parallax_updates && ks.is_empty() => feature::DepthPrior {
+            Some(p_W) if self.s.low_parallax_updates && ks.is_empty() && slow => feature::DepthPrior {
                 p_W,
                 inverse_depth_sigma_ratio: REMEMBERED_INVERSE_DEPTH_SIGMA,
             },
@@ -483,21 +500,28 @@ impl Estimator {
             reject(report, &mut self.stats, Reject::PoorParallax);
             return None;
         }
-        report.nis.push((nis, dof));
+        self.low_parallax_nis.push((nis, dof));
         report.low_parallax_tracks += 1;
         Some((hx, r, idx))
     }
 
-    /// Forgets the landmarks triangulated longest ago once the memory is
-    /// over its bound (§3e).
+    /// Forgets the landmarks triangulated more than `LANDMARK_MEMORY_S`
+    /// ago (judged once a second), and the oldest beyond
+    /// `MAX_REMEMBERED_LANDMARKS` (§3e).
     fn forget_landmarks(&mut self) {
-        if self.landmark_memory.len() <= MAX_REMEMBERED_LANDMARKS {
-            return;
+        if self.t_s - self.landmarks_forgotten_s >= 1.0 {
+            self.landmarks_forgotten_s = self.t_s;
+            let oldest_s = self.t_s - LANDMARK_MEMORY_S;
+            self.landmark_memory.retain(|_, (_, t_s)| *t_s > oldest_s);
         }
-        let oldest_s = self.t_s - LANDMARK_MEMORY_S;
-        self.landmark_memory.retain(|_, (_, t_s)| *t_s > oldest_s);
-        while self.landmark_memory.len() > MAX_REMEMBERED_LANDMARKS {
-            self.landmark_memory.pop_first();
+        let excess = self.landmark_memory.len().saturating_sub(MAX_REMEMBERED_LANDMARKS);
+        if excess > 0 {
+            // More than the bound triangulated within the memory's span (a
+            // rare, dense scene): the `excess` oldest go.
+            let mut times: Vec<f64> = self.landmark_memory.values().map(|(_, t)| *t).collect();
+            let (_, cut, _) = times.select_nth_unstable_by(excess - 1, f64::total_cmp);
+            let cut = *cut;
+            self.landmark_memory.retain(|_, (_, t_s)| *t_s > cut);
         }
     }
 

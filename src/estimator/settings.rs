@@ -104,8 +104,8 @@ pub struct Settings {
     /// Tracks whose bearings span less than this angle are skipped (rad):
     /// they cannot be triangulated, and say nothing about health.
     pub min_parallax_rad: f64,
-    /// Tracks with too little parallax are used at the scene's depth, with
-    /// the depth a nuisance (§3e), rather than skipped.
+    /// Tracks with too little parallax are used at their landmark's
+    /// remembered depth, the depth a nuisance (§3e), rather than skipped.
     pub low_parallax_updates: bool,
     pub zupt: ZuptSettings,
     /// The motion an IMU gap hides (eq. N3).
