@@ -50,6 +50,48 @@ struct GateCache {
     p: DMatrix<f64>,
 }
 
+impl GateCache {
+    /// `P_sub` over the pose columns of the views at `cols` (gathered again
+    /// only when they change); the indices.
+    fn gather(&mut self, p: &DMatrix<f64>, cols: &[usize]) -> Vec<usize> {
+        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
+        if idx != self.idx {
+            self.p = DMatrix::zeros(idx.len(), idx.len());
+            math::gather_block(p, &idx, &mut self.p);
+            self.idx.clone_from(&idx);
+        }
+        idx
+    }
+}
+
+/// What the χ² gate says of a track's whitened rows.
+enum Gate {
+    /// Its NIS, under the gate.
+    Pass(f64),
+    /// Over the gate, or a NaN NIS.
+    Fail,
+    /// `S` is not positive definite.
+    NotPositive,
+}
+
+/// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
+/// whitened noise), against the `prob` quantile of `χ²(len r)`.
+fn chi2_gate(mut hph: DMatrix<f64>, r: &DVector<f64>, prob: f64) -> Gate {
+    for i in 0..hph.nrows() {
+        hph[(i, i)] += 1.0;
+    }
+    let Some(ch) = hph.cholesky() else {
+        return Gate::NotPositive;
+    };
+    let nis = r.dot(&ch.solve(r));
+    // A NaN NIS fails the gate too.
+    if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(prob, r.len()) {
+        Gate::Fail
+    } else {
+        Gate::Pass(nis)
+    }
+}
+
 /// Counts a rejected track in the frame's report and the filter's stats.
 fn reject(rep: &mut FrameReport, st: &mut Stats, r: Reject) {
     *rep.rejected.entry(r).or_default() += 1;
@@ -395,28 +437,20 @@ impl Estimator {
         }
         // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
         // from the block-diagonal Jacobian before projection.
-        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
-        if idx != gate.idx {
-            gate.p = DMatrix::zeros(idx.len(), idx.len());
-            math::gather_block(&self.P, &idx, &mut gate.p);
-            gate.idx.clone_from(&idx);
-        }
-        let mut s = feature::projected_hph(&hx_views, &hf, &obs, &gate.p);
-        for i in 0..s.nrows() {
-            s[(i, i)] += 1.0;
-        }
-        let Some(ch) = s.cholesky() else {
-            reject(report, &mut self.stats, Reject::NonFinite);
-            return None;
+        let idx = gate.gather(&self.P, &cols);
+        let hph = feature::projected_hph(&hx_views, &hf, &obs, &gate.p);
+        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob) {
+            Gate::Pass(nis) => nis,
+            Gate::Fail => {
+                reject(report, &mut self.stats, Reject::Chi2);
+                return None;
+            }
+            Gate::NotPositive => {
+                reject(report, &mut self.stats, Reject::NonFinite);
+                return None;
+            }
         };
-        let nis = r.dot(&ch.solve(&r));
-        let dof = r.len();
-        // A NaN NIS fails the gate too.
-        if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(self.s.chi2_gate_prob, dof) {
-            reject(report, &mut self.stats, Reject::Chi2);
-            return None;
-        }
-        report.nis.push((nis, dof));
+        report.nis.push((nis, r.len()));
         report.landmarks_W.push(p_f);
         if self.s.low_parallax_updates {
             // Where a later track of it with too little parallax is
@@ -478,29 +512,21 @@ impl Estimator {
             reject(report, &mut self.stats, Reject::NonFinite);
             return None;
         }
-        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
-        if idx != gate.idx {
-            gate.p = DMatrix::zeros(idx.len(), idx.len());
-            math::gather_block(&self.P, &idx, &mut gate.p);
-            gate.idx.clone_from(&idx);
-        }
         // G1 with the whitened rows of LP4: S = H P_sub Hᵀ + I.
-        let hp = &hx * &gate.p;
-        let mut s = &hp * hx.transpose();
-        for i in 0..s.nrows() {
-            s[(i, i)] += 1.0;
-        }
-        let Some(ch) = s.cholesky() else {
-            reject(report, &mut self.stats, Reject::NonFinite);
-            return None;
+        let idx = gate.gather(&self.P, cols);
+        let hph = &hx * &gate.p * hx.transpose();
+        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob) {
+            Gate::Pass(nis) => nis,
+            Gate::Fail => {
+                reject(report, &mut self.stats, Reject::PoorParallax);
+                return None;
+            }
+            Gate::NotPositive => {
+                reject(report, &mut self.stats, Reject::NonFinite);
+                return None;
+            }
         };
-        let nis = r.dot(&ch.solve(&r));
-        let dof = r.len();
-        if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(self.s.chi2_gate_prob, dof) {
-            reject(report, &mut self.stats, Reject::PoorParallax);
-            return None;
-        }
-        self.low_parallax_nis.push((nis, dof));
+        self.low_parallax_nis.push((nis, r.len()));
         report.low_parallax_tracks += 1;
         Some((hx, r, idx))
     }
