@@ -124,16 +124,22 @@ pub fn measure(
     (Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), h_pose, jp * r_cw)
 }
 
+/// An observation's ray in the world: the camera centre
+/// `p_B + R_W_B p_C_in_B` and the unit bearing `R_W_B R_B_C [x_n, y_n, 1]`.
+fn world_ray(v: &View, e: &Extrinsic, o: &Obs) -> (Vector3<f64>, Vector3<f64>) {
+    (
+        v.p_B_in_W + v.R_W_B * e.p_C_in_B,
+        (v.R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize(),
+    )
+}
+
 /// The parallax a triangulation has to work with (rad): the widest angle
 /// between two of a track's bearing rays in the world frame, once the one
 /// observation that widens it most is left out. A single outlier (a wrong
 /// id, a gross pixel error) sits at one end of the widest pair and would
 /// otherwise make a still camera's track look wide.
 pub fn parallax_rad(views: &[View], e: &Extrinsic, obs: &[Obs]) -> f64 {
-    let dirs: Vec<Vector3<f64>> = obs
-        .iter()
-        .map(|o| (views[o.view].R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize())
-        .collect();
+    let dirs: Vec<Vector3<f64>> = obs.iter().map(|o| world_ray(&views[o.view], e, o).1).collect();
     // The widest pair, by the smallest cosine.
     let widest_without = |skip: Option<usize>| {
         let mut best = (1.0f64, 0, 0);
@@ -190,10 +196,7 @@ pub fn triangulate(
     let mut a = Matrix3::zeros();
     let mut b = Vector3::zeros();
     for o in obs {
-        let v = &views[o.view];
-        let r_wc = v.R_W_B * e.R_B_C;
-        let c = v.p_B_in_W + v.R_W_B * e.p_C_in_B;
-        let dir = (r_wc * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize();
+        let (c, dir) = world_ray(&views[o.view], e, o);
         let m = Matrix3::identity() - dir * dir.transpose();
         a += m;
         b += m * c;
@@ -333,9 +336,9 @@ pub fn low_parallax_system(
     let mut b = Vector3::zeros();
     let mut c = Vector3::zeros();
     for o in obs {
-        let v = &views[o.view];
-        b += (v.R_W_B * e.R_B_C * Vector3::new(o.xn.x, o.xn.y, 1.0)).normalize();
-        c += v.p_B_in_W + v.R_W_B * e.p_C_in_B;
+        let (centre, dir) = world_ray(&views[o.view], e, o);
+        b += dir;
+        c += centre;
     }
     let b = b.normalize();
     let c = c / obs.len() as f64;
@@ -414,7 +417,7 @@ pub fn low_parallax_system(
     let keep = rows - 2;
     let mut hx = super::math::block_owned(&a, 2, 2, keep, nx);
     let mut r = DVector::from_column_slice(&a.column(3 + nx).as_slice()[2..]);
-    // LP3: the noise is I + v vᵀ, v = σ_d Q₂ᵀ H_f b̄, σ_d = d̄.
+    // LP3: the noise is I + v vᵀ, v = σ_d Q₂ᵀ H_f b̄, σ_d = κ d.
     let v = DVector::from_column_slice(&a.column(2 + nx).as_slice()[2..]) * sigma_d_m;
     // LP4: (I + v vᵀ)^(-1/2) = I − κ v vᵀ, κ = (1 − 1/√(1 + |v|²)) / |v|².
     let s = v.norm_squared();

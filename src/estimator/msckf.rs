@@ -64,31 +64,20 @@ impl GateCache {
     }
 }
 
-/// What the χ² gate says of a track's whitened rows.
-enum Gate {
-    /// Its NIS, under the gate.
-    Pass(f64),
-    /// Over the gate, or a NaN NIS.
-    Fail,
-    /// `S` is not positive definite.
-    NotPositive,
-}
-
 /// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
-/// whitened noise), against the `prob` quantile of `χ²(len r)`.
-fn chi2_gate(mut hph: DMatrix<f64>, r: &DVector<f64>, prob: f64) -> Gate {
+/// whitened noise), against the `prob` quantile of `χ²(len r)`. The NIS if
+/// under it; `over` if not (a NaN NIS too); `NonFinite` if `S` is not
+/// positive definite.
+fn chi2_gate(mut hph: DMatrix<f64>, r: &DVector<f64>, prob: f64, over: Reject) -> Result<f64, Reject> {
     for i in 0..hph.nrows() {
         hph[(i, i)] += 1.0;
     }
-    let Some(ch) = hph.cholesky() else {
-        return Gate::NotPositive;
-    };
+    let ch = hph.cholesky().ok_or(Reject::NonFinite)?;
     let nis = r.dot(&ch.solve(r));
-    // A NaN NIS fails the gate too.
     if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(prob, r.len()) {
-        Gate::Fail
+        Err(over)
     } else {
-        Gate::Pass(nis)
+        Ok(nis)
     }
 }
 
@@ -113,7 +102,7 @@ impl Estimator {
         // The body rate the time offset's column takes (§3b, T3): the mean
         // since the last frame, not the last sample, which a multirotor's
         // motors shake by more than a slow turn.
-        self.frame_rate_B = (still.span_s > 0.0).then(|| still.gyro_integral_rad / still.span_s - self.imu.b_g);
+        self.frame_rate_B = still.mean_rate_radps().map(|w| w - self.imu.b_g);
         if self.zero_velocity_update(&still, obs) {
             self.monitor.push_frame(t_s, &[], 0, 0);
             report.zupt = true;
@@ -439,14 +428,10 @@ impl Estimator {
         // from the block-diagonal Jacobian before projection.
         let idx = gate.gather(&self.P, &cols);
         let hph = feature::projected_hph(&hx_views, &hf, &obs, &gate.p);
-        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob) {
-            Gate::Pass(nis) => nis,
-            Gate::Fail => {
-                reject(report, &mut self.stats, Reject::Chi2);
-                return None;
-            }
-            Gate::NotPositive => {
-                reject(report, &mut self.stats, Reject::NonFinite);
+        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob, Reject::Chi2) {
+            Ok(nis) => nis,
+            Err(why) => {
+                reject(report, &mut self.stats, why);
                 return None;
             }
         };
@@ -515,14 +500,11 @@ impl Estimator {
         // G1 with the whitened rows of LP4: S = H P_sub Hᵀ + I.
         let idx = gate.gather(&self.P, cols);
         let hph = &hx * &gate.p * hx.transpose();
-        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob) {
-            Gate::Pass(nis) => nis,
-            Gate::Fail => {
-                reject(report, &mut self.stats, Reject::PoorParallax);
-                return None;
-            }
-            Gate::NotPositive => {
-                reject(report, &mut self.stats, Reject::NonFinite);
+        // Refused, it counts as poor parallax, never against health.
+        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob, Reject::PoorParallax) {
+            Ok(nis) => nis,
+            Err(why) => {
+                reject(report, &mut self.stats, why);
                 return None;
             }
         };

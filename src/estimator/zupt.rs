@@ -42,6 +42,12 @@ impl Stillness {
         self.accel_dev_sq_sum += dev.norm_squared();
     }
 
+    /// The mean measured rate `(∫ω_m dt)/T` over the interval (rad/s, the
+    /// bias not removed); `None` over no time.
+    pub(super) fn mean_rate_radps(&self) -> Option<Vector3<f64>> {
+        (self.span_s > 0.0).then(|| self.gyro_integral_rad / self.span_s)
+    }
+
     /// `(|mean|, scatter)` of a quantity from its sums: the mean's size and
     /// the samples' RMS about it (summed over the axes).
     fn mean_and_scatter(sum: &Vector3<f64>, sq_sum: f64, n: f64) -> (f64, f64) {
@@ -129,7 +135,9 @@ impl Estimator {
         // Z1: 0 = v + n_v, σ_z; Z2: ω̄_m = b_g + n̄_g, the mean rate over the
         // interval, with the white gyro noise averaged: σ_g / √T.
         let v = self.imu.v_B_in_W;
-        let w_mean = still.gyro_integral_rad / still.span_s;
+        let Some(w_mean) = still.mean_rate_radps() else {
+            return false;
+        };
         // Its noise is the white gyro noise averaged, σ_g / √T, or the
         // vibration's, the per-axis scatter over √n, whichever is larger.
         let sigma_w = (self.s.imu.gyro_noise_density / still.span_s.sqrt()).max(gyro_scatter / (3.0 * n).sqrt());
