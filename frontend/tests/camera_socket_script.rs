@@ -91,7 +91,7 @@ fn a_pipe_camera_is_served_and_tracked() {
         std::thread::sleep(Duration::from_millis(50));
     }
     // SIGTERM stops the front-end; each frame's line is already written.
-    Command::new("kill").arg(frontend.id().to_string()).status().unwrap();
+    sigterm(&frontend);
     let fe_status = frontend.wait().unwrap();
     eprintln!("bridge: {said}front-end: {fe_status}");
 
@@ -129,6 +129,16 @@ fn a_pipe_camera_is_served_and_tracked() {
     );
     let mean_du = moved.iter().sum::<f64>() / moved.len() as f64;
     assert!(mean_du < -1.0, "the texture moved {mean_du} px a frame, not left");
+}
+
+/// Sends SIGTERM, as systemd stops a unit, through libc: a minimal system
+/// may have no `kill` program (Debian's minbase lacks procps).
+fn sigterm(child: &std::process::Child) {
+    let pid = libc::pid_t::try_from(child.id()).expect("a pid fits pid_t");
+    // SAFETY: kill(2) takes plain integers; the child is ours and not yet
+    // waited for, so its pid is not reused.
+    let rc = unsafe { libc::kill(pid, libc::SIGTERM) };
+    assert_eq!(rc, 0, "kill({pid}, SIGTERM): {}", std::io::Error::last_os_error());
 }
 
 fn bridge(sock: &std::path::Path, camera: &str) -> std::process::Child {
@@ -192,7 +202,7 @@ fn sigterm_ends_a_bridge_waiting_on_a_silent_camera_and_files_are_never_removed(
     wait_for(&sock);
     std::thread::sleep(Duration::from_millis(300));
     let t = Instant::now();
-    Command::new("kill").arg(b.id().to_string()).status().unwrap();
+    sigterm(&b);
     let status = b.wait().unwrap();
     assert!(t.elapsed() < Duration::from_secs(5), "SIGTERM took {:?}", t.elapsed());
     assert_eq!(status.code(), Some(0));
