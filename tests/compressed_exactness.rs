@@ -387,7 +387,7 @@ fn promotion_leaves_the_estimate_unchanged() {
 #[test]
 fn asynchronous_rebase_on_an_armed_imu_equals_full() {
     let cfg = cmsckf::config::Config::default();
-    let sim = common::flights::armed_sim(&cfg);
+    let sim = eval::sim_config_for(&cfg);
     let ds = cmsckf_sitl::dataset::Dataset::generate("racetrack", 1, Some(75.0), &sim).unwrap();
     let mut c = eval::Runner::new(&ds, &cfg, Mode::Compressed, 1);
     let mut f = eval::Runner::new(&ds, &cfg, Mode::Full, 1);

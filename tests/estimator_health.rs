@@ -153,10 +153,10 @@ struct BiasStart {
 /// `standstill_s` and then flying, for 20 s.
 fn start_16_sigma_off(seed: u64, standstill_s: f64, knock_radps: f64) -> BiasStart {
     let cfg = cmsckf::config::Config::default();
-    let mut sim = common::flights::armed_sim(&cfg);
-    // The gyro's true bias stays the quiet simulator's: the knock below
-    // is the 16σ error.
-    sim.gyro_bias0_sigma = eval::sim_config_for(&cfg).gyro_bias0_sigma;
+    let mut sim = eval::sim_config_for(&cfg);
+    // The gyro's true bias stays a calibrated IMU's: the knock below is
+    // the 16σ error.
+    sim.gyro_bias0_sigma = common::flights::calibrated_sim(&cfg).gyro_bias0_sigma;
     sim.features.per_frame = 20;
     sim.standstill_s = standstill_s;
     let ds = cmsckf_sitl::dataset::Dataset::generate("racetrack", seed, Some(20.0), &sim).unwrap();
@@ -232,8 +232,8 @@ fn a_start_16_sigma_off_in_gyro_bias_is_caught_or_recovers_within_3_s() {
 #[test]
 fn a_long_hover_never_trips_the_monitor() {
     let cfg = cmsckf::config::Config::default();
-    let quiet = eval::sim_config_for(&cfg);
-    let armed = common::flights::armed_sim(&cfg);
+    let quiet = common::flights::calibrated_sim(&cfg);
+    let armed = eval::sim_config_for(&cfg);
     for (sim, seed, duration_s) in [
         (&quiet, 1, 200.0),
         (&quiet, 2, 200.0),

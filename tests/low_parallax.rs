@@ -24,16 +24,6 @@ fn hover(sim: &SimConfig, seeds: u64, on: bool) -> eval::ModeSummary {
     eval::summarise(&runs)
 }
 
-/// The simulator's calibrated IMU (100 Hz, a small gyro bias, no
-/// vibration), whatever the default.
-fn calibrated(cfg: &Config) -> SimConfig {
-    let mut sim = eval::sim_config_for(cfg);
-    sim.imu_rate_hz = 100.0;
-    sim.gyro_bias0_sigma = 0.002;
-    sim.vibration = Default::default();
-    sim
-}
-
 /// On an armed, vibrating IMU the hover's drift made the filter
 /// overconfident (position NEES 9.9, velocity 18.6 over three seeds); the
 /// hover's own tracks at their remembered depth hold it. On a calibrated
@@ -41,7 +31,7 @@ fn calibrated(cfg: &Config) -> SimConfig {
 #[test]
 fn a_hover_is_held_by_its_remembered_landmarks() {
     let cfg = Config::default();
-    let armed = common::flights::armed_sim(&cfg);
+    let armed = eval::sim_config_for(&cfg);
     let (on, off) = (hover(&armed, 2, true), hover(&armed, 2, false));
     eprintln!(
         "armed hover, low parallax on / off: {:.0} / {:.0} tracks a flight, ATE aligned {:.3} / {:.3} m, \
@@ -67,7 +57,7 @@ fn a_hover_is_held_by_its_remembered_landmarks() {
     assert!(on.nees_in_bounds > 0.9, "{}", on.nees_in_bounds);
     assert_eq!(on.resets, 0);
 
-    let quiet = hover(&calibrated(&cfg), 2, true);
+    let quiet = hover(&common::flights::calibrated_sim(&cfg), 2, true);
     eprintln!(
         "calibrated hover: {:.0} tracks a flight, ATE aligned {:.3} m, position NEES {:.2}, velocity NEES {:.2}, \
          NIS per dof {:.2}",
@@ -90,7 +80,7 @@ fn a_hover_is_held_by_its_remembered_landmarks() {
 #[test]
 fn a_frozen_camera_on_a_moving_vehicle_gives_no_low_parallax_rows() {
     let cfg = Config::default();
-    let mut ds = Dataset::generate("racetrack", 1, Some(40.0), &calibrated(&cfg)).unwrap();
+    let mut ds = Dataset::generate("racetrack", 1, Some(40.0), &common::flights::calibrated_sim(&cfg)).unwrap();
     let frozen = ds.frames.iter().position(|f| f.t_s >= 25.0).unwrap();
     let image = ds.frames[frozen].features.clone();
     for f in ds.frames.iter_mut().filter(|f| (25.0..27.0).contains(&f.t_s)) {

@@ -444,8 +444,9 @@ pub struct SimConfig {
     pub autopilot: AutopilotSimConfig,
     /// Gusts in the air (`crate::trajectory::wind`).
     pub wind: WindConfig,
-    /// Motor vibration on the IMU (`crate::imu`): none by default;
-    /// `VibrationConfig::armed_multirotor()` gives a real vehicle's levels.
+    /// Motor vibration on the IMU (`crate::imu`): by default an armed
+    /// multirotor's (`VibrationConfig::armed_multirotor()`); `[vibration]`
+    /// with empty line lists gives none.
     pub vibration: VibrationConfig,
     /// The rendered camera (`crate::render`, `demo --frontend`).
     pub render: crate::render::RenderConfig,
@@ -454,12 +455,13 @@ pub struct SimConfig {
 impl SimConfig {
     pub fn new() -> Self {
         Self {
-            imu_rate_hz: 100.0,
+            imu_rate_hz: 200.0,
             accel_bias0_sigma: 0.02,
-            gyro_bias0_sigma: 0.002,
+            gyro_bias0_sigma: 0.08,
             camera_latency_s: [0.03, 0.06],
             camera_time_offset_s: 0.012,
             standstill_s: 5.0,
+            vibration: crate::imu::VibrationConfig::armed_multirotor(),
             ..Default::default()
         }
     }

@@ -323,7 +323,7 @@ mod tests {
             assert_eq!(fa, fb, "{f} differs between identical runs");
             assert_ne!(fa, fc, "{f} does not depend on the seed");
         }
-        assert_eq!(a.imu.len(), 501);
+        assert_eq!(a.imu.len(), (5.0 * cfg.imu_rate_hz) as usize + 1);
         assert_eq!(a.frames.len(), 151);
         assert_eq!(a.gnss.len(), 6);
         let summary = a.summary().join("\n");

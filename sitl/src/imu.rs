@@ -1,6 +1,6 @@
 //! IMU sensor model: specific force and body rate from the truth, plus white
-//! noise and bias random walk drawn from continuous-time densities, and, as
-//! an option, an armed multirotor's motor vibration (`[vibration]`).
+//! noise and bias random walk drawn from continuous-time densities, and an
+//! armed multirotor's motor vibration (`[vibration]`; the default config's).
 //!
 //! Discretisation (sample period `dt`): white noise has standard deviation
 //! `σ/√dt`; the bias random walk steps by `σ_b·√dt` per sample. The biases are
@@ -45,7 +45,8 @@ pub(crate) fn gauss3<R: Rng>(rng: &mut R) -> Vector3<f64> {
 /// simulator's TOML): lines at the motors' frequencies as the IMU's sampling
 /// aliases them, each on every axis with a phase of its own, added to the
 /// gyro and the accelerometer. Zero-mean, so a still vehicle stays still on
-/// average; off (no line) by default.
+/// average. `Default` has no line; the simulator's default config
+/// (`SimConfig::new`) has `armed_multirotor`'s.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct VibrationConfig {

@@ -34,9 +34,9 @@ pub struct DemoArgs {
     mode: String,
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Simulator settings (TOML), e.g. config/sim-armed.toml (an armed
-    /// multirotor's biased, vibrating IMU); the camera and IMU noise stay
-    /// the config's.
+    /// Simulator settings (TOML), e.g. config/sim-calibrated.toml (a
+    /// calibrated IMU instead of the default armed multirotor's biased,
+    /// vibrating one); the camera and IMU noise stay the config's.
     #[arg(long)]
     sim_config: Option<PathBuf>,
     /// MCAP log path.

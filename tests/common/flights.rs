@@ -18,11 +18,12 @@ pub fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
     scenario("racetrack", seed, duration_s)
 }
 
-/// The simulator of `config/sim-armed.toml` (an armed multirotor's IMU:
-/// 200 Hz, a 0.08 rad/s σ turn-on gyro bias, motor vibration), with the
-/// camera and IMU noise of `cfg`.
-pub fn armed_sim(cfg: &Config) -> cmsckf_sitl::config::SimConfig {
-    let mut sim = cmsckf_sitl::config::SimConfig::from_toml(include_str!("../../config/sim-armed.toml")).unwrap();
+/// The simulator of `config/sim-calibrated.toml` (a calibrated IMU: 100 Hz,
+/// a 0.002 rad/s σ turn-on gyro bias, no vibration; the default is an armed
+/// multirotor's raw IMU), with the camera and IMU noise of `cfg`.
+pub fn calibrated_sim(cfg: &Config) -> cmsckf_sitl::config::SimConfig {
+    let mut sim =
+        cmsckf_sitl::config::SimConfig::from_toml(include_str!("../../config/sim-calibrated.toml")).unwrap();
     sim.camera = cfg.camera.clone();
     sim.imu = cfg.imu.clone();
     sim
