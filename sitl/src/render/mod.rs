@@ -12,7 +12,9 @@
 //! surface, and takes that surface's texture there. [`Renderer::surface_point`]
 //! gives the same ray's world point for any pixel, which is how tracks and
 //! re-identifications are scored. Noise is Gaussian per pixel; motion blur,
-//! when asked for, averages sub-frames over the exposure.
+//! when asked for, averages sub-frames over the exposure; lens vignetting
+//! and auto-exposure's frame-to-frame gain flicker are options (off by
+//! default).
 
 pub mod texture;
 pub mod world;
@@ -41,6 +43,13 @@ pub struct RenderConfig {
     pub exposure_s: f64,
     /// Sub-frames averaged over the exposure: 1 is no motion blur.
     pub blur_samples: usize,
+    /// Lens vignetting: a ray at angle θ off the optical axis keeps
+    /// `cos(θ)^vignetting_cos_power` of the light (4 is a thin lens's
+    /// natural fall-off; 0 is none).
+    pub vignetting_cos_power: f64,
+    /// Auto-exposure's frame-to-frame gain change, one sigma (a fraction:
+    /// 0.02 brightens or darkens a frame by 2 %).
+    pub gain_flicker: f64,
 }
 
 impl Default for RenderConfig {
@@ -49,6 +58,8 @@ impl Default for RenderConfig {
             noise_grey: 2.0,
             exposure_s: 0.004,
             blur_samples: 1,
+            vignetting_cos_power: 0.0,
+            gain_flicker: 0.0,
         }
     }
 }
@@ -59,6 +70,8 @@ impl Validate for RenderConfig {
         c.range("noise_grey", self.noise_grey, 0.0, 50.0)?;
         c.range("exposure_s", self.exposure_s, 0.0, 0.1)?;
         c.within("blur_samples", self.blur_samples as u64, 1, 16, "set 1 (no blur) to 16")?;
+        c.range("vignetting_cos_power", self.vignetting_cos_power, 0.0, 8.0)?;
+        c.range("gain_flicker", self.gain_flicker, 0.0, 0.5)?;
         Ok(())
     }
 }
@@ -80,6 +93,8 @@ pub struct Renderer {
     /// Each pixel's undistorted normalised coordinates (NaN where the lens
     /// model has no inverse).
     rays: Vec<[f64; 2]>,
+    /// Each pixel's share of the light after vignetting.
+    vignette: Vec<f32>,
     /// Bounds of `rays`, to drop blocks out of view.
     ray_lo: [f64; 2],
     ray_hi: [f64; 2],
@@ -96,6 +111,18 @@ impl Renderer {
                     .map_or([f64::NAN; 2], |x| [x.x, x.y])
             })
             .collect();
+        let vignette = rays
+            .iter()
+            .map(|r| {
+                // cos θ of the ray (x, y, 1).
+                let cos = 1.0 / (1.0 + r[0] * r[0] + r[1] * r[1]).sqrt();
+                if cos.is_finite() {
+                    cos.powf(cfg.vignetting_cos_power) as f32
+                } else {
+                    1.0
+                }
+            })
+            .collect();
         let (mut ray_lo, mut ray_hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for r in rays.iter().filter(|r| r[0].is_finite()) {
             for i in 0..2 {
@@ -108,6 +135,7 @@ impl Renderer {
             cam,
             cfg,
             rays,
+            vignette,
             ray_lo,
             ray_hi,
             acc: vec![0.0; w * h],
@@ -157,14 +185,21 @@ impl Renderer {
         out.reserve(n);
         let mut rng = noise_seed ^ 0x6A09_E667_F3BC_C908;
         let sigma = self.cfg.noise_grey as f32;
-        for a in &self.acc {
+        // The frame's gain, drawn from the same seed (Irwin–Hall, as below).
+        let gain = {
+            let h = texture::mix(rng ^ 0xA54F_F53A_5F1D_36F1);
+            let s: u32 = (0..4).map(|k| ((h >> (16 * k)) & 0xFFFF) as u32).sum();
+            1.0 + self.cfg.gain_flicker as f32 * (s as f32 / 65536.0 - 2.0) * 3f32.sqrt()
+        };
+        let scale = scale * gain;
+        for (a, v) in self.acc.iter().zip(&self.vignette) {
             // Irwin–Hall: four uniforms summed, centred and scaled to unit
             // variance, approximate a Gaussian draw.
             rng = rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
             let h = texture::mix(rng);
             let s: u32 = (0..4).map(|k| ((h >> (16 * k)) & 0xFFFF) as u32).sum();
             let g = (s as f32 / 65536.0 - 2.0) * 3f32.sqrt();
-            out.push((a * scale + sigma * g + 0.5).clamp(0.0, 255.0) as u8);
+            out.push((a * scale * v + sigma * g + 0.5).clamp(0.0, 255.0) as u8);
         }
     }
 

@@ -109,3 +109,52 @@ fn motion_blur_smooths_the_image() {
         grad(&sharp)
     );
 }
+
+/// Vignetting keeps `cos(θ)^p` of each pixel's light, and the gain flicker
+/// scales a whole frame, drawn from the frame's seed.
+#[test]
+fn vignetting_darkens_the_corners_and_the_gain_scales_a_frame() {
+    let (traj, r) = setup(10.0);
+    let T_W_C = r.camera_pose(&traj.sample(3.0));
+    let plain = RenderConfig {
+        noise_grey: 0.0,
+        ..RenderConfig::default()
+    };
+    let mut flat = Renderer::new(r.world.clone(), r.cam.clone(), plain.clone());
+    let mut vig = Renderer::new(
+        r.world.clone(),
+        r.cam.clone(),
+        RenderConfig {
+            vignetting_cos_power: 4.0,
+            ..plain.clone()
+        },
+    );
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    flat.render(&[T_W_C], 1, &mut a);
+    vig.render(&[T_W_C], 1, &mut b);
+    // Lower-left corner (ground) against its own unvignetted grey.
+    let k = 470 * 752 + 10;
+    let want = f64::from(a[k]) * f64::from(vig.vignette[k]);
+    assert!(vig.vignette[k] < 0.5, "corner keeps {}", vig.vignette[k]);
+    assert!((f64::from(b[k]) - want).abs() <= 1.0, "{} vs {want}", b[k]);
+    let centre = 240 * 752 + 376;
+    assert!(vig.vignette[centre] > 0.99);
+
+    let mut flicker = Renderer::new(
+        r.world.clone(),
+        r.cam.clone(),
+        RenderConfig {
+            gain_flicker: 0.05,
+            ..plain
+        },
+    );
+    let mean = |img: &[u8]| img.iter().map(|&g| f64::from(g)).sum::<f64>() / img.len() as f64;
+    let ratios: Vec<f64> = (1..=8)
+        .map(|seed| {
+            flicker.render(&[T_W_C], seed, &mut b);
+            mean(&b) / mean(&a)
+        })
+        .collect();
+    assert!(ratios.iter().all(|r| (r - 1.0).abs() < 0.25), "{ratios:?}");
+    assert!(ratios.iter().any(|r| (r - 1.0).abs() > 0.01), "{ratios:?}");
+}
