@@ -99,10 +99,13 @@ impl Estimator {
         let mut report = FrameReport::default();
         self.global_update_if_due(&mut report);
         let still = std::mem::take(&mut self.still);
-        // The body rate the time offset's column takes (§3b, T3): the mean
-        // since the last frame, not the last sample, which a multirotor's
-        // motors shake by more than a slow turn.
-        self.frame_rate_B = still.mean_rate_radps().map(|w| w - self.imu.b_g);
+        // The body rate the time offset's column takes (§3b, T3): smoothed
+        // about the frame's instant, not the last sample nor the interval's
+        // mean, which a multirotor's motors shake by more than a slow turn.
+        self.frame_rate_B = self
+            .smoothed_rate_radps(t_s)
+            .or_else(|| still.mean_rate_radps())
+            .map(|w| w - self.imu.b_g);
         if self.zero_velocity_update(&still, obs) {
             self.monitor.push_frame(t_s, &[], 0, 0);
             report.zupt = true;

@@ -286,6 +286,10 @@ impl Estimator {
             });
         }
         self.stats.imu_samples += 1;
+        if self.rate_history.len() == super::RATE_HISTORY_CAP {
+            self.rate_history.pop_front();
+        }
+        self.rate_history.push_back((m.t_s, m.gyro_radps));
         if self.last_meas.is_none() {
             // The first sample defines the measurement at the filter time.
             self.last_meas = Some(ImuMeas {
