@@ -27,6 +27,7 @@ fn gnss_makes_the_position_absolute_and_stays_consistent() {
             seeds,
             duration_s: Some(40.0),
             gnss: true,
+            landed_state: true,
         },
         &cfg,
         &sim,

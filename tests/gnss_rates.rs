@@ -25,6 +25,7 @@ fn at_rate(rate_hz: f64) -> eval::ModeSummary {
             seeds: 3,
             duration_s: Some(70.0),
             gnss: true,
+            landed_state: true,
         },
         &cfg,
         &sim,

@@ -31,6 +31,11 @@ pub use crate::flight::{Dataset, TruthRow};
 use crate::render::{Renderer, World};
 use crate::rng::rng_for;
 
+/// Height above the start (m) and speed (m/s) under which the simulated
+/// autopilot calls the vehicle landed ([`Dataset::landed_at`]).
+pub const LANDED_HEIGHT_M: f64 = 0.1;
+pub const LANDED_SPEED_MPS: f64 = 0.1;
+
 /// A draw from `[lo, hi]` (s), uniform; exactly `lo` when they are equal.
 fn uniform_in(range: [f64; 2], rng: &mut ChaCha8Rng) -> f64 {
     range[0] + (range[1] - range[0]) * rng.random::<f64>()
@@ -144,6 +149,19 @@ impl Dataset {
             track_stats: fsim.stats,
             trajectory: traj.clone(),
         }
+    }
+
+    /// The autopilot's landed state at flight time `t_s`, as its land
+    /// detector reports it (`EXTENDED_SYS_STATE`): on the ground while the
+    /// vehicle is within [`LANDED_HEIGHT_M`] of where it started and slower
+    /// than [`LANDED_SPEED_MPS`]. A flight started in the air is never on
+    /// the ground at its start height unless it stops there.
+    pub fn landed_at(&self, t_s: f64) -> bool {
+        let Some(start) = self.truth.first() else {
+            return false;
+        };
+        let s = self.trajectory.sample(t_s);
+        (s.p_B_in_W.z - start.truth.p_B_in_W.z).abs() < LANDED_HEIGHT_M && s.v_B_in_W.norm() < LANDED_SPEED_MPS
     }
 
     /// One summary line per sensor: rate, count and noise.
@@ -304,6 +322,20 @@ fn write_file(path: &Path, s: &str) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Landed through the standstill, in the air once climbing.
+    #[test]
+    fn the_vehicle_is_landed_until_it_takes_off() {
+        let cfg = SimConfig::new();
+        let ds = Dataset::generate("hover", 1, Some(20.0), &cfg).unwrap();
+        assert!(ds.landed_at(0.0) && ds.landed_at(cfg.standstill_s - 0.5));
+        let airborne = (0..200)
+            .map(|k| f64::from(k) * 0.1)
+            .filter(|t| !ds.landed_at(*t))
+            .count();
+        assert!(airborne > 50, "airborne {airborne} of 200 instants");
+        assert!(!ds.landed_at(19.9), "hovering at 19.9 s is not landed");
+    }
 
     #[test]
     fn same_seed_same_files_other_seed_differs() {

@@ -39,6 +39,11 @@ pub struct EvaluateArgs {
     /// Fuse the simulated GNSS pseudoranges and range rates: on | off.
     #[arg(long, default_value = "off")]
     gnss: String,
+    /// Zero-velocity updates gated by the autopilot's landed state, as
+    /// beside ArduPilot or PX4 (on), or by the IMU and camera alone, as
+    /// beside an autopilot that reports none (off): on | off.
+    #[arg(long, default_value = "on")]
+    landed_state: String,
 }
 
 /// Runs `cmsckf evaluate`: checks the arguments, flies every seed in every
@@ -54,9 +59,11 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         json,
         csv,
         gnss,
+        landed_state,
     } = args;
     super::check_duration(duration_s)?;
-    let gnss = gnss_switch(&gnss)?;
+    let gnss = on_off("--gnss", &gnss)?;
+    let landed_state = on_off("--landed-state", &landed_state)?;
     if seeds == 0 {
         bail!("--seeds must be at least 1");
     }
@@ -73,6 +80,7 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         seeds,
         duration_s,
         gnss,
+        landed_state,
     };
     // On a terminal a bar with an ETA; elsewhere (a journal, a file) one
     // plain line per flight.
@@ -99,12 +107,12 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--gnss on | off`.
-fn gnss_switch(gnss: &str) -> anyhow::Result<bool> {
-    Ok(match gnss {
+/// A switch `flag` given as `on` or `off`.
+fn on_off(flag: &str, value: &str) -> anyhow::Result<bool> {
+    Ok(match value {
         "on" => true,
         "off" => false,
-        other => bail!("--gnss {other}: use on or off"),
+        other => bail!("{flag} {other}: use on or off"),
     })
 }
 

@@ -169,6 +169,9 @@ pub struct Runner<'a> {
     /// the daemon's filter.
     pub resets: u64,
     healthy: bool,
+    /// Whether the autopilot's landed state gates the zero-velocity
+    /// updates, as beside ArduPilot or PX4 (true by default).
+    landed_state: bool,
 }
 
 thread_local! {
@@ -207,7 +210,16 @@ impl<'a> Runner<'a> {
             clock_errors: Vec::new(),
             resets: 0,
             healthy: true,
+            landed_state: true,
         }
+    }
+
+    /// Without the autopilot's landed state: zero-velocity updates judged
+    /// by the IMU and the camera alone, as beside an autopilot that says
+    /// nothing (on a vibrating IMU a hover can then pass for still).
+    pub fn without_landed_state(mut self) -> Self {
+        self.landed_state = false;
+        self
     }
 
     /// Fuses the dataset's pseudoranges and range rates too, each epoch
@@ -358,6 +370,11 @@ impl<'a> Runner<'a> {
         // the estimator can interpolate at the frame time.
         self.feed_imu(t_f);
         let f = &self.ds.frames[k];
+        // What the daemon takes from the autopilot's EXTENDED_SYS_STATE:
+        // zero-velocity updates on the ground only.
+        if self.landed_state {
+            self.est.set_zupt_allowed(self.ds.landed_at(f.t_s));
+        }
         let start = Instant::now();
         self.normaliser.normalise_into(
             f.features.iter().map(|o| (o.landmark_id, o.u_px, o.v_px)),
@@ -447,9 +464,20 @@ fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
     r.resets = run.resets;
 }
 
-fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) -> Runner<'a> {
-    let r = Runner::new(ds, cfg, mode, seed);
-    if gnss {
+/// What a flight fuses besides the IMU and the camera, and what it knows.
+#[derive(Clone, Copy, Debug)]
+struct Inputs {
+    gnss: bool,
+    /// The autopilot's landed state ([`Runner::without_landed_state`]).
+    landed_state: bool,
+}
+
+fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, inputs: Inputs) -> Runner<'a> {
+    let mut r = Runner::new(ds, cfg, mode, seed);
+    if !inputs.landed_state {
+        r = r.without_landed_state();
+    }
+    if inputs.gnss {
         r.with_gnss()
     } else {
         r
@@ -458,7 +486,20 @@ fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, gnss: bool) 
 
 /// Runs one mode over a dataset (with its GNSS if `gnss`).
 pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -> FlightResult {
-    let mut runner = runner(ds, cfg, mode, init_seed, gnss);
+    run_with(
+        ds,
+        cfg,
+        mode,
+        init_seed,
+        Inputs {
+            gnss,
+            landed_state: true,
+        },
+    )
+}
+
+fn run_with(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, inputs: Inputs) -> FlightResult {
+    let mut runner = runner(ds, cfg, mode, init_seed, inputs);
     let mut r = empty(mode);
     let c = &ds.cfg.gnss.canyon_s;
     r.canyon_s = (c.len() == 2).then(|| (c[0], c[1]));
@@ -475,8 +516,20 @@ pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -
 /// Runs `compressed` and `full` in lockstep and compares them after every
 /// frame with a global update, and at the end after a forced global update.
 pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: bool) -> (FlightResult, FlightResult) {
-    let mut rc = runner(ds, cfg, Mode::Compressed, init_seed, gnss);
-    let mut rf = runner(ds, cfg, Mode::Full, init_seed, gnss);
+    compressed_vs_full_with(
+        ds,
+        cfg,
+        init_seed,
+        Inputs {
+            gnss,
+            landed_state: true,
+        },
+    )
+}
+
+fn compressed_vs_full_with(ds: &Dataset, cfg: &Config, init_seed: u64, inputs: Inputs) -> (FlightResult, FlightResult) {
+    let mut rc = runner(ds, cfg, Mode::Compressed, init_seed, inputs);
+    let mut rf = runner(ds, cfg, Mode::Full, init_seed, inputs);
     let (mut c, mut f) = (empty(Mode::Compressed), empty(Mode::Full));
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
@@ -510,6 +563,8 @@ pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: 
 pub struct Evaluation {
     pub scenario: String,
     pub gnss: bool,
+    /// Zero-velocity updates gated by the autopilot's landed state.
+    pub landed_state: bool,
     pub seeds: u64,
     pub duration_s: f64,
     pub modes: BTreeMap<String, ModeSummary>,
@@ -526,6 +581,9 @@ pub struct EvalSpec {
     pub duration_s: Option<f64>,
     /// Fuse the simulated GNSS.
     pub gnss: bool,
+    /// Gate zero-velocity updates by the autopilot's landed state, as
+    /// beside ArduPilot or PX4; false: by the IMU and camera alone.
+    pub landed_state: bool,
 }
 
 /// Where [`evaluate`] is: flights done of all it will fly, and what the
@@ -546,13 +604,11 @@ pub fn evaluate(
     sim: &SimConfig,
     mut progress: impl FnMut(&Progress),
 ) -> Result<Evaluation, cmsckf_sitl::trajectory::TrajectoryError> {
-    let (scenario, modes, seeds, duration_s, gnss) = (
-        spec.scenario.as_str(),
-        &spec.modes[..],
-        spec.seeds,
-        spec.duration_s,
-        spec.gnss,
-    );
+    let (scenario, modes, seeds, duration_s) = (spec.scenario.as_str(), &spec.modes[..], spec.seeds, spec.duration_s);
+    let inputs = Inputs {
+        gnss: spec.gnss,
+        landed_state: spec.landed_state,
+    };
     let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
     let mut duration = 0.0;
     let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
@@ -566,7 +622,7 @@ pub fn evaluate(
         let ds = Dataset::generate(scenario, seed, duration_s, sim)?;
         duration = ds.duration_s;
         if lockstep {
-            let (c, f) = run_compressed_vs_full(&ds, cfg, seed, gnss);
+            let (c, f) = compressed_vs_full_with(&ds, cfg, seed, inputs);
             p.done += 1;
             p.message = format!(
                 "seed {seed}: compressed vs full max rel diff {:.2e}",
@@ -580,7 +636,7 @@ pub fn evaluate(
             if lockstep && (m == Mode::Full || m == Mode::Compressed) {
                 continue;
             }
-            per_mode.entry(m).or_default().push(run(&ds, cfg, m, seed, gnss));
+            per_mode.entry(m).or_default().push(run_with(&ds, cfg, m, seed, inputs));
             p.done += 1;
             p.message = format!("seed {seed}: {}", m.name());
             progress(&p);
@@ -588,7 +644,8 @@ pub fn evaluate(
     }
     Ok(Evaluation {
         scenario: scenario.to_string(),
-        gnss,
+        gnss: inputs.gnss,
+        landed_state: inputs.landed_state,
         seeds,
         duration_s: duration,
         modes: per_mode

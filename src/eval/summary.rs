@@ -345,8 +345,8 @@ impl Evaluation {
     /// The human-readable table.
     pub fn table(&self) -> String {
         let mut s = format!(
-            "scenario {} · {} seeds · {:.0} s · GNSS {}\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
-            self.scenario, self.seeds, self.duration_s, if self.gnss { "on" } else { "off" }, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
+            "scenario {} · {} seeds · {:.0} s · GNSS {}{}\n{:<11} {:>9} {:>9} {:>8} {:>7} {:>6} {:>5} {:>6} {:>6} {:>9} {:>9} {:>10}\n",
+            self.scenario, self.seeds, self.duration_s, if self.gnss { "on" } else { "off" }, if self.landed_state { "" } else { " · no landed state" }, "mode", "ATE[m]", "ATE4[m]", "rot[deg]", "NEES", "in95", "KF", "loops", "glob", "us/frame", "p99[us]", "vs full"
         );
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {

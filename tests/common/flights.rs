@@ -22,8 +22,7 @@ pub fn racetrack(seed: u64, duration_s: f64) -> (Dataset, Config) {
 /// a 0.002 rad/s σ turn-on gyro bias, no vibration; the default is an armed
 /// multirotor's raw IMU), with the camera and IMU noise of `cfg`.
 pub fn calibrated_sim(cfg: &Config) -> cmsckf_sitl::config::SimConfig {
-    let mut sim =
-        cmsckf_sitl::config::SimConfig::from_toml(include_str!("../../config/sim-calibrated.toml")).unwrap();
+    let mut sim = cmsckf_sitl::config::SimConfig::from_toml(include_str!("../../config/sim-calibrated.toml")).unwrap();
     sim.camera = cfg.camera.clone();
     sim.imu = cfg.imu.clone();
     sim

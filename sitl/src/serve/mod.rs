@@ -2,8 +2,9 @@
 //! the MAVLink link and for the camera front end on the feature socket, and
 //! scores what the daemon sends back against the truth.
 //!
-//! Over MAVLink it sends HEARTBEAT (quadrotor), SYSTEM_TIME, HIGHRES_IMU,
-//! ATTITUDE and LOCAL_POSITION_NED (its own EKF's view, with a real EKF's
+//! Over MAVLink it sends HEARTBEAT (an armed quadrotor), SYSTEM_TIME,
+//! HIGHRES_IMU, EXTENDED_SYS_STATE (landed or in the air), ATTITUDE and
+//! LOCAL_POSITION_NED (its own EKF's view, with a real EKF's
 //! errors, following the daemon's estimates as EK3 does: see `autopilot`),
 //! answers SET_MESSAGE_INTERVAL and TIMESYNC, and receives
 //! VISION_POSITION_ESTIMATE. The flight is replayed at real time or at

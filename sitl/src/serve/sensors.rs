@@ -1,5 +1,6 @@
-//! The autopilot's own MAVLink streams: HEARTBEAT, SYSTEM_TIME,
-//! GPS_GLOBAL_ORIGIN and GPS_RAW_INT at 1 Hz, ATTITUDE and
+//! The autopilot's own MAVLink streams: HEARTBEAT (armed), SYSTEM_TIME,
+//! GPS_GLOBAL_ORIGIN and GPS_RAW_INT at 1 Hz, EXTENDED_SYS_STATE (its land
+//! detector: on the ground or in the air, `Dataset::landed_at`), ATTITUDE and
 //! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
 //! [`super::autopilot`]), EKF_STATUS_REPORT (that EKF's test ratios of our
 //! estimates) and SIM_STATE (the truth, as ArduPilot's SITL sends it, for
@@ -61,6 +62,16 @@ impl Streamer<'_> {
         let (r, p, y) = self.ekf.attitude(&s.q_W_B);
         let (p_B_in_W, v_B_in_W) = self.ekf.local_position(&s);
         let ms = (self.boot(t) / 1000) as u32;
+        // Its land detector's verdict, as ArduPilot and PX4 stream it.
+        self.send(apm::MavMessage::EXTENDED_SYS_STATE(apm::EXTENDED_SYS_STATE_DATA {
+            vtol_state: apm::MavVtolState::MAV_VTOL_STATE_UNDEFINED,
+            landed_state: if self.ds.landed_at(t) {
+                apm::MavLandedState::MAV_LANDED_STATE_ON_GROUND
+            } else {
+                apm::MavLandedState::MAV_LANDED_STATE_IN_AIR
+            },
+        }))
+        .await;
         self.send(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
             time_boot_ms: ms,
             roll: r as f32,
@@ -166,13 +177,14 @@ impl Streamer<'_> {
     }
 }
 
-/// The autopilot's heartbeat: an active ArduPilot quadrotor.
+/// The autopilot's heartbeat: an active ArduPilot quadrotor, armed (its
+/// motors run from the start: the simulated IMU vibrates throughout).
 fn heartbeat() -> apm::MavMessage {
     apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
         custom_mode: 0,
         mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
         autopilot: apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
-        base_mode: apm::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        base_mode: apm::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | apm::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED,
         system_status: apm::MavState::MAV_STATE_ACTIVE,
         mavlink_version: 3,
     })
