@@ -24,10 +24,12 @@ fn hover(sim: &SimConfig, seeds: u64, on: bool) -> eval::ModeSummary {
     eval::summarise(&runs)
 }
 
-/// On an armed, vibrating IMU the hover's drift made the filter
-/// overconfident (position NEES 9.9, velocity 18.6 over three seeds); the
-/// hover's own tracks at their remembered depth hold it. On a calibrated
-/// IMU they keep it consistent.
+/// On an armed, vibrating IMU the hover drifts on the IMU alone; the
+/// hover's own tracks at their remembered depth hold it (aligned ATE 0.051
+/// against 0.082 m over two seeds) and keep it consistent. (Before the
+/// simulated autopilot reported its landed state, the hover's false
+/// zero-velocity updates made it overconfident without them, position NEES
+/// 9.9, velocity 18.6.) On a calibrated IMU they keep it consistent too.
 #[test]
 fn a_hover_is_held_by_its_remembered_landmarks() {
     let cfg = Config::default();
@@ -51,9 +53,11 @@ fn a_hover_is_held_by_its_remembered_landmarks() {
     );
     assert_eq!(off.low_parallax_tracks, 0.0);
     assert!(on.low_parallax_tracks > 1000.0, "{on:?}");
-    assert!(on.ate_aligned_m < 0.7 * off.ate_aligned_m);
-    assert!(on.nees_velocity_mean < 0.8 * off.nees_velocity_mean);
-    assert!(on.nees_position_mean < 0.9 * off.nees_position_mean);
+    assert!(on.ate_aligned_m < 0.75 * off.ate_aligned_m);
+    // Six degrees of freedom for the pose, three for the velocity: inside
+    // their 95% intervals for two seeds' mean (χ²(12)/2 ≤ 10.5, χ²(6)/2 ≤ 6.3).
+    assert!(on.nees_mean < 10.5, "{}", on.nees_mean);
+    assert!(on.nees_velocity_mean < 6.3, "{}", on.nees_velocity_mean);
     assert!(on.nees_in_bounds > 0.9, "{}", on.nees_in_bounds);
     assert_eq!(on.resets, 0);
 

@@ -191,27 +191,31 @@ fn schmidt_update_equals_the_former_formula() {
 
 /// A Schmidt flight (camera and GNSS, loop closures on keyframes) with the
 /// new update equals the same flight with the former formula, frame by
-/// frame: the same events, tracks and updates, and states and covariances
-/// equal to 1e-10 (`Snapshot::max_rel_diff`; the two differ by a few ulps
-/// per update, about 1e-12 after 1800 frames).
+/// frame: from the new filter's state at every frame, the former formula
+/// gives the same events, tracks and updates, and a state and covariance
+/// equal to 1e-10 (`Snapshot::max_rel_diff`; a few ulps per update). Each
+/// frame starts both from one state: run apart over the whole flight, the
+/// two drift as any two nonlinear filters do, round-off amplified (README,
+/// "Compressed equals full"), and on the armed, vibrating IMU passed 1e-10
+/// at frame 822.
 #[test]
 fn schmidt_flight_equals_the_former_formula() {
     let (ds, cfg) = schmidt_flight(4, 60.0);
     let mut new = eval::Runner::new(&ds, &cfg, Mode::Schmidt, 4).with_gnss();
-    let mut old = new.clone();
-    old.est.set_schmidt_downdate(former_downdate);
     let mut worst: f64 = 0.0;
     for k in 0..ds.frames.len() {
+        let mut old = new.clone();
+        old.est.set_schmidt_downdate(former_downdate);
         let (_, rep_new) = new.step_frame(k);
         let (_, rep_old) = old.step_frame(k);
         assert_eq!(rep_new.tracks_used, rep_old.tracks_used, "frame {k}");
         assert_eq!(rep_new.events, rep_old.events, "frame {k}");
+        assert_eq!(new.est.stats, old.est.stats, "frame {k}");
         let d = new.est.snapshot().max_rel_diff(&old.est.snapshot());
         worst = worst.max(d);
         assert!(d <= 1e-10, "frame {k}: new and former Schmidt filters differ by {d:e}");
     }
     let s = &new.est.stats;
-    assert_eq!(s, &old.est.stats);
     assert!(s.loop_closure_updates > 0, "no loop closure on a keyframe");
     let n_keyframes = (new.est.clones_offset() - ACTIVE_DIM) / 6;
     assert!(n_keyframes >= 40, "only {n_keyframes} keyframes");
