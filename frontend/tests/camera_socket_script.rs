@@ -218,3 +218,148 @@ fn sigterm_ends_a_bridge_waiting_on_a_silent_camera_and_files_are_never_removed(
     assert!(said.contains("not a socket"), "{said}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "a pilot's notes");
 }
+
+/// A VOXL camera server under ModalAI's MPA, played by a script: a pipe
+/// directory with a `request` FIFO; each client writes its name there and
+/// reads the FIFO the server makes for it: each frame a packed 40-byte
+/// `camera_image_metadata_t` (magic "VOXL"), then the image. 40 NV12
+/// frames of a moving texture, exposed 50 ms apart for 4 ms, with a torn
+/// write (7 stray bytes) and an H.264 frame among them; then the server
+/// goes away.
+const MPA_SERVER: &str = r#"
+import os, random, struct, sys, time
+d = sys.argv[1]
+W, H, N = 752, 480, 40
+rng = random.Random(1)
+blocks = [[rng.randrange(256) for _ in range((W + 2 * N) // 8 + 1)] for _ in range(H // 8)]
+rows = [bytes(blocks[y // 8][x // 8] for x in range(W + 2 * N)) for y in range(H)]
+chroma = bytes([128]) * (W * (H // 2))
+req_path = os.path.join(d, "request")
+os.mkfifo(req_path)
+req = os.open(req_path, os.O_RDONLY | os.O_NONBLOCK)
+name = b""
+deadline = time.time() + 30
+while not name.endswith(b"\0"):
+    assert time.time() < deadline, "no client asked"
+    try:
+        name += os.read(req, 64)
+    except BlockingIOError:
+        pass
+    time.sleep(0.01)
+path = os.path.join(d, name[:-1].decode())
+os.mkfifo(path)
+out = os.open(path, os.O_WRONLY)
+t0 = time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+meta = struct.Struct("<Iqihhiiihhhh")
+for k in range(N):
+    if k == 10:
+        os.write(out, b"garbage")
+    if k == 20:
+        os.write(out, meta.pack(0x564F584C, t0, k, W, H, 100, W, 4_000_000, 100, 3, 20, 0) + bytes(100))
+    x0 = 2 * k
+    image = b"".join(r[x0:x0 + W] for r in rows) + chroma
+    frame = meta.pack(0x564F584C, t0 + k * 50_000_000, k, W, H, len(image), W, 4_000_000, 100, 1, 20, 0) + image
+    view = memoryview(frame)
+    while view:
+        view = view[os.write(out, view):]
+    time.sleep(0.05)
+os.close(out)
+"#;
+
+#[test]
+fn a_voxl_mpa_pipe_is_served_and_tracked() {
+    let dir = tempfile::tempdir().unwrap();
+    let pipes = dir.path().join("mpa-tracking");
+    std::fs::create_dir(&pipes).unwrap();
+    let sock = dir.path().join("camera.sock");
+    let out = dir.path().join("tracks.jsonl");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/camera-socket.py");
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/euroc.toml");
+    let mut bridge = Command::new("python3")
+        .arg(script)
+        .arg("--socket")
+        .arg(&sock)
+        .arg("--mpa")
+        .arg(&pipes)
+        .args(["--width", "752", "--height", "480"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut frontend = Command::new(env!("CARGO_BIN_EXE_cmsckf-frontend"))
+        .arg("--camera-socket")
+        .arg(&sock)
+        .arg("--config")
+        .arg(config)
+        .arg("--out")
+        .arg(&out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // The server starts once the front-end is there, so that it sees every frame.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while std::fs::metadata(&sock).is_err() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let server = Command::new("python3")
+        .args(["-c", MPA_SERVER])
+        .arg(&pipes)
+        .status()
+        .unwrap();
+    assert!(server.success(), "the MPA server script failed");
+    // The server is gone: the bridge keeps asking, and serves what it read.
+    std::thread::sleep(Duration::from_millis(1500));
+    sigterm(&bridge);
+    let status = bridge.wait().unwrap();
+    let mut said = String::new();
+    bridge.stderr.take().unwrap().read_to_string(&mut said).unwrap();
+    eprintln!("bridge: {said}");
+    assert_eq!(status.code(), Some(0), "SIGTERM is a clean stop: {said}");
+    assert!(said.contains("the camera server closed its pipe"), "{said}");
+    let count = |key: &str| -> usize {
+        said.rsplit(&format!("'{key}': "))
+            .next()
+            .and_then(|s| s.split([',', '}']).next())
+            .and_then(|n| n.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no {key} count: {said}"))
+    };
+    assert_eq!(count("mpa_connects"), 1, "{said}");
+    assert!(count("mpa_resync") >= 1, "the stray bytes: {said}");
+    assert_eq!(count("mpa_unusable"), 1, "the H.264 frame: {said}");
+    let served = count("served");
+    assert!(served >= 35, "{served} of 40 frames served: {said}");
+    let written = || std::fs::read_to_string(&out).map_or(0, |s| s.lines().count());
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while written() < served && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    sigterm(&frontend);
+    frontend.wait().unwrap();
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), served, "frames served and lines written");
+    // The server's own stamps, mid-exposure: exactly 50 ms apart, whatever
+    // the pipe's delays.
+    let t_us: Vec<u64> = lines.iter().map(|v| v["t_us"].as_u64().unwrap()).collect();
+    assert!(
+        t_us.windows(2).all(|w| w[1] > w[0] && (w[1] - w[0]) % 50_000 == 0),
+        "stamps not the camera's: {t_us:?}"
+    );
+    let feats = |v: &serde_json::Value| v["features"].as_array().unwrap().clone();
+    let (last, prev) = (feats(&lines[lines.len() - 1]), feats(&lines[lines.len() - 2]));
+    let moved: Vec<f64> = last
+        .iter()
+        .filter_map(|f| {
+            let p = prev.iter().find(|g| g[0] == f[0])?;
+            Some(f[1].as_f64()? - p[1].as_f64()?)
+        })
+        .collect();
+    assert!(moved.len() >= 30, "{} features kept", moved.len());
+    assert!(
+        moved.iter().sum::<f64>() / (moved.len() as f64) < -1.0,
+        "the texture moves left"
+    );
+}
