@@ -24,6 +24,7 @@
 #   /etc/cmsckf/cmsckf.toml                      the config (a conffile: kept on upgrade)
 #   /etc/default/cmsckf-frontend                 the camera device and options
 #   /usr/share/doc/cmsckf/                       README, copyright, changelog
+#   /usr/share/man/man1/cmsckf.1.gz, cmsckf-frontend.1.gz   manual pages
 #   /usr/share/cmsckf/camera-socket.py           the bridge for cameras that are not V4L2
 # The postinst makes the system user cmsckf (groups dialout and video); the
 # units are installed but not enabled: a companion computer flies only what its
@@ -157,14 +158,22 @@ chmod 0644 "$pkg/etc/cmsckf/cmsckf.toml"
 install -m 0644 README.md "$pkg/usr/share/doc/cmsckf/README.md"
 install -m 0644 packaging/copyright "$pkg/usr/share/doc/cmsckf/copyright"
 install -m 0644 packaging/copyright "$dbg/usr/share/doc/cmsckf-dbgsym/copyright"
+# Manual pages, and lintian's override for what it cannot tell from a
+# bundled C library.
+mkdir -p "$pkg/usr/share/man/man1" "$pkg/usr/share/lintian/overrides"
+for m in cmsckf cmsckf-frontend; do
+  gzip -9n < "packaging/$m.1" > "$pkg/usr/share/man/man1/$m.1.gz"
+  chmod 0644 "$pkg/usr/share/man/man1/$m.1.gz"
+done
+install -m 0644 packaging/lintian-overrides "$pkg/usr/share/lintian/overrides/cmsckf"
 # The bridge for cameras that are not V4L2 (docs/frontend.md).
 install -m 0755 scripts/camera-socket.py "$pkg/usr/share/cmsckf/camera-socket.py"
 # Debian's changelog, from the package's version and the commit it is built from.
 commit="$(git rev-parse --short=12 HEAD 2>/dev/null || echo unknown)"
 for d in "$pkg/usr/share/doc/cmsckf" "$dbg/usr/share/doc/cmsckf-dbgsym"; do
   printf '%s (%s) unstable; urgency=medium\n\n  * Built from commit %s.\n\n -- cmsckf developers <cmsckf@users.noreply.github.com>  %s\n' \
-    "$(basename "$d")" "$version" "$commit" "$(date -R)" | gzip -9n > "$d/changelog.Debian.gz"
-  chmod 0644 "$d/changelog.Debian.gz"
+    "$(basename "$d")" "$version" "$commit" "$(date -R)" | gzip -9n > "$d/changelog.gz"
+  chmod 0644 "$d/changelog.gz"
 done
 
 # The newest glibc symbol version the binaries use is the libc6 they need.
@@ -208,7 +217,8 @@ Section: debug
 Priority: optional
 Description: debug symbols for cmsckf
  The debug information of cmsckf and cmsckf-frontend, for gdb and for
- symbolising a crash report (build ids ${build_ids[*]}).
+ symbolising a crash report, under /usr/lib/debug/.build-id/ (the build
+ ids are in this package's Build-Ids field).
 Build-Ids: ${build_ids[*]}
 EOF
 

@@ -107,7 +107,10 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
         "etc/default/cmsckf-frontend",
         "usr/share/doc/cmsckf/copyright",
         "usr/share/doc/cmsckf/README.md",
-        "usr/share/doc/cmsckf/changelog.Debian.gz",
+        "usr/share/doc/cmsckf/changelog.gz",
+        "usr/share/man/man1/cmsckf.1.gz",
+        "usr/share/man/man1/cmsckf-frontend.1.gz",
+        "usr/share/lintian/overrides/cmsckf",
         "usr/share/cmsckf/camera-socket.py",
     ] {
         assert!(root.join(f).is_file(), "the package has no /{f}");
@@ -230,4 +233,22 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
         postinst.contains("adduser --system --group"),
         "postinst makes no system user"
     );
+
+    // Debian's policy checker, where it is installed: no error or warning
+    // (the one override, the Rust translation of libyaml compiled in, is in
+    // the package and says why).
+    if have("lintian") {
+        let out = Command::new("lintian")
+            .args(["--tag-display-limit", "0"])
+            .arg(deb)
+            .arg(dbgsym)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&out.stdout);
+        let tags: Vec<&str> = said.lines().filter(|l| l.starts_with("E: ") || l.starts_with("W: ")).collect();
+        eprintln!("lintian: {} errors or warnings", tags.len());
+        assert!(tags.is_empty(), "lintian: {tags:#?}");
+    } else {
+        eprintln!("lintian is not here: the package is not checked against Debian's policy");
+    }
 }
