@@ -246,7 +246,10 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
             .output()
             .unwrap();
         let said = String::from_utf8_lossy(&out.stdout);
-        let tags: Vec<&str> = said.lines().filter(|l| l.starts_with("E: ") || l.starts_with("W: ")).collect();
+        let tags: Vec<&str> = said
+            .lines()
+            .filter(|l| l.starts_with("E: ") || l.starts_with("W: "))
+            .collect();
         eprintln!("lintian: {} errors or warnings", tags.len());
         assert!(tags.is_empty(), "lintian: {tags:#?}");
     } else {
