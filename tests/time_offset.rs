@@ -60,16 +60,7 @@ fn augmenting_a_view_equals_the_dense_product() {
 fn time_offset_converges_in_flight() {
     for (scenario, seed) in [("figure8", 4), ("racetrack", 1)] {
         let (ds, cfg) = flights::scenario(scenario, seed, 27.0);
-        let takeoff = ds.cfg.standstill_s;
-        let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
-        let mut at_20 = None;
-        for k in 0..ds.frames.len() {
-            run.step_frame(k);
-            if at_20.is_none() && run.est.time_s() >= takeoff + 20.0 {
-                at_20 = Some(run.est.time_offset());
-            }
-        }
-        let (td, var) = at_20.expect("20 s of flight");
+        let (td, var) = time_offset_at(&ds, &cfg, Mode::Compressed, seed, ds.cfg.standstill_s + 20.0);
         let truth = ds.cfg.camera_time_offset_s;
         let err = (td - truth).abs();
         eprintln!(
@@ -154,16 +145,7 @@ fn in_calm_air_the_time_offset_stays_honest() {
     sim.wind.gust_accel_mps2 = 0.0;
     for seed in [1, 2] {
         let ds = Dataset::generate("racetrack", seed, Some(27.0), &sim).unwrap();
-        let takeoff = ds.cfg.standstill_s;
-        let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
-        let mut at_20 = None;
-        for k in 0..ds.frames.len() {
-            run.step_frame(k);
-            if at_20.is_none() && run.est.time_s() >= takeoff + 20.0 {
-                at_20 = Some(run.est.time_offset());
-            }
-        }
-        let (td, var) = at_20.expect("20 s of flight");
+        let (td, var) = time_offset_at(&ds, &cfg, Mode::Compressed, seed, ds.cfg.standstill_s + 20.0);
         let (err, sigma) = ((td - ds.cfg.camera_time_offset_s).abs(), var.sqrt());
         eprintln!(
             "seed {seed}, calm air: t_d error {:.2} ms, σ {:.2} ms",
@@ -224,15 +206,7 @@ fn time_offset_error_after_20_s(scenario: &str, cfg: &Config, sim: &cmsckf_sitl:
     let mut worst: f64 = 0.0;
     for seed in 1..=2 {
         let ds = Dataset::generate(scenario, seed, Some(25.0), sim).unwrap();
-        let mut run = eval::Runner::new(&ds, cfg, Mode::Msckf, seed);
-        let mut at_20 = None;
-        for k in 0..ds.frames.len() {
-            run.step_frame(k);
-            if at_20.is_none() && run.est.time_s() >= 20.0 {
-                at_20 = Some(run.est.time_offset());
-            }
-        }
-        let (td, var) = at_20.expect("20 s");
+        let (td, var) = time_offset_at(&ds, cfg, Mode::Msckf, seed, 20.0);
         let err = (td - ds.cfg.camera_time_offset_s).abs();
         eprintln!(
             "{name} IMU, seed {seed}: t_d error after 20 s {:.3} ms, σ {:.3} ms",
@@ -242,4 +216,17 @@ fn time_offset_error_after_20_s(scenario: &str, cfg: &Config, sim: &cmsckf_sitl:
         worst = worst.max(err);
     }
     worst
+}
+
+/// Flies `ds` in `mode` and gives the time offset's estimate and variance
+/// at the first frame at or after `t_s` (s, s²).
+fn time_offset_at(ds: &Dataset, cfg: &Config, mode: Mode, seed: u64, t_s: f64) -> (f64, f64) {
+    let mut run = eval::Runner::new(ds, cfg, mode, seed);
+    for k in 0..ds.frames.len() {
+        run.step_frame(k);
+        if run.est.time_s() >= t_s {
+            return run.est.time_offset();
+        }
+    }
+    panic!("the flight ends before {t_s} s");
 }
