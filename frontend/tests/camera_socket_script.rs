@@ -9,22 +9,37 @@ use std::io::Read;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-/// The camera command: 60 I420 frames of 752×480 at 20 Hz, a texture of
-/// 8-px blocks moving 2 px a frame to the left.
-const CAMERA: &str = r#"
-import random, sys, time
-W, H, N = 752, 480, 60
+/// Python defining `rows`, a 752×480 texture of 8-px blocks wide enough to
+/// move 2 px a frame to the left for `N` frames (`rows[y][2k:2k + W]`), and
+/// `chroma`, the grey 4:2:0 chroma of one frame (I420's or NV12's).
+macro_rules! texture {
+    () => {
+        r#"
+import random
+W, H = 752, 480
 rng = random.Random(1)
 blocks = [[rng.randrange(256) for _ in range((W + 2 * N) // 8 + 1)] for _ in range(H // 8)]
 rows = [bytes(blocks[y // 8][x // 8] for x in range(W + 2 * N)) for y in range(H)]
-chroma = bytes([128]) * (2 * (W // 2) * (H // 2))
+chroma = bytes([128]) * (W * (H // 2))
+"#
+    };
+}
+
+/// The camera command: 60 I420 frames of 752×480 at 20 Hz, the texture
+/// moving 2 px a frame to the left.
+const CAMERA: &str = concat!(
+    "N = 60\n",
+    texture!(),
+    r#"
+import sys, time
 out = sys.stdout.buffer
 for k in range(N):
     x0 = 2 * k
     out.write(b"".join(r[x0:x0 + W] for r in rows) + chroma)
     out.flush()
     time.sleep(0.05)
-"#;
+"#
+);
 
 #[test]
 fn a_pipe_camera_is_served_and_tracked() {
@@ -51,17 +66,7 @@ fn a_pipe_camera_is_served_and_tracked() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("python3 is needed for the tests (Debian: apt install python3)");
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/euroc.toml");
-    let mut frontend = Command::new(env!("CARGO_BIN_EXE_cmsckf-frontend"))
-        .arg("--camera-socket")
-        .arg(&sock)
-        .arg("--config")
-        .arg(config)
-        .arg("--out")
-        .arg(&out)
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut frontend = frontend_on(&sock, &out);
 
     // The camera's 60 frames take 3 s and more; the bridge ends with them.
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -78,29 +83,10 @@ fn a_pipe_camera_is_served_and_tracked() {
     assert!(said.contains("the camera command ended"), "{said}");
     // The front-end connects within its backoff: most of the 60 frames are
     // served, and every frame served is tracked and written.
-    let served: usize = said
-        .split("'served': ")
-        .nth(1)
-        .and_then(|s| s.split(',').next())
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("the bridge did not count what it served: {said}"));
+    let served = count(&said, "served");
     assert!(served >= 40, "{served} of 60 frames served");
-    let written = || std::fs::read_to_string(&out).map_or(0, |s| s.lines().count());
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while written() < served && Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    // SIGTERM stops the front-end; each frame's line is already written.
-    sigterm(&frontend);
-    let fe_status = frontend.wait().unwrap();
-    eprintln!("bridge: {said}front-end: {fe_status}");
-
-    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert_eq!(lines.len(), served, "frames served and lines written");
+    eprintln!("bridge: {said}");
+    let lines = tracks_written(&mut frontend, &out, served);
     let t_us: Vec<u64> = lines.iter().map(|v| v["t_us"].as_u64().unwrap()).collect();
     assert!(t_us.windows(2).all(|w| w[1] > w[0]), "stamps not increasing: {t_us:?}");
     let mut dt_ms: Vec<f64> = t_us.windows(2).map(|w| (w[1] - w[0]) as f64 / 1e3).collect();
@@ -111,10 +97,63 @@ fn a_pipe_camera_is_served_and_tracked() {
         "frames {median_ms} ms apart, the camera's are 50+"
     );
     // The texture is tracked: the same ids frame after frame, moving left.
+    let last = lines[lines.len() - 1]["features"].as_array().unwrap().len();
+    assert!(last >= 50, "{last} features in the last frame");
+    assert_tracked_moving_left(&lines);
+}
+
+/// `cmsckf-frontend` on the camera socket `sock`, writing its tracks to
+/// `out` (one JSON line a frame).
+fn frontend_on(sock: &std::path::Path, out: &std::path::Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_cmsckf-frontend"))
+        .arg("--camera-socket")
+        .arg(sock)
+        .arg("--config")
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/euroc.toml"))
+        .arg("--out")
+        .arg(out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+/// The bridge's last count of `key` in what it said (`'key': n`).
+fn count(said: &str, key: &str) -> usize {
+    said.rsplit(&format!("'{key}': "))
+        .next()
+        .filter(|_| said.contains(&format!("'{key}': ")))
+        .and_then(|s| s.split([',', '}']).next())
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or_else(|| panic!("the bridge did not count {key}: {said}"))
+}
+
+/// Waits (20 s at most) for the front-end to write a line for each of the
+/// `served` frames, stops it with SIGTERM, and gives its lines: exactly
+/// one a frame served.
+fn tracks_written(frontend: &mut std::process::Child, out: &std::path::Path, served: usize) -> Vec<serde_json::Value> {
+    let written = || std::fs::read_to_string(out).map_or(0, |s| s.lines().count());
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while written() < served && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SIGTERM stops the front-end; each frame's line is already written.
+    sigterm(frontend);
+    let status = frontend.wait().unwrap();
+    eprintln!("front-end: {status}");
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), served, "frames served and lines written");
+    lines
+}
+
+/// The texture moving left is tracked: at least 30 features of the last
+/// frame kept from the one before, moving left by over a pixel on average.
+fn assert_tracked_moving_left(lines: &[serde_json::Value]) {
     let feats = |v: &serde_json::Value| v["features"].as_array().unwrap().clone();
-    let last = feats(&lines[lines.len() - 1]);
-    assert!(last.len() >= 50, "{} features in the last frame", last.len());
-    let prev = feats(&lines[lines.len() - 2]);
+    let (last, prev) = (feats(&lines[lines.len() - 1]), feats(&lines[lines.len() - 2]));
     let moved: Vec<f64> = last
         .iter()
         .filter_map(|f| {
@@ -179,12 +218,7 @@ fn a_reader_that_never_reads_never_stalls_the_camera() {
     b.stderr.take().unwrap().read_to_string(&mut said).unwrap();
     eprintln!("{said} in {took:?}");
     assert_eq!(status.code(), Some(1), "{said}");
-    let slow: usize = said
-        .split("'reader_slow': ")
-        .nth(1)
-        .and_then(|s| s.split(',').next())
-        .and_then(|n| n.parse().ok())
-        .unwrap();
+    let slow = count(&said, "reader_slow");
     assert!(slow >= 20, "frames to a stuck reader not dropped: {said}");
     // The camera's own 2 s and start-up, not 0.5 s a frame.
     assert!(took < Duration::from_secs(8), "the camera stalled: {took:?}");
@@ -226,14 +260,12 @@ fn sigterm_ends_a_bridge_waiting_on_a_silent_camera_and_files_are_never_removed(
 /// frames of a moving texture, exposed 50 ms apart for 4 ms, with a torn
 /// write (7 stray bytes) and an H.264 frame among them; then the server
 /// goes away.
-const MPA_SERVER: &str = r#"
-import os, random, struct, sys, time
+const MPA_SERVER: &str = concat!(
+    "N = 40\n",
+    texture!(),
+    r#"
+import os, struct, sys, time
 d = sys.argv[1]
-W, H, N = 752, 480, 40
-rng = random.Random(1)
-blocks = [[rng.randrange(256) for _ in range((W + 2 * N) // 8 + 1)] for _ in range(H // 8)]
-rows = [bytes(blocks[y // 8][x // 8] for x in range(W + 2 * N)) for y in range(H)]
-chroma = bytes([128]) * (W * (H // 2))
 req_path = os.path.join(d, "request")
 os.mkfifo(req_path)
 req = os.open(req_path, os.O_RDONLY | os.O_NONBLOCK)
@@ -264,7 +296,8 @@ for k in range(N):
         view = view[os.write(out, view):]
     time.sleep(0.05)
 os.close(out)
-"#;
+"#
+);
 
 #[test]
 fn a_voxl_mpa_pipe_is_served_and_tracked() {
@@ -274,7 +307,6 @@ fn a_voxl_mpa_pipe_is_served_and_tracked() {
     let sock = dir.path().join("camera.sock");
     let out = dir.path().join("tracks.jsonl");
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/camera-socket.py");
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/euroc.toml");
     let mut bridge = Command::new("python3")
         .arg(script)
         .arg("--socket")
@@ -285,21 +317,10 @@ fn a_voxl_mpa_pipe_is_served_and_tracked() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let mut frontend = Command::new(env!("CARGO_BIN_EXE_cmsckf-frontend"))
-        .arg("--camera-socket")
-        .arg(&sock)
-        .arg("--config")
-        .arg(config)
-        .arg("--out")
-        .arg(&out)
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    // The server starts once the front-end is there, so that it sees every frame.
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::fs::metadata(&sock).is_err() && Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let mut frontend = frontend_on(&sock, &out);
+    // The server starts once the bridge serves and the front-end had time
+    // to connect, so that it sees every frame.
+    wait_for(&sock);
     std::thread::sleep(Duration::from_millis(500));
     let server = Command::new("python3")
         .args(["-c", MPA_SERVER])
@@ -316,31 +337,12 @@ fn a_voxl_mpa_pipe_is_served_and_tracked() {
     eprintln!("bridge: {said}");
     assert_eq!(status.code(), Some(0), "SIGTERM is a clean stop: {said}");
     assert!(said.contains("the camera server closed its pipe"), "{said}");
-    let count = |key: &str| -> usize {
-        said.rsplit(&format!("'{key}': "))
-            .next()
-            .and_then(|s| s.split([',', '}']).next())
-            .and_then(|n| n.trim().parse().ok())
-            .unwrap_or_else(|| panic!("no {key} count: {said}"))
-    };
-    assert_eq!(count("mpa_connects"), 1, "{said}");
-    assert!(count("mpa_resync") >= 1, "the stray bytes: {said}");
-    assert_eq!(count("mpa_unusable"), 1, "the H.264 frame: {said}");
-    let served = count("served");
+    assert_eq!(count(&said, "mpa_connects"), 1, "{said}");
+    assert!(count(&said, "mpa_resync") >= 1, "the stray bytes: {said}");
+    assert_eq!(count(&said, "mpa_unusable"), 1, "the H.264 frame: {said}");
+    let served = count(&said, "served");
     assert!(served >= 35, "{served} of 40 frames served: {said}");
-    let written = || std::fs::read_to_string(&out).map_or(0, |s| s.lines().count());
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while written() < served && Instant::now() < deadline {
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    sigterm(&frontend);
-    frontend.wait().unwrap();
-    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert_eq!(lines.len(), served, "frames served and lines written");
+    let lines = tracks_written(&mut frontend, &out, served);
     // The server's own stamps, mid-exposure: exactly 50 ms apart, whatever
     // the pipe's delays.
     let t_us: Vec<u64> = lines.iter().map(|v| v["t_us"].as_u64().unwrap()).collect();
@@ -348,18 +350,5 @@ fn a_voxl_mpa_pipe_is_served_and_tracked() {
         t_us.windows(2).all(|w| w[1] > w[0] && (w[1] - w[0]) % 50_000 == 0),
         "stamps not the camera's: {t_us:?}"
     );
-    let feats = |v: &serde_json::Value| v["features"].as_array().unwrap().clone();
-    let (last, prev) = (feats(&lines[lines.len() - 1]), feats(&lines[lines.len() - 2]));
-    let moved: Vec<f64> = last
-        .iter()
-        .filter_map(|f| {
-            let p = prev.iter().find(|g| g[0] == f[0])?;
-            Some(f[1].as_f64()? - p[1].as_f64()?)
-        })
-        .collect();
-    assert!(moved.len() >= 30, "{} features kept", moved.len());
-    assert!(
-        moved.iter().sum::<f64>() / (moved.len() as f64) < -1.0,
-        "the texture moves left"
-    );
+    assert_tracked_moving_left(&lines);
 }
