@@ -76,6 +76,13 @@ impl Validate for RenderConfig {
     }
 }
 
+/// A unit Gaussian draw from one hash `h` (Irwin–Hall: its four 16-bit
+/// uniforms summed, centred and scaled to unit variance).
+fn unit_gaussian(h: u64) -> f32 {
+    let s: u32 = (0..4).map(|k| ((h >> (16 * k)) & 0xFFFF) as u32).sum();
+    (s as f32 / 65536.0 - 2.0) * 3f32.sqrt()
+}
+
 /// A block that may be in view, and where its corners project (normalised
 /// coordinates; infinite when a corner is behind the camera).
 #[derive(Clone, Copy, Debug)]
@@ -185,20 +192,12 @@ impl Renderer {
         out.reserve(n);
         let mut rng = noise_seed ^ 0x6A09_E667_F3BC_C908;
         let sigma = self.cfg.noise_grey as f32;
-        // The frame's gain, drawn from the same seed (Irwin–Hall, as below).
-        let gain = {
-            let h = texture::mix(rng ^ 0xA54F_F53A_5F1D_36F1);
-            let s: u32 = (0..4).map(|k| ((h >> (16 * k)) & 0xFFFF) as u32).sum();
-            1.0 + self.cfg.gain_flicker as f32 * (s as f32 / 65536.0 - 2.0) * 3f32.sqrt()
-        };
+        // The frame's gain, drawn from the same seed.
+        let gain = 1.0 + self.cfg.gain_flicker as f32 * unit_gaussian(texture::mix(rng ^ 0xA54F_F53A_5F1D_36F1));
         let scale = scale * gain;
         for (a, v) in self.acc.iter().zip(&self.vignette) {
-            // Irwin–Hall: four uniforms summed, centred and scaled to unit
-            // variance, approximate a Gaussian draw.
             rng = rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let h = texture::mix(rng);
-            let s: u32 = (0..4).map(|k| ((h >> (16 * k)) & 0xFFFF) as u32).sum();
-            let g = (s as f32 / 65536.0 - 2.0) * 3f32.sqrt();
+            let g = unit_gaussian(texture::mix(rng));
             out.push((a * scale * v + sigma * g + 0.5).clamp(0.0, 255.0) as u8);
         }
     }
