@@ -24,7 +24,7 @@ use crate::config::SimConfig;
 use crate::features::FeatureSim;
 use crate::gnss::GnssModel;
 use crate::imu::{gauss3, ImuBias, ImuModel};
-use crate::trajectory::{GustField, Trajectory, TrajectoryError};
+use crate::trajectory::{GustField, Trajectory, TrajectoryError, TruthSample};
 use cmsckf_models::camera::Camera;
 
 pub use crate::flight::{Dataset, TruthRow};
@@ -157,11 +157,14 @@ impl Dataset {
     /// than [`LANDED_SPEED_MPS`]. A flight started in the air is never on
     /// the ground at its start height unless it stops there.
     pub fn landed_at(&self, t_s: f64) -> bool {
-        let Some(start) = self.truth.first() else {
-            return false;
-        };
-        let s = self.trajectory.sample(t_s);
-        (s.p_B_in_W.z - start.truth.p_B_in_W.z).abs() < LANDED_HEIGHT_M && s.v_B_in_W.norm() < LANDED_SPEED_MPS
+        self.landed(&self.trajectory.sample(t_s))
+    }
+
+    /// [`Self::landed_at`] for a truth sample already taken.
+    pub fn landed(&self, s: &TruthSample) -> bool {
+        self.truth.first().is_some_and(|start| {
+            (s.p_B_in_W.z - start.truth.p_B_in_W.z).abs() < LANDED_HEIGHT_M && s.v_B_in_W.norm() < LANDED_SPEED_MPS
+        })
     }
 
     /// One summary line per sensor: rate, count and noise.

@@ -65,7 +65,7 @@ impl Streamer<'_> {
         // Its land detector's verdict, as ArduPilot and PX4 stream it.
         self.send(apm::MavMessage::EXTENDED_SYS_STATE(apm::EXTENDED_SYS_STATE_DATA {
             vtol_state: apm::MavVtolState::MAV_VTOL_STATE_UNDEFINED,
-            landed_state: if self.ds.landed_at(t) {
+            landed_state: if self.ds.landed(&s) {
                 apm::MavLandedState::MAV_LANDED_STATE_ON_GROUND
             } else {
                 apm::MavLandedState::MAV_LANDED_STATE_IN_AIR
