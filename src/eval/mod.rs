@@ -472,6 +472,16 @@ struct Inputs {
     landed_state: bool,
 }
 
+impl Inputs {
+    /// With the autopilot's landed state, as beside ArduPilot or PX4.
+    fn beside_autopilot(gnss: bool) -> Self {
+        Self {
+            gnss,
+            landed_state: true,
+        }
+    }
+}
+
 fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, inputs: Inputs) -> Runner<'a> {
     let mut r = Runner::new(ds, cfg, mode, seed);
     if !inputs.landed_state {
@@ -486,16 +496,7 @@ fn runner<'a>(ds: &'a Dataset, cfg: &Config, mode: Mode, seed: u64, inputs: Inpu
 
 /// Runs one mode over a dataset (with its GNSS if `gnss`).
 pub fn run(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, gnss: bool) -> FlightResult {
-    run_with(
-        ds,
-        cfg,
-        mode,
-        init_seed,
-        Inputs {
-            gnss,
-            landed_state: true,
-        },
-    )
+    run_with(ds, cfg, mode, init_seed, Inputs::beside_autopilot(gnss))
 }
 
 fn run_with(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, inputs: Inputs) -> FlightResult {
@@ -516,15 +517,7 @@ fn run_with(ds: &Dataset, cfg: &Config, mode: Mode, init_seed: u64, inputs: Inpu
 /// Runs `compressed` and `full` in lockstep and compares them after every
 /// frame with a global update, and at the end after a forced global update.
 pub fn run_compressed_vs_full(ds: &Dataset, cfg: &Config, init_seed: u64, gnss: bool) -> (FlightResult, FlightResult) {
-    compressed_vs_full_with(
-        ds,
-        cfg,
-        init_seed,
-        Inputs {
-            gnss,
-            landed_state: true,
-        },
-    )
+    compressed_vs_full_with(ds, cfg, init_seed, Inputs::beside_autopilot(gnss))
 }
 
 fn compressed_vs_full_with(ds: &Dataset, cfg: &Config, init_seed: u64, inputs: Inputs) -> (FlightResult, FlightResult) {
