@@ -20,20 +20,16 @@ mod common;
 
 use std::collections::VecDeque;
 use std::io::Write;
-use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use cmsckf_models::camera::Camera;
-use cmsckf_models::geodesy::{llh_to_ecef, NedFrame};
+use cmsckf_models::geodesy::llh_to_ecef;
 use cmsckf_models::geoid;
-use cmsckf_sitl::features::FeatureSim;
-use cmsckf_sitl::trajectory::TruthSample;
+use common::sitl::{free_udp_port, Errors, Gcs, Truth, TruthCamera};
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion, Message};
+use mavlink::Message;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use rand::SeedableRng;
 
 /// Where the vehicle stands: ArduPilot's usual SITL home (CMAC, Canberra),
 /// MSL altitude, and a heading that is not north, so a yaw taken from a
@@ -65,11 +61,6 @@ fn fixture() -> Result<PathBuf, String> {
         }
     }
     Ok(dir)
-}
-
-/// A free loopback UDP port.
-fn free_udp_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
 /// ArduPilot's SITL, killed when dropped.
@@ -112,75 +103,8 @@ fn start_sitl(fixture: &Path, dir: &Path, gcs_port: u16, daemon_port: u16) -> Si
     Sitl(child)
 }
 
-/// The test's ground station on serial0: MAVLink 2 as system 255.
-struct Gcs {
-    sock: UdpSocket,
-    peer: Option<SocketAddr>,
-    seq: u8,
-    buf: Vec<u8>,
-}
-
+/// The ground station's ArduPilot-only commands.
 impl Gcs {
-    fn bind(port: u16) -> Self {
-        let sock = UdpSocket::bind(("127.0.0.1", port)).unwrap();
-        sock.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
-        Self {
-            sock,
-            peer: None,
-            seq: 0,
-            buf: vec![0; 65536],
-        }
-    }
-
-    /// The messages of one datagram (none after 20 ms of quiet).
-    fn recv(&mut self) -> Vec<(MavHeader, apm::MavMessage)> {
-        let Ok((len, from)) = self.sock.recv_from(&mut self.buf) else {
-            return Vec::new();
-        };
-        self.peer = Some(from);
-        // ArduPilot packs several messages into a datagram; one this
-        // dialect does not know must not lose the rest.
-        let mut r = mavlink::MavlinkReader::new(&self.buf[..len]);
-        let mut out = Vec::new();
-        loop {
-            match r.read_any_message::<apm::MavMessage>() {
-                Ok(m) => out.push(m),
-                Err(mavlink::error::MessageReadError::Io(_)) => break,
-                Err(_) => continue,
-            }
-        }
-        out
-    }
-
-    fn send(&mut self, msg: &apm::MavMessage) {
-        let Some(peer) = self.peer else { return };
-        let h = MavHeader {
-            system_id: 255,
-            component_id: 190,
-            sequence: self.seq,
-        };
-        self.seq = self.seq.wrapping_add(1);
-        let mut frame = Vec::new();
-        mavlink::write_versioned_msg(&mut frame, MavlinkVersion::V2, h, msg).unwrap();
-        let _ = self.sock.send_to(&frame, peer);
-    }
-
-    fn command(&mut self, command: apm::MavCmd, p: [f32; 7]) {
-        self.send(&apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
-            target_system: 1,
-            target_component: 1,
-            command,
-            param1: p[0],
-            param2: p[1],
-            param3: p[2],
-            param4: p[3],
-            param5: p[4],
-            param6: p[5],
-            param7: p[6],
-            confirmation: 0,
-        }));
-    }
-
     /// Home where the vehicle stands, as COMMAND_INT (COMMAND_LONG's float
     /// parameters would move it by decimetres).
     fn set_home(&mut self) {
@@ -211,48 +135,6 @@ impl Gcs {
             },
         ));
     }
-
-    fn stream(&mut self, id: u32, hz: f32) {
-        self.command(
-            apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
-            [id as f32, 1e6 / hz, 0.0, 0.0, 0.0, 0.0, 0.0],
-        );
-    }
-
-    fn goto(&mut self, p_ned: [f32; 3]) {
-        self.send(&apm::MavMessage::SET_POSITION_TARGET_LOCAL_NED(
-            apm::SET_POSITION_TARGET_LOCAL_NED_DATA {
-                target_system: 1,
-                target_component: 1,
-                coordinate_frame: apm::MavFrame::MAV_FRAME_LOCAL_NED,
-                // Position only: ignore velocity, acceleration, yaw, yaw rate.
-                type_mask: apm::PositionTargetTypemask::from_bits_truncate(0x0DF8),
-                x: p_ned[0],
-                y: p_ned[1],
-                z: p_ned[2],
-                ..Default::default()
-            },
-        ));
-    }
-}
-
-/// Error statistics of one phase (m).
-#[derive(Default, Debug)]
-struct Errors {
-    n: usize,
-    max_m: f64,
-    sum_sq: f64,
-}
-
-impl Errors {
-    fn add(&mut self, e: f64) {
-        self.n += 1;
-        self.max_m = self.max_m.max(e);
-        self.sum_sq += e * e;
-    }
-    fn rms_m(&self) -> f64 {
-        (self.sum_sq / self.n.max(1) as f64).sqrt()
-    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, PartialOrd)]
@@ -265,44 +147,6 @@ enum Phase {
     Hover,
     Land,
     Done,
-}
-
-/// The truth history: (autopilot time, NED position).
-struct Truth {
-    frame: NedFrame,
-    hist: VecDeque<(f64, Vector3<f64>)>,
-    /// The smoothed position, its velocity and time (see [`Truth::smooth`]).
-    last: Option<(f64, Vector3<f64>, Vector3<f64>)>,
-}
-
-impl Truth {
-    /// SIM_STATE's position comes in 1e-7° steps (1.1 cm north, 0.9 cm
-    /// east here): a camera fed that staircase sees every pose jitter by
-    /// up to a centimetre, all its features together, which no real camera
-    /// does. Its velocity is a float: integrate it (trapezoid) and pull the
-    /// sum towards the quantised position with a 1 s time constant, so the
-    /// steps average out and nothing drifts.
-    fn smooth(&mut self, t_s: f64, p_quantised: Vector3<f64>, v: Vector3<f64>) -> Vector3<f64> {
-        const TAU_S: f64 = 1.0;
-        let p = match self.last {
-            Some((t0, p0, v0)) if t_s > t0 && t_s - t0 < 0.5 => {
-                let dt_s = t_s - t0;
-                let predicted = p0 + (v0 + v) * (0.5 * dt_s);
-                predicted + (p_quantised - predicted) * (dt_s / TAU_S)
-            }
-            _ => p_quantised,
-        };
-        self.last = Some((t_s, p, v));
-        p
-    }
-
-    fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
-        let i = self.hist.partition_point(|(u, _)| *u <= t_s);
-        let (t1, p1) = self.hist.get(i)?;
-        let (t0, p0) = self.hist.get(i.checked_sub(1)?)?;
-        let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
-        Some(p0 + (p1 - p0) * w)
-    }
 }
 
 /// Where ArduPilot's EKF origin comes from: both paths that
@@ -381,21 +225,8 @@ fn fly(origin: Origin) {
     let _sitl = start_sitl(&fixture, dir.as_path(), gcs_port, daemon_port);
 
     // The camera: features of the SITL's truth, from its SIM_STATE.
-    let sim = cmsckf::eval::sim_config_for(&cfg);
-    let mut camera = FeatureSim::new(
-        &sim.features,
-        Camera::from_config(&cfg.camera),
-        cfg.camera.pixel_noise_px,
-    );
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let mut socket: Option<std::os::unix::net::UnixStream> = None;
-    let frame_dt_s = 1.0 / cfg.camera.rate_hz;
-    let mut last_frame_t = f64::NEG_INFINITY;
-    let mut truth = Truth {
-        frame: NedFrame::from_llh_deg(HOME[0], HOME[1], HOME[2]),
-        hist: VecDeque::new(),
-        last: None,
-    };
+    let mut camera = TruthCamera::new(&cfg);
+    let mut truth = Truth::new([HOME[0], HOME[1], HOME[2]]);
 
     let mut phase = Phase::WaitEkf;
     let mut phase_since = Instant::now();
@@ -438,8 +269,7 @@ fn fly(origin: Origin) {
                         s.alt as f64,
                     );
                     let v_true = Vector3::new(s.vn as f64, s.ve as f64, s.vd as f64);
-                    let p = truth.smooth(t_s, truth.frame.to_ned(&r), v_true);
-                    truth.hist.push_back((t_s, p));
+                    let p = truth.push(t_s, truth.frame.to_ned(&r), v_true);
                     if let Some(f) = truth_csv.as_mut() {
                         writeln!(
                             f,
@@ -448,43 +278,14 @@ fn fly(origin: Origin) {
                         )
                         .unwrap();
                     }
-                    if truth.hist.len() > 2000 {
-                        truth.hist.pop_front();
-                    }
-                    if t_s - last_frame_t < frame_dt_s * 0.99 {
-                        continue;
-                    }
-                    last_frame_t = t_s;
+                    truth_yaw = Some(s.yaw as f64);
                     let q = UnitQuaternion::from_quaternion(Quaternion::new(
                         s.q1 as f64,
                         s.q2 as f64,
                         s.q3 as f64,
                         s.q4 as f64,
                     ));
-                    truth_yaw = Some(s.yaw as f64);
-                    let sample = TruthSample {
-                        t_s,
-                        p_B_in_W: p,
-                        v_B_in_W: v_true,
-                        a_B_in_W: Vector3::zeros(),
-                        q_W_B: q,
-                        w_B: Vector3::zeros(),
-                    };
-                    let frame = camera.frame(&sample, &mut rng);
-                    let feats: Vec<String> = frame
-                        .features
-                        .iter()
-                        .map(|f| format!("[{},{:.3},{:.3}]", f.landmark_id, f.u_px, f.v_px))
-                        .collect();
-                    let line = common::autopilot::line(t_s, &feats.join(","));
-                    if socket.is_none() {
-                        socket = std::os::unix::net::UnixStream::connect(&cfg.features.socket).ok();
-                    }
-                    if let Some(sock) = socket.as_mut() {
-                        if sock.write_all(line.as_bytes()).is_err() {
-                            socket = None;
-                        }
-                    }
+                    camera.see(t_s, p, v_true, q);
                 }
                 apm::MavMessage::LOCAL_POSITION_NED(l) => {
                     let t_s = l.time_boot_ms as f64 * 1e-3;

@@ -6,6 +6,7 @@ pub mod flights;
 pub mod gnss_flights;
 pub mod harness;
 pub mod python;
+pub mod sitl;
 
 #[allow(unused_imports)]
 pub use python::python_with;

@@ -1,0 +1,279 @@
+//! What the two autopilot-SITL flights (`tests/ardupilot_sitl.rs`,
+//! `tests/px4_sitl.rs`) share: the test's ground station on UDP, the
+//! simulator's truth as a smoothed, interpolable track, the synthetic camera
+//! that follows it into the daemon's socket, and the error statistics of a
+//! flight phase. What differs between the autopilots (how the truth comes,
+//! modes, arming, the EKF's acceptance) stays in each test.
+#![allow(non_snake_case)]
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::net::{SocketAddr, UdpSocket};
+use std::os::unix::net::UnixStream;
+use std::time::Duration;
+
+use cmsckf::config::Config;
+use cmsckf_models::camera::Camera;
+use cmsckf_models::geodesy::NedFrame;
+use cmsckf_sitl::features::FeatureSim;
+use cmsckf_sitl::trajectory::TruthSample;
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{MavHeader, MavlinkVersion};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::SeedableRng;
+
+/// A free loopback UDP port.
+pub fn free_udp_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// The test's ground station: MAVLink 2 as system 255.
+pub struct Gcs {
+    sock: UdpSocket,
+    /// The autopilot's system id (1 unless told).
+    pub target_system: u8,
+    /// Where the autopilot spoke from (learnt from its first datagram).
+    pub peer: Option<SocketAddr>,
+    seq: u8,
+    buf: Vec<u8>,
+}
+
+impl Gcs {
+    pub fn bind(port: u16) -> Self {
+        let sock = UdpSocket::bind(("127.0.0.1", port))
+            .unwrap_or_else(|e| panic!("the ground station's port 127.0.0.1:{port}: {e}"));
+        sock.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
+        Self {
+            sock,
+            target_system: 1,
+            peer: None,
+            seq: 0,
+            buf: vec![0; 65536],
+        }
+    }
+
+    /// The messages of one datagram (none after 20 ms of quiet).
+    pub fn recv(&mut self) -> Vec<(MavHeader, apm::MavMessage)> {
+        let Ok((len, from)) = self.sock.recv_from(&mut self.buf) else {
+            return Vec::new();
+        };
+        self.peer = Some(from);
+        // Autopilots pack several messages into a datagram; one this
+        // dialect does not know must not lose the rest.
+        let mut r = mavlink::MavlinkReader::new(&self.buf[..len]);
+        let mut out = Vec::new();
+        loop {
+            match r.read_any_message::<apm::MavMessage>() {
+                Ok(m) => out.push(m),
+                Err(mavlink::error::MessageReadError::Io(_)) => break,
+                Err(_) => continue,
+            }
+        }
+        out
+    }
+
+    pub fn send(&mut self, msg: &apm::MavMessage) {
+        let Some(peer) = self.peer else { return };
+        let h = MavHeader {
+            system_id: 255,
+            component_id: 190,
+            sequence: self.seq,
+        };
+        self.seq = self.seq.wrapping_add(1);
+        let mut frame = Vec::new();
+        mavlink::write_versioned_msg(&mut frame, MavlinkVersion::V2, h, msg).unwrap();
+        let _ = self.sock.send_to(&frame, peer);
+    }
+
+    pub fn command(&mut self, command: apm::MavCmd, p: [f32; 7]) {
+        self.send(&apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            target_system: self.target_system,
+            target_component: 1,
+            command,
+            param1: p[0],
+            param2: p[1],
+            param3: p[2],
+            param4: p[3],
+            param5: p[4],
+            param6: p[5],
+            param7: p[6],
+            confirmation: 0,
+        }));
+    }
+
+    /// A message stream at `hz` (MAV_CMD_SET_MESSAGE_INTERVAL).
+    pub fn stream(&mut self, id: u32, hz: f32) {
+        self.command(
+            apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+            [id as f32, 1e6 / hz, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+    }
+
+    /// A position target in the autopilot's local NED frame, position only
+    /// (velocity, acceleration, yaw and yaw rate ignored).
+    pub fn goto(&mut self, p_ned: [f32; 3]) {
+        self.send(&apm::MavMessage::SET_POSITION_TARGET_LOCAL_NED(
+            apm::SET_POSITION_TARGET_LOCAL_NED_DATA {
+                target_system: self.target_system,
+                target_component: 1,
+                coordinate_frame: apm::MavFrame::MAV_FRAME_LOCAL_NED,
+                type_mask: apm::PositionTargetTypemask::from_bits_truncate(0x0DF8),
+                x: p_ned[0],
+                y: p_ned[1],
+                z: p_ned[2],
+                ..Default::default()
+            },
+        ));
+    }
+}
+
+/// Error statistics of one phase (m).
+#[derive(Default, Debug)]
+pub struct Errors {
+    pub n: usize,
+    pub max_m: f64,
+    sum_sq: f64,
+}
+
+impl Errors {
+    pub fn add(&mut self, e: f64) {
+        self.n += 1;
+        self.max_m = self.max_m.max(e);
+        self.sum_sq += e * e;
+    }
+    pub fn rms_m(&self) -> f64 {
+        (self.sum_sq / self.n.max(1) as f64).sqrt()
+    }
+}
+
+/// The simulator's truth: (autopilot time, NED position) about the start.
+pub struct Truth {
+    pub frame: NedFrame,
+    hist: VecDeque<(f64, Vector3<f64>)>,
+    /// The smoothed position, its velocity and time (see [`Truth::push`]).
+    last: Option<(f64, Vector3<f64>, Vector3<f64>)>,
+}
+
+impl Truth {
+    /// Truth in the NED frame at `llh` (degrees, degrees, metres).
+    pub fn new(llh: [f64; 3]) -> Self {
+        Self {
+            frame: NedFrame::from_llh_deg(llh[0], llh[1], llh[2]),
+            hist: VecDeque::new(),
+            last: None,
+        }
+    }
+
+    /// Takes one truth sample; returns the position kept.
+    ///
+    /// Simulators send their position in 1e-7° steps (1.1 cm north, 0.7-0.9
+    /// cm east): a camera fed that staircase sees every pose jitter by up
+    /// to a centimetre, all its features together, which no real camera
+    /// does. Their velocity is finer: integrate it (trapezoid) and pull the
+    /// sum towards the quantised position with a 1 s time constant, so the
+    /// steps average out and nothing drifts.
+    pub fn push(&mut self, t_s: f64, p_quantised: Vector3<f64>, v: Vector3<f64>) -> Vector3<f64> {
+        const TAU_S: f64 = 1.0;
+        // A second sample paired with the same stamp (or an older one)
+        // changes nothing: restarting the smoother there would bring the
+        // steps back.
+        if let Some((t0, p0, _)) = self.last {
+            if t_s <= t0 {
+                return p0;
+            }
+        }
+        let p = match self.last {
+            Some((t0, p0, v0)) if t_s > t0 && t_s - t0 < 0.5 => {
+                let dt_s = t_s - t0;
+                let predicted = p0 + (v0 + v) * (0.5 * dt_s);
+                predicted + (p_quantised - predicted) * (dt_s / TAU_S)
+            }
+            _ => p_quantised,
+        };
+        self.last = Some((t_s, p, v));
+        if self.hist.back().is_none_or(|(u, _)| t_s > *u) {
+            self.hist.push_back((t_s, p));
+        }
+        // 20 s at SIH's 250 Hz.
+        if self.hist.len() > 5000 {
+            self.hist.pop_front();
+        }
+        p
+    }
+
+    /// The first sample's time kept, if any.
+    pub fn first_t_s(&self) -> Option<f64> {
+        self.hist.front().map(|(t, _)| *t)
+    }
+
+    /// The position at `t_s`, interpolated; `None` before the first sample
+    /// or after the last.
+    pub fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
+        let i = self.hist.partition_point(|(u, _)| *u <= t_s);
+        let (t1, p1) = self.hist.get(i)?;
+        let (t0, p0) = self.hist.get(i.checked_sub(1)?)?;
+        let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
+        Some(p0 + (p1 - p0) * w)
+    }
+}
+
+/// A synthetic camera on the simulator's truth: the daemon's simulated
+/// landmarks, seen at the configured rate and pixel noise, written to the
+/// daemon's feature socket (reconnecting when it is not there yet).
+pub struct TruthCamera {
+    sim: FeatureSim,
+    rng: rand_chacha::ChaCha8Rng,
+    socket_path: String,
+    socket: Option<UnixStream>,
+    frame_dt_s: f64,
+    last_frame_t_s: f64,
+}
+
+impl TruthCamera {
+    pub fn new(cfg: &Config) -> Self {
+        let sim = cmsckf::eval::sim_config_for(cfg);
+        Self {
+            sim: FeatureSim::new(
+                &sim.features,
+                Camera::from_config(&cfg.camera),
+                cfg.camera.pixel_noise_px,
+            ),
+            rng: rand_chacha::ChaCha8Rng::seed_from_u64(7),
+            socket_path: cfg.features.socket.clone(),
+            socket: None,
+            frame_dt_s: 1.0 / cfg.camera.rate_hz,
+            last_frame_t_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// A frame of the pose at `t_s` (autopilot time), if one is due.
+    pub fn see(&mut self, t_s: f64, p_B_in_W: Vector3<f64>, v_B_in_W: Vector3<f64>, q_W_B: UnitQuaternion<f64>) {
+        if t_s - self.last_frame_t_s < self.frame_dt_s * 0.99 {
+            return;
+        }
+        self.last_frame_t_s = t_s;
+        let sample = TruthSample {
+            t_s,
+            p_B_in_W,
+            v_B_in_W,
+            a_B_in_W: Vector3::zeros(),
+            q_W_B,
+            w_B: Vector3::zeros(),
+        };
+        let frame = self.sim.frame(&sample, &mut self.rng);
+        let feats: Vec<String> = frame
+            .features
+            .iter()
+            .map(|f| format!("[{},{:.3},{:.3}]", f.landmark_id, f.u_px, f.v_px))
+            .collect();
+        let line = super::autopilot::line(t_s, &feats.join(","));
+        if self.socket.is_none() {
+            self.socket = UnixStream::connect(&self.socket_path).ok();
+        }
+        if let Some(sock) = self.socket.as_mut() {
+            if sock.write_all(line.as_bytes()).is_err() {
+                self.socket = None;
+            }
+        }
+    }
+}
