@@ -53,6 +53,9 @@ const ORIGIN_MISSING_REPEAT_S: f64 = 30.0;
 struct OriginSend {
     /// The autopilot reported an origin (ours, or its own).
     settled: bool,
+    /// It reported an origin of its own (not the one we sent): its GNSS,
+    /// if it has a fix, places it (see [`AutopilotView::has_own_position`]).
+    own: bool,
     next_t_s: f64,
     tries: u32,
     /// With no origin of ours: the first IMU sample's time, the next
@@ -276,14 +279,20 @@ impl AutopilotView {
                     None => {
                         gnss.set_frame(NedFrame::from_llh_deg(lat_deg, lon_deg, h_m));
                         counters.add(Counter::GnssOriginFromAutopilot, 1);
+                        self.origin.own = true;
                     }
-                    Some(ours) if !self.origin.settled => {
+                    Some(ours) => {
                         let theirs = llh_to_ecef(lat_deg.to_radians(), lon_deg.to_radians(), h_m);
                         let off_m = (theirs - ours.origin_ecef).norm();
-                        if off_m <= ORIGIN_MATCH_M {
+                        // Judged at every report, whatever came first (a
+                        // PX4 heard before its own origin was withheld
+                        // ours): its own unless it is the one we sent.
+                        self.origin.own = off_m > ORIGIN_MATCH_M || self.origin.tries == 0;
+                        let first = !self.origin.settled;
+                        if first && off_m <= ORIGIN_MATCH_M {
                             counters.add(Counter::GpsOriginConfirmed, 1);
                             log.text(Level::Info, t_s, "the autopilot took our origin");
-                        } else {
+                        } else if first {
                             // An autopilot sets its origin once: its GNSS
                             // (or a ground station) came first.
                             counters.add(Counter::GpsOriginMismatch, 1);
@@ -295,7 +304,6 @@ impl AutopilotView {
                             log.text(Level::Warning, t_s, &text);
                         }
                     }
-                    Some(_) => {}
                 }
                 self.origin.settled = true;
             }
@@ -333,7 +341,25 @@ impl AutopilotView {
         counters: &Counters,
         out: &mpsc::Sender<Outbound>,
     ) {
-        if self.origin.settled || t_s < self.origin.next_t_s {
+        // Which autopilot it is decides whether it may have our origin:
+        // one not yet heard is not sent to.
+        if self.origin.settled || t_s < self.origin.next_t_s || self.kind.is_none() {
+            return;
+        }
+        if self.kind == Some(AutopilotKind::Px4) {
+            // PX4's EKF2 keeps the vehicle's global position when it takes
+            // an origin (`Ekf::setEkfGlobalOrigin`): without a GNSS of its
+            // own that is 0° N 0° E at 0 m, so its local position jumps
+            // (5227 km north at Zürich) and, fusing our height as its
+            // reference, its local heights stay offset by the origin's
+            // altitude: measured on its SITL, LOCAL_POSITION_NED 489.4 m
+            // below us, and an offboard climb to 5 m became one to 494 m.
+            self.origin.settled = true;
+            counters.add(Counter::GpsOriginWithheld, 1);
+            let text = "output.set_gps_origin: not sent to PX4, which would move its local heights by the \
+                        origin's altitude; it flies in our frame without one (docs/setup-px4.md)";
+            tracing::warn!(reason = "gps_origin_withheld", "{text}");
+            log.text(Level::Warning, t_s, text);
             return;
         }
         if self.origin.tries == ORIGIN_TRIES {
@@ -446,9 +472,20 @@ impl AutopilotView {
     }
 
     /// It has a position source of its own: a 3D GNSS fix reported in the
-    /// last [`AUTOPILOT_FIX_FRESH_S`].
-    pub(super) fn has_own_fix(&self, t_s: f64) -> bool {
-        self.fix_t.is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S)
+    /// last [`AUTOPILOT_FIX_FRESH_S`], and an EKF origin of its own.
+    ///
+    /// An autopilot whose EKF fuses its GNSS sets its origin at its first
+    /// fix; one with no origin, or that took ours, has none, so its receiver
+    /// (if any) is not what places it: PX4 with `EKF2_GPS_CTRL = 0` still
+    /// reports SIH's or a real receiver's 3D fix, and its local position is
+    /// wherever its EKF started. Worse, PX4 re-projects its local position
+    /// when it takes an origin, from a reference at 0° N 0° E: its
+    /// LOCAL_POSITION_NED jumps by thousands of kilometres (5227 km north
+    /// at Zürich, measured on its SITL) and stays there until it fuses our
+    /// estimates. Its position is then no prior for a start, nor its
+    /// velocity a check of ours.
+    pub(super) fn has_own_position(&self, t_s: f64) -> bool {
+        self.origin.own && self.fix_t.is_some_and(|t| (t_s - t).abs() < AUTOPILOT_FIX_FRESH_S)
     }
 
     /// Forgets what a restart of `kind` makes stale: after an IMU gap or a
@@ -571,5 +608,104 @@ mod tests {
         let sent = watch_saying(&mut ap, 0.0, 20.0, false, &counters);
         assert!(!sent.iter().any(|m| matches!(m, Outbound::StatusText { .. })));
         assert_eq!(counters.get(Counter::AutopilotOriginMissing), 0);
+    }
+
+    /// Our origin over `secs` of IMU at 100 Hz.
+    fn send(ap: &mut AutopilotView, secs: f64, counters: &Counters) -> Vec<Outbound> {
+        let (tx, mut rx) = mpsc::channel(1024);
+        let log = FlightLog::new(None, false);
+        let frame = NedFrame::from_llh_deg(47.3977432, 8.5455942, 537.0);
+        for k in 0..(secs * 100.0) as usize {
+            ap.send_origin(k as f64 * 0.01, Some(frame), &log, counters, &tx);
+        }
+        let mut sent = Vec::new();
+        while let Ok(m) = rx.try_recv() {
+            sent.push(m);
+        }
+        sent
+    }
+
+    #[test]
+    fn our_origin_waits_for_the_autopilots_kind_and_is_never_sent_to_px4() {
+        let is_origin = |m: &Outbound| matches!(m, Outbound::SetGpsGlobalOrigin { .. });
+        let counters = Counters::default();
+        let mut unheard = AutopilotView::default();
+        assert!(send(&mut unheard, 5.0, &counters).is_empty());
+        let mut ardupilot = AutopilotView {
+            kind: Some(AutopilotKind::ArduPilot),
+            ..Default::default()
+        };
+        // Until it reports it back: every ORIGIN_RESEND_S.
+        assert_eq!(
+            send(&mut ardupilot, 5.0, &counters)
+                .iter()
+                .filter(|m| is_origin(m))
+                .count(),
+            3
+        );
+        let mut px4 = AutopilotView {
+            kind: Some(AutopilotKind::Px4),
+            ..Default::default()
+        };
+        assert!(!send(&mut px4, 5.0, &counters).iter().any(is_origin));
+        assert_eq!(counters.get(Counter::GpsOriginWithheld), 1);
+    }
+
+    /// GPS_GLOBAL_ORIGIN at `frame`'s origin.
+    fn origin_of(frame: &NedFrame) -> FusionMsg {
+        let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
+        let (lat_deg, lon_deg) = (lat.to_degrees(), lon.to_degrees());
+        FusionMsg::Origin {
+            lat_deg,
+            lon_deg,
+            alt_m: geoid::msl_from_ellipsoid(lat_deg, lon_deg, h),
+        }
+    }
+
+    #[test]
+    fn only_an_autopilot_with_a_fix_and_an_origin_of_its_own_has_a_position() {
+        let counters = Counters::default();
+        let log = FlightLog::new(None, false);
+        let (tx, _rx) = mpsc::channel(1024);
+        let frame = NedFrame::from_llh_deg(47.3977432, 8.5455942, 537.0);
+        for sent_ours_first in [false, true] {
+            let mut ap = AutopilotView {
+                kind: Some(AutopilotKind::ArduPilot),
+                ..Default::default()
+            };
+            let mut gnss = GnssIn::new(&crate::config::Config::default());
+            gnss.set_frame(frame);
+            if sent_ours_first {
+                ap.send_origin(0.0, Some(frame), &log, &counters, &tx);
+            }
+            let fix = FusionMsg::GpsAccuracy {
+                h_acc_m: 0.9,
+                v_acc_m: 1.8,
+            };
+            ap.on_message(fix, 1.0, &mut gnss, &log, &counters);
+            // A fix without an origin: an EKF that does not fuse it.
+            assert!(!ap.has_own_position(1.5));
+            let origin = origin_of(&frame);
+            ap.on_message(origin, 1.0, &mut gnss, &log, &counters);
+            // Its own origin (the same place): its fix places it.
+            assert_eq!(ap.has_own_position(1.5), !sent_ours_first);
+        }
+        // PX4, heard before its own origin came: ours withheld, then its
+        // origin, 50 m away (its GNSS's), and its fix: its own position.
+        let mut px4 = AutopilotView {
+            kind: Some(AutopilotKind::Px4),
+            ..Default::default()
+        };
+        let mut gnss = GnssIn::new(&crate::config::Config::default());
+        gnss.set_frame(frame);
+        px4.send_origin(0.0, Some(frame), &log, &counters, &tx);
+        let fix = FusionMsg::GpsAccuracy {
+            h_acc_m: 0.9,
+            v_acc_m: 1.8,
+        };
+        px4.on_message(fix, 1.0, &mut gnss, &log, &counters);
+        let elsewhere = NedFrame::from_llh_deg(47.3982, 8.5456, 537.0);
+        px4.on_message(origin_of(&elsewhere), 1.0, &mut gnss, &log, &counters);
+        assert!(px4.has_own_position(1.5));
     }
 }

@@ -479,7 +479,7 @@ impl Fusion {
         // divergence is caught as soon as a vision one); then our velocity
         // against the autopilot's own, when it has a fix (D4).
         let health = est.check_health().and_then(|()| {
-            let autopilot_v = (self.autopilot.has_own_fix(m.t_s))
+            let autopilot_v = (self.autopilot.has_own_position(m.t_s))
                 .then(|| self.autopilot.local())
                 .flatten()
                 .map(|(_, v, t)| (v, t));
