@@ -107,6 +107,9 @@ counters! {
     GpsGlobalOrigin = "gps_global_origin", event;
     Timesync = "timesync", event;
     TimesyncReply = "timesync_reply", event;
+    /// The autopilot's own TIMESYNC requests, answered or not: the rate of
+    /// its stream (PX4's is sped up to 50 Hz).
+    TimesyncRequestIn = "timesync_request_in", event;
     TimesyncRequestUnanswered = "timesync_request_unanswered", event;
     StreamRequestedAgain = "stream_requested_again", event;
     // The IMU on the fusion thread.
@@ -255,6 +258,10 @@ counters! {
     GpsOriginConfirmed = "gps_origin_confirmed", event;
     GpsOriginMismatch = "gps_origin_mismatch", event;
     GpsOriginUnconfirmed = "gps_origin_unconfirmed", event;
+    /// `output.set_gps_origin` towards PX4: not sent, and said why (PX4
+    /// keeps its altitude across a new origin, so its local heights would
+    /// move by the origin's altitude).
+    GpsOriginWithheld = "gps_origin_withheld", event;
     /// Our filter runs, the autopilot reports no EKF origin: said (with
     /// what to do) each time this is counted.
     AutopilotOriginMissing = "autopilot_origin_missing", event;

@@ -70,6 +70,31 @@ const DIAGNOSTIC_ASKS: u32 = 10;
 /// A stream silent for this many ticks (s) is asked for again.
 const STREAM_STALE_TICKS: u32 = 3;
 
+/// A stream flowing slower than asked is asked again this many times.
+const SLOW_ASKS: u32 = 5;
+
+/// The streams asked for (see `wanted` in [`spawn_periodic`]).
+const WANTED: usize = 8;
+
+/// How a stream is asked for.
+#[derive(Clone, Copy)]
+enum Ask {
+    /// Until it flows, again when it stops, and again (a few times) while
+    /// it flows at under 80 % of the rate asked.
+    Always,
+    /// Whether the autopilot's EKF takes our estimates, for the log: one of
+    /// two messages each autopilot sends, each asked for at most
+    /// [`DIAGNOSTIC_ASKS`] times until it flows.
+    Diagnostic,
+    /// Only made faster, never started: PX4 streams its TIMESYNC requests
+    /// at 10 Hz; ArduPilot sends one every few seconds and answers a request
+    /// for it with a "No ap_message" on the pilot's screen.
+    FasterOnly,
+}
+
+/// A [`Ask::FasterOnly`] stream is a stream from this rate (Hz).
+const FASTER_ONLY_MIN_HZ: f32 = 5.0;
+
 /// The periodic task: stream requests while the streams do not flow, TIMESYNC,
 /// and the counters to the journal every 10 s.
 pub(super) fn spawn_periodic(
@@ -82,33 +107,48 @@ pub(super) fn spawn_periodic(
     let imu_interval_us = 1e6 / imu_rate_hz as f32;
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(Duration::from_secs(1));
+        // A stalled runtime's missed ticks are not fired back to back: each
+        // tick's counts are over about a second, measured.
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut last_tick = Instant::now();
         let mut n: u64 = 0;
         // Per stream: its count at the last tick, and ticks since it moved.
-        let mut seen = [(0u64, 0u32); 7];
+        let mut seen = [(0u64, 0u32); WANTED];
         // Times each stream has been asked for (bounded for the diagnostic
         // ones, which an autopilot of the other kind never sends).
-        let mut asked = [0u32; 7];
+        let mut asked = [0u32; WANTED];
+        // Per stream: asks for more speed since it last stopped, and ticks
+        // in a row it has flowed too slowly.
+        let mut slow_asks = [0u32; WANTED];
+        let mut slow_ticks = [0u32; WANTED];
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
             n += 1;
+            let tick_s = last_tick.elapsed().as_secs_f32().max(0.1);
+            last_tick = Instant::now();
             // Ask for each stream while it does not flow: until it arrives,
             // and again when it stops for STREAM_STALE_TICKS seconds (a
             // rebooted autopilot forgets the rates it was asked for).
             let wanted = [
-                (Counter::ImuHighres, mav::MSG_ID_HIGHRES_IMU, imu_interval_us, u32::MAX),
-                (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0, u32::MAX),
-                (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0, u32::MAX),
+                (
+                    Counter::ImuHighres,
+                    mav::MSG_ID_HIGHRES_IMU,
+                    imu_interval_us,
+                    Ask::Always,
+                ),
+                (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0, Ask::Always),
+                (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0, Ask::Always),
                 (
                     Counter::LocalPosition,
                     mav::MSG_ID_LOCAL_POSITION_NED,
                     100_000.0,
-                    u32::MAX,
+                    Ask::Always,
                 ),
                 (
                     Counter::ExtendedSysState,
                     mav::MSG_ID_EXTENDED_SYS_STATE,
                     500_000.0,
-                    u32::MAX,
+                    Ask::Always,
                 ),
                 // Whether the autopilot's EKF takes our estimates, for the
                 // log: ArduPilot answers the first, PX4 the second. One that
@@ -117,22 +157,65 @@ pub(super) fn spawn_periodic(
                     Counter::EstimatorStatus,
                     mav::MSG_ID_EKF_STATUS_REPORT,
                     200_000.0,
-                    DIAGNOSTIC_ASKS,
+                    Ask::Diagnostic,
                 ),
                 (
                     Counter::EstimatorStatus,
                     mav::MSG_ID_ESTIMATOR_STATUS,
                     200_000.0,
-                    DIAGNOSTIC_ASKS,
+                    Ask::Diagnostic,
+                ),
+                // PX4's own TIMESYNC requests, which we answer: it keeps our
+                // estimates' stamps only after 500 good round trips
+                // (`Timesync::sync_converged`), 50 s at its default 10 Hz,
+                // 10 s at 50 Hz.
+                (
+                    Counter::TimesyncRequestIn,
+                    mav::MSG_ID_TIMESYNC,
+                    20_000.0,
+                    Ask::FasterOnly,
                 ),
             ];
-            for (k, (counter, id, interval, max_asks)) in wanted.into_iter().enumerate() {
+            for (k, (counter, id, interval, ask)) in wanted.into_iter().enumerate() {
                 let count = counters.get(counter);
+                // Over the tick (about 1 s): the stream's rate.
+                let rate_hz = count.saturating_sub(seen[k].0) as f32 / tick_s;
                 if count != seen[k].0 {
                     seen[k] = (count, 0);
                 } else {
                     seen[k].1 += 1;
                 }
+                if seen[k].1 >= STREAM_STALE_TICKS {
+                    // Stopped (a reboot): it may come back at its default
+                    // rate, and be asked to go faster again.
+                    slow_asks[k] = 0;
+                }
+                // A stream flowing at a default rate under 80 % of ours
+                // (PX4's onboard link sends HIGHRES_IMU at 50 Hz unasked,
+                // and its TIMESYNC requests at 10 Hz) is asked again, a few
+                // times: an autopilot may cap it below.
+                // Two ticks in a row, and by more than a message's jitter
+                // (a 2 Hz stream counts 1 or 3 on some ticks).
+                let too_slow = match ask {
+                    Ask::Always => rate_hz > 0.0,
+                    Ask::Diagnostic => false,
+                    Ask::FasterOnly => rate_hz >= FASTER_ONLY_MIN_HZ,
+                } && rate_hz < 0.8e6 / interval - 1.0;
+                slow_ticks[k] = if too_slow { slow_ticks[k] + 1 } else { 0 };
+                if slow_ticks[k] >= 2 && slow_asks[k] < SLOW_ASKS {
+                    slow_asks[k] += 1;
+                    slow_ticks[k] = 0;
+                    let _ = out_tx.try_send(Outbound::SetMessageInterval {
+                        message_id: id,
+                        interval_us: interval,
+                    });
+                    continue;
+                }
+                let max_asks = match ask {
+                    Ask::Always => u32::MAX,
+                    Ask::Diagnostic => DIAGNOSTIC_ASKS,
+                    Ask::FasterOnly => 0,
+                };
                 if (count == 0 || seen[k].1 >= STREAM_STALE_TICKS) && asked[k] < max_asks {
                     asked[k] += 1;
                     if count > 0 && seen[k].1 == STREAM_STALE_TICKS {

@@ -409,6 +409,7 @@ fn on_timesync(tc1_ns: i64, ts1_ns: i64, r: &Receive) {
         }
         return;
     }
+    r.counters.add(Counter::TimesyncRequestIn, 1);
     let offset_us = r.mono_offset_us.load(Ordering::Relaxed);
     if offset_us == i64::MIN {
         r.counters.add(Counter::TimesyncRequestUnanswered, 1);

@@ -278,3 +278,5 @@ pub const MSG_ID_EXTENDED_SYS_STATE: u32 = 245;
 pub const MSG_ID_EKF_STATUS_REPORT: u32 = 193;
 /// `ESTIMATOR_STATUS` (PX4's EKF test ratios).
 pub const MSG_ID_ESTIMATOR_STATUS: u32 = 230;
+/// `TIMESYNC` (PX4 streams its requests).
+pub const MSG_ID_TIMESYNC: u32 = 111;
