@@ -10,6 +10,7 @@ use super::timeline::{plausible, Timeline};
 use super::ReviewSummary;
 use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, SimStateRecord};
 use crate::io::mcap_log::Topic;
+use crate::io::messages::AutopilotKind;
 
 /// Why a log without truth has no error figure.
 pub(super) const NO_REFERENCE_ECHO: &str =
@@ -59,8 +60,8 @@ pub(super) struct Data {
     last_degraded: Option<(String, u64)>,
     /// Whether the last autopilot report rejected us.
     rejected_by_autopilot: bool,
-    /// The autopilot is ArduPilot (its mode numbers are named).
-    ardupilot: bool,
+    /// Which autopilot it is (its mode numbers are named).
+    autopilot_kind: Option<AutopilotKind>,
 }
 
 /// ArduCopter's flight mode names (its `custom_mode` numbers).
@@ -82,6 +83,29 @@ fn copter_mode(m: u32) -> Option<&'static str> {
         17 => "BRAKE",
         20 => "GUIDED_NOGPS",
         21 => "SMART_RTL",
+        _ => return None,
+    })
+}
+
+/// PX4's flight mode names: its `custom_mode` holds the main mode in bits
+/// 16-23 and, in AUTO, the sub-mode in bits 24-31 (`px4_custom_mode.h`).
+fn px4_mode(m: u32) -> Option<&'static str> {
+    let (main, sub) = ((m >> 16) & 0xff, m >> 24);
+    Some(match (main, sub) {
+        (1, _) => "MANUAL",
+        (2, _) => "ALTCTL",
+        (3, _) => "POSCTL",
+        (4, 1) => "AUTO.READY",
+        (4, 2) => "AUTO.TAKEOFF",
+        (4, 3) => "AUTO.LOITER",
+        (4, 4) => "AUTO.MISSION",
+        (4, 5) => "AUTO.RTL",
+        (4, 6) => "AUTO.LAND",
+        (4, 8) => "AUTO.FOLLOW_TARGET",
+        (4, 9) => "AUTO.PRECLAND",
+        (5, _) => "ACRO",
+        (6, _) => "OFFBOARD",
+        (7, _) => "STABILIZED",
         _ => return None,
     })
 }
@@ -191,14 +215,20 @@ impl LogReader {
                     if g { "on the ground" } else { "in the air" }.into(),
                 ),
                 Ok(InputRecord::Autopilot(AutopilotRecord::Autopilot(k))) => {
-                    d.ardupilot = k == crate::io::messages::AutopilotKind::ArduPilot;
+                    d.autopilot_kind = Some(k);
                     d.event(t, EventKind::Vehicle, format!("autopilot: {k:?}"))
                 }
                 Ok(InputRecord::Autopilot(AutopilotRecord::Mode(m))) => {
-                    let name = if d.ardupilot { copter_mode(m) } else { None };
-                    let text = match name {
-                        Some(n) => format!("mode {n} ({m})"),
-                        None => format!("mode {m}"),
+                    let text = match d.autopilot_kind {
+                        Some(AutopilotKind::ArduPilot) => match copter_mode(m) {
+                            Some(n) => format!("mode {n} ({m})"),
+                            None => format!("mode {m}"),
+                        },
+                        Some(AutopilotKind::Px4) => match px4_mode(m) {
+                            Some(n) => format!("mode {n} ({m:#x})"),
+                            None => format!("mode {m:#x}"),
+                        },
+                        _ => format!("mode {m}"),
                     };
                     d.event(t, EventKind::Vehicle, text)
                 }
@@ -504,6 +534,16 @@ mod reference_tests {
     /// The reproducer: a replayed log scored 0.20 m against the
     /// autopilot's position, 0.78 m against the truth. The autopilot's
     /// position is a reference only when we sent it nothing.
+    #[test]
+    fn px4_modes_are_named_from_main_and_sub_mode() {
+        // As SIH's PX4 reported them in tests/px4_sitl.rs: POSCTL standing,
+        // OFFBOARD, then the landing.
+        assert_eq!(px4_mode(0x0003_0000), Some("POSCTL"));
+        assert_eq!(px4_mode(0x0006_0000), Some("OFFBOARD"));
+        assert_eq!(px4_mode(0x0604_0000), Some("AUTO.LAND"));
+        assert_eq!(px4_mode(0x0004_0000), None);
+    }
+
     #[test]
     fn the_autopilots_echo_of_our_estimates_is_no_reference() {
         let mut d = Data::default();
