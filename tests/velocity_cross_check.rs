@@ -34,10 +34,20 @@ fn stand_while_the_autopilot_says(v_ap: Vector3<f64>, fix: bool) -> (u64, Vec<St
         let t = 10.0 + k as f64 / rate_hz;
         if t >= 13.0 && k % 20 == 0 {
             if fix {
+                // A fix of its own, and the EKF origin its GNSS set: its
+                // own position (`has_own_position`).
                 f.handle(
                     FusionMsg::GpsAccuracy {
                         h_acc_m: 1.0,
                         v_acc_m: 1.5,
+                    },
+                    &ctx,
+                );
+                f.handle(
+                    FusionMsg::Origin {
+                        lat_deg: 47.3977432,
+                        lon_deg: 8.5455942,
+                        alt_m: 489.4,
                     },
                     &ctx,
                 );

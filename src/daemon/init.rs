@@ -193,9 +193,6 @@ pub(super) struct Starter {
     /// The first IMU sample's time: how long a compass start has waited
     /// for a world origin (its declination).
     first_imu_t: Option<f64>,
-    /// A filter has started since the autopilot booted: a later static
-    /// start may take its position (ours, echoed) wherever we have flown.
-    started: bool,
 }
 
 /// A compass start waits this long after the first IMU sample (s) for a
@@ -261,7 +258,6 @@ impl Default for Starter {
             in_place_t: None,
             reported: None,
             first_imu_t: None,
-            started: false,
         }
     }
 }
@@ -341,7 +337,7 @@ impl Starter {
         if (t_s - t).abs().partial_cmp(&1.0) != Some(std::cmp::Ordering::Less) {
             return None;
         }
-        let (mut x, mut P) = initial_state(t_s, cfg, ap, None, [roll, pitch, yaw], false)?;
+        let (mut x, mut P) = initial_state(t_s, cfg, ap, None, [roll, pitch, yaw])?;
         set_yaw_variance(&mut P, cfg.init.sigma_yaw_autopilot_deg.to_radians().powi(2));
         if let Some(g) = good {
             (x.b_g, x.b_a) = (g.x.b_g, g.x.b_a);
@@ -434,25 +430,17 @@ impl Starter {
             return Err(Waiting::NoOrigin);
         }
         let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
-        let (x0, mut p0) = initial_state(
-            m.t_s,
-            cfg,
-            ap,
-            is_static.then_some(&w),
-            [roll, pitch, yaw],
-            !self.started,
-        )
-        .ok_or(if is_static {
-            Waiting::NoGravity
-        } else {
-            Waiting::NotStillNoPosition
-        })?;
+        let (x0, mut p0) =
+            initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw]).ok_or(if is_static {
+                Waiting::NoGravity
+            } else {
+                Waiting::NotStillNoPosition
+            })?;
         set_yaw_variance(&mut p0, yaw_sigma_deg.to_radians().powi(2));
         let mut est = Estimator::new(cfg.estimator_settings(), m.t_s, x0, &p0);
         let _ = est.add_imu(m);
         let (_, _, yaw) = x0.q_W_B.euler_angles();
         tracing::info!(yaw_deg = yaw.to_degrees(), "initial yaw");
-        self.started = true;
         Ok(Start { est, is_static })
     }
 
@@ -477,7 +465,6 @@ impl Starter {
         // gone back reach the starter before this).
         if kind == Restart::Reboot {
             self.first_imu_t = None;
-            self.started = false;
         }
         self.carried = if matches!(kind, Restart::Reboot | Restart::Located) {
             None
@@ -502,19 +489,10 @@ fn initial_state(
     ap: &AutopilotView,
     still: Option<&StillWindow>,
     [roll, pitch, yaw]: [f64; 3],
-    first_start: bool,
 ) -> Option<(ImuState, Mat15)> {
     // The autopilot's position, carried to this sample's time (its
     // LOCAL_POSITION_NED comes at 10 Hz: 1.5 m old at 15 m/s otherwise).
-    // The first start standing: only a position of its own. One without
-    // (no GNSS, or not its EKF's: PX4 with `EKF2_GPS_CTRL = 0`, see
-    // `has_own_position`) is wherever its EKF started, and the origin is
-    // where we stand. In flight, or standing after a start of ours, it is
-    // the best there is (the echo of our estimates: the vehicle may have
-    // landed 50 m from the origin).
-    let local = ap
-        .local()
-        .filter(|_| still.is_none() || !first_start || ap.has_own_position(t_s));
+    let local = ap.local();
     let (p, v) = match local {
         Some((p, v, t)) if (t_s - t).abs() < 1.0 => (p + v * (t_s - t), v),
         Some((p, v, _)) => (p, v),
@@ -526,8 +504,11 @@ fn initial_state(
     // one, the world frame's own origin.
     let mut p0 = cfg.initial_covariance();
     if local.is_some() {
+        // Its GNSS's accuracy only when its GNSS places it (PX4 with
+        // `EKF2_GPS_CTRL = 0` reports a fix it does not fuse).
         let (h, v) = ap
             .gps_accuracy()
+            .filter(|_| ap.has_own_position(t_s))
             .unwrap_or((cfg.init.sigma_position_autopilot_m, cfg.init.sigma_position_autopilot_m));
         set_position_variances(&mut p0, [h * h, h * h, v * v]);
     }
