@@ -18,7 +18,6 @@
 
 mod common;
 
-use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -26,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use cmsckf_models::geodesy::llh_to_ecef;
 use cmsckf_models::geoid;
-use common::sitl::{free_udp_port, Errors, Gcs, Truth, TruthCamera};
+use common::sitl::{free_udp_port, Errors, FlightDir, Gcs, Scoring, Truth, TruthCamera};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::Message;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -185,21 +184,10 @@ fn fly(origin: Origin) {
             return;
         }
     };
-    // CMSCKF_KEEP_TEST_LOGS=1 keeps the flight log and the SITL's files for
-    // `cmsckf review` after the run (the folder is printed).
-    let temp = tempfile::tempdir().unwrap();
-    let dir = temp.path().to_path_buf();
-    let keep = std::env::var_os("CMSCKF_KEEP_TEST_LOGS").is_some();
-    // With it, the truth too: autopilot time (s), NED position (m),
-    // attitude quaternion (w, x, y, z), NED velocity (m/s), one SIM_STATE
-    // a line.
-    let mut truth_csv = keep.then(|| std::fs::File::create(dir.join("truth.csv")).unwrap());
-    let _temp = if keep {
-        eprintln!("keeping the flight log in {}", temp.keep().display());
-        None
-    } else {
-        Some(temp)
-    };
+    // CMSCKF_KEEP_TEST_LOGS=1 keeps the flight log, the SITL's files and
+    // the truth for `cmsckf review` after the run (the folder is printed).
+    let mut flight_dir = FlightDir::new();
+    let dir = flight_dir.path.clone();
     let (gcs_port, daemon_port) = (free_udp_port(), free_udp_port());
     let mut gcs = Gcs::bind(gcs_port);
 
@@ -238,7 +226,7 @@ fn fly(origin: Origin) {
     let (mut standing, mut flying, mut hovering) = (Errors::default(), Errors::default(), Errors::default());
     let mut texts = Vec::new();
     let mut local = None::<(f64, Vector3<f64>)>;
-    let mut to_score = VecDeque::<(f64, Vector3<f64>, Phase)>::new();
+    let mut scoring = Scoring::new();
     let mut truth_yaw = None::<f64>;
     let mut yaw_err_max_deg = 0.0f64;
     let mut ekf_flags_standing = None::<u16>;
@@ -270,7 +258,7 @@ fn fly(origin: Origin) {
                     );
                     let v_true = Vector3::new(s.vn as f64, s.ve as f64, s.vd as f64);
                     let p = truth.push(t_s, truth.frame.to_ned(&r), v_true);
-                    if let Some(f) = truth_csv.as_mut() {
+                    if let Some(f) = flight_dir.truth_csv.as_mut() {
                         writeln!(
                             f,
                             "{t_s},{},{},{},{},{},{},{},{},{},{}",
@@ -292,7 +280,7 @@ fn fly(origin: Origin) {
                     let p = Vector3::new(l.x as f64, l.y as f64, l.z as f64);
                     local = Some((t_s, p));
                     // Scored once the truth of its instant has come.
-                    to_score.push_back((t_s, p, phase));
+                    scoring.push(t_s, p, phase);
                 }
                 apm::MavMessage::STATUSTEXT(t) => {
                     let text = String::from_utf8_lossy(t.text.as_slice())
@@ -334,19 +322,14 @@ fn fly(origin: Origin) {
                 _ => {}
             }
         }
-        while let Some(&(t_s, p, at_phase)) = to_score.front() {
-            let Some(p_true) = truth.at(t_s) else { break };
-            to_score.pop_front();
-            let e = (p - p_true).norm();
-            match at_phase {
-                Phase::Stand | Phase::Arm => standing.add(e),
-                Phase::TakeOff | Phase::Box(_) => flying.add(e),
-                // The landing comes after the hover: it carries the
-                // hover's drift (scored with it).
-                Phase::Hover | Phase::Land => hovering.add(e),
-                _ => {}
-            }
-        }
+        scoring.score(&truth, |at_phase, e| match at_phase {
+            Phase::Stand | Phase::Arm => standing.add(e),
+            Phase::TakeOff | Phase::Box(_) => flying.add(e),
+            // The landing comes after the hover: it carries the hover's
+            // drift (scored with it).
+            Phase::Hover | Phase::Land => hovering.add(e),
+            _ => {}
+        });
         if gcs.peer.is_some() && streams_asked.elapsed() > Duration::from_secs(2) {
             // Truth and its clock at 50 Hz (SIM_STATE carries no time: it is
             // paired with the HIGHRES_IMU of the same burst), the EKF's

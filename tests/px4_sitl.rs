@@ -21,7 +21,6 @@
 
 mod common;
 
-use std::collections::VecDeque;
 use std::io::Write;
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
@@ -30,7 +29,7 @@ use std::time::{Duration, Instant};
 
 use cmsckf_models::geodesy::llh_to_ecef;
 use cmsckf_models::geoid;
-use common::sitl::{free_udp_port, Errors, Gcs, Truth, TruthCamera};
+use common::sitl::{free_udp_port, Errors, FlightDir, Gcs, Scoring, Truth, TruthCamera};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::Message;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -180,20 +179,10 @@ fn px4_flies_on_cmsckf_alone() {
             return;
         }
     };
-    // CMSCKF_KEEP_TEST_LOGS=1 keeps the flight log and PX4's files for
-    // `cmsckf review` after the run (the folder is printed).
-    let temp = tempfile::tempdir().unwrap();
-    let dir = temp.path().to_path_buf();
-    let keep = std::env::var_os("CMSCKF_KEEP_TEST_LOGS").is_some();
-    // With it, the truth too: PX4 time (s), NED position (m), attitude
-    // quaternion (w, x, y, z), NED velocity (m/s), a line per sample.
-    let mut truth_csv = keep.then(|| std::fs::File::create(dir.join("truth.csv")).unwrap());
-    let _temp = if keep {
-        eprintln!("keeping the flight log in {}", temp.keep().display());
-        None
-    } else {
-        Some(temp)
-    };
+    // CMSCKF_KEEP_TEST_LOGS=1 keeps the flight log, PX4's files and the
+    // truth for `cmsckf review` after the run (the folder is printed).
+    let mut flight_dir = FlightDir::new();
+    let dir = flight_dir.path.clone();
     let n = free_instance();
     // PX4's MAV_SYS_ID is its instance + 1.
     let system_id = (n + 1) as u8;
@@ -259,7 +248,7 @@ fn px4_flies_on_cmsckf_alone() {
     let (mut standing, mut flying) = (Errors::default(), Errors::default());
     let (mut hovering, mut landing) = (Errors::default(), Errors::default());
     let mut local = None::<(f64, Vector3<f64>)>;
-    let mut to_score = VecDeque::<(f64, Vector3<f64>, Phase)>::new();
+    let mut scoring = Scoring::new();
     let mut truth_yaw = None::<f64>;
     let mut yaw_err_max_deg = 0.0f64;
     // ESTIMATOR_STATUS from EKF2's acceptance to the landing: how many
@@ -312,7 +301,7 @@ fn px4_flies_on_cmsckf_alone() {
                     let v_true = Vector3::new(s.vx as f64, s.vy as f64, s.vz as f64) * 0.01;
                     let p = truth.push(t_s, truth.frame.to_ned(&r), v_true);
                     let [w, x, y, z] = s.attitude_quaternion.map(|c| c as f64);
-                    if let Some(f) = truth_csv.as_mut() {
+                    if let Some(f) = flight_dir.truth_csv.as_mut() {
                         writeln!(
                             f,
                             "{t_s},{},{},{},{w},{x},{y},{z},{},{},{}",
@@ -329,7 +318,7 @@ fn px4_flies_on_cmsckf_alone() {
                     let p = Vector3::new(l.x as f64, l.y as f64, l.z as f64);
                     local = Some((t_s, p));
                     // Scored once the truth of its instant has come.
-                    to_score.push_back((t_s, p, phase));
+                    scoring.push(t_s, p, phase);
                 }
                 apm::MavMessage::ESTIMATOR_STATUS(e) => {
                     let flags = e.flags.bits();
@@ -376,23 +365,13 @@ fn px4_flies_on_cmsckf_alone() {
                 _ => {}
             }
         }
-        while let Some(&(t_s, p, at_phase)) = to_score.front() {
-            // Before the truth began: never scored.
-            if truth.first_t_s().is_none_or(|t0| t_s < t0) {
-                to_score.pop_front();
-                continue;
-            }
-            let Some(p_true) = truth.at(t_s) else { break };
-            to_score.pop_front();
-            let e = (p - p_true).norm();
-            match at_phase {
-                Phase::Stand | Phase::Arm => standing.add(e),
-                Phase::TakeOff | Phase::Box(_) => flying.add(e),
-                Phase::Hover => hovering.add(e),
-                Phase::Land => landing.add(e),
-                _ => {}
-            }
-        }
+        scoring.score(&truth, |at_phase, e| match at_phase {
+            Phase::Stand | Phase::Arm => standing.add(e),
+            Phase::TakeOff | Phase::Box(_) => flying.add(e),
+            Phase::Hover => hovering.add(e),
+            Phase::Land => landing.add(e),
+            _ => {}
+        });
         if streams_asked.elapsed() > Duration::from_secs(2) {
             // The truth and its clock at SIH's own 250 Hz, so that each
             // HIL_STATE_QUATERNION follows the HIGHRES_IMU of its own step

@@ -10,7 +10,22 @@ use std::time::{Duration, Instant};
 use common::autopilot::{heartbeat, MavPeer};
 use mavlink::dialects::ardupilotmega as apm;
 
-const HIGHRES_IMU: f32 = 105.0;
+const HIGHRES_IMU: u32 = 105;
+
+/// The daemon's MAV_CMD_SET_MESSAGE_INTERVAL requests in one datagram:
+/// (message id, interval µs).
+fn interval_requests(datagram: &[u8]) -> Vec<(u32, f32)> {
+    let mut r = mavlink::MavlinkReader::new(datagram);
+    let mut out = Vec::new();
+    while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
+        if let apm::MavMessage::COMMAND_LONG(c) = m {
+            if c.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL {
+                out.push((c.param1 as u32, c.param2));
+            }
+        }
+    }
+    out
+}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stream_that_stops_is_asked_for_again() {
@@ -35,12 +50,9 @@ async fn a_stream_that_stops_is_asked_for_again() {
             t += 0.01;
         }
         if let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(10), ap.sock.recv(&mut buf)).await {
-            let mut r = mavlink::MavlinkReader::new(&buf[..n]);
-            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                if let apm::MavMessage::COMMAND_LONG(c) = m {
-                    if c.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL && c.param1 == HIGHRES_IMU {
-                        requests.push(started.elapsed().as_secs_f64());
-                    }
+            for (id, _) in interval_requests(&buf[..n]) {
+                if id == HIGHRES_IMU {
+                    requests.push(started.elapsed().as_secs_f64());
                 }
             }
         }
@@ -97,14 +109,7 @@ async fn requests_beside(imu_hz: f64, timesync_hz: f64, secs: f64) -> Vec<(u32, 
             next_sync += 1.0 / timesync_hz;
         }
         if let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(2), ap.sock.recv(&mut buf)).await {
-            let mut r = mavlink::MavlinkReader::new(&buf[..n]);
-            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
-                if let apm::MavMessage::COMMAND_LONG(c) = m {
-                    if c.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL {
-                        requests.push((c.param1 as u32, c.param2));
-                    }
-                }
-            }
+            requests.extend(interval_requests(&buf[..n]));
         }
     }
     let _ = stop_tx.send(());

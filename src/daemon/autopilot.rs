@@ -521,6 +521,11 @@ mod tests {
         for k in 0..n {
             ap.watch_origin(from_s + k as f64 * 0.01, warn, &log, counters, &tx);
         }
+        drain(&mut rx)
+    }
+
+    /// What has been sent so far.
+    fn drain(rx: &mut mpsc::Receiver<Outbound>) -> Vec<Outbound> {
         let mut sent = Vec::new();
         while let Ok(m) = rx.try_recv() {
             sent.push(m);
@@ -618,11 +623,7 @@ mod tests {
         for k in 0..(secs * 100.0) as usize {
             ap.send_origin(k as f64 * 0.01, Some(frame), &log, counters, &tx);
         }
-        let mut sent = Vec::new();
-        while let Ok(m) = rx.try_recv() {
-            sent.push(m);
-        }
-        sent
+        drain(&mut rx)
     }
 
     #[test]

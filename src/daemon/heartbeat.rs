@@ -192,10 +192,10 @@ pub(super) fn spawn_periodic(
                 }
                 // A stream flowing at a default rate under 80 % of ours
                 // (PX4's onboard link sends HIGHRES_IMU at 50 Hz unasked,
-                // and its TIMESYNC requests at 10 Hz) is asked again, a few
+                // and its TIMESYNC requests at 10 Hz) for two ticks in a
+                // row, by more than a message's jitter (a 2 Hz stream
+                // counts 1 or 3 on some ticks), is asked again, a few
                 // times: an autopilot may cap it below.
-                // Two ticks in a row, and by more than a message's jitter
-                // (a 2 Hz stream counts 1 or 3 on some ticks).
                 let too_slow = match ask {
                     Ask::Always => rate_hz > 0.0,
                     Ask::Diagnostic => false,

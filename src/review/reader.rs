@@ -531,19 +531,19 @@ fn location_ecef(v: &Value) -> Option<nalgebra::Vector3<f64>> {
 mod reference_tests {
     use super::*;
 
-    /// The reproducer: a replayed log scored 0.20 m against the
-    /// autopilot's position, 0.78 m against the truth. The autopilot's
-    /// position is a reference only when we sent it nothing.
+    /// PX4's modes as SIH's reported them in tests/px4_sitl.rs: POSCTL
+    /// standing, OFFBOARD, then the landing.
     #[test]
     fn px4_modes_are_named_from_main_and_sub_mode() {
-        // As SIH's PX4 reported them in tests/px4_sitl.rs: POSCTL standing,
-        // OFFBOARD, then the landing.
         assert_eq!(px4_mode(0x0003_0000), Some("POSCTL"));
         assert_eq!(px4_mode(0x0006_0000), Some("OFFBOARD"));
         assert_eq!(px4_mode(0x0604_0000), Some("AUTO.LAND"));
         assert_eq!(px4_mode(0x0004_0000), None);
     }
 
+    /// The reproducer: a replayed log scored 0.20 m against the
+    /// autopilot's position, 0.78 m against the truth. The autopilot's
+    /// position is a reference only when we sent it nothing.
     #[test]
     fn the_autopilots_echo_of_our_estimates_is_no_reference() {
         let mut d = Data::default();

@@ -7,9 +7,11 @@
 #![allow(non_snake_case)]
 
 use std::collections::VecDeque;
+use std::fs::File;
 use std::io::Write;
 use std::net::{SocketAddr, UdpSocket};
 use std::os::unix::net::UnixStream;
+use std::path::PathBuf;
 use std::time::Duration;
 
 use cmsckf::config::Config;
@@ -21,6 +23,64 @@ use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::SeedableRng;
+
+/// The flight's folder (its log, the SITL's files): deleted after the test,
+/// unless `CMSCKF_KEEP_TEST_LOGS` is set, when it is kept for `cmsckf
+/// review` (its path printed) with the truth beside it in `truth.csv`.
+pub struct FlightDir {
+    pub path: PathBuf,
+    /// With `CMSCKF_KEEP_TEST_LOGS`: autopilot time (s), NED position (m),
+    /// attitude quaternion (w, x, y, z), NED velocity (m/s), a line per
+    /// truth sample.
+    pub truth_csv: Option<File>,
+    _temp: Option<tempfile::TempDir>,
+}
+
+impl FlightDir {
+    pub fn new() -> Self {
+        let temp = tempfile::tempdir().unwrap();
+        let path = temp.path().to_path_buf();
+        let keep = std::env::var_os("CMSCKF_KEEP_TEST_LOGS").is_some();
+        let truth_csv = keep.then(|| File::create(path.join("truth.csv")).unwrap());
+        let _temp = if keep {
+            eprintln!("keeping the flight log in {}", temp.keep().display());
+            None
+        } else {
+            Some(temp)
+        };
+        Self { path, truth_csv, _temp }
+    }
+}
+
+/// The autopilot's positions, each scored against the truth of its instant
+/// once that has come, in the flight phase it was reported in.
+pub struct Scoring<P> {
+    queue: VecDeque<(f64, Vector3<f64>, P)>,
+}
+
+impl<P: Copy> Scoring<P> {
+    pub fn new() -> Self {
+        Self { queue: VecDeque::new() }
+    }
+
+    pub fn push(&mut self, t_s: f64, p_ned_m: Vector3<f64>, phase: P) {
+        self.queue.push_back((t_s, p_ned_m, phase));
+    }
+
+    /// Each position whose truth has come, with its error (m), to `add`;
+    /// those from before the truth began are never scored.
+    pub fn score(&mut self, truth: &Truth, mut add: impl FnMut(P, f64)) {
+        while let Some(&(t_s, p, phase)) = self.queue.front() {
+            if truth.first_t_s().is_none_or(|t0| t_s < t0) {
+                self.queue.pop_front();
+                continue;
+            }
+            let Some(p_true) = truth.at(t_s) else { break };
+            self.queue.pop_front();
+            add(phase, (p - p_true).norm());
+        }
+    }
+}
 
 /// A free loopback UDP port.
 pub fn free_udp_port() -> u16 {
