@@ -312,6 +312,19 @@ impl serde::Serialize for Counter {
     }
 }
 
+/// A counter read back by its name (`evaluate --merge` reads the flights'
+/// statistics back); a name no counter has is an error that says so.
+impl<'de> serde::Deserialize<'de> for Counter {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = <std::borrow::Cow<'de, str>>::deserialize(d)?;
+        Counter::ALL
+            .iter()
+            .copied()
+            .find(|c| c.as_str() == name)
+            .ok_or_else(|| serde::de::Error::custom(format!("no counter is named {name:?}")))
+    }
+}
+
 /// One atomic count per [`Counter`], shared by the daemon's tasks (cheap to
 /// clone: the counts are behind one `Arc`). Adding never allocates or locks.
 #[derive(Clone, Debug)]

@@ -21,7 +21,7 @@ fn nees_is_consistent_over_ten_seeds() {
         &eval::EvalSpec {
             scenario: "racetrack".into(),
             modes: Mode::ALL.to_vec(),
-            seeds,
+            seeds: eval::Seeds::UpTo(seeds),
             duration_s: Some(40.0),
             gnss: false,
             landed_state: true,
@@ -136,7 +136,7 @@ fn schmidt_is_not_over_confident_over_three_laps() {
         &eval::EvalSpec {
             scenario: "racetrack".into(),
             modes: vec![Mode::Schmidt],
-            seeds,
+            seeds: eval::Seeds::UpTo(seeds),
             duration_s: Some(200.0),
             gnss: false,
             landed_state: true,

@@ -24,7 +24,7 @@ fn gnss_makes_the_position_absolute_and_stays_consistent() {
         &eval::EvalSpec {
             scenario: "racetrack".into(),
             modes: modes.to_vec(),
-            seeds,
+            seeds: eval::Seeds::UpTo(seeds),
             duration_s: Some(40.0),
             gnss: true,
             landed_state: true,

@@ -22,7 +22,7 @@ fn at_rate(rate_hz: f64) -> eval::ModeSummary {
         &eval::EvalSpec {
             scenario: "racetrack".into(),
             modes: vec![Mode::Compressed],
-            seeds: 3,
+            seeds: eval::Seeds::UpTo(3),
             duration_s: Some(70.0),
             gnss: true,
             landed_state: true,

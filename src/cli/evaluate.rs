@@ -21,6 +21,18 @@ pub struct EvaluateArgs {
     /// Seeds 1..=N.
     #[arg(long, default_value_t = 10)]
     seeds: u64,
+    /// Fly this one seed alone instead of 1..=N (a sweep's task; see
+    /// --flights-out and --merge).
+    #[arg(long, conflicts_with = "seeds")]
+    seed: Option<u64>,
+    /// Also write the flights themselves (CBOR), for --merge.
+    #[arg(long)]
+    flights_out: Option<PathBuf>,
+    /// Fly nothing: summarise the --flights-out files of seeds flown apart
+    /// exactly as one evaluation over those seeds (the flight flags are then
+    /// theirs, and ignored here).
+    #[arg(long, num_args = 1.., conflicts_with_all = ["seed", "flights_out"])]
+    merge: Vec<PathBuf>,
     /// Flight length (s); a TUM file defaults to its own span.
     #[arg(long)]
     duration_s: Option<f64>,
@@ -53,6 +65,9 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         scenario,
         modes,
         seeds,
+        seed,
+        flights_out,
+        merge,
         duration_s,
         config,
         sim_config,
@@ -61,12 +76,17 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         gnss,
         landed_state,
     } = args;
+    if !merge.is_empty() {
+        return report(&merge_files(&merge)?, json, csv);
+    }
     super::check_duration(duration_s)?;
     let gnss = on_off("--gnss", &gnss)?;
     let landed_state = on_off("--landed-state", &landed_state)?;
-    if seeds == 0 {
-        bail!("--seeds must be at least 1");
-    }
+    let seeds = match seed {
+        Some(k) => eval::Seeds::One(k),
+        None if seeds == 0 => bail!("--seeds must be at least 1"),
+        None => eval::Seeds::UpTo(seeds),
+    };
     let cfg = super::load_config(&config)?;
     let modes = parse_modes(&modes)?;
     let mut sim = eval::sim_config_for(&cfg);
@@ -86,7 +106,7 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     // plain line per flight.
     let bar = super::progress_bar(Some(1), "flights", quiet);
     let on_terminal = !bar.is_hidden();
-    let ev = eval::evaluate(&spec, &cfg, &sim, |p| {
+    let mut progress = |p: &eval::Progress| {
         if on_terminal {
             bar.set_length(p.total);
             bar.set_position(p.done);
@@ -94,10 +114,32 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         } else if !quiet {
             eprintln!("[{}/{}] {}", p.done, p.total, p.message);
         }
-    })?;
+    };
+    let ev = match (&spec.seeds, &flights_out) {
+        // One seed whose flights are kept: flown once, written, then
+        // summarised through the same merge that joins a sweep's seeds.
+        (eval::Seeds::One(k), Some(path)) => {
+            let flown = eval::fly_seed(&spec, &cfg, &sim, *k, |message| {
+                progress(&eval::Progress {
+                    done: 1,
+                    total: 1,
+                    message,
+                })
+            })?;
+            write_flights(path, &[&flown])?;
+            eval::merge(vec![flown])?
+        }
+        (_, Some(_)) => bail!("--flights-out needs --seed K: a sweep writes one file per seed"),
+        (_, None) => eval::evaluate(&spec, &cfg, &sim, &mut progress)?,
+    };
     bar.finish_and_clear();
+    report(&ev, json, csv)
+}
+
+/// Prints the table (or JSON) and writes the CSV if asked.
+fn report(ev: &eval::Evaluation, json: bool, csv: Option<PathBuf>) -> anyhow::Result<()> {
     if json {
-        println!("{}", serde_json::to_string(&ev)?);
+        println!("{}", serde_json::to_string(ev)?);
     } else {
         print!("{}", ev.table());
     }
@@ -105,6 +147,31 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         std::fs::write(&p, ev.csv()).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
+}
+
+/// `--flights-out`: the seed's flights in CBOR, which keeps every f64 (NaN
+/// included) bit for bit. Written beside and renamed, so a task killed
+/// mid-write leaves no half file for a merge to read.
+fn write_flights(path: &std::path::Path, flown: &[&eval::SeedFlights]) -> anyhow::Result<()> {
+    let part = path.with_extension("part");
+    let file = std::fs::File::create(&part).with_context(|| format!("creating {}", part.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    ciborium::into_writer(&flown, &mut w).with_context(|| format!("writing {}", part.display()))?;
+    std::io::Write::flush(&mut w).with_context(|| format!("writing {}", part.display()))?;
+    drop(w);
+    std::fs::rename(&part, path).with_context(|| format!("renaming {} to {}", part.display(), path.display()))
+}
+
+/// `--merge`: reads every file's seeds and summarises them together.
+fn merge_files(paths: &[PathBuf]) -> anyhow::Result<eval::Evaluation> {
+    let mut seeds = Vec::new();
+    for p in paths {
+        let file = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
+        let flown: Vec<eval::SeedFlights> = ciborium::from_reader(std::io::BufReader::new(file))
+            .with_context(|| format!("{}: not a file of `cmsckf evaluate --flights-out`", p.display()))?;
+        seeds.extend(flown);
+    }
+    Ok(eval::merge(seeds)?)
 }
 
 /// A switch `flag` given as `on` or `off`.

@@ -237,7 +237,7 @@ impl Keyframe {
 }
 
 /// Counters since start.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Stats {
     pub imu_samples: u64,
     pub frames: u64,

@@ -11,7 +11,7 @@ use std::time::Instant;
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use cmsckf_sitl::config::SimConfig;
 use cmsckf_sitl::dataset::Dataset;
@@ -57,7 +57,7 @@ pub fn init_from_truth(ds: &Dataset, p0: &Mat15, seed: u64) -> ImuState {
 }
 
 /// One flight through one mode.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FlightResult {
     pub mode: Mode,
     /// The simulated urban canyon `[start, end]` (s), if any
@@ -558,9 +558,29 @@ pub struct Evaluation {
     pub gnss: bool,
     /// Zero-velocity updates gated by the autopilot's landed state.
     pub landed_state: bool,
+    /// How many seeds were flown, and which.
     pub seeds: u64,
+    pub seed_numbers: Vec<u64>,
     pub duration_s: f64,
     pub modes: BTreeMap<String, ModeSummary>,
+}
+
+/// Which seeds an evaluation flies.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Seeds {
+    /// Seeds `1..=n`.
+    UpTo(u64),
+    /// One seed alone (a sweep's task: `cmsckf evaluate --seed K`).
+    One(u64),
+}
+
+impl Seeds {
+    pub fn numbers(&self) -> Vec<u64> {
+        match *self {
+            Seeds::UpTo(n) => (1..=n).collect(),
+            Seeds::One(k) => vec![k],
+        }
+    }
 }
 
 /// What to evaluate.
@@ -568,8 +588,7 @@ pub struct Evaluation {
 pub struct EvalSpec {
     pub scenario: String,
     pub modes: Vec<Mode>,
-    /// Seeds `1..=seeds`.
-    pub seeds: u64,
+    pub seeds: Seeds,
     /// `None`: the scenario's own length.
     pub duration_s: Option<f64>,
     /// Fuse the simulated GNSS.
@@ -588,62 +607,172 @@ pub struct Progress {
     pub message: String,
 }
 
-/// Runs `modes` over seeds `1..=seeds`. When both `full` and `compressed`
+/// The flights of one seed in every mode asked for, with what they were
+/// flown on: what `cmsckf evaluate --flights-out` writes, so that seeds flown
+/// apart (a sweep's tasks, on other machines) summarise, through [`merge`],
+/// exactly as one [`evaluate`] over them all.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SeedFlights {
+    pub scenario: String,
+    pub gnss: bool,
+    pub landed_state: bool,
+    pub duration_s: f64,
+    /// The modes asked for, in the order given.
+    pub modes: Vec<Mode>,
+    pub seed: u64,
+    /// In the order [`evaluate`] flies them.
+    pub flights: Vec<FlightResult>,
+}
+
+/// Why seeds flown apart cannot be summarised together.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    #[error("nothing to merge: give the --flights-out files of at least one seed")]
+    Empty,
+    #[error(
+        "seed {seed} was flown on {field} {theirs}, the first file on {ours}: merge only the seeds of one evaluation"
+    )]
+    Mismatch {
+        seed: u64,
+        field: &'static str,
+        ours: String,
+        theirs: String,
+    },
+    #[error("seed {0} is given twice: a sweep keeps one result per seed")]
+    Duplicate(u64),
+}
+
+/// Flies one seed in every mode of `spec`. When both `full` and `compressed`
 /// are asked for they run in lockstep, and compressed reports its largest
-/// difference from full. `progress` hears of each flight as it ends.
+/// difference from full. `flown` hears of each flight as it ends.
+pub fn fly_seed(
+    spec: &EvalSpec,
+    cfg: &Config,
+    sim: &SimConfig,
+    seed: u64,
+    mut flown: impl FnMut(String),
+) -> Result<SeedFlights, cmsckf_sitl::trajectory::TrajectoryError> {
+    let inputs = Inputs {
+        gnss: spec.gnss,
+        landed_state: spec.landed_state,
+    };
+    let ds = Dataset::generate(&spec.scenario, seed, spec.duration_s, sim)?;
+    let modes = &spec.modes[..];
+    let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
+    let mut flights = Vec::with_capacity(modes.len());
+    if lockstep {
+        let (c, f) = compressed_vs_full_with(&ds, cfg, seed, inputs);
+        flown(format!(
+            "seed {seed}: compressed vs full max rel diff {:.2e}",
+            c.max_rel_diff_vs_full.unwrap_or(0.0)
+        ));
+        flights.push(c);
+        flights.push(f);
+    }
+    for &m in modes {
+        if lockstep && (m == Mode::Full || m == Mode::Compressed) {
+            continue;
+        }
+        flights.push(run_with(&ds, cfg, m, seed, inputs));
+        flown(format!("seed {seed}: {}", m.name()));
+    }
+    Ok(SeedFlights {
+        scenario: spec.scenario.clone(),
+        gnss: spec.gnss,
+        landed_state: spec.landed_state,
+        duration_s: ds.duration_s,
+        modes: modes.to_vec(),
+        seed,
+        flights,
+    })
+}
+
+/// Flies `spec`'s modes over its seeds and summarises them. `progress`
+/// hears of each flight as it ends.
 pub fn evaluate(
     spec: &EvalSpec,
     cfg: &Config,
     sim: &SimConfig,
     mut progress: impl FnMut(&Progress),
 ) -> Result<Evaluation, cmsckf_sitl::trajectory::TrajectoryError> {
-    let (scenario, modes, seeds, duration_s) = (spec.scenario.as_str(), &spec.modes[..], spec.seeds, spec.duration_s);
-    let inputs = Inputs {
-        gnss: spec.gnss,
-        landed_state: spec.landed_state,
-    };
-    let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
-    let mut duration = 0.0;
-    let lockstep = modes.contains(&Mode::Full) && modes.contains(&Mode::Compressed);
-    let per_seed = modes.len() as u64 - u64::from(lockstep);
+    let seeds = spec.seeds.numbers();
+    let lockstep = spec.modes.contains(&Mode::Full) && spec.modes.contains(&Mode::Compressed);
+    let per_seed = spec.modes.len() as u64 - u64::from(lockstep);
     let mut p = Progress {
         done: 0,
-        total: seeds * per_seed,
+        total: seeds.len() as u64 * per_seed,
         message: String::new(),
     };
-    for seed in 1..=seeds {
-        let ds = Dataset::generate(scenario, seed, duration_s, sim)?;
-        duration = ds.duration_s;
-        if lockstep {
-            let (c, f) = compressed_vs_full_with(&ds, cfg, seed, inputs);
+    let mut flown = Vec::with_capacity(seeds.len());
+    for &seed in &seeds {
+        flown.push(fly_seed(spec, cfg, sim, seed, |message| {
             p.done += 1;
-            p.message = format!(
-                "seed {seed}: compressed vs full max rel diff {:.2e}",
-                c.max_rel_diff_vs_full.unwrap_or(0.0)
-            );
+            p.message = message;
             progress(&p);
-            per_mode.entry(Mode::Compressed).or_default().push(c);
-            per_mode.entry(Mode::Full).or_default().push(f);
+        })?);
+    }
+    Ok(summarise_seeds(flown))
+}
+
+/// Summarises seeds flown apart (each [`fly_seed`]'s result, in any
+/// order) exactly as one [`evaluate`] over those seeds: the flights are put
+/// in seed order first, as `evaluate` flies them.
+pub fn merge(mut seeds: Vec<SeedFlights>) -> Result<Evaluation, MergeError> {
+    seeds.sort_by_key(|s| s.seed);
+    let first = seeds.first().ok_or(MergeError::Empty)?;
+    for (i, s) in seeds.iter().enumerate() {
+        if i > 0 && seeds[i - 1].seed == s.seed {
+            return Err(MergeError::Duplicate(s.seed));
         }
-        for &m in modes {
-            if lockstep && (m == Mode::Full || m == Mode::Compressed) {
-                continue;
-            }
-            per_mode.entry(m).or_default().push(run_with(&ds, cfg, m, seed, inputs));
-            p.done += 1;
-            p.message = format!("seed {seed}: {}", m.name());
-            progress(&p);
+        let differs = |field: &'static str, ours: String, theirs: String| {
+            (ours != theirs).then_some(MergeError::Mismatch {
+                seed: s.seed,
+                field,
+                ours,
+                theirs,
+            })
+        };
+        let modes = |m: &[Mode]| m.iter().map(|m| m.name()).collect::<Vec<_>>().join(",");
+        let checks = [
+            differs("scenario", first.scenario.clone(), s.scenario.clone()),
+            differs("gnss", first.gnss.to_string(), s.gnss.to_string()),
+            differs(
+                "landed_state",
+                first.landed_state.to_string(),
+                s.landed_state.to_string(),
+            ),
+            differs("duration_s", first.duration_s.to_string(), s.duration_s.to_string()),
+            differs("modes", modes(&first.modes), modes(&s.modes)),
+        ];
+        if let Some(e) = checks.into_iter().flatten().next() {
+            return Err(e);
         }
     }
-    Ok(Evaluation {
-        scenario: scenario.to_string(),
-        gnss: inputs.gnss,
-        landed_state: inputs.landed_state,
-        seeds,
-        duration_s: duration,
+    Ok(summarise_seeds(seeds))
+}
+
+/// The evaluation of seeds already flown, in the order given.
+fn summarise_seeds(seeds: Vec<SeedFlights>) -> Evaluation {
+    let mut per_mode: BTreeMap<Mode, Vec<FlightResult>> = BTreeMap::new();
+    let (mut scenario, mut gnss, mut landed_state, mut duration_s) = (String::new(), false, true, 0.0);
+    let mut seed_numbers = Vec::with_capacity(seeds.len());
+    for s in seeds {
+        (scenario, gnss, landed_state, duration_s) = (s.scenario, s.gnss, s.landed_state, s.duration_s);
+        seed_numbers.push(s.seed);
+        for f in s.flights {
+            per_mode.entry(f.mode).or_default().push(f);
+        }
+    }
+    Evaluation {
+        scenario,
+        gnss,
+        landed_state,
+        seeds: seed_numbers.len() as u64,
+        seed_numbers,
+        duration_s,
         modes: per_mode
             .iter()
             .map(|(m, runs)| (m.name().to_string(), summarise(runs)))
             .collect(),
-    })
+    }
 }
