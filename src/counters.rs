@@ -90,6 +90,16 @@ counters! {
     ImuHighres = "imu_highres", event;
     ImuScaled = "imu_scaled", event;
     ImuRaw = "imu_raw", event;
+    /// IMU samples in a message other than the one taken
+    /// (`mavlink.imu_message`): counted, never fused.
+    ImuMessageIgnored = "imu_message_ignored", event;
+    /// The same IMU sample (time and values) sent again: PX4 repeats its
+    /// last `SCALED_IMU` when only the magnetometer moved. Dropped.
+    ImuDuplicate = "imu_duplicate", event;
+    /// `mavlink.imu_message = "auto"` beside an autopilot other than PX4
+    /// turned to another IMU message: from `HIGHRES_IMU` after 2 s without
+    /// one, or back to it.
+    ImuMessageSwitched = "imu_message_switched", event;
     Attitude = "attitude", event;
     LocalPosition = "local_position", event;
     GpsAccuracy = "gps_accuracy", event;

@@ -16,6 +16,7 @@ use cmsckf_models::sensors::{CameraConfig, ImuConfig};
 use crate::estimator::Mode;
 use crate::gnss::IonoMode;
 use crate::io::mcap_log::LogHeader;
+use crate::io::messages::ImuMessage;
 
 pub mod kalibr;
 mod settings;
@@ -98,6 +99,11 @@ pub struct MavlinkConfig {
     pub autopilot_component_id: u8,
     /// IMU rate requested with MAV_CMD_SET_MESSAGE_INTERVAL (Hz).
     pub imu_rate_hz: f64,
+    /// The IMU message taken (the others are ignored and counted):
+    /// `auto` takes `SCALED_IMU` from PX4, whose `HIGHRES_IMU` has EKF2's
+    /// bias estimates (learnt from our estimates) taken out, and
+    /// `HIGHRES_IMU` from any other autopilot.
+    pub imu_message: ImuMessageChoice,
     /// MAVLink 2 message signing: a file holding the 32-byte secret key as 64
     /// hex digits (mode 0600 or stricter); empty = no signing. When set,
     /// unsigned and badly signed messages are rejected and counted, and ours
@@ -126,11 +132,36 @@ impl Default for MavlinkConfig {
             component_id: 197,
             autopilot_component_id: 1,
             imu_rate_hz: 100.0,
+            imu_message: ImuMessageChoice::Auto,
             signing_key_file: String::new(),
             signing_link_id: 0,
             link_down_after_s: 2.0,
             link_exit_after_s: 60.0,
             clock_jump_confirm_s: 0.25,
+        }
+    }
+}
+
+/// `mavlink.imu_message`: the IMU message the daemon takes.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ImuMessageChoice {
+    /// By the autopilot's kind ([`ImuMessage::auto_for`]).
+    Auto,
+    Highres,
+    Scaled,
+    Raw,
+}
+
+impl ImuMessageChoice {
+    /// The message taken beside an autopilot of `kind` (not yet heard:
+    /// `None`).
+    pub fn resolve(self, kind: Option<crate::io::messages::AutopilotKind>) -> ImuMessage {
+        match self {
+            ImuMessageChoice::Auto => ImuMessage::auto_for(kind),
+            ImuMessageChoice::Highres => ImuMessage::Highres,
+            ImuMessageChoice::Scaled => ImuMessage::Scaled,
+            ImuMessageChoice::Raw => ImuMessage::Raw,
         }
     }
 }

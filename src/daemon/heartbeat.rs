@@ -3,7 +3,7 @@
 //! `STATUSTEXT`; and, every second, the stream requests (while a stream
 //! does not flow), a TIMESYNC request and, every 10 s, the counters to the journal.
 
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -11,7 +11,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::counters::{Counter, Counters};
-use crate::io::messages::{self as mav, Outbound};
+use crate::io::messages::{self as mav, ImuMessage, Outbound};
 use crate::status::{self, Degraded, Status};
 
 /// The status task: HEARTBEAT at 1 Hz and at once on a change, with the
@@ -100,6 +100,7 @@ const FASTER_ONLY_MIN_HZ: f32 = 5.0;
 pub(super) fn spawn_periodic(
     out_tx: mpsc::Sender<Outbound>,
     counters: Counters,
+    imu_message: Arc<AtomicU8>,
     imu_rate_hz: f64,
     start: Instant,
     mut stop: watch::Receiver<bool>,
@@ -121,21 +122,24 @@ pub(super) fn spawn_periodic(
         // in a row it has flowed too slowly.
         let mut slow_asks = [0u32; WANTED];
         let mut slow_ticks = [0u32; WANTED];
+        let mut imu_was = ImuMessage::from_u8(imu_message.load(Ordering::Relaxed));
         loop {
             tokio::select! { _ = tick.tick() => {}, _ = stop.changed() => return }
             n += 1;
             let tick_s = last_tick.elapsed().as_secs_f32().max(0.1);
             last_tick = Instant::now();
+            // The IMU message taken, which the autopilot's kind may have
+            // changed: a new stream, asked for afresh.
+            let imu = ImuMessage::from_u8(imu_message.load(Ordering::Relaxed));
+            if imu != imu_was {
+                imu_was = imu;
+                (seen[0], asked[0], slow_asks[0], slow_ticks[0]) = ((0, 0), 0, 0, 0);
+            }
             // Ask for each stream while it does not flow: until it arrives,
             // and again when it stops for STREAM_STALE_TICKS seconds (a
             // rebooted autopilot forgets the rates it was asked for).
             let wanted = [
-                (
-                    Counter::ImuHighres,
-                    mav::MSG_ID_HIGHRES_IMU,
-                    imu_interval_us,
-                    Ask::Always,
-                ),
+                (imu.counter(), imu.message_id(), imu_interval_us, Ask::Always),
                 (Counter::Attitude, mav::MSG_ID_ATTITUDE, 100_000.0, Ask::Always),
                 (Counter::SystemTime, mav::MSG_ID_SYSTEM_TIME, 1_000_000.0, Ask::Always),
                 (

@@ -4,20 +4,21 @@
 //! message. Rejections are counted by reason and the link goes on.
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use nalgebra::Vector3;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::{signing_key, DaemonError, FusionMsg, RtcmStream};
-use crate::config::{Config, GnssSource};
+use crate::config::{Config, GnssSource, ImuMessageChoice};
 use crate::counters::{Counter, Counters};
 use crate::estimator::ImuMeas;
 use crate::gnss::reassembly::{Reassembled, Reassembler};
 use crate::io::mavlink::{self as mav, Link};
-use crate::io::messages::{Inbound, Outbound, Source};
+use crate::io::messages::{AutopilotKind, ImuMessage, Inbound, Outbound, Source};
 
 /// Opens the link to the autopilot (warning when it listens on an open
 /// network without signing).
@@ -59,6 +60,9 @@ fn open_network_unsigned(cfg: &Config) -> bool {
 
 /// What the receive task needs besides the link.
 pub(super) struct Receive {
+    /// The IMU message taken ([`ImuMessage::to_u8`]), set here when the
+    /// autopilot's HEARTBEAT says what it is.
+    pub imu_message: Arc<AtomicU8>,
     pub counters: Counters,
     pub fusion_tx: mpsc::Sender<FusionMsg>,
     /// Companion monotonic → autopilot boot clock offset (µs), from TIMESYNC.
@@ -87,6 +91,17 @@ struct RxState {
     autopilot: Source,
     /// IMU time after which the next magnetometer reading is passed on (µs).
     next_mag_us: u64,
+    /// `mavlink.imu_message`, resolved at each autopilot HEARTBEAT.
+    imu_choice: ImuMessageChoice,
+    /// What the autopilot's HEARTBEAT says it is.
+    kind: Option<AutopilotKind>,
+    /// When a `HIGHRES_IMU` last came (taken or not): with `auto`, an
+    /// autopilot other than PX4 that sends none (ArduPilot on a 1 MB board)
+    /// has its `RAW_IMU` or `SCALED_IMU` taken instead.
+    last_highres: Instant,
+    /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
+    /// the same sample, when only its magnetometer has a new reading.
+    last_imu: Option<(u64, Vector3<f64>, Vector3<f64>)>,
 }
 
 /// Magnetometer readings reach the fusion loop at most this often (µs):
@@ -122,6 +137,10 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
             component: cfg.mavlink.autopilot_component_id,
         },
         next_mag_us: 0,
+        imu_choice: cfg.mavlink.imu_message,
+        kind: None,
+        last_highres: Instant::now(),
+        last_imu: None,
     };
     tokio::spawn(async move {
         let mut warn = WarnLimit::default();
@@ -266,6 +285,43 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
     })
 }
 
+/// How long `auto` waits for `HIGHRES_IMU` from an autopilot other than PX4
+/// before it takes another IMU message that does come.
+const HIGHRES_FALLBACK_AFTER: Duration = Duration::from_secs(2);
+
+/// Whether an IMU sample that came in `kind` is taken: the message taken
+/// (`Receive::imu_message`) is, another is not. With `auto` beside an
+/// autopilot other than PX4, `HIGHRES_IMU` is taken whenever it flows, and
+/// another IMU message once it has not come for [`HIGHRES_FALLBACK_AFTER`]
+/// (both switches logged).
+fn take_imu(kind: ImuMessage, st: &mut RxState, r: &Receive) -> bool {
+    let now = Instant::now();
+    if kind == ImuMessage::Highres {
+        st.last_highres = now;
+    }
+    let taken = ImuMessage::from_u8(r.imu_message.load(Ordering::Relaxed));
+    if kind == taken {
+        return true;
+    }
+    let auto_not_px4 = st.imu_choice == ImuMessageChoice::Auto && st.kind.is_some_and(|k| k != AutopilotKind::Px4);
+    let switch = auto_not_px4
+        && if kind == ImuMessage::Highres {
+            true
+        } else {
+            taken == ImuMessage::Highres && now.duration_since(st.last_highres) > HIGHRES_FALLBACK_AFTER
+        };
+    if switch {
+        r.imu_message.store(kind.to_u8(), Ordering::Relaxed);
+        r.counters.add(Counter::ImuMessageSwitched, 1);
+        tracing::warn!(
+            from = ?taken,
+            to = ?kind,
+            "IMU samples now taken from this message (mavlink.imu_message = \"auto\": HIGHRES_IMU when it comes)"
+        );
+    }
+    switch
+}
+
 /// One inbound message as the fusion loop takes it, if it takes it;
 /// TIMESYNC replies and RTCM fragments are handled here.
 fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option<FusionMsg> {
@@ -278,14 +334,22 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             kind,
             ..
         } => {
-            counters.add(
-                match kind {
-                    "highres" => Counter::ImuHighres,
-                    "scaled" => Counter::ImuScaled,
-                    _ => Counter::ImuRaw,
-                },
-                1,
-            );
+            counters.add(kind.counter(), 1);
+            // One IMU message is taken: the same samples in two messages
+            // would come twice, and PX4's HIGHRES_IMU carries EKF2's bias
+            // estimates (ImuMessage::auto_for).
+            if !take_imu(kind, st, r) {
+                counters.add(Counter::ImuMessageIgnored, 1);
+                return None;
+            }
+            // The same sample sent again is no new measurement, and no
+            // time going back either.
+            let sample = (t_us, accel_mps2, gyro_radps);
+            if st.last_imu == Some(sample) {
+                counters.add(Counter::ImuDuplicate, 1);
+                return None;
+            }
+            st.last_imu = Some(sample);
             Some(FusionMsg::Imu(ImuMeas {
                 t_s: t_us as f64 * 1e-6,
                 accel_mps2,
@@ -341,6 +405,18 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
         }
         Inbound::Heartbeat { armed, kind, mode } => {
             counters.add(Counter::HeartbeatIn, 1);
+            // The message taken follows the autopilot's kind, once it is
+            // known (or changes): a fallback taken since is kept.
+            if st.kind != Some(kind) {
+                st.kind = Some(kind);
+                let imu = st.imu_choice.resolve(Some(kind));
+                r.imu_message.store(imu.to_u8(), Ordering::Relaxed);
+                tracing::info!(
+                    autopilot = ?kind,
+                    message = ?imu,
+                    "IMU samples taken from this message alone (mavlink.imu_message)"
+                );
+            }
             Some(FusionMsg::VehicleState {
                 armed: Some(armed),
                 on_ground: None,

@@ -44,7 +44,7 @@ mod watchdog;
 
 use std::future::Future;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicI64, AtomicU64, AtomicUsize};
+use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, AtomicUsize};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -252,7 +252,11 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
         });
     }
     let (feat_task, fwd) = features::spawn(&cfg, listener, &fusion_tx, &counters, &stop_rx, frames_queued.clone());
+    // The IMU message taken (`mavlink.imu_message`): the receive task sets it
+    // when the autopilot says what it is, the stream requests ask for it.
+    let imu_message = Arc::new(AtomicU8::new(cfg.mavlink.imu_message.resolve(None).to_u8()));
     let receive = link::Receive {
+        imu_message: imu_message.clone(),
         counters: counters.clone(),
         fusion_tx: fusion_tx.clone(),
         mono_offset_us: mono_offset_us.clone(),
@@ -282,6 +286,7 @@ pub async fn run(cfg: Config, shutdown: impl Future<Output = ()>) -> Result<RunS
     let periodic = heartbeat::spawn_periodic(
         out_tx.clone(),
         counters.clone(),
+        imu_message,
         cfg.mavlink.imu_rate_hz,
         start,
         stop_rx.clone(),

@@ -80,17 +80,20 @@ pub(super) fn spawn_watchdog(cfg: &Config, link: Arc<Link>, mut w: Watch) -> Joi
                     silent_s: silent.as_secs_f64(),
                 });
             }
-            // Heard, but no IMU: the stream requests go unanswered.
-            let imu = w.counters.get(Counter::ImuHighres)
+            // Heard, but no IMU in the message taken: the stream requests
+            // go unanswered.
+            let imu = (w.counters.get(Counter::ImuHighres)
                 + w.counters.get(Counter::ImuScaled)
-                + w.counters.get(Counter::ImuRaw);
+                + w.counters.get(Counter::ImuRaw))
+            .saturating_sub(w.counters.get(Counter::ImuMessageIgnored));
             if !imu_warned && heard.is_some() && imu == 0 && w.start.elapsed() > IMU_EXPECTED_WITHIN {
                 imu_warned = true;
                 w.counters.add(Counter::AutopilotSendsNoImu, 1);
                 tracing::error!(
                     %address,
-                    "the autopilot on {address} sends no IMU (HIGHRES_IMU, SCALED_IMU or RAW_IMU) although asked: \
-                     check its stream rates and that it accepts MAV_CMD_SET_MESSAGE_INTERVAL"
+                    "the autopilot on {address} sends no IMU in the message taken (mavlink.imu_message: HIGHRES_IMU, \
+                     or SCALED_IMU from PX4) although asked: check its stream rates and that it accepts \
+                     MAV_CMD_SET_MESSAGE_INTERVAL"
                 );
             }
             if let Some(limit) = exit_after {

@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 
 use super::LinkError;
 use crate::counters::Counter;
-use crate::io::messages::{AutopilotKind, Inbound, SimTruth};
+use crate::io::messages::{AutopilotKind, ImuMessage, Inbound, SimTruth};
 
 /// Standard gravity used by MAVLink's milli-g units (m/s²).
 const G0: f64 = 9.80665;
@@ -84,7 +84,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 t_us: d.time_usec,
                 accel_mps2,
                 gyro_radps,
-                kind: "highres",
+                kind: ImuMessage::Highres,
                 mag_B: (d.fields_updated.bits() & 0x1C0 == 0x1C0)
                     .then_some(mag)
                     .and_then(field),
@@ -95,7 +95,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             t_us: d.time_boot_ms as u64 * 1000,
             accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
             gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
-            kind: "scaled",
+            kind: ImuMessage::Scaled,
             mag_B: field(Vector3::new(d.xmag as f64, d.ymag as f64, d.zmag as f64)),
         },
         // RAW_IMU: ArduPilot fills it with the same mG and mrad/s scaling.
@@ -103,7 +103,7 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             t_us: d.time_usec,
             accel_mps2: Vector3::new(d.xacc as f64, d.yacc as f64, d.zacc as f64) * (G0 / 1000.0),
             gyro_radps: Vector3::new(d.xgyro as f64, d.ygyro as f64, d.zgyro as f64) / 1000.0,
-            kind: "raw",
+            kind: ImuMessage::Raw,
             mag_B: field(Vector3::new(d.xmag as f64, d.ymag as f64, d.zmag as f64)),
         },
         M::ATTITUDE(d) => {

@@ -1,0 +1,202 @@
+//! One IMU message is taken (`mavlink.imu_message`), the others ignored and
+//! counted. Beside PX4 it is `SCALED_IMU`: PX4's `HIGHRES_IMU` is its IMU
+//! less EKF2's bias estimates, which EKF2 learns from our own estimates, so
+//! our error would come back to us as input (measured at 0.2-0.4 m/s² on
+//! PX4's SITL, whose IMU has no bias). PX4 repeats its last `SCALED_IMU`
+//! when only the magnetometer has moved: the repeat is a duplicate, neither
+//! a measurement nor a time going back.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use cmsckf::config::{Config, ImuMessageChoice};
+use common::autopilot::MavPeer;
+use mavlink::dialects::ardupilotmega as apm;
+
+const HIGHRES_IMU: u32 = 105;
+const SCALED_IMU: u32 = 26;
+
+fn heartbeat(autopilot: apm::MavAutopilot) -> apm::MavMessage {
+    apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
+        mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
+        autopilot,
+        mavlink_version: 3,
+        ..Default::default()
+    })
+}
+
+/// A still vehicle's `HIGHRES_IMU` at `t_s`, carrying `zacc`.
+fn highres(t_s: f64, zacc: f32) -> apm::MavMessage {
+    apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
+        time_usec: (t_s * 1e6) as u64,
+        zacc,
+        ..Default::default()
+    })
+}
+
+/// A still vehicle's `SCALED_IMU` at `t_s` (ms, mG, mrad/s).
+fn scaled(t_s: f64) -> apm::MavMessage {
+    apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+        time_boot_ms: (t_s * 1e3).round() as u32,
+        zacc: -1000,
+        xgyro: 2,
+        ..Default::default()
+    })
+}
+
+/// What happened beside an autopilot of `kind` that streams both
+/// messages for `secs`, each at 50 Hz (half the rate the daemon asks for,
+/// so that it asks for the one it takes), every fourth SCALED_IMU sent
+/// twice: the daemon's interval requests and its counters, with what was
+/// sent.
+struct Run {
+    requests: Vec<(u32, f32)>,
+    counters: std::collections::BTreeMap<String, u64>,
+    highres_sent: u64,
+    scaled_sent: u64,
+    repeats_sent: u64,
+}
+
+async fn beside(kind: apm::MavAutopilot, choice: ImuMessageChoice, secs: f64) -> Run {
+    beside_sending(kind, choice, secs, true).await
+}
+
+async fn beside_sending(kind: apm::MavAutopilot, choice: ImuMessageChoice, secs: f64, send_highres: bool) -> Run {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut cfg, port): (Config, u16) = common::loopback_config(dir.path());
+    cfg.mavlink.imu_message = choice;
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    let started = Instant::now();
+    let (mut next_hb, mut next_highres, mut next_scaled) = (0.0, 0.0, 0.0);
+    let mut run = Run {
+        requests: Vec::new(),
+        counters: Default::default(),
+        highres_sent: 0,
+        scaled_sent: 0,
+        repeats_sent: 0,
+    };
+    let mut buf = [0u8; 2048];
+    while started.elapsed() < Duration::from_secs_f64(secs) {
+        let now = started.elapsed().as_secs_f64();
+        if now >= next_hb {
+            ap.send(&heartbeat(kind)).await;
+            next_hb += 0.5;
+        }
+        if send_highres && now >= next_highres {
+            // PX4's: EKF2's bias estimate taken out, here a large one, so
+            // that taking it would show.
+            ap.send(&highres(10.0 + next_highres, -9.81 + 3.0)).await;
+            run.highres_sent += 1;
+            next_highres += 0.02;
+        }
+        if now >= next_scaled {
+            let m = scaled(10.0 + next_scaled);
+            ap.send(&m).await;
+            run.scaled_sent += 1;
+            if run.scaled_sent.is_multiple_of(4) {
+                ap.send(&m).await;
+                run.repeats_sent += 1;
+            }
+            next_scaled += 0.02;
+        }
+        if let Ok(Ok(n)) = tokio::time::timeout(Duration::from_millis(2), ap.sock.recv(&mut buf)).await {
+            let mut r = mavlink::MavlinkReader::new(&buf[..n]);
+            while let Ok((_, m)) = r.read_any_message::<apm::MavMessage>() {
+                if let apm::MavMessage::COMMAND_LONG(c) = m {
+                    if c.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL {
+                        run.requests.push((c.param1 as u32, c.param2));
+                    }
+                }
+            }
+        }
+    }
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    run.counters = summary.counters;
+    run
+}
+
+impl Run {
+    fn count(&self, name: &str) -> u64 {
+        self.counters.get(name).copied().unwrap_or(0)
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn beside_px4_scaled_imu_is_taken_and_highres_imu_ignored() {
+    let run = beside(apm::MavAutopilot::MAV_AUTOPILOT_PX4, ImuMessageChoice::Auto, 3.0).await;
+    eprintln!("requests {:?}\ncounters {:?}", run.requests, run.counters);
+    // Asked for SCALED_IMU at the configured rate (100 Hz), never for
+    // HIGHRES_IMU.
+    assert!(run.requests.contains(&(SCALED_IMU, 10_000.0)), "{:?}", run.requests);
+    assert!(!run.requests.iter().any(|r| r.0 == HIGHRES_IMU), "{:?}", run.requests);
+    // Every HIGHRES_IMU the daemon heard was ignored, none fused.
+    assert!(run.count("imu_highres") > 0);
+    assert_eq!(run.count("imu_message_ignored"), run.count("imu_highres"));
+    // The repeats are duplicates: never a time going back, which would
+    // have shown the autopilot an input_rejected state.
+    assert!(run.count("imu_duplicate") + 2 >= run.repeats_sent, "{:?}", run.counters);
+    assert_eq!(run.count("imu_time_backwards"), 0, "{:?}", run.counters);
+    // What was fused is every SCALED_IMU once.
+    assert_eq!(
+        run.count("imu_samples"),
+        run.count("imu_scaled") - run.count("imu_duplicate"),
+        "{:?}",
+        run.counters
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn beside_ardupilot_highres_imu_is_taken_unless_the_config_says_otherwise() {
+    let run = beside(
+        apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ImuMessageChoice::Auto,
+        2.0,
+    )
+    .await;
+    eprintln!("requests {:?}\ncounters {:?}", run.requests, run.counters);
+    assert!(!run.requests.iter().any(|r| r.0 == SCALED_IMU), "{:?}", run.requests);
+    assert_eq!(run.count("imu_message_ignored"), run.count("imu_scaled"));
+    assert!(run.count("imu_scaled") > 0);
+    assert_eq!(run.count("imu_duplicate"), 0);
+
+    let run = beside(
+        apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ImuMessageChoice::Scaled,
+        2.0,
+    )
+    .await;
+    assert!(run.requests.iter().any(|r| r.0 == SCALED_IMU), "{:?}", run.requests);
+    assert_eq!(run.count("imu_message_ignored"), run.count("imu_highres"));
+    assert!(run.count("imu_duplicate") > 0);
+}
+
+/// ArduPilot on a 1 MB board has no HIGHRES_IMU: `auto` takes the IMU
+/// message that does come once HIGHRES_IMU has not come for 2 s, asks for
+/// it at the configured rate, and says so once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn without_highres_imu_another_imu_message_is_taken() {
+    let run = beside_sending(
+        apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ImuMessageChoice::Auto,
+        5.0,
+        false,
+    )
+    .await;
+    eprintln!("requests {:?}\ncounters {:?}", run.requests, run.counters);
+    assert_eq!(run.count("imu_message_switched"), 1, "{:?}", run.counters);
+    assert!(run.requests.iter().any(|r| r.0 == HIGHRES_IMU), "{:?}", run.requests);
+    assert!(run.requests.contains(&(SCALED_IMU, 10_000.0)), "{:?}", run.requests);
+    // About the first 2 s of it ignored, the rest fused once each.
+    let ignored = run.count("imu_message_ignored");
+    assert!((80..=140).contains(&ignored), "{:?}", run.counters);
+    assert_eq!(
+        run.count("imu_samples"),
+        run.count("imu_scaled") - ignored - run.count("imu_duplicate"),
+        "{:?}",
+        run.counters
+    );
+}
