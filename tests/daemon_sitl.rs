@@ -297,6 +297,13 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     assert!((rv.duration_s - 40.0).abs() < 1.0, "{}", rv.duration_s);
     assert!(rv.vision_updates > 1000 && rv.gnss_updates > 30 && rv.global_updates > 10 && rv.keyframes >= 7);
     assert!(rv.nis_in_95 > 0.8, "{}", rv.nis_in_95);
+    // The restarts and the time degraded, by reason, as the daemon said.
+    assert_eq!(rv.resets, 0);
+    assert!(
+        rv.degraded_s.values().all(|s| (0.0..=rv.duration_s).contains(s)),
+        "{:?}",
+        rv.degraded_s
+    );
     assert!((rv.input_rates_hz["/input/imu"] - ds.cfg.imu_rate_hz).abs() < 0.02 * ds.cfg.imu_rate_hz);
     // The error against the simulator's truth (SIM_STATE), inside the
     // filter's own 3σ most of the time.

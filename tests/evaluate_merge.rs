@@ -90,6 +90,12 @@ fn seeds_flown_apart_and_merged_equal_one_evaluation() {
         d,
     ));
     assert_eq!(merged, whole, "a merge of the seeds is the evaluation of them all");
+    // A folder of them is the same.
+    std::fs::create_dir(d.join("seeds")).expect("mkdir");
+    for k in 1..=3 {
+        std::fs::copy(d.join(format!("seed{k}.cbor")), d.join(format!("seeds/seed{k}.cbor"))).expect("copy");
+    }
+    assert_eq!(json_of(&cmsckf(&["evaluate", "--json", "--merge", "seeds"], d)), whole);
     // The merged compressed run still carries its difference from full.
     assert!(merged["modes"]["compressed"]["max_rel_diff_vs_full"].is_number());
 

@@ -581,6 +581,7 @@ fn px4_flies_on_cmsckf_alone() {
         review.autopilot_pos_vert_ratio_max,
         review.autopilot_rejected_reports
     );
+    assert_eq!(review.resets, 0, "the review's restarts");
     // At 5 Hz when the daemon's request comes before PX4's first report, at
     // PX4's own 1 Hz otherwise (docs/setup-px4.md, Streams).
     assert!(

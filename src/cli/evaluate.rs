@@ -28,9 +28,9 @@ pub struct EvaluateArgs {
     /// Also write the flights themselves (CBOR), for --merge.
     #[arg(long)]
     flights_out: Option<PathBuf>,
-    /// Fly nothing: summarise the --flights-out files of seeds flown apart
-    /// exactly as one evaluation over those seeds (the flight flags are then
-    /// theirs, and ignored here).
+    /// Fly nothing: summarise the --flights-out files (or folders of them)
+    /// of seeds flown apart exactly as one evaluation over those seeds (the
+    /// flight flags are then theirs, and ignored here).
     #[arg(long, num_args = 1.., conflicts_with_all = ["seed", "flights_out"])]
     merge: Vec<PathBuf>,
     /// Flight length (s); a TUM file defaults to its own span.
@@ -162,10 +162,32 @@ fn write_flights(path: &std::path::Path, flown: &[&eval::SeedFlights]) -> anyhow
     std::fs::rename(&part, path).with_context(|| format!("renaming {} to {}", part.display(), path.display()))
 }
 
-/// `--merge`: reads every file's seeds and summarises them together.
+/// `--merge`: reads every file's seeds (a directory given: each `*.cbor`
+/// in it, so that a sweep of many seeds needs no long command line) and
+/// summarises them together.
 fn merge_files(paths: &[PathBuf]) -> anyhow::Result<eval::Evaluation> {
-    let mut seeds = Vec::new();
+    let mut files = Vec::new();
     for p in paths {
+        if p.is_dir() {
+            let mut inside: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("reading the folder {}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.extension().is_some_and(|x| x == "cbor") && f.is_file())
+                .collect();
+            if inside.is_empty() {
+                bail!(
+                    "{}: no .cbor file of `cmsckf evaluate --flights-out` in it",
+                    p.display()
+                );
+            }
+            inside.sort();
+            files.extend(inside);
+        } else {
+            files.push(p.clone());
+        }
+    }
+    let mut seeds = Vec::new();
+    for p in &files {
         let file = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
         let flown: Vec<eval::SeedFlights> = ciborium::from_reader(std::io::BufReader::new(file))
             .with_context(|| format!("{}: not a file of `cmsckf evaluate --flights-out`", p.display()))?;

@@ -109,16 +109,25 @@ struct RxState {
 const MAG_PERIOD_US: u64 = 100_000;
 
 /// The magnetic field of an IMU message, at most every [`MAG_PERIOD_US`]
-/// (a reboot's earlier clock starts the period again).
+/// (a reboot's earlier clock starts the period again). It is the field as
+/// the autopilot calibrated it, `HIGHRES_IMU`'s, whichever IMU message is
+/// taken: PX4's `SCALED_IMU` carries its magnetometer's raw reading
+/// (`sensor_mag`, in the sensor's own frame, before calibration), which
+/// put the first yaw 3° off on PX4's SITL. Another message's field counts
+/// only while no `HIGHRES_IMU` comes.
 fn magnetometer(msg: &Inbound, st: &mut RxState) -> Option<FusionMsg> {
     let Inbound::Imu {
         t_us,
+        kind,
         mag_B: Some(mag_B),
         ..
     } = msg
     else {
         return None;
     };
+    if *kind != ImuMessage::Highres && st.last_highres.elapsed() <= HIGHRES_FALLBACK_AFTER {
+        return None;
+    }
     if *t_us < st.next_mag_us && st.next_mag_us - t_us < 2 * MAG_PERIOD_US {
         return None;
     }
@@ -591,5 +600,48 @@ mod tests {
         cfg.mavlink.address = "udpin:0.0.0.0:14550".into();
         cfg.mavlink.signing_key_file = "/etc/cmsckf/key".into();
         assert!(!open_network_unsigned(&cfg));
+    }
+
+    fn imu_with_field(kind: ImuMessage, t_us: u64, mag: [f64; 3]) -> Inbound {
+        Inbound::Imu {
+            t_us,
+            accel_mps2: Vector3::new(0.0, 0.0, -9.81),
+            gyro_radps: Vector3::zeros(),
+            kind,
+            mag_B: Some(Vector3::from(mag)),
+        }
+    }
+
+    /// The first yaw's field is HIGHRES_IMU's, calibrated, while it comes;
+    /// PX4's SCALED_IMU carries the raw sensor's. Without HIGHRES_IMU for
+    /// 2 s (ArduPilot on a 1 MB board), the field of what does come.
+    #[test]
+    fn the_field_is_highres_imus_while_it_comes() {
+        let mut st = RxState {
+            reasm: BTreeMap::new(),
+            rtcm_from_mavlink: false,
+            vehicle: 1,
+            autopilot: Source {
+                system: 1,
+                component: 1,
+            },
+            next_mag_us: 0,
+            imu_choice: ImuMessageChoice::Auto,
+            kind: Some(AutopilotKind::Px4),
+            last_highres: Instant::now(),
+            last_imu: None,
+        };
+        let field = |m: Option<FusionMsg>| match m {
+            Some(FusionMsg::Magnetometer { mag_B }) => Some(mag_B.x),
+            _ => None,
+        };
+        let raw = imu_with_field(ImuMessage::Scaled, 1_000_000, [-1.0, 0.0, 0.0]);
+        assert_eq!(field(magnetometer(&raw, &mut st)), None);
+        let calibrated = imu_with_field(ImuMessage::Highres, 1_000_000, [1.0, 0.0, 0.0]);
+        assert_eq!(field(magnetometer(&calibrated, &mut st)), Some(1.0));
+        // No HIGHRES_IMU for longer than the fallback's wait.
+        st.last_highres = Instant::now() - HIGHRES_FALLBACK_AFTER - Duration::from_millis(10);
+        let raw = imu_with_field(ImuMessage::Raw, 2_000_000, [-1.0, 0.0, 0.0]);
+        assert_eq!(field(magnetometer(&raw, &mut st)), Some(-1.0));
     }
 }

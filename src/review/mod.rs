@@ -112,6 +112,11 @@ pub struct ReviewSummary {
     /// Every counter of the daemon at the log's last `/diagnostics` record
     /// (inputs, rejections by reason, drops).
     pub counters: BTreeMap<String, u64>,
+    /// Filter restarts: the reset counter of the last `/diagnostics` record.
+    pub resets: u64,
+    /// Seconds the daemon said it was degraded, by reason (each
+    /// `/diagnostics` record's reasons until the next record).
+    pub degraded_s: BTreeMap<String, f64>,
 }
 
 /// Reviews `log` and writes one self-contained HTML page to `out` (the

@@ -56,8 +56,12 @@ pub(super) struct Data {
     pub gnss_residuals: Vec<(f64, f64, f64)>,
     /// The flight's events, in log order.
     pub events: Vec<Event>,
-    /// The degraded reasons and reset counter of the last `/diagnostics`.
+    /// The degraded reasons and reset counter of the last `/diagnostics`,
+    /// and its time.
     last_degraded: Option<(String, u64)>,
+    last_diagnostics_t: Option<f64>,
+    /// Seconds spent degraded, by reason (`ReviewSummary::degraded_s`).
+    pub degraded_s: BTreeMap<String, f64>,
     /// Whether the last autopilot report rejected us.
     rejected_by_autopilot: bool,
     /// Which autopilot it is (its mode numbers are named).
@@ -306,6 +310,8 @@ impl LogReader {
             timeline,
         } = self;
         s.duration_s = timeline.duration_s();
+        s.resets = d.last_degraded.as_ref().map_or(0, |l| l.1);
+        s.degraded_s = d.degraded_s.clone();
         d.keep_plausible(timeline.plausible_spans_s().as_deref());
         d.place_fixes();
         for (k, n) in &counts {
@@ -411,6 +417,19 @@ impl Data {
         let resets = v["reset_counter"].as_u64().unwrap_or(0);
         let before = self.last_degraded.replace((degraded.clone(), resets));
         let (was, was_resets) = before.unwrap_or_default();
+        // Each record's reasons hold until the next record (once a second);
+        // a gap of over 10 s is the log's, not a state's, as in the
+        // duration (`timeline.rs`), and a clock that went back starts anew.
+        if let Some(dt) = self
+            .last_diagnostics_t
+            .map(|t0| t - t0)
+            .filter(|dt| *dt > 0.0 && *dt <= 10.0)
+        {
+            for reason in was.split(',').map(str::trim).filter(|r| !r.is_empty()) {
+                *self.degraded_s.entry(reason.to_string()).or_default() += dt;
+            }
+        }
+        self.last_diagnostics_t = Some(t);
         if degraded != was {
             let text = if degraded.is_empty() {
                 "nominal".to_string()
