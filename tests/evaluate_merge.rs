@@ -121,7 +121,50 @@ fn seeds_flown_apart_and_merged_equal_one_evaluation() {
     // What does not belong together is refused, saying why.
     let twice = cmsckf(&["evaluate", "--merge", "seed1.cbor", "seed1.cbor"], d);
     assert!(!twice.status.success());
-    assert!(String::from_utf8_lossy(&twice.stderr).contains("seed 1 is given twice"));
+    assert!(String::from_utf8_lossy(&twice.stderr).contains("seed 1 is in both seed1.cbor and seed1.cbor"));
+    // Two files joined into one.
+    let mut joined = std::fs::read(d.join("seed1.cbor")).expect("read");
+    joined.extend(std::fs::read(d.join("seed2.cbor")).expect("read"));
+    std::fs::write(d.join("joined.cbor"), joined).expect("write");
+    let joined = cmsckf(&["evaluate", "--merge", "joined.cbor"], d);
+    assert!(String::from_utf8_lossy(&joined.stderr).contains("bytes after its seeds"));
+    // Cut short.
+    let whole = std::fs::read(d.join("seed2.cbor")).expect("read");
+    std::fs::write(d.join("cut.cbor"), &whole[..whole.len() / 2]).expect("write");
+    let cut = cmsckf(&["evaluate", "--merge", "cut.cbor"], d);
+    let why = String::from_utf8_lossy(&cut.stderr);
+    assert!(
+        why.contains("cut.cbor: not a whole file") && !why.contains("panicked"),
+        "{why}"
+    );
+    // A seed flown with another config is not of this evaluation.
+    std::fs::write(d.join("noisy.toml"), "[camera]\npixel_noise_px = 3.0\n").expect("write");
+    let noisy = cmsckf(
+        &[
+            &[
+                "evaluate",
+                "--seed",
+                "4",
+                "--flights-out",
+                "noisy.cbor",
+                "--config",
+                "noisy.toml",
+            ][..],
+            &FLIGHT,
+        ]
+        .concat(),
+        d,
+    );
+    assert!(noisy.status.success(), "{}", String::from_utf8_lossy(&noisy.stderr));
+    let other = cmsckf(&["evaluate", "--merge", "seed1.cbor", "noisy.cbor"], d);
+    let why = String::from_utf8_lossy(&other.stderr);
+    assert!(
+        why.contains("seed 4 was flown with another config") && why.contains("noisy.cbor"),
+        "{why}"
+    );
+    // Flight flags beside --merge would change nothing: refused.
+    let flags = cmsckf(&["evaluate", "--merge", "seed1.cbor", "--seeds", "99"], d);
+    assert!(String::from_utf8_lossy(&flags.stderr).contains("--merge takes the seeds' files alone"));
     let other = cmsckf(
         &[
             "evaluate",
@@ -147,10 +190,50 @@ fn seeds_flown_apart_and_merged_equal_one_evaluation() {
     std::fs::write(d.join("junk.cbor"), b"not cbor at all").expect("write");
     let junk = cmsckf(&["evaluate", "--merge", "junk.cbor"], d);
     assert!(!junk.status.success());
-    assert!(String::from_utf8_lossy(&junk.stderr).contains("not a file of `cmsckf evaluate --flights-out`"));
+    assert!(String::from_utf8_lossy(&junk.stderr)
+        .contains("junk.cbor: not a whole file of `cmsckf evaluate --flights-out`"));
     let missing = cmsckf(&["evaluate", "--merge", "absent.cbor"], d);
     assert!(String::from_utf8_lossy(&missing.stderr).contains("absent.cbor"));
     let no_seed = cmsckf(&[&["evaluate", "--flights-out", "x.cbor"][..], &FLIGHT].concat(), d);
     assert!(!no_seed.status.success());
     assert!(String::from_utf8_lossy(&no_seed.stderr).contains("--flights-out needs --seed K"));
+}
+
+/// Flights that do not hold together (a series shorter than its times, a
+/// mode missing or doubled, no frame) are refused by name, never summarised:
+/// the summary would index past a short series and panic.
+#[test]
+fn flights_that_do_not_hold_together_are_refused() {
+    use cmsckf::estimator::Mode;
+    use cmsckf::eval;
+    let cfg = cmsckf::config::Config::default();
+    let sim = eval::sim_config_for(&cfg);
+    let spec = eval::EvalSpec {
+        scenario: "racetrack".into(),
+        modes: vec![Mode::Msckf, Mode::Schmidt],
+        seeds: eval::Seeds::One(1),
+        duration_s: Some(4.0),
+        gnss: false,
+        landed_state: true,
+    };
+    let good = eval::fly_seed(&spec, &cfg, &sim, 1, |_| {}).expect("a flight");
+    good.check().expect("a flight as flown holds together");
+    let refused = |f: eval::SeedFlights| match eval::merge(vec![f]) {
+        Err(e @ eval::MergeError::Malformed { .. }) => e.to_string(),
+        other => panic!("not refused: {:?}", other.map(|e| e.seeds)),
+    };
+    let mut short = good.clone();
+    short.flights[0].p_est.truncate(3);
+    assert!(refused(short).contains("p_est"));
+    let mut doubled = good.clone();
+    doubled.flights[1] = doubled.flights[0].clone();
+    assert!(refused(doubled).contains("modes"));
+    let mut empty = good.clone();
+    empty.flights.clear();
+    assert!(refused(empty).contains("modes"));
+    let mut no_frame = good.clone();
+    let f = &mut no_frame.flights[0];
+    (f.t_s, f.p_est, f.q_est, f.cov_pose) = (vec![], vec![], vec![], vec![]);
+    (f.p_true, f.q_true, f.v_est, f.v_true, f.cov_vel) = (vec![], vec![], vec![], vec![], vec![]);
+    assert!(refused(no_frame).contains("no frame"));
 }

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import socket
 import shutil
 import sys
 import tempfile
@@ -83,6 +84,20 @@ class Shipment:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
+def reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Refuse at once a cluster address that nothing answers on: Ray itself
+    retries an unreachable one for minutes, saying only that it retries."""
+    if address == "auto" or address.startswith(("ray://", "local")):
+        return
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise SystemExit(f"cmsckf-fleet: {address!r} is no Ray address: give HOST:PORT (the head's GCS, 6379 by default)")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise SystemExit(f"cmsckf-fleet: no Ray head answers at {address} (--address or RAY_ADDRESS): {e}")
+
+
 def start(address: str | None, workers: int | None, shipment: Shipment) -> None:
     """Start embedded Ray, or join the cluster at `address` / RAY_ADDRESS."""
     address = address or os.environ.get("RAY_ADDRESS")
@@ -98,7 +113,11 @@ def start(address: str | None, workers: int | None, shipment: Shipment) -> None:
             logging.getLogger(__name__).warning(
                 "--workers is for embedded Ray; the cluster at %s has its own", address
             )
-        ray.init(address=address, **common)
+        reachable(address)
+        try:
+            ray.init(address=address, **common)
+        except (ConnectionError, ValueError, RuntimeError) as e:
+            raise SystemExit(f"cmsckf-fleet: cannot join the Ray cluster at {address!r} (--address or RAY_ADDRESS): {e}")
     else:
         ray.init(
             address="local",

@@ -27,7 +27,7 @@ import tempfile
 import ray
 
 from . import cluster, estimates, report
-from .binary import CmsckfKilled, executable, run
+from .binary import CmsckfError, CmsckfKilled, executable, run
 from .progress import Progress
 
 
@@ -70,11 +70,17 @@ def review_flight(binary: str, log, name: str, replay_mode: str | None, replay_c
                 argv += ["--mode", replay_mode]
             if replay_config:
                 argv += ["--config", os.path.abspath(replay_config)]
-            stats = json.loads(run(f"replaying {what}", argv))
-            replayed = json.loads(run(f"reviewing the replay of {what}", [binary, "review", "--json", out]))
-            # The flight's own estimates are read only from a whole log (see above).
-            diff = estimates.compare(path, out) if whole else None
-            replay = {"stats": stats, "review": replayed, "diff": diff}
+            try:
+                stats = json.loads(run(f"replaying {what}", argv))
+                replayed = json.loads(run(f"reviewing the replay of {what}", [binary, "review", "--json", out]))
+            except CmsckfError as e:
+                # The flight's own review stands; its row says why the
+                # replay failed.
+                replay = {"error": str(e)}
+            else:
+                # The flight's own estimates are read only from a whole log (see above).
+                diff = estimates.compare(path, out) if whole else None
+                replay = {"stats": stats, "review": replayed, "diff": diff}
     return {"summary": summary, "html": html, "replay": replay}
 
 
@@ -161,7 +167,9 @@ def row(name: str, log: str, result: dict | None, error: BaseException | None, a
     for reason, secs in sorted(degraded.items()):
         r[f"degraded_s_{reason}"] = secs
     replay = result.get("replay")
-    if replay is not None:
+    if replay is not None and "error" in replay:
+        r.update(replay_mode=args.replay_mode, replay_config=args.replay_config, replay_error=replay["error"])
+    elif replay is not None:
         diff, stats, rs = replay["diff"] or {}, replay["stats"], replay["review"]
         largest = diff.get("largest")
         r.update(
@@ -220,6 +228,8 @@ def review(args) -> int:
     binary = cluster.find_binary(args.cmsckf)
     logs = find_logs(args.logs)
     out = args.out
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise SystemExit(f"cmsckf-fleet: --out {out} is a file: give a folder")
     if os.path.isdir(out) and os.listdir(out) and not args.force:
         raise SystemExit(f"cmsckf-fleet: {out} exists and is not empty: give another --out, or --force")
     os.makedirs(os.path.join(out, "flights"), exist_ok=True)
@@ -244,13 +254,26 @@ def review(args) -> int:
     return 1 if failed else 0
 
 
+@ray.remote(num_cpus=0)
+def unreadable(why: str) -> dict:
+    """A log the driver could not read to ship: an error row, like a task's."""
+    raise OSError(why)
+
+
 def gather(args, logs, shipped: str, config: str | None, out: str) -> list[dict]:
     task = review_flight.options(memory=args.task_memory_mb * 1024 * 1024)
 
     def jobs():
         for name, path in logs:
             def submit(name=name, path=path):
-                log = open(path, "rb").read() if args.ship_logs else path
+                if not args.ship_logs:
+                    return task.remote(shipped, path, name, args.replay_mode, config)
+                try:
+                    with open(path, "rb") as f:
+                        log = f.read()
+                except OSError as e:
+                    # Its row says why; the other flights go on.
+                    return unreadable.remote(f"flight {name}: {path} cannot be read here: {e}")
                 return task.remote(shipped, log, name, args.replay_mode, config)
             yield (name, path), submit
 

@@ -101,6 +101,8 @@ def prepare_out(out: str | None) -> tuple[str, bool]:
     """The output directory, and whether it is a temporary one to remove."""
     if out is None:
         return tempfile.mkdtemp(prefix="cmsckf-fleet-sweep-"), True
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise SystemExit(f"cmsckf-fleet: --out {out} is a file: give a new folder")
     if os.path.exists(out) and os.listdir(out):
         raise SystemExit(f"cmsckf-fleet: {out} exists and is not empty: give a new --out directory")
     os.makedirs(out, exist_ok=True)
@@ -128,6 +130,8 @@ def csv_for(csv: str | None, point: Point, many: bool) -> str | None:
 
 
 def sweep(args) -> int:
+    if args.seeds < 1:
+        raise SystemExit("cmsckf-fleet: --seeds must be at least 1")
     binary = cluster.find_binary(args.cmsckf)
     out, temporary = prepare_out(args.out)
     shipment = cluster.Shipment()

@@ -77,6 +77,11 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
         landed_state,
     } = args;
     if !merge.is_empty() {
+        // What flew the seeds is in their files: the flight flags given
+        // here would change nothing, so they are refused, not ignored.
+        if seeds != 10 || duration_s.is_some() || config.is_some() || sim_config.is_some() || gnss != "off" {
+            bail!("--merge takes the seeds' files alone: their scenario, modes, seeds, duration, config and GNSS are the ones they were flown with");
+        }
         return report(&merge_files(&merge)?, json, csv);
     }
     super::check_duration(duration_s)?;
@@ -187,13 +192,49 @@ fn merge_files(paths: &[PathBuf]) -> anyhow::Result<eval::Evaluation> {
         }
     }
     let mut seeds = Vec::new();
+    let mut from: std::collections::BTreeMap<u64, PathBuf> = Default::default();
     for p in &files {
-        let file = std::fs::File::open(p).with_context(|| format!("opening {}", p.display()))?;
-        let flown: Vec<eval::SeedFlights> = ciborium::from_reader(std::io::BufReader::new(file))
-            .with_context(|| format!("{}: not a file of `cmsckf evaluate --flights-out`", p.display()))?;
-        seeds.extend(flown);
+        let bytes = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
+        let mut rest: &[u8] = &bytes;
+        let flown: Vec<eval::SeedFlights> = ciborium::from_reader(&mut rest).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: not a whole file of `cmsckf evaluate --flights-out` (truncated, or another file: {e}); fly its seed again",
+                p.display()
+            )
+        })?;
+        if !rest.is_empty() {
+            bail!(
+                "{}: {} bytes after its seeds (two files joined?): give each --flights-out file as it was written",
+                p.display(),
+                rest.len()
+            );
+        }
+        for sf in flown {
+            sf.check().with_context(|| p.display().to_string())?;
+            if let Some(other) = from.insert(sf.seed, p.clone()) {
+                bail!(
+                    "seed {} is in both {} and {}: a sweep keeps one result per seed",
+                    sf.seed,
+                    other.display(),
+                    p.display()
+                );
+            }
+            seeds.push(sf);
+        }
     }
-    Ok(eval::merge(seeds)?)
+    eval::merge(seeds).map_err(|e| {
+        let seed = match &e {
+            eval::MergeError::Mismatch { seed, .. }
+            | eval::MergeError::OtherSetup { seed }
+            | eval::MergeError::Malformed { seed, .. }
+            | eval::MergeError::Duplicate(seed) => Some(*seed),
+            eval::MergeError::Empty => None,
+        };
+        match seed.and_then(|k| from.get(&k)) {
+            Some(p) => anyhow::anyhow!("{e} (seed file {})", p.display()),
+            None => anyhow::Error::from(e),
+        }
+    })
 }
 
 /// A switch `flag` given as `on` or `off`.

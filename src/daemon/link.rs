@@ -91,6 +91,10 @@ struct RxState {
     autopilot: Source,
     /// IMU time after which the next magnetometer reading is passed on (µs).
     next_mag_us: u64,
+    /// The field directions read since the last one passed on, summed, and
+    /// how many.
+    mag_sum_B: Vector3<f64>,
+    mag_n: u32,
     /// `mavlink.imu_message`, resolved at each autopilot HEARTBEAT.
     imu_choice: ImuMessageChoice,
     /// What the autopilot's HEARTBEAT says it is.
@@ -99,17 +103,26 @@ struct RxState {
     /// autopilot other than PX4 that sends none (ArduPilot on a 1 MB board)
     /// has its `RAW_IMU` or `SCALED_IMU` taken instead.
     last_highres: Instant,
+    /// Since when `HIGHRES_IMU` has come without a pause of
+    /// [`HIGHRES_FALLBACK_AFTER`]: `auto` goes back to it only once it has
+    /// flowed for [`HIGHRES_STEADY_FOR`], so a stream in bursts does not
+    /// flap the message taken.
+    highres_since: Option<Instant>,
     /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
     /// the same sample, when only its magnetometer has a new reading.
     last_imu: Option<(u64, Vector3<f64>, Vector3<f64>)>,
 }
 
 /// Magnetometer readings reach the fusion loop at most this often (µs):
-/// they only give the first yaw, so 10 Hz is plenty.
+/// they only give the first yaw, so 10 Hz is plenty, each the mean of the
+/// readings of its period.
 const MAG_PERIOD_US: u64 = 100_000;
 
-/// The magnetic field of an IMU message, at most every [`MAG_PERIOD_US`]
-/// (a reboot's earlier clock starts the period again). It is the field as
+/// The magnetic field's direction of the IMU messages, the mean of each
+/// [`MAG_PERIOD_US`] (a reboot's earlier clock starts the period again):
+/// every reading counts, none is dropped for the rate (PX4's SITL sends
+/// one with each of its 50 Hz `HIGHRES_IMU`, each 2.5° off in heading, and
+/// the start's 1 s of them had been 10 readings). It is the field as
 /// the autopilot calibrated it, `HIGHRES_IMU`'s, whichever IMU message is
 /// taken: PX4's `SCALED_IMU` carries its magnetometer's raw reading
 /// (`sensor_mag`, in the sensor's own frame, before calibration), which
@@ -128,11 +141,16 @@ fn magnetometer(msg: &Inbound, st: &mut RxState) -> Option<FusionMsg> {
     if *kind != ImuMessage::Highres && st.last_highres.elapsed() <= HIGHRES_FALLBACK_AFTER {
         return None;
     }
+    let dir_B = mag_B.try_normalize(0.0)?;
+    st.mag_sum_B += dir_B;
+    st.mag_n += 1;
     if *t_us < st.next_mag_us && st.next_mag_us - t_us < 2 * MAG_PERIOD_US {
         return None;
     }
     st.next_mag_us = t_us + MAG_PERIOD_US;
-    Some(FusionMsg::Magnetometer { mag_B: *mag_B })
+    let mean_B = st.mag_sum_B / f64::from(st.mag_n);
+    (st.mag_sum_B, st.mag_n) = (Vector3::zeros(), 0);
+    Some(FusionMsg::Magnetometer { mag_B: mean_B })
 }
 
 /// The receive task: every message from the link, until `stop`.
@@ -146,9 +164,12 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
             component: cfg.mavlink.autopilot_component_id,
         },
         next_mag_us: 0,
+        mag_sum_B: Vector3::zeros(),
+        mag_n: 0,
         imu_choice: cfg.mavlink.imu_message,
         kind: None,
         last_highres: Instant::now(),
+        highres_since: None,
         last_imu: None,
     };
     tokio::spawn(async move {
@@ -295,17 +316,27 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
 }
 
 /// How long `auto` waits for `HIGHRES_IMU` from an autopilot other than PX4
-/// before it takes another IMU message that does come.
-const HIGHRES_FALLBACK_AFTER: Duration = Duration::from_secs(2);
+/// before it takes another IMU message that does come: well inside the
+/// 2 s gap that restarts the filter (`MAX_IMU_GAP_S`), so the other
+/// message fills the gap instead.
+const HIGHRES_FALLBACK_AFTER: Duration = Duration::from_millis(500);
+
+/// How long `HIGHRES_IMU` must flow again before `auto` goes back to it.
+const HIGHRES_STEADY_FOR: Duration = Duration::from_secs(3);
 
 /// Whether an IMU sample that came in `kind` is taken: the message taken
 /// (`Receive::imu_message`) is, another is not. With `auto` beside an
-/// autopilot other than PX4, `HIGHRES_IMU` is taken whenever it flows, and
-/// another IMU message once it has not come for [`HIGHRES_FALLBACK_AFTER`]
-/// (both switches logged).
+/// autopilot other than PX4, `HIGHRES_IMU` is taken while it flows, another
+/// IMU message once it has not come for [`HIGHRES_FALLBACK_AFTER`], and
+/// `HIGHRES_IMU` again once it has flowed for [`HIGHRES_STEADY_FOR`] (each
+/// switch logged and counted).
 fn take_imu(kind: ImuMessage, st: &mut RxState, r: &Receive) -> bool {
     let now = Instant::now();
     if kind == ImuMessage::Highres {
+        if now.duration_since(st.last_highres) > HIGHRES_FALLBACK_AFTER {
+            st.highres_since = None;
+        }
+        st.highres_since.get_or_insert(now);
         st.last_highres = now;
     }
     let taken = ImuMessage::from_u8(r.imu_message.load(Ordering::Relaxed));
@@ -315,7 +346,8 @@ fn take_imu(kind: ImuMessage, st: &mut RxState, r: &Receive) -> bool {
     let auto_not_px4 = st.imu_choice == ImuMessageChoice::Auto && st.kind.is_some_and(|k| k != AutopilotKind::Px4);
     let switch = auto_not_px4
         && if kind == ImuMessage::Highres {
-            true
+            st.highres_since
+                .is_some_and(|since| now.duration_since(since) >= HIGHRES_STEADY_FOR)
         } else {
             taken == ImuMessage::Highres && now.duration_since(st.last_highres) > HIGHRES_FALLBACK_AFTER
         };
@@ -626,9 +658,12 @@ mod tests {
                 component: 1,
             },
             next_mag_us: 0,
+            mag_sum_B: Vector3::zeros(),
+            mag_n: 0,
             imu_choice: ImuMessageChoice::Auto,
             kind: Some(AutopilotKind::Px4),
             last_highres: Instant::now(),
+            highres_since: None,
             last_imu: None,
         };
         let field = |m: Option<FusionMsg>| match m {
@@ -639,6 +674,25 @@ mod tests {
         assert_eq!(field(magnetometer(&raw, &mut st)), None);
         let calibrated = imu_with_field(ImuMessage::Highres, 1_000_000, [1.0, 0.0, 0.0]);
         assert_eq!(field(magnetometer(&calibrated, &mut st)), Some(1.0));
+        // Within a period the readings are summed, never dropped: the next
+        // one passed on is their mean direction (any length: a direction).
+        for (t_us, m) in [(1_020_000, [0.0, 2.0, 0.0]), (1_040_000, [3.0, 0.0, 0.0])] {
+            assert_eq!(
+                field(magnetometer(&imu_with_field(ImuMessage::Highres, t_us, m), &mut st)),
+                None
+            );
+        }
+        let mean = magnetometer(
+            &imu_with_field(ImuMessage::Highres, 1_100_000, [1.0, 0.0, 0.0]),
+            &mut st,
+        );
+        let Some(FusionMsg::Magnetometer { mag_B }) = mean else {
+            panic!("a period's mean is passed on");
+        };
+        assert!(
+            (mag_B - Vector3::new(2.0 / 3.0, 1.0 / 3.0, 0.0)).norm() < 1e-12,
+            "{mag_B}"
+        );
         // No HIGHRES_IMU for longer than the fallback's wait.
         st.last_highres = Instant::now() - HIGHRES_FALLBACK_AFTER - Duration::from_millis(10);
         let raw = imu_with_field(ImuMessage::Raw, 2_000_000, [-1.0, 0.0, 0.0]);

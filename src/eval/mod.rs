@@ -620,8 +620,61 @@ pub struct SeedFlights {
     /// The modes asked for, in the order given.
     pub modes: Vec<Mode>,
     pub seed: u64,
+    /// The daemon config and simulator settings flown with (JSON), and the
+    /// build: seeds flown with other ones are not one evaluation.
+    pub setup: String,
     /// In the order [`evaluate`] flies them.
     pub flights: Vec<FlightResult>,
+}
+
+/// The setup a seed is flown with, as [`SeedFlights::setup`] records it.
+fn setup_of(cfg: &Config, sim: &SimConfig) -> String {
+    serde_json::json!({
+        "config": cfg,
+        "sim": sim,
+        "build": env!("CARGO_PKG_VERSION"),
+    })
+    .to_string()
+}
+
+impl SeedFlights {
+    /// Refuses flights that do not hold together, which would otherwise
+    /// panic the summary: one flight per mode asked for, every series of a
+    /// flight as long as its times, and at least one frame.
+    pub fn check(&self) -> Result<(), MergeError> {
+        let bad = |why: String| Err(MergeError::Malformed { seed: self.seed, why });
+        let mut modes: Vec<Mode> = self.flights.iter().map(|f| f.mode).collect();
+        modes.sort();
+        let mut asked = self.modes.clone();
+        asked.sort();
+        asked.dedup();
+        if modes != asked {
+            return bad(format!(
+                "its flights are in modes {modes:?}, one each of {:?} was asked for",
+                self.modes
+            ));
+        }
+        for f in &self.flights {
+            let n = f.t_s.len();
+            let lens = [
+                ("p_est", f.p_est.len()),
+                ("q_est", f.q_est.len()),
+                ("cov_pose", f.cov_pose.len()),
+                ("p_true", f.p_true.len()),
+                ("q_true", f.q_true.len()),
+                ("v_est", f.v_est.len()),
+                ("v_true", f.v_true.len()),
+                ("cov_vel", f.cov_vel.len()),
+            ];
+            if n == 0 {
+                return bad(format!("its {} flight has no frame", f.mode.name()));
+            }
+            if let Some((name, len)) = lens.iter().find(|(_, len)| *len != n) {
+                return bad(format!("its {} flight has {len} {name} for {n} times", f.mode.name()));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Why seeds flown apart cannot be summarised together.
@@ -640,6 +693,10 @@ pub enum MergeError {
     },
     #[error("seed {0} is given twice: a sweep keeps one result per seed")]
     Duplicate(u64),
+    #[error("seed {seed} was flown with another config, simulator settings or build than the first seed: merge only the seeds of one evaluation")]
+    OtherSetup { seed: u64 },
+    #[error("seed {seed}: {why}: not a file `cmsckf evaluate --flights-out` wrote; fly that seed again")]
+    Malformed { seed: u64, why: String },
 }
 
 /// Flies one seed in every mode of `spec`. When both `full` and `compressed`
@@ -683,6 +740,7 @@ pub fn fly_seed(
         duration_s: ds.duration_s,
         modes: modes.to_vec(),
         seed,
+        setup: setup_of(cfg, sim),
         flights,
     })
 }
@@ -747,6 +805,10 @@ pub fn merge(mut seeds: Vec<SeedFlights>) -> Result<Evaluation, MergeError> {
         if let Some(e) = checks.into_iter().flatten().next() {
             return Err(e);
         }
+        if s.setup != first.setup {
+            return Err(MergeError::OtherSetup { seed: s.seed });
+        }
+        s.check()?;
     }
     Ok(summarise_seeds(seeds))
 }

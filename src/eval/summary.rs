@@ -268,7 +268,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
         low_parallax_tracks: runs.iter().map(|r| r.stats.low_parallax_tracks as f64).sum::<f64>() / n,
         nis_per_dof: runs.iter().map(|r| r.nis_sum).sum::<f64>() / runs.iter().map(|r| r.nis_dof).sum::<u64>() as f64,
-        resets: runs.iter().map(|r| r.resets).sum(),
+        resets: runs.iter().map(|r| r.resets).fold(0, u64::saturating_add),
         nees_pose_in_bounds_per_time: in_bounds_per_time(runs, 6, |r, i| {
             metrics::nees_pose(&r.q_est[i], &r.p_est[i], &r.q_true[i], &r.p_true[i], &r.cov_pose[i])
         }),
