@@ -135,8 +135,8 @@ def row(name: str, log: str, result: dict | None, error: BaseException | None, a
         log_finished=check.get("finished"),
         log_truncated=s.get("truncated"),
         chunks_dropped=len(check.get("chunks_dropped") or []),
-        resets=None,
-        degraded_s=None,
+        resets=s.get("resets"),
+        degraded_s=sum((s.get("degraded_s") or {}).values()),
         rejected_total=sum(rejected.values()),
         vision_updates=s.get("vision_updates"),
         tracks_used=s.get("tracks_used"),
@@ -161,10 +161,7 @@ def row(name: str, log: str, result: dict | None, error: BaseException | None, a
     )
     for reason, n in sorted(rejected.items()):
         r[f"rejected_{reason}"] = n
-    r["resets"] = s.get("resets")
-    degraded = s.get("degraded_s") or {}
-    r["degraded_s"] = sum(degraded.values())
-    for reason, secs in sorted(degraded.items()):
+    for reason, secs in sorted((s.get("degraded_s") or {}).items()):
         r[f"degraded_s_{reason}"] = secs
     replay = result.get("replay")
     if replay is not None and "error" in replay:
