@@ -149,6 +149,7 @@ counters! {
     FeatureLineVersion = "feature_line_version", reject;
     FeatureLineTooMany = "feature_line_too_many", reject;
     FeatureNonFinite = "feature_non_finite", reject;
+    FeatureBadSigma = "feature_bad_sigma", reject;
     FeatureOutsideImage = "feature_outside_image", event;
     FeatureUndistortFailed = "feature_undistort_failed", event;
     FeatureDuplicateId = "feature_duplicate_id", event;

@@ -66,7 +66,13 @@ async fn bad_input_is_rejected_counted_and_survived() {
         s.write_all(b"\n").unwrap();
         s.write_all(b"{\"v\":1,\"t_us\":10500000,\"cam\":0,\"features\":[[1,NaN,2.0]]}\n")
             .unwrap();
-        s.write_all(line(t + 0.02, "[1,300.0,200.0]").as_bytes()).unwrap();
+        // A σ of zero would weigh its pixel infinitely, and a negative one
+        // is no σ: each line is refused whole (a fifth number is syntax).
+        s.write_all(line(t + 0.015, "[1,300.0,200.0,0]").as_bytes()).unwrap();
+        s.write_all(line(t + 0.016, "[1,300.0,200.0,-0.2]").as_bytes()).unwrap();
+        s.write_all(line(t + 0.017, "[1,300.0,200.0,0.1,7]").as_bytes())
+            .unwrap();
+        s.write_all(line(t + 0.02, "[1,300.0,200.0,0.08]").as_bytes()).unwrap();
         // A frame the filter uses, with one pixel outside the image and one
         // landmark twice: those two features are dropped and counted.
         s.write_all(line(t + 0.03, "[3,-50.0,200.0],[4,300.0,200.0],[4,310.0,210.0]").as_bytes())
@@ -115,7 +121,8 @@ async fn bad_input_is_rejected_counted_and_survived() {
     assert!(c("mavlink_frames_lost_or_corrupt") >= 2, "bad CRC + unknown id");
     assert_eq!(c("rtcm_fragment_missing"), 1);
     assert_eq!(c("mavlink_rejected_non_finite"), 1);
-    assert_eq!(c("feature_line_syntax"), 2, "garbage and NaN");
+    assert_eq!(c("feature_line_syntax"), 3, "garbage, NaN and five numbers");
+    assert_eq!(c("feature_bad_sigma"), 2, "a zero and a negative σ");
     assert_eq!(c("feature_line_too_long"), 1);
     assert_eq!(c("feature_time_backwards"), 1);
     assert_eq!(c("feature_outside_image"), 1, "only the fused frame's");

@@ -7,6 +7,7 @@ use nalgebra::Vector3;
 
 use cmsckf::estimator::{frontend, ImuMeas, Mode, NormObs};
 use cmsckf::eval;
+use cmsckf_models::feature_wire::PixelFeature;
 
 mod common;
 use common::flights::racetrack;
@@ -68,8 +69,15 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
     let mut out = Vec::new();
     let rej = frontend::normalise(
         &cam,
-        1.0,
-        [(1, f64::NAN, 3.0), (2, 10.0, f64::INFINITY), (3, 100.0, 100.0)],
+        frontend::PixelNoise {
+            default_px: 1.0,
+            model_px: 0.0,
+        },
+        [
+            PixelFeature::new(1, f64::NAN, 3.0),
+            PixelFeature::new(2, 10.0, f64::INFINITY),
+            PixelFeature::new(3, 100.0, 100.0),
+        ],
         &mut out,
     );
     assert_eq!(rej.non_finite, 2);

@@ -71,7 +71,7 @@ fn feature_lines() {
     }
     long += "]}";
     let seeds = [
-        br#"{"v":1,"t_us":1000,"cam":0,"features":[[1,10.5,20.0],[2,30,40]]}"#.to_vec(),
+        br#"{"v":1,"t_us":1000,"cam":0,"features":[[1,10.5,20.0,0.06],[2,30,40]]}"#.to_vec(),
         long.into_bytes(),
     ];
     let (mut ok, mut err) = (0, 0);
@@ -80,7 +80,11 @@ fn feature_lines() {
         match cmsckf::io::feature_pipe::parse_line(&s, 100) {
             Ok(f) => {
                 assert!(f.features.len() <= 100);
-                assert!(f.features.iter().all(|x| x.1.is_finite() && x.2.is_finite()));
+                assert!(f.features.iter().all(|x| x.u_px.is_finite() && x.v_px.is_finite()));
+                assert!(f
+                    .features
+                    .iter()
+                    .all(|x| x.sigma_px.is_none_or(|s| s.is_finite() && s > 0.0)));
                 ok += 1;
             }
             Err(_) => err += 1,

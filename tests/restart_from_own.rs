@@ -19,6 +19,7 @@ use cmsckf::estimator::frontend::Normaliser;
 use cmsckf::estimator::ImuMeas;
 use cmsckf::io::feature_pipe::FeatureFrame;
 use cmsckf::io::messages::Outbound;
+use cmsckf_models::feature_wire::PixelFeature;
 use cmsckf_sitl::dataset::Dataset;
 use nalgebra::Vector3;
 
@@ -79,13 +80,13 @@ fn fly(ds: &Dataset, cfg: &Config, corrupt_frames: bool) -> Flight {
         }
         while let Some(fr) = frames.next_if(|fr| fr.t_delivered_s <= m.t_s) {
             let corrupt = corrupt_frames && (CORRUPT_S.0..CORRUPT_S.1).contains(&fr.t_s);
-            let features: Vec<(u64, f64, f64)> = fr
+            let features: Vec<PixelFeature> = fr
                 .features
                 .iter()
                 .map(|o| {
                     let a = o.landmark_id as f64;
                     let k = if corrupt { 40.0 } else { 0.0 };
-                    (o.landmark_id, o.u_px + k * a.sin(), o.v_px + k * a.cos())
+                    PixelFeature::new(o.landmark_id, o.u_px + k * a.sin(), o.v_px + k * a.cos())
                 })
                 .collect();
             let norm = normaliser.frame(&features);

@@ -278,6 +278,22 @@ impl Anchor {
         Some(([t.x, t.y], rms))
     }
 
+    /// The position's standard deviation (px) that a fit leaving a
+    /// residual RMS of `rms` grey levels holds it to, along its least
+    /// certain direction: the Gauss–Newton covariance `rms² H⁻¹` restricted
+    /// to the translation (`H⁻¹`'s lower-right 2×2 block, the marginal of
+    /// the six parameters), its largest eigenvalue's root, divided by
+    /// `SMOOTH_NOISE_FACTOR`: the window is read on the smoothed frame,
+    /// whose neighbouring residuals are correlated, so the sum over its
+    /// pixels holds about `SMOOTH_NOISE_FACTOR²` as many independent ones
+    /// (the `[1 2 1]/4` kernel's `Σw² = 0.375` along each axis).
+    pub fn sigma_px(&self, rms: f32) -> f32 {
+        let (xx, xy, yy) = (self.h_inv[(4, 4)], self.h_inv[(4, 5)], self.h_inv[(5, 5)]);
+        let half_tr = 0.5 * (xx + yy);
+        let lmax = half_tr + (half_tr * half_tr - (xx * yy - xy * xy)).max(0.0).sqrt();
+        rms * lmax.max(0.0).sqrt() / crate::image::SMOOTH_NOISE_FACTOR
+    }
+
     /// Whether a residual RMS `rms` (grey levels) still matches this
     /// window: below `share` of the window's spread, added in quadrature
     /// to what the noise of two images alone leaves, `√2 σ` for a noise

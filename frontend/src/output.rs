@@ -1,7 +1,8 @@
 //! The daemon's feature protocol, written: one JSON line a frame,
-//! `{"v":1,"t_us":…,"cam":0,"features":[[id,u_px,v_px],…]}` (docs/design.md,
-//! "Feature pipe"), so the front-end needs nothing from the daemon but its
-//! socket path.
+//! `{"v":1,"t_us":…,"cam":0,"features":[[id,u_px,v_px,sigma_px],…]}`
+//! (docs/design.md, "Feature pipe"; the σ is the tracker's measure of each
+//! position, `Feature::sigma_px`, and left out where it has none), so the
+//! front-end needs nothing from the daemon but its socket path.
 
 use std::fmt::Write as _;
 
@@ -15,7 +16,11 @@ pub fn frame_line_into(line: &mut String, t_us: u64, cam: u32, features: &[Featu
     let _ = write!(line, "{{\"v\":1,\"t_us\":{t_us},\"cam\":{cam},\"features\":[");
     for (i, f) in features.iter().enumerate() {
         let sep = if i > 0 { "," } else { "" };
-        let _ = write!(line, "{sep}[{},{},{}]", f.id, f.u_px, f.v_px);
+        if f.sigma_px > 0.0 {
+            let _ = write!(line, "{sep}[{},{},{},{}]", f.id, f.u_px, f.v_px, f.sigma_px);
+        } else {
+            let _ = write!(line, "{sep}[{},{},{}]", f.id, f.u_px, f.v_px);
+        }
     }
     line.push_str("]}\n");
 }
@@ -33,16 +38,23 @@ mod tests {
 
     #[test]
     fn a_frame_is_one_protocol_line() {
-        let f = [Feature {
+        let mut f = [Feature {
             id: 7,
             u_px: 10.5,
             v_px: 20.25,
             age: 3,
+            sigma_px: 0.0,
         }];
         let line = frame_line(1_000_000, 0, &f);
         assert_eq!(
             line,
             "{\"v\":1,\"t_us\":1000000,\"cam\":0,\"features\":[[7,10.5,20.25]]}\n"
+        );
+        // With its σ, as a fourth number.
+        f[0].sigma_px = 0.0625;
+        assert_eq!(
+            frame_line(5, 0, &f),
+            "{\"v\":1,\"t_us\":5,\"cam\":0,\"features\":[[7,10.5,20.25,0.0625]]}\n"
         );
         // It is JSON, and an empty frame is too.
         let v: serde_json::Value = serde_json::from_str(&line).unwrap();

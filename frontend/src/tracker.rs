@@ -100,6 +100,10 @@ pub struct Feature {
     pub v_px: f32,
     /// Frames it has been tracked through (0: new in this frame).
     pub age: u32,
+    /// How precisely this frame's position was found (px, one σ along the
+    /// least certain direction; `Anchor::sigma_px`), or 0 if it was not
+    /// measured (no anchor: the window did not fit or was flat).
+    pub sigma_px: f32,
 }
 
 /// Why features were dropped, per frame and in total.
@@ -227,10 +231,19 @@ impl Tracker {
         for (_, a) in self.anchors.extract_if(|id, _| live.binary_search(id).is_err()) {
             spare.push(a);
         }
+        // What a perfect match leaves: the noise of two smoothed frames.
+        let noise_rms = SMOOTH_NOISE_FACTOR * std::f32::consts::SQRT_2 * self.prm.noise_grey;
         for k in 0..self.features.len() {
             let f = self.features[k];
             if f.age == 0 || !self.anchors.contains_key(&f.id) {
                 self.anchor_at(f.id, [f.u_px, f.v_px]);
+            }
+            // A position no fit has measured (a new corner, a track back
+            // under an old id) is held to its window's own precision.
+            if f.sigma_px == 0.0 {
+                if let Some(a) = self.anchors.get(&f.id) {
+                    self.features[k].sigma_px = a.sigma_px(noise_rms);
+                }
             }
         }
     }
@@ -272,13 +285,15 @@ impl Tracker {
                     // Held to its first window (affine.rs): corrected, or
                     // dropped once it no longer looks like it.
                     let mut q = q;
+                    let mut sigma_px = 0.0;
                     if let (Some(max), Some(a)) = (self.prm.max_anchor_residual, self.anchors.get_mut(&f.id)) {
                         match a.refine(&self.smooth, q, ANCHOR_ITERATIONS) {
                             Some((rq, res))
                                 if (rq[0] - q[0]).hypot(rq[1] - q[1]) < 2.0
                                     && a.fits(res, max, SMOOTH_NOISE_FACTOR * self.prm.noise_grey) =>
                             {
-                                q = rq
+                                q = rq;
+                                sigma_px = a.sigma_px(res);
                             }
                             _ => {
                                 self.stats.lost_anchor += 1;
@@ -291,6 +306,7 @@ impl Tracker {
                         u_px: q[0],
                         v_px: q[1],
                         age: f.age + 1,
+                        sigma_px,
                         ..f
                     };
                     if let Some(cam) = &self.camera {
@@ -430,6 +446,7 @@ impl Tracker {
                 u_px: q[0],
                 v_px: q[1],
                 age: 0,
+                sigma_px: 0.0,
             };
             match at {
                 Some(i) => {
@@ -478,6 +495,7 @@ impl Tracker {
                 u_px: p[0] * scale,
                 v_px: p[1] * scale,
                 age: 0,
+                sigma_px: 0.0,
             });
             self.next_id += 1;
         }

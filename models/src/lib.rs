@@ -14,12 +14,14 @@
 //! - [`gnss`]: GPS time, constellations, broadcast orbits and clocks, the
 //!   troposphere and ionosphere, ephemerides on the RTCM wire
 //! - [`image_wire`]: raw grey images on a byte stream, camera to front-end
+//! - [`feature_wire`]: one tracked feature as the socket and the log carry it
 //! - [`magnetic`]: heading from a magnetometer and the WMM declination
 //! - [`stats`]: normal and χ² quantiles for gates and consistency bounds
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
 
 pub mod camera;
 pub mod check;
+pub mod feature_wire;
 pub mod geodesy;
 pub mod geoid;
 pub mod gnss;

@@ -83,8 +83,15 @@ pub struct CameraConfig {
     /// Camera orientation in the body frame, `q_B_C` as `[x, y, z, w]`
     /// (Hamilton; rotates camera vectors into the body frame).
     pub q_B_C_xyzw: [f64; 4],
-    /// Pixel measurement noise, one sigma (px).
+    /// Pixel measurement noise, one sigma (px), of a feature that comes
+    /// without a σ of its own.
     pub pixel_noise_px: f64,
+    /// The camera model's own error (px, one sigma): added in quadrature
+    /// to each σ a front-end sends with its features (`cmsckf-frontend`
+    /// sends one), for what no front-end can see in one image (a lens
+    /// that differs from its calibration, whose reprojection RMS is a
+    /// measure of it).
+    pub model_noise_px: f64,
     /// Frame rate (Hz).
     pub rate_hz: f64,
 }
@@ -102,6 +109,7 @@ impl Default for CameraConfig {
             p_C_in_B_m: [0.10, 0.0, 0.02],
             q_B_C_xyzw: [0.5, 0.5, 0.5, 0.5],
             pixel_noise_px: 1.0,
+            model_noise_px: 0.05,
             rate_hz: 30.0,
         }
     }
@@ -125,6 +133,7 @@ impl Validate for CameraConfig {
             ));
         }
         c.positive("pixel_noise_px", self.pixel_noise_px, 100.0)?;
+        c.range("model_noise_px", self.model_noise_px, 0.0, 100.0)?;
         c.positive("rate_hz", self.rate_hz, 1000.0)
     }
 }

@@ -42,7 +42,7 @@ struct ImportKalibrArgs {
     /// autopilot's: the daemon reads that one.
     #[arg(long, value_enum)]
     imu_frame: FrameArg,
-    /// A config whose other [camera] and [imu] keys (pixel_noise_px, rate_hz,
+    /// A config whose other [camera] and [imu] keys (pixel_noise_px, model_noise_px, rate_hz,
     /// gravity_mps2) the printed sections keep; default: the defaults.
     #[arg(long)]
     config: Option<PathBuf>,

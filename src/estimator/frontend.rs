@@ -7,6 +7,7 @@ use std::collections::BTreeSet;
 use nalgebra::{Matrix2, Vector2};
 
 use cmsckf_models::camera::Camera;
+use cmsckf_models::feature_wire::PixelFeature;
 use cmsckf_models::sensors::CameraConfig;
 
 /// One feature ready for the filter.
@@ -35,25 +36,50 @@ pub struct NormFrame {
     pub rejects: FrameRejects,
 }
 
+/// A feature's pixel noise: the σ its front-end sent, with the camera
+/// model's own error added in quadrature, or one σ for features that come
+/// without (README.md §3, eq. W1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelNoise {
+    /// For a feature without a σ of its own (`camera.pixel_noise_px`).
+    pub default_px: f64,
+    /// Added in quadrature to a front-end's σ (`camera.model_noise_px`).
+    pub model_px: f64,
+}
+
+impl PixelNoise {
+    /// The σ (px) this feature is weighed with: `√(σ_f² + σ_model²)` if
+    /// the front-end sent a usable `σ_f`, else the default.
+    pub fn sigma_px(&self, f: &PixelFeature) -> f64 {
+        match f.sigma_px {
+            Some(s) if s.is_finite() && s > 0.0 => s.hypot(self.model_px),
+            _ => self.default_px,
+        }
+    }
+}
+
 /// The camera model and pixel noise that normalise frames. The daemon and
 /// replay run it where a frame arrives (the feature socket's task, the log
 /// reader's thread), so the fusion thread receives frames ready to fuse.
 #[derive(Clone, Debug)]
 pub struct Normaliser {
     pub cam: Camera,
-    pub pixel_sigma_px: f64,
+    pub noise: PixelNoise,
 }
 
 impl Normaliser {
     pub fn new(c: &CameraConfig) -> Self {
         Self {
             cam: Camera::from_config(c),
-            pixel_sigma_px: c.pixel_noise_px,
+            noise: PixelNoise {
+                default_px: c.pixel_noise_px,
+                model_px: c.model_noise_px,
+            },
         }
     }
 
-    /// Normalises `(landmark_id, u_px, v_px)` features into a new frame.
-    pub fn frame(&self, features: &[(u64, f64, f64)]) -> NormFrame {
+    /// Normalises features into a new frame.
+    pub fn frame(&self, features: &[PixelFeature]) -> NormFrame {
         let mut obs = Vec::with_capacity(features.len());
         let rejects = self.normalise_into(features.iter().copied(), &mut obs);
         NormFrame { obs, rejects }
@@ -62,25 +88,26 @@ impl Normaliser {
     /// [`normalise`] with this camera and noise, into a caller's buffer.
     pub fn normalise_into(
         &self,
-        features: impl IntoIterator<Item = (u64, f64, f64)>,
+        features: impl IntoIterator<Item = PixelFeature>,
         out: &mut Vec<NormObs>,
     ) -> FrameRejects {
-        normalise(&self.cam, self.pixel_sigma_px, features, out)
+        normalise(&self.cam, self.noise, features, out)
     }
 }
 
-/// Normalises `(landmark_id, u_px, v_px)` features; `out` is cleared and
-/// refilled so a caller can reuse its buffer.
+/// Normalises features; `out` is cleared and refilled so a caller can
+/// reuse its buffer.
 pub fn normalise(
     cam: &Camera,
-    pixel_sigma_px: f64,
-    features: impl IntoIterator<Item = (u64, f64, f64)>,
+    noise: PixelNoise,
+    features: impl IntoIterator<Item = PixelFeature>,
     out: &mut Vec<NormObs>,
 ) -> FrameRejects {
     out.clear();
     let mut rej = FrameRejects::default();
     let mut seen = BTreeSet::new();
-    for (id, u, v) in features {
+    for f in features {
+        let (id, u, v) = (f.landmark_id, f.u_px, f.v_px);
         if !u.is_finite() || !v.is_finite() {
             rej.non_finite += 1;
             continue;
@@ -101,8 +128,47 @@ pub fn normalise(
         out.push(NormObs {
             landmark_id: id,
             xn,
-            W: cam.pixel_jacobian(&xn) / pixel_sigma_px,
+            W: cam.pixel_jacobian(&xn) / noise.sigma_px(&f),
         });
     }
     rej
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each feature is whitened by its own σ: the front-end's with the
+    /// model's added in quadrature, or the default without one (W1).
+    #[test]
+    fn each_feature_is_weighed_by_its_own_sigma() {
+        let c = CameraConfig {
+            pixel_noise_px: 1.0,
+            model_noise_px: 0.05,
+            ..CameraConfig::default()
+        };
+        let n = Normaliser::new(&c);
+        let (u, v) = (300.0, 200.0);
+        let with = |s: Option<f64>| PixelFeature {
+            sigma_px: s,
+            ..PixelFeature::new(1, u, v)
+        };
+        let frame = n.frame(&[
+            with(Some(0.12)),
+            PixelFeature {
+                landmark_id: 2,
+                ..with(None)
+            },
+        ]);
+        assert_eq!(frame.obs.len(), 2);
+        let J = n.cam.pixel_jacobian(&frame.obs[0].xn);
+        // 0.12 ⊕ 0.05 = 0.13 px.
+        assert!((frame.obs[0].W - J / 0.13).norm() < 1e-9 * J.norm());
+        assert!((frame.obs[1].W - J).norm() < 1e-9 * J.norm());
+        // A σ that cannot weigh anything falls back to the default (the
+        // socket refuses such lines; this is the filter's own guard).
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert_eq!(n.noise.sigma_px(&with(Some(bad))), 1.0);
+        }
+    }
 }

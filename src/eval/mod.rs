@@ -13,6 +13,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+use cmsckf_models::feature_wire::PixelFeature;
 use cmsckf_sitl::config::SimConfig;
 use cmsckf_sitl::dataset::Dataset;
 
@@ -377,7 +378,9 @@ impl<'a> Runner<'a> {
         }
         let start = Instant::now();
         self.normaliser.normalise_into(
-            f.features.iter().map(|o| (o.landmark_id, o.u_px, o.v_px)),
+            f.features
+                .iter()
+                .map(|o| PixelFeature::new(o.landmark_id, o.u_px, o.v_px)),
             &mut self.buf,
         );
         let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();

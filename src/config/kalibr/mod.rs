@@ -125,7 +125,7 @@ pub struct ImportOptions<'a> {
     pub camera: &'a str,
     /// The axes of Kalibr's IMU data.
     pub imu_frame: ImuFrame,
-    /// The config whose other `[camera]` and `[imu]` keys (`pixel_noise_px`,
+    /// The config whose other `[camera]` and `[imu]` keys (`pixel_noise_px`, `model_noise_px`,
     /// `rate_hz`, `gravity_mps2`: not in Kalibr's files) are kept.
     pub base: &'a Config,
     /// Where `base` came from, for the printed comments ("the defaults").
@@ -157,7 +157,7 @@ pub struct KalibrImport {
     pub kalibr_camera_model: String,
     pub kalibr_distortion_model: String,
     pub imu_frame: ImuFrame,
-    /// The `[camera]` section: Kalibr's values, `pixel_noise_px` and
+    /// The `[camera]` section: Kalibr's values, `pixel_noise_px`, `model_noise_px` and
     /// `rate_hz` from the base config.
     pub camera: CameraConfig,
     /// `estimator.time_offset_s` (s): Kalibr's `timeshift_cam_imu`.

@@ -1,6 +1,8 @@
 //! The feature socket: a Unix-domain stream socket on which one camera front
 //! end at a time writes newline-delimited JSON frames,
-//! `{"v":1,"t_us":..,"cam":0,"features":[[landmark_id,u_px,v_px],...]}`.
+//! `{"v":1,"t_us":..,"cam":0,"features":[[landmark_id,u_px,v_px],...]}`,
+//! each feature optionally with a fourth number, its σ in pixels
+//! (`[landmark_id,u_px,v_px,sigma_px]`, `cmsckf_models::feature_wire`).
 //!
 //! It exists to keep everything the front end sends, and everyone else who
 //! can reach the socket, at the boundary:
@@ -34,6 +36,8 @@ pub use socket::{bind, FeatureSocket, SocketError};
 
 use serde::Deserialize;
 
+use cmsckf_models::feature_wire::PixelFeature;
+
 use crate::counters::Counter;
 
 /// One camera frame as received.
@@ -42,8 +46,8 @@ pub struct FeatureFrame {
     /// Timestamp in the front end's clock (µs).
     pub t_us: u64,
     pub cam: u32,
-    /// `(landmark_id, u_px, v_px)`, distorted pixels.
-    pub features: Vec<(u64, f64, f64)>,
+    /// Distorted pixels, each with the front-end's σ if it sent one.
+    pub features: Vec<PixelFeature>,
 }
 
 /// Why a line was rejected.
@@ -59,6 +63,8 @@ pub enum LineError {
     TooManyFeatures(usize, usize),
     #[error("non-finite pixel for landmark {0}")]
     NonFinite(u64),
+    #[error("landmark {0}'s sigma_px is not a finite number above zero")]
+    BadSigma(u64),
 }
 
 impl LineError {
@@ -70,6 +76,7 @@ impl LineError {
             LineError::Version(_) => Counter::FeatureLineVersion,
             LineError::TooManyFeatures(..) => Counter::FeatureLineTooMany,
             LineError::NonFinite(_) => Counter::FeatureNonFinite,
+            LineError::BadSigma(_) => Counter::FeatureBadSigma,
         }
     }
 }
@@ -81,7 +88,7 @@ struct Wire {
     t_us: u64,
     #[serde(default)]
     cam: u32,
-    features: Vec<(u64, f64, f64)>,
+    features: Vec<PixelFeature>,
 }
 
 /// Parses and checks one line (without its newline).
@@ -93,8 +100,16 @@ pub fn parse_line(line: &[u8], max_features: usize) -> Result<FeatureFrame, Line
     if w.features.len() > max_features {
         return Err(LineError::TooManyFeatures(w.features.len(), max_features));
     }
-    if let Some(f) = w.features.iter().find(|f| !f.1.is_finite() || !f.2.is_finite()) {
-        return Err(LineError::NonFinite(f.0));
+    if let Some(f) = w.features.iter().find(|f| !f.u_px.is_finite() || !f.v_px.is_finite()) {
+        return Err(LineError::NonFinite(f.landmark_id));
+    }
+    // A σ must be usable: zero or less would weigh the pixel infinitely.
+    if let Some(f) = w
+        .features
+        .iter()
+        .find(|f| f.sigma_px.is_some_and(|s| !(s.is_finite() && s > 0.0)))
+    {
+        return Err(LineError::BadSigma(f.landmark_id));
     }
     Ok(FeatureFrame {
         t_us: w.t_us,
@@ -125,5 +140,19 @@ mod tests {
         assert!(parse_line(huge, 10).is_err());
         let neg_t = br#"{"v":1,"t_us":-5,"features":[]}"#;
         assert!(parse_line(neg_t, 10).is_err());
+        // A fourth number is the feature's σ; a fifth is refused.
+        let sig = br#"{"v":1,"t_us":1,"features":[[1,10,20,0.06],[2,30,40]]}"#;
+        let f = parse_line(sig, 10).unwrap();
+        assert_eq!(f.features[0].sigma_px, Some(0.06));
+        assert_eq!(f.features[1].sigma_px, None);
+        for bad in [
+            &br#"{"v":1,"t_us":1,"features":[[1,10,20,0]]}"#[..],
+            br#"{"v":1,"t_us":1,"features":[[1,10,20,-0.5]]}"#,
+        ] {
+            assert_eq!(parse_line(bad, 10).unwrap_err().reason(), Counter::FeatureBadSigma);
+        }
+        assert!(parse_line(br#"{"v":1,"t_us":1,"features":[[1,10,20,1e999]]}"#, 10).is_err());
+        let five = br#"{"v":1,"t_us":1,"features":[[1,10,20,0.1,3]]}"#;
+        assert_eq!(parse_line(five, 10).unwrap_err().reason(), Counter::FeatureLineSyntax);
     }
 }

@@ -16,6 +16,7 @@
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
+use cmsckf_models::feature_wire::PixelFeature;
 use serde::{Deserialize, Deserializer, Serialize};
 
 use super::Topic;
@@ -83,8 +84,9 @@ pub struct FeaturesRecord<'a> {
     /// The same instant on the autopilot's clock (what replay uses).
     pub t_ap_us: i64,
     pub cam: u32,
-    /// `[landmark_id, u_px, v_px]` each, distorted pixels.
-    pub features: Cow<'a, [(u64, f64, f64)]>,
+    /// `[landmark_id, u_px, v_px]` each, distorted pixels, with a fourth
+    /// number, the front-end's σ (px), where it sent one.
+    pub features: Cow<'a, [PixelFeature]>,
 }
 
 /// `/input/rtcm`: RTCM3 message bytes and the stream they came by.
@@ -285,7 +287,7 @@ mod tests {
     /// back, and writes back to the same JSON.
     #[test]
     fn format_1_records_read_and_write_the_same() {
-        let cases: [(Topic, &str); 13] = [
+        let cases: [(Topic, &str); 14] = [
             (
                 Topic::InputImu,
                 r#"{"t_us":1000,"accel_mps2":[0.1,0.2,-9.8],"gyro_radps":[0.0,0.01,0.02]}"#,
@@ -293,6 +295,10 @@ mod tests {
             (
                 Topic::InputFeatures,
                 r#"{"t_us":5,"t_ap_us":7,"cam":0,"features":[[3,10.5,20.25]]}"#,
+            ),
+            (
+                Topic::InputFeatures,
+                r#"{"t_us":5,"t_ap_us":7,"cam":0,"features":[[3,10.5,20.25,0.06],[4,1.0,2.0]]}"#,
             ),
             (Topic::InputRtcm, r#"{"bytes":[211,0,1],"stream":"link_other"}"#),
             (Topic::InputSystemTime, r#"{"unix_us":1700000000000000,"boot_ms":1234}"#),
@@ -371,7 +377,7 @@ mod tests {
 
     #[test]
     fn hot_records_borrow_when_written() {
-        let features = vec![(1u64, 2.0, 3.0)];
+        let features = vec![PixelFeature::new(1, 2.0, 3.0)];
         let rec = InputRecord::Features(FeaturesRecord {
             t_us: 1,
             t_ap_us: 1,
