@@ -18,6 +18,7 @@
 //! composes `W ← W ∘ W(Δp)⁻¹`: `A ← A (1 + D)⁻¹`, `t ← t − A d`, where `D`
 //! and `d` are `Δp`'s matrix and vector parts.
 
+use cmsckf_models::feature_wire::{SIGMA_MAX_PX, SIGMA_MIN_PX};
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector6};
 
 use crate::image::{dot, sum, Gray};
@@ -286,12 +287,16 @@ impl Anchor {
     /// `SMOOTH_NOISE_FACTOR`: the window is read on the smoothed frame,
     /// whose neighbouring residuals are correlated, so the sum over its
     /// pixels holds about `SMOOTH_NOISE_FACTOR²` as many independent ones
-    /// (the `[1 2 1]/4` kernel's `Σw² = 0.375` along each axis).
+    /// (the `[1 2 1]/4` kernel's `Σw² = 0.375` along each axis). Clamped
+    /// to the σ the feature socket takes.
     pub fn sigma_px(&self, rms: f32) -> f32 {
         let (xx, xy, yy) = (self.h_inv[(4, 4)], self.h_inv[(4, 5)], self.h_inv[(5, 5)]);
         let half_tr = 0.5 * (xx + yy);
         let lmax = half_tr + (half_tr * half_tr - (xx * yy - xy * xy)).max(0.0).sqrt();
-        rms * lmax.max(0.0).sqrt() / crate::image::SMOOTH_NOISE_FACTOR
+        let sigma = rms * lmax.max(0.0).sqrt() / crate::image::SMOOTH_NOISE_FACTOR;
+        // Within what the daemon takes (a noiseless image can leave no
+        // residual at all): a feature's σ outside it refuses the frame.
+        sigma.clamp(SIGMA_MIN_PX as f32, SIGMA_MAX_PX as f32)
     }
 
     /// Whether a residual RMS `rms` (grey levels) still matches this
@@ -342,5 +347,26 @@ mod tests {
             assert!(err < 0.05, "({u}, {v}): {err} px off, residual {rms}");
             assert!((f64::from(anchor.a.determinant()) - s * s).abs() < 0.01, "{}", anchor.a);
         }
+    }
+
+    /// The σ grows with the residual and with a flatter window, and stays
+    /// within what the feature socket takes.
+    #[test]
+    fn the_sigma_follows_the_residual_and_the_contrast() {
+        let tex = Texture::new(5, 400.0);
+        let img = tex.render(200, 200, &Matrix3::identity());
+        let anchor = Anchor::new(&img, 100.0, 100.0).expect("textured");
+        let (s1, s2) = (anchor.sigma_px(2.0), anchor.sigma_px(4.0));
+        assert!(s1 > 0.0 && (s2 / s1 - 2.0).abs() < 1e-4, "{s1} {s2}");
+        assert_eq!(anchor.sigma_px(0.0), SIGMA_MIN_PX as f32);
+        assert_eq!(anchor.sigma_px(f32::MAX), SIGMA_MAX_PX as f32);
+        // The same window at a quarter of the contrast: four times the σ.
+        let mut faint = img.clone();
+        for p in faint.px.iter_mut() {
+            *p = 128.0 + 0.25 * (*p - 128.0);
+        }
+        let weak = Anchor::new(&faint, 100.0, 100.0).expect("still textured");
+        let ratio = weak.sigma_px(2.0) / s1;
+        assert!((ratio - 4.0).abs() < 0.01, "{ratio}");
     }
 }

@@ -13,6 +13,12 @@ use serde::de::{self, SeqAccess, Visitor};
 use serde::ser::SerializeSeq;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+/// The σ a feature may carry (px): below a thousandth of a pixel no
+/// tracker measures (a σ of zero would weigh its pixel infinitely), and
+/// above a thousand pixels it weighs nothing.
+pub const SIGMA_MIN_PX: f64 = 1e-3;
+pub const SIGMA_MAX_PX: f64 = 1e3;
+
 /// One feature in distorted pixels, with the front-end's σ if it sent one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PixelFeature {
@@ -26,6 +32,12 @@ pub struct PixelFeature {
 }
 
 impl PixelFeature {
+    /// Whether `sigma_px` is a σ to weigh a pixel with
+    /// (`SIGMA_MIN_PX..=SIGMA_MAX_PX`; false for NaN).
+    pub fn sigma_usable(sigma_px: f64) -> bool {
+        (SIGMA_MIN_PX..=SIGMA_MAX_PX).contains(&sigma_px)
+    }
+
     /// A feature without a σ.
     pub fn new(landmark_id: u64, u_px: f64, v_px: f64) -> Self {
         Self {

@@ -49,10 +49,11 @@ pub struct PixelNoise {
 
 impl PixelNoise {
     /// The σ (px) this feature is weighed with: `√(σ_f² + σ_model²)` if
-    /// the front-end sent a usable `σ_f`, else the default.
+    /// the front-end sent a usable `σ_f` (`PixelFeature::sigma_usable`),
+    /// else the default.
     pub fn sigma_px(&self, f: &PixelFeature) -> f64 {
         match f.sigma_px {
-            Some(s) if s.is_finite() && s > 0.0 => s.hypot(self.model_px),
+            Some(s) if PixelFeature::sigma_usable(s) => s.hypot(self.model_px),
             _ => self.default_px,
         }
     }
@@ -167,7 +168,7 @@ mod tests {
         assert!((frame.obs[1].W - J).norm() < 1e-9 * J.norm());
         // A σ that cannot weigh anything falls back to the default (the
         // socket refuses such lines; this is the filter's own guard).
-        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        for bad in [0.0, -1.0, 1e-9, 5e3, f64::NAN, f64::INFINITY] {
             assert_eq!(n.noise.sigma_px(&with(Some(bad))), 1.0);
         }
     }

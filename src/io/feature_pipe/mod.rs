@@ -36,7 +36,7 @@ pub use socket::{bind, FeatureSocket, SocketError};
 
 use serde::Deserialize;
 
-use cmsckf_models::feature_wire::PixelFeature;
+use cmsckf_models::feature_wire::{PixelFeature, SIGMA_MAX_PX, SIGMA_MIN_PX};
 
 use crate::counters::Counter;
 
@@ -63,7 +63,7 @@ pub enum LineError {
     TooManyFeatures(usize, usize),
     #[error("non-finite pixel for landmark {0}")]
     NonFinite(u64),
-    #[error("landmark {0}'s sigma_px is not a finite number above zero")]
+    #[error("landmark {0}'s sigma_px is not a number from {SIGMA_MIN_PX} to {SIGMA_MAX_PX} px")]
     BadSigma(u64),
 }
 
@@ -103,11 +103,10 @@ pub fn parse_line(line: &[u8], max_features: usize) -> Result<FeatureFrame, Line
     if let Some(f) = w.features.iter().find(|f| !f.u_px.is_finite() || !f.v_px.is_finite()) {
         return Err(LineError::NonFinite(f.landmark_id));
     }
-    // A σ must be usable: zero or less would weigh the pixel infinitely.
     if let Some(f) = w
         .features
         .iter()
-        .find(|f| f.sigma_px.is_some_and(|s| !(s.is_finite() && s > 0.0)))
+        .find(|f| f.sigma_px.is_some_and(|s| !PixelFeature::sigma_usable(s)))
     {
         return Err(LineError::BadSigma(f.landmark_id));
     }
@@ -148,6 +147,8 @@ mod tests {
         for bad in [
             &br#"{"v":1,"t_us":1,"features":[[1,10,20,0]]}"#[..],
             br#"{"v":1,"t_us":1,"features":[[1,10,20,-0.5]]}"#,
+            br#"{"v":1,"t_us":1,"features":[[1,10,20,1e-9]]}"#,
+            br#"{"v":1,"t_us":1,"features":[[1,10,20,5e3]]}"#,
         ] {
             assert_eq!(parse_line(bad, 10).unwrap_err().reason(), Counter::FeatureBadSigma);
         }
