@@ -238,8 +238,8 @@ impl Tracker {
             if f.age == 0 || !self.anchors.contains_key(&f.id) {
                 self.anchor_at(f.id, [f.u_px, f.v_px]);
             }
-            // A position no fit has measured (a new corner, a track back
-            // under an old id) is held to its window's own precision.
+            // A position no fit has measured (a new corner) is held to its
+            // window's own precision.
             if f.sigma_px == 0.0 {
                 if let Some(a) = self.anchors.get(&f.id) {
                     self.features[k].sigma_px = a.sigma_px(noise_rms);
@@ -378,11 +378,12 @@ impl Tracker {
                 noise_grey,
             );
             match checked {
-                Some(q) => {
+                Some((q, sigma_px)) => {
                     self.features[i] = Feature {
                         id: old,
                         u_px: q[0],
                         v_px: q[1],
+                        sigma_px,
                         ..f
                     };
                     // From here the track is held to the window it is
@@ -419,7 +420,7 @@ impl Tracker {
             if self.features.iter().any(|f| f.id == id) {
                 continue;
             }
-            let Some(q) = check_against(
+            let Some((q, sigma_px)) = check_against(
                 &mut self.check,
                 reid,
                 id,
@@ -446,7 +447,7 @@ impl Tracker {
                 u_px: q[0],
                 v_px: q[1],
                 age: 0,
-                sigma_px: 0.0,
+                sigma_px,
             };
             match at {
                 Some(i) => {
@@ -503,9 +504,10 @@ impl Tracker {
 }
 
 /// Landmark `id`'s first stored look (`Reid::window`) matched at `pos` in
-/// `img` by the affine check from the identity (in `a`'s buffers): the point it lands on, if
-/// the residual is within `share` (and the noise of `noise_grey`) and the
-/// point within `REID_MAX_SHIFT_PX` of `pos`.
+/// `img` by the affine check from the identity (in `a`'s buffers): the point it lands on
+/// and its σ against the landmark's first look (`Anchor::sigma_px` of the
+/// check's own residual), if the residual is within `share` (and the noise
+/// of `noise_grey`) and the point within `REID_MAX_SHIFT_PX` of `pos`.
 fn check_against(
     a: &mut Anchor,
     reid: &Reid,
@@ -514,12 +516,13 @@ fn check_against(
     pos: [f32; 2],
     share: f32,
     noise_grey: f32,
-) -> Option<[f32; 2]> {
+) -> Option<([f32; 2], f32)> {
     if !a.reset_from_window_bytes(reid.window(id)?) {
         return None;
     }
     let (q, res) = a.refine(img, pos, REID_ITERATIONS)?;
-    ((q[0] - pos[0]).hypot(q[1] - pos[1]) < REID_MAX_SHIFT_PX && a.fits(res, share, noise_grey)).then_some(q)
+    ((q[0] - pos[0]).hypot(q[1] - pos[1]) < REID_MAX_SHIFT_PX && a.fits(res, share, noise_grey))
+        .then(|| (q, a.sigma_px(res)))
 }
 
 #[cfg(test)]

@@ -65,8 +65,10 @@ struct Score {
     /// Each step's error (px): tracked motion less the true motion.
     steps: Vec<f64>,
     /// Each tracked position's error against its world point (px, along
-    /// u and v) and the σ the tracker gave it.
+    /// u and v) and the σ the tracker gave it; and the same for positions
+    /// a re-identification put back on their landmark.
     sigma_err: Vec<(f64, f64, f64)>,
+    reid_sigma_err: Vec<(f64, f64, f64)>,
 }
 
 impl Score {
@@ -132,6 +134,12 @@ fn rendered_tracks_are_scored_against_their_world_points() {
                     sc.close(t);
                     sc.reid += 1;
                     let e = err(&t.p_in_W);
+                    if let Some(q) = r.project(&T_W_C, &t.p_in_W) {
+                        if feat.sigma_px > 0.0 && e <= 3.0 {
+                            sc.reid_sigma_err
+                                .push((uv[0] - q[0], uv[1] - q[1], f64::from(feat.sigma_px)));
+                        }
+                    }
                     sc.wrong += usize::from(e > 3.0);
                     t.worst_px = e;
                     t.run_len = 1;
@@ -195,13 +203,12 @@ fn rendered_tracks_are_scored_against_their_world_points() {
     // (1.4826 × the median absolute value), and the error's RMS among the
     // half of positions the tracker called most precise and the tenth it
     // called least.
-    let mut z: Vec<f64> = sc
-        .sigma_err
-        .iter()
-        .flat_map(|&(a, b, s)| [(a / s).abs(), (b / s).abs()])
-        .collect();
-    z.sort_by(f64::total_cmp);
-    let z_spread = 1.4826 * z[z.len() / 2];
+    let spread = |v: &[(f64, f64, f64)]| {
+        let mut z: Vec<f64> = v.iter().flat_map(|&(a, b, s)| [(a / s).abs(), (b / s).abs()]).collect();
+        z.sort_by(f64::total_cmp);
+        1.4826 * z[z.len() / 2]
+    };
+    let (z_spread, reid_spread) = (spread(&sc.sigma_err), spread(&sc.reid_sigma_err));
     let mut by_sigma = sc.sigma_err.clone();
     by_sigma.sort_by(|a, b| a.2.total_cmp(&b.2));
     let rms =
@@ -210,12 +217,23 @@ fn rendered_tracks_are_scored_against_their_world_points() {
     let (precise, loose) = (rms(&by_sigma[..n / 2]), rms(&by_sigma[n - n / 10..]));
     eprintln!(
         "σ of {n} tracked positions: median {:.3} px, 90th percentile {:.3} px; error/σ robust spread {z_spread:.2}; \
-         error RMS {precise:.3} px in the most precise half, {loose:.2} px in the least precise tenth",
+         error RMS {precise:.3} px in the most precise half, {loose:.2} px in the least precise tenth; \
+         {} re-identified positions (within 3 px): error/σ robust spread {reid_spread:.2}",
         by_sigma[n / 2].2,
-        by_sigma[n * 9 / 10].2
+        by_sigma[n * 9 / 10].2,
+        sc.reid_sigma_err.len()
     );
     assert!(n > 20_000, "{n} positions with a σ");
     assert!((0.7..1.5).contains(&z_spread), "error/σ spread {z_spread:.2}");
+    assert!(
+        sc.reid_sigma_err.len() > 1000,
+        "{} re-identified positions",
+        sc.reid_sigma_err.len()
+    );
+    assert!(
+        (0.5..2.0).contains(&reid_spread),
+        "re-identified error/σ spread {reid_spread:.2}"
+    );
     assert!(
         loose > 5.0 * precise,
         "least precise tenth {loose:.3} px, most precise half {precise:.3} px"

@@ -18,11 +18,12 @@ const CELL_DEG: f64 = 1e-2;
 /// back and forth synthesises each corner once.
 const KEPT: usize = 16;
 
+/// Grid points synthesised (indices, N) and the next slot to replace (the
+/// oldest).
+type Kept = ([(i64, i64, f64); KEPT], usize);
+
 thread_local! {
-    /// Grid points synthesised on this thread (indices, N), the oldest
-    /// replaced first.
-    static GRID: std::cell::RefCell<([(i64, i64, f64); KEPT], usize)> =
-        const { std::cell::RefCell::new(([(i64::MIN, i64::MIN, 0.0); KEPT], 0)) };
+    static GRID: std::cell::RefCell<Kept> = const { std::cell::RefCell::new(([(i64::MIN, i64::MIN, 0.0); KEPT], 0)) };
 }
 
 /// N at grid point `(i, j)` (`i CELL_DEG` north, `j CELL_DEG` east), kept.

@@ -133,7 +133,7 @@ impl Validate for CameraConfig {
             ));
         }
         c.positive("pixel_noise_px", self.pixel_noise_px, 100.0)?;
-        c.range("model_noise_px", self.model_noise_px, 0.0, 100.0)?;
+        c.range("model_noise_px", self.model_noise_px, 0.01, 100.0)?;
         c.positive("rate_hz", self.rate_hz, 1000.0)
     }
 }

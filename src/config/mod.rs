@@ -198,7 +198,7 @@ impl Default for FeaturesConfig {
         Self {
             socket: "/run/cmsckf/features.sock".into(),
             clock: FeatureClock::Autopilot,
-            max_line_bytes: 65_536,
+            max_line_bytes: 131_072,
             max_features: 1000,
             idle_timeout_s: 5.0,
         }

@@ -400,8 +400,12 @@ impl Estimator {
         // Too little parallax to triangulate (a hover, a standstill, a far
         // landmark): skipped, and not a sign of inconsistency (§3c). Pixel
         // noise alone spreads the rays of a still camera: the bound is at
-        // least five times an observation's angular sigma (1/W).
-        let noise_rad = obs.iter().map(|o| 1.0 / o.W[(0, 0)].abs()).fold(0.0, f64::max);
+        // least five times an observation's angular sigma (1/W). With a σ
+        // per observation, that of the track's mean information,
+        // `1/√mean(W²)`: one loose observation (a large σ, weighing almost
+        // nothing) barely moves it, as it barely moves the triangulation.
+        let info = obs.iter().map(|o| o.W[(0, 0)] * o.W[(0, 0)]).sum::<f64>() / obs.len() as f64;
+        let noise_rad = 1.0 / info.sqrt();
         let min_parallax = self.s.min_parallax_rad.max(PARALLAX_NOISE_SIGMAS * noise_rad);
         let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
         // NaN (a non-finite bearing) is not enough parallax either.

@@ -363,6 +363,16 @@ impl<'a> Runner<'a> {
     /// Feeds IMU up to just past `t_s`, then the frame. Returns the wall
     /// time spent in the estimator (µs) and the frame's report.
     pub fn step_frame(&mut self, k: usize) -> (f64, crate::estimator::FrameReport) {
+        self.step_frame_weighted(k, |_| None)
+    }
+
+    /// [`Runner::step_frame`] with each feature's σ (px) as a front-end
+    /// would send it (`sigma_px(landmark_id)`; `None`: none sent).
+    pub fn step_frame_weighted(
+        &mut self,
+        k: usize,
+        mut sigma_px: impl FnMut(u64) -> Option<f64>,
+    ) -> (f64, crate::estimator::FrameReport) {
         // The frame reaches the host late; by then the IMU and any GNSS
         // epoch delivered before it are in.
         let t_f = self.ds.frames[k].t_delivered_s;
@@ -378,9 +388,10 @@ impl<'a> Runner<'a> {
         }
         let start = Instant::now();
         self.normaliser.normalise_into(
-            f.features
-                .iter()
-                .map(|o| PixelFeature::new(o.landmark_id, o.u_px, o.v_px)),
+            f.features.iter().map(|o| PixelFeature {
+                sigma_px: sigma_px(o.landmark_id),
+                ..PixelFeature::new(o.landmark_id, o.u_px, o.v_px)
+            }),
             &mut self.buf,
         );
         let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();

@@ -23,11 +23,13 @@ use super::Topic;
 use crate::io::messages::{AutopilotKind, RtcmStream};
 
 /// The format of the log's records that this build writes and reads.
+/// Format 4: a feature in `/input/features` may carry a fourth number, its
+/// σ (px), which a reader of format 3 would take for a malformed record.
 /// Format 3 writes records in log-time order, with MCAP `sequence` one
 /// counter for every channel in the order they came (replay restores it);
 /// formats 1 and 2 wrote records in the order they came, each channel
 /// counting its own.
-pub const LOG_FORMAT: u32 = 3;
+pub const LOG_FORMAT: u32 = 4;
 
 /// The first format written in log-time order ([`LOG_FORMAT`]).
 pub const FORMAT_TIME_ORDERED: u32 = 3;
@@ -365,8 +367,9 @@ mod tests {
         assert_eq!(check_format(None).unwrap(), 1);
         assert_eq!(check_format(Some("2")).unwrap(), 2);
         assert_eq!(check_format(Some("3")).unwrap(), 3);
-        let e = check_format(Some("4")).unwrap_err().to_string();
-        assert!(e.contains("format 4"), "{e}");
+        assert_eq!(check_format(Some("4")).unwrap(), 4);
+        let e = check_format(Some("5")).unwrap_err().to_string();
+        assert!(e.contains("format 5"), "{e}");
         // Red-team 7: not a number (or 0) is named as such, not as a
         // format 4294967295 to read with a newer cmsckf.
         for bad in ["3.0", "three", "-1", "", "0"] {
