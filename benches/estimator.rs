@@ -2,6 +2,8 @@
 //! - `propagate`: one 100 Hz IMU sample through the filter (15 + 2 active states, 11 clones, 3 keyframes);
 //! - `msckf_update/N`: one camera frame with N = 50, 100, 200 simulated features, 11 clones, compressed mode,
 //!   taken from a racetrack flight after 10 s (2–3 keyframes);
+//! - `gnss_update`: one GNSS epoch (pseudoranges and range rates, GPS and Galileo) fused at its own
+//!   instant, on the same flight at 10 s with GNSS on, compressed mode;
 //! - `feature_line_decode`: parsing one 200-feature JSON line of the feature socket;
 //! - `rtcm_decode`: framing, CRC and decoding of one real MSM7 epoch (station 3040).
 //!
@@ -69,6 +71,43 @@ fn bench_msckf_update(c: &mut Criterion) {
     g.finish();
 }
 
+fn bench_gnss_update(c: &mut Criterion) {
+    let cfg = Config::default();
+    let (ds, k) = warmed(&cfg, 100, 10.0);
+    let mut run = Runner::new(&ds, &cfg, Mode::Compressed, 1).with_gnss_on_time();
+    for i in 0..k {
+        run.step_frame(i);
+    }
+    let (e, frame, sats) = run.gnss_epoch_after(run.est.time_s()).expect("an epoch ahead");
+    let t_e = ds.gnss[e].t_s;
+    // The filter brought to the epoch's instant, so each iteration is the
+    // update alone.
+    let mut est = run.est;
+    let t0 = est.time_s();
+    for m in ds.imu.iter().filter(|m| m.t_s > t0 && m.t_s <= t_e + 0.011) {
+        let _ = est.add_imu(ImuMeas {
+            t_s: m.t_s,
+            accel_mps2: m.accel_mps2,
+            gyro_radps: m.gyro_radps,
+        });
+    }
+    est.propagate_to(t_e);
+    let used = est.clone().process_gnss(t_e, &frame, &sats).expect("fused");
+    println!(
+        "gnss_update: {} satellites, {} pseudoranges and {} range rates used",
+        sats.len(),
+        used.pseudoranges_used,
+        used.range_rates_used
+    );
+    c.bench_function("gnss_update", |b| {
+        b.iter_batched(
+            || est.clone(),
+            |mut e| e.process_gnss(t_e, &frame, &sats).expect("fused"),
+            BatchSize::LargeInput,
+        )
+    });
+}
+
 fn bench_decode(c: &mut Criterion) {
     let mut line = String::from("{\"v\":1,\"t_us\":123456789,\"cam\":0,\"features\":[");
     for i in 0..200 {
@@ -108,5 +147,11 @@ fn bench_decode(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_propagate, bench_msckf_update, bench_decode);
+criterion_group!(
+    benches,
+    bench_propagate,
+    bench_msckf_update,
+    bench_gnss_update,
+    bench_decode
+);
 criterion_main!(benches);

@@ -24,6 +24,10 @@
 //!   Before timing, each filter runs the window once and prints its workload
 //!   (tracks, loop-closure tracks, promotions, local dimension), so that
 //!   runs and binaries can be compared on the same work.
+//! - `promotion/N`: one global keyframe (the oldest) brought into the local
+//!   part (§5 P1–P3) of the map of N keyframes, from its installed base,
+//!   the filter cloned before each and the clone not timed (at 1000
+//!   keyframes five promotions are timed by hand and printed instead).
 //! - `global_update/N`: the rebase job alone (what the worker thread
 //!   computes) for a forced rebase with N keyframes.
 //!
@@ -139,6 +143,41 @@ fn bench_scaling(c: &mut Criterion) {
             });
         }
         gu.push((n, r.est));
+    }
+    g.finish();
+    let mut g = c.benchmark_group("promotion");
+    g.sample_size(10);
+    for (n, est) in &gu {
+        let Some(&id) = est.global_keyframe_ids().first() else {
+            continue;
+        };
+        eprintln!("promotion of keyframe {id} of {} global", est.n_global_keyframes());
+        if *n >= 1000 {
+            // Each sample would clone the 1000-keyframe filter (a 6000² base)
+            // thousands of times: five promotions, timed by hand.
+            let mut us = Vec::new();
+            for _ in 0..5 {
+                let mut e = est.clone();
+                let t0 = std::time::Instant::now();
+                assert!(e.promote(&[id]), "keyframe {id} promoted");
+                us.push(t0.elapsed().as_secs_f64() * 1e6);
+            }
+            us.sort_by(f64::total_cmp);
+            eprintln!("promotion/{n}: median {:.1} µs of 5 (timed by hand)", us[2]);
+            continue;
+        }
+        g.bench_function(format!("{n}"), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    let mut e = est.clone();
+                    let t0 = std::time::Instant::now();
+                    assert!(e.promote(&[id]), "keyframe {id} promoted");
+                    total += t0.elapsed();
+                }
+                total
+            })
+        });
     }
     g.finish();
     let mut g = c.benchmark_group("global_update");

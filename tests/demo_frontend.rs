@@ -5,10 +5,12 @@
 //! racetrack (15 s, real time): every rendered frame reaches the front-end
 //! and every tracked frame the daemon, which never resets and keeps its
 //! 30 Hz output; its accuracy stays within a bound measured on this flight.
-//! Each feature comes with the tracker's own σ, which the filter weighs it
-//! by: the NIS per degree of freedom is inside [0.5, 2] (0.76 on this flight;
-//! 0.027 when every feature was weighed with 1 px), and the log keeps the σ
-//! (its schema says so), so a replay of it is the flight bit for bit.
+//! Each feature comes with the tracker's own σ. With `camera.frontend_sigma`
+//! on (the config this test gives the demo), the filter weighs each feature
+//! by it: the NIS per degree of freedom is inside [0.5, 2] (0.64 on this
+//! flight; 0.027 with every feature weighed with 1 px, the default), and the
+//! log keeps the σ (its schema says so), so a replay of it is the flight bit
+//! for bit.
 
 use std::process::Command;
 
@@ -18,8 +20,16 @@ mod common;
 fn the_demo_flies_on_rendered_images_through_the_front_end() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("front.mcap");
+    // The default config with the front-end's σ taken.
+    let default = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml")).unwrap();
+    let on = default.replace("frontend_sigma = false", "frontend_sigma = true");
+    assert_ne!(on, default, "config/default.toml names frontend_sigma");
+    let config = dir.path().join("sigma.toml");
+    std::fs::write(&config, on).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["demo", "--frontend", "--duration-s", "15", "--json", "--log"])
+        .args(["demo", "--frontend", "--duration-s", "15", "--json", "--config"])
+        .arg(&config)
+        .arg("--log")
         .arg(&log)
         .output()
         .unwrap();

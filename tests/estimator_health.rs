@@ -71,7 +71,7 @@ fn degenerate_tracks_and_inputs_are_rejected_and_counted() {
         &cam,
         frontend::PixelNoise {
             default_px: 1.0,
-            model_px: 0.0,
+            model_px: None,
         },
         [
             PixelFeature::new(1, f64::NAN, 3.0),

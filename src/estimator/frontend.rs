@@ -38,13 +38,16 @@ pub struct NormFrame {
 
 /// A feature's pixel noise: the σ its front-end sent, with the camera
 /// model's own error added in quadrature, or one σ for features that come
-/// without (README.md §3, eq. W1).
+/// without, and for all when the front-end's are not taken (README.md §3,
+/// eq. W1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PixelNoise {
     /// For a feature without a σ of its own (`camera.pixel_noise_px`).
     pub default_px: f64,
-    /// Added in quadrature to a front-end's σ (`camera.model_noise_px`).
-    pub model_px: f64,
+    /// Added in quadrature to a front-end's σ (`camera.model_noise_px`);
+    /// `None`: the front-end's σ is not taken (`camera.frontend_sigma`
+    /// off) and every feature is weighed with `default_px`.
+    pub model_px: Option<f64>,
 }
 
 impl PixelNoise {
@@ -52,8 +55,8 @@ impl PixelNoise {
     /// the front-end sent a usable `σ_f` (`PixelFeature::sigma_usable`),
     /// else the default.
     pub fn sigma_px(&self, f: &PixelFeature) -> f64 {
-        match f.sigma_px {
-            Some(s) if PixelFeature::sigma_usable(s) => s.hypot(self.model_px),
+        match (f.sigma_px, self.model_px) {
+            (Some(s), Some(model_px)) if PixelFeature::sigma_usable(s) => s.hypot(model_px),
             _ => self.default_px,
         }
     }
@@ -74,7 +77,7 @@ impl Normaliser {
             cam: Camera::from_config(c),
             noise: PixelNoise {
                 default_px: c.pixel_noise_px,
-                model_px: c.model_noise_px,
+                model_px: c.frontend_sigma.then_some(c.model_noise_px),
             },
         }
     }
@@ -143,8 +146,9 @@ mod tests {
     /// model's added in quadrature, or the default without one (W1).
     #[test]
     fn each_feature_is_weighed_by_its_own_sigma() {
-        let c = CameraConfig {
+        let mut c = CameraConfig {
             pixel_noise_px: 1.0,
+            frontend_sigma: true,
             model_noise_px: 0.05,
             ..CameraConfig::default()
         };
@@ -171,5 +175,9 @@ mod tests {
         for bad in [0.0, -1.0, 1e-9, 5e3, f64::NAN, f64::INFINITY] {
             assert_eq!(n.noise.sigma_px(&with(Some(bad))), 1.0);
         }
+        // Off (the default), every feature is weighed with the default.
+        c.frontend_sigma = false;
+        assert_eq!(Normaliser::new(&c).noise.sigma_px(&with(Some(0.12))), 1.0);
+        assert!(!CameraConfig::default().frontend_sigma);
     }
 }

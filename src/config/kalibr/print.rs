@@ -106,6 +106,7 @@ impl KalibrImport {
             "camera-to-body rotation, Hamilton [x, y, z, w]: rotation of T_B_C",
         );
         line(&mut s, "pixel_noise_px", num(c.pixel_noise_px), &kept);
+        line(&mut s, "frontend_sigma", c.frontend_sigma.to_string(), &kept);
         line(&mut s, "model_noise_px", num(c.model_noise_px), &kept);
         line(&mut s, "rate_hz", num(c.rate_hz), &kept);
 
