@@ -230,6 +230,11 @@ pub struct EstimatorConfig {
     /// Use those tracks at the depth their landmark was last triangulated
     /// at, so a hover is held by its image (bool); off, they are skipped.
     pub low_parallax_updates: bool,
+    /// Each new view's attitude carries the jitter that the armed
+    /// vehicle's vibration leaves in the integrated gyro, measured from the
+    /// gyro samples (bool; README.md §3f of the estimator); off, a view is as
+    /// certain as the propagation says.
+    pub vibration_jitter: bool,
     /// Prior of the camera–IMU time offset `t_d` (s): the IMU clock's time
     /// of a frame is its camera stamp plus `t_d`. Estimated online.
     pub time_offset_s: f64,
@@ -257,6 +262,7 @@ impl Default for EstimatorConfig {
             max_triangulation_cond: 1e6,
             min_parallax_deg: 0.3,
             low_parallax_updates: true,
+            vibration_jitter: true,
             time_offset_s: 0.0,
             time_offset_sigma_s: 0.02,
             health_grace_s: 2.0,

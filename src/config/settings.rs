@@ -50,6 +50,7 @@ impl Config {
             gnss_max_delay_s: c.gnss.max_delay_s,
             min_parallax_rad: c.estimator.min_parallax_deg.to_radians(),
             low_parallax_updates: c.estimator.low_parallax_updates,
+            vibration_jitter: c.estimator.vibration_jitter,
             zupt: ZuptSettings {
                 enabled: c.zupt.enabled,
                 max_gyro_radps: c.zupt.max_gyro_radps,

@@ -267,6 +267,7 @@ fn log_frame(l: &McapLogger, est: &Estimator, t: f64, features: usize, rep: &Fra
             "nis_per_dof": nis_per_dof, "nis_per_dof_95": nis_per_dof_95,
             "keyframe_created": rep.keyframe_created, "loop_closure_tracks": rep.loop_closure_tracks,
             "low_parallax_tracks": rep.low_parallax_tracks,
+            "vibration_jitter_rad": est.stats.vibration_jitter_rad,
             "global_updates": rep.global_updates, "elapsed_us": elapsed_us,
             "local_dim": est.local_dim(), "global_keyframes": est.n_global_keyframes(),
             "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),

@@ -7,7 +7,7 @@
 //! machinery of `compressed/`, which owns the global part.
 
 use crate::counters::Counter;
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use super::math::{self, exp_so3};
 use super::propagate;
@@ -148,12 +148,24 @@ impl Estimator {
     /// A camera view's pose enters the state at `at` (a clone or a
     /// keyframe): the body pose at the frame's time `t_cam + t̂_d`, with the
     /// time offset's column `c = [R_W_B ω_B; v_B_in_W]` (§3b, eq. T3).
+    /// With `vibration_jitter` on, the view's attitude block then gains the
+    /// vibration's jitter (§3f, eq. V2): `P_θθ ← P_θθ + R_W_B J_B R_W_Bᵀ`,
+    /// `J_B` measured from the gyro (eq. V1), a noise of this view alone.
     pub fn augment_view(&mut self, at: usize) {
         let w_B = self.time_offset_body_rate();
         let w_W = self.imu.q_W_B * w_B;
         let v = self.imu.v_B_in_W;
         let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
         self.augment(at, &POSE_IDX, Some(&c));
+        if self.s.vibration_jitter {
+            if let Some(j_B) = super::vibration::jitter_var_rad2(&self.rate_history) {
+                let r = self.imu.q_W_B.to_rotation_matrix().into_inner();
+                let j_W = r * Matrix3::from_diagonal(&j_B) * r.transpose();
+                let mut blk = self.P.view_mut((at, at), (3, 3));
+                blk += j_W;
+                self.stats.vibration_jitter_rad = (j_B.sum() / 3.0).sqrt();
+            }
+        }
     }
 
     /// The world frame's origin became uncertain by `var_m2` per axis (it

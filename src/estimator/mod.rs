@@ -39,6 +39,7 @@ mod msckf;
 pub mod propagate;
 pub mod settings;
 mod snapshot;
+mod vibration;
 mod zupt;
 
 use crate::counters::Counter;
@@ -270,6 +271,10 @@ pub struct Stats {
     /// Tracks used at their landmark's remembered depth for want of
     /// parallax (§3e).
     pub low_parallax_tracks: u64,
+    /// The vibration's attitude jitter at the last view (rad, RMS per axis,
+    /// §3f eq. V1); 0 before one is measured.
+    #[serde(default)]
+    pub vibration_jitter_rad: f64,
 }
 
 /// Why a global update happened.

@@ -107,6 +107,9 @@ pub struct Settings {
     /// Tracks with too little parallax are used at their landmark's
     /// remembered depth, the depth a nuisance (§3e), rather than skipped.
     pub low_parallax_updates: bool,
+    /// Each new view's attitude gains the vibration's jitter, measured
+    /// from the gyro (§3f, eq. V2).
+    pub vibration_jitter: bool,
     pub zupt: ZuptSettings,
     /// The motion an IMU gap hides (eq. N3).
     pub imu_gap: super::propagate::GapNoise,

@@ -1,0 +1,232 @@
+//! The armed vehicle's vibration in the camera's poses (README.md §3f).
+//!
+//! A multirotor's motors shake its IMU at their frequencies (aliased into
+//! the sampling band): tens of Hz, far above any flight motion. Integrated,
+//! a line of amplitude `A` at `f` Hz swings the attitude by `A / (2π f)`
+//! about the true one, bounded and zero-mean, so it never accumulates as
+//! the white gyro noise of the propagation does. But the camera's frames
+//! catch the swing at its random phases: each view's pose, a clone or a
+//! keyframe, is off by a jitter of its own that the propagation's noise
+//! does not cover. On the simulator's armed IMU (lines of 0.06 and 0.03
+//! rad/s at 37 and 61 Hz) that jitter is 2.0e-4 rad per axis, 0.09 px at a
+//! 460 px focal length: more than a precise front-end's σ.
+//!
+//! The jitter is measured from the gyro samples themselves: over short
+//! windows, the integrated attitude less a cubic in time (which takes every
+//! flight motion slower than a few Hz) leaves the swing; its variance per
+//! axis is the jitter's (eq. V1). It is added to each new view's attitude
+//! block (eq. V2), as a noise of that view alone.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Matrix4, Vector3, Vector4};
+
+/// Length of one fitting window (s): 3.7 periods of a 37 Hz line, while a
+/// 1 Hz manoeuvre of 0.08 rad leaves the cubic 3e-5 rad (its fourth-order
+/// term).
+const WINDOW_S: f64 = 0.1;
+
+/// Windows averaged (the last 0.5 s of gyro samples).
+const WINDOWS: usize = 5;
+
+/// Fewest samples in a window for its fit to count (four are fitted).
+const MIN_SAMPLES: usize = 8;
+
+/// A gap between gyro samples longer than this (s) ends the history used.
+const MAX_SAMPLE_GAP_S: f64 = 0.05;
+
+/// Least-squares cubic fit of one window, accumulated sample by sample.
+#[derive(Clone, Copy)]
+struct CubicFit {
+    n: usize,
+    /// `Σ φ φᵀ`, `φ = [1, u, u², u³]`, `u` the time within the window
+    /// scaled to [-1, 1].
+    nn: Matrix4<f64>,
+    /// `Σ φ θ_a` per axis `a`.
+    b: [Vector4<f64>; 3],
+    /// `Σ θ_a²` per axis.
+    yy: Vector3<f64>,
+    /// The first attitude seen in the window, subtracted for conditioning.
+    theta_ref: Option<Vector3<f64>>,
+}
+
+impl CubicFit {
+    fn new() -> Self {
+        Self {
+            n: 0,
+            nn: Matrix4::zeros(),
+            b: [Vector4::zeros(); 3],
+            yy: Vector3::zeros(),
+            theta_ref: None,
+        }
+    }
+
+    fn add(&mut self, u: f64, theta: &Vector3<f64>) {
+        let r = *self.theta_ref.get_or_insert(*theta);
+        let y = theta - r;
+        let phi = Vector4::new(1.0, u, u * u, u * u * u);
+        self.nn += phi * phi.transpose();
+        for a in 0..3 {
+            self.b[a] += phi * y[a];
+        }
+        self.yy += y.component_mul(&y);
+        self.n += 1;
+    }
+
+    /// The residual sum of squares per axis and the samples it is over:
+    /// `RSS = Σ θ² − bᵀ (Σ φ φᵀ)⁻¹ b` (eq. V1). Over `n`, not `n − 4`: the
+    /// cubic takes almost nothing of a line of several periods in the
+    /// window, so the residual is not white noise that lost four degrees of
+    /// freedom (`n − 4` overstated the swing by 25 % at 200 Hz).
+    fn residual(&self) -> Option<(Vector3<f64>, usize)> {
+        if self.n < MIN_SAMPLES {
+            return None;
+        }
+        let chol = self.nn.cholesky()?;
+        let rss = Vector3::from_fn(|a, _| (self.yy[a] - self.b[a].dot(&chol.solve(&self.b[a]))).max(0.0));
+        Some((rss, self.n))
+    }
+}
+
+/// The vibration's attitude jitter (rad², per body axis, eq. V1) from the
+/// gyro samples `(t_s, ω_B)` of `history`, oldest first: the variance of the
+/// integrated rate about a cubic in time, over [`WINDOWS`] windows of
+/// [`WINDOW_S`] ending at the last sample. `None` without a window of
+/// [`MIN_SAMPLES`].
+///
+/// A constant bias integrates to a line, which the cubic takes; a flight
+/// motion slower than a few Hz takes a cubic too. So the jitter is the
+/// motion faster than that, and errs on the large side in violent
+/// manoeuvres. Walks the history from its newest sample; no allocation.
+pub(super) fn jitter_var_rad2(history: &VecDeque<(f64, Vector3<f64>)>) -> Option<Vector3<f64>> {
+    let &(t_end, _) = history.back()?;
+    let mut theta = Vector3::zeros();
+    let mut sum = Vector3::zeros();
+    let mut n = 0usize;
+    let mut fit = CubicFit::new();
+    let mut window = 0usize;
+    let mut next: Option<(f64, Vector3<f64>)> = None;
+    for &(t, w) in history.iter().rev() {
+        // θ integrated backwards from the newest sample: the step from this
+        // sample to the next is the next one's rate times their interval.
+        if let Some((t_next, w_next)) = next {
+            let dt = t_next - t;
+            if !(dt > 0.0 && dt <= MAX_SAMPLE_GAP_S) {
+                break;
+            }
+            theta -= w_next * dt;
+        }
+        next = Some((t, w));
+        let age = t_end - t;
+        let k = (age / WINDOW_S).floor() as usize;
+        if k >= WINDOWS {
+            break;
+        }
+        if k != window {
+            if let Some((rss, d)) = fit.residual() {
+                sum += rss;
+                n += d;
+            }
+            fit = CubicFit::new();
+            window = k;
+        }
+        // u ∈ [-1, 1] across the window.
+        let u = 2.0 * (age - k as f64 * WINDOW_S) / WINDOW_S - 1.0;
+        fit.add(u, &theta);
+    }
+    if let Some((rss, d)) = fit.residual() {
+        sum += rss;
+        n += d;
+    }
+    (n > 0).then(|| sum / n as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::TAU;
+
+    /// Gyro samples at `rate_hz` for `dur_s`: a slow manoeuvre, a bias and
+    /// the motor lines `(f Hz, A rad/s)` on every axis, with phases.
+    fn history(rate_hz: f64, dur_s: f64, lines: &[(f64, f64)]) -> VecDeque<(f64, Vector3<f64>)> {
+        let n = (rate_hz * dur_s) as usize;
+        (0..n)
+            .map(|i| {
+                let t = 3.0 + i as f64 / rate_hz;
+                // A 0.5 Hz pitch of ±0.3 rad, a 1 Hz roll of ±0.08 rad, a
+                // bias of 0.08 rad/s.
+                let mut w = Vector3::new(
+                    0.08 * TAU * (TAU * t).cos(),
+                    0.3 * TAU * 0.5 * (TAU * 0.5 * t).cos(),
+                    0.2,
+                ) + Vector3::repeat(0.08);
+                for (j, &(f, a)) in lines.iter().enumerate() {
+                    for k in 0..3 {
+                        w[k] += a * (TAU * f * t + 1.3 * (j + 1) as f64 * (k + 1) as f64).sin();
+                    }
+                }
+                (t, w)
+            })
+            .collect()
+    }
+
+    /// The simulator's armed lines give the swing of their integrated
+    /// samples, per axis, within 15 %: the rectangle rule's sum of a line
+    /// sampled every `dt` swings by `A dt / (2 sin(π f dt))`, whose
+    /// variance is half its square (`(A / 2πf)² / 2` as `dt → 0`).
+    #[test]
+    fn armed_lines_give_their_swing() {
+        let lines = [(37.0, 0.06), (61.0, 0.03)];
+        for rate_hz in [200.0, 248.0, 400.0, 1000.0] {
+            let dt = 1.0 / rate_hz;
+            let expect: f64 = lines
+                .iter()
+                .map(|(f, a)| (a * dt / (2.0 * (std::f64::consts::PI * f * dt).sin())).powi(2) / 2.0)
+                .sum();
+            let h = history(rate_hz, 1.0, &lines);
+            let v = jitter_var_rad2(&h).unwrap();
+            for a in 0..3 {
+                let r = v[a] / expect;
+                assert!(
+                    (0.85..1.15).contains(&r),
+                    "{rate_hz} Hz axis {a}: {:.3e} vs {expect:.3e}",
+                    v[a]
+                );
+            }
+        }
+    }
+
+    /// Without vibration, the manoeuvre and the bias leave under 1 % of the
+    /// armed swing: the fit does not take flight motion for jitter.
+    #[test]
+    fn flight_motion_is_not_jitter() {
+        let armed = jitter_var_rad2(&history(200.0, 1.0, &[(37.0, 0.06), (61.0, 0.03)])).unwrap();
+        let calm = jitter_var_rad2(&history(200.0, 1.0, &[])).unwrap();
+        for a in 0..3 {
+            assert!(
+                calm[a] < 0.01 * armed[a],
+                "axis {a}: {:.3e} vs {:.3e}",
+                calm[a],
+                armed[a]
+            );
+        }
+    }
+
+    /// Too few samples, a gap, or none give no figure, or one from the
+    /// samples after the gap only.
+    #[test]
+    fn short_or_gapped_history() {
+        assert!(jitter_var_rad2(&VecDeque::new()).is_none());
+        assert!(jitter_var_rad2(&history(200.0, 0.03, &[(37.0, 0.06)])).is_none());
+        // A 0.2 s gap 0.05 s before the end: the 10 samples after it are one
+        // window; the armed lines before it do not count.
+        let mut h = history(200.0, 1.0, &[(37.0, 0.06), (61.0, 0.03)]);
+        let t_last = h.back().unwrap().0;
+        h.retain(|(t, _)| *t < t_last - 0.25 || *t > t_last - 0.05);
+        for (_, w) in h.iter_mut().rev().take(10) {
+            *w = Vector3::repeat(0.1);
+        }
+        let v = jitter_var_rad2(&h).unwrap();
+        assert!(v.max() < 1e-12, "{v:?}");
+    }
+}
