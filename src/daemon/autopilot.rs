@@ -173,13 +173,14 @@ impl AutopilotView {
                 kind,
                 mode,
             } => {
-                if let Some(m) = mode.filter(|m| Some(*m) != self.mode) {
-                    log_autopilot(AutopilotRecord::Mode(m));
-                    self.mode = mode;
-                }
+                // The kind first: a reader names the mode's number by it.
                 if let Some(k) = kind.filter(|k| Some(*k) != self.kind) {
                     log_autopilot(AutopilotRecord::Autopilot(k));
                     self.kind = kind;
+                }
+                if let Some(m) = mode.filter(|m| Some(*m) != self.mode) {
+                    log_autopilot(AutopilotRecord::Mode(m));
+                    self.mode = mode;
                 }
                 // Logged on change only (the HEARTBEAT comes every second).
                 if let Some(a) = armed.filter(|a| Some(*a) != self.armed) {

@@ -66,6 +66,10 @@ pub(super) struct Data {
     rejected_by_autopilot: bool,
     /// Which autopilot it is (its mode numbers are named).
     autopilot_kind: Option<AutopilotKind>,
+    /// The timeline row of a mode logged before the autopilot's kind (as
+    /// logs before the daemon logged the kind first have it), and its
+    /// number: named once the kind is known.
+    unnamed_mode: Option<(usize, u32)>,
 }
 
 /// ArduCopter's flight mode names (its `custom_mode` numbers).
@@ -112,6 +116,22 @@ fn px4_mode(m: u32) -> Option<&'static str> {
         (7, _) => "STABILIZED",
         _ => return None,
     })
+}
+
+/// A mode change's timeline text: its name by the autopilot's numbering,
+/// and the number as that autopilot writes it.
+fn mode_text(kind: Option<AutopilotKind>, m: u32) -> String {
+    match kind {
+        Some(AutopilotKind::ArduPilot) => match copter_mode(m) {
+            Some(n) => format!("mode {n} ({m})"),
+            None => format!("mode {m}"),
+        },
+        Some(AutopilotKind::Px4) => match px4_mode(m) {
+            Some(n) => format!("mode {n} ({m:#x})"),
+            None => format!("mode {m:#x}"),
+        },
+        _ => format!("mode {m}"),
+    }
 }
 
 /// What kind of event a timeline row is (its filter in the report).
@@ -220,20 +240,18 @@ impl LogReader {
                 ),
                 Ok(InputRecord::Autopilot(AutopilotRecord::Autopilot(k))) => {
                     d.autopilot_kind = Some(k);
+                    if let Some((row, m)) = d.unnamed_mode.take() {
+                        if let Some(e) = d.events.get_mut(row) {
+                            e.text = mode_text(Some(k), m);
+                        }
+                    }
                     d.event(t, EventKind::Vehicle, format!("autopilot: {k:?}"))
                 }
                 Ok(InputRecord::Autopilot(AutopilotRecord::Mode(m))) => {
-                    let text = match d.autopilot_kind {
-                        Some(AutopilotKind::ArduPilot) => match copter_mode(m) {
-                            Some(n) => format!("mode {n} ({m})"),
-                            None => format!("mode {m}"),
-                        },
-                        Some(AutopilotKind::Px4) => match px4_mode(m) {
-                            Some(n) => format!("mode {n} ({m:#x})"),
-                            None => format!("mode {m:#x}"),
-                        },
-                        _ => format!("mode {m}"),
-                    };
+                    if d.autopilot_kind.is_none() {
+                        d.unnamed_mode = Some((d.events.len(), m));
+                    }
+                    let text = mode_text(d.autopilot_kind, m);
                     d.event(t, EventKind::Vehicle, text)
                 }
                 Ok(InputRecord::Autopilot(AutopilotRecord::StatusText(s))) => d.event(
@@ -558,6 +576,48 @@ mod reference_tests {
         assert_eq!(px4_mode(0x0006_0000), Some("OFFBOARD"));
         assert_eq!(px4_mode(0x0604_0000), Some("AUTO.LAND"));
         assert_eq!(px4_mode(0x0004_0000), None);
+    }
+
+    /// One autopilot record at `t_s`, as the log holds it.
+    fn autopilot_message(rec: &AutopilotRecord, t_s: f64) -> mcap::Message<'static> {
+        let channel = std::sync::Arc::new(mcap::Channel {
+            id: 1,
+            topic: Topic::InputAutopilot.name().to_string(),
+            schema: None,
+            message_encoding: "json".into(),
+            metadata: BTreeMap::new(),
+        });
+        let ns = (t_s * 1e9) as u64;
+        mcap::Message {
+            channel,
+            sequence: 0,
+            log_time: ns,
+            publish_time: ns,
+            data: serde_json::to_vec(rec).unwrap().into(),
+        }
+    }
+
+    /// A log written before the daemon logged the autopilot's kind ahead of
+    /// its first mode has PX4's first mode unnamed until the kind: the row
+    /// is named once the kind comes; in the order the daemon now writes,
+    /// named at once.
+    #[test]
+    fn a_mode_logged_before_the_autopilots_kind_is_named() {
+        for kind_first in [false, true] {
+            let mut r = LogReader::new();
+            let (mode, kind) = (
+                AutopilotRecord::Mode(0x0003_0000),
+                AutopilotRecord::Autopilot(AutopilotKind::Px4),
+            );
+            let order = if kind_first { [&kind, &mode] } else { [&mode, &kind] };
+            for (i, rec) in order.into_iter().enumerate() {
+                r.on_message(&autopilot_message(rec, 1.0 + i as f64));
+            }
+            r.on_message(&autopilot_message(&AutopilotRecord::Mode(0x0006_0000), 3.0));
+            let texts: Vec<_> = r.d.events.iter().map(|e| e.text.clone()).collect();
+            assert!(texts.contains(&"mode POSCTL (0x30000)".to_string()), "{texts:?}");
+            assert!(texts.contains(&"mode OFFBOARD (0x60000)".to_string()), "{texts:?}");
+        }
     }
 
     /// The reproducer: a replayed log scored 0.20 m against the
