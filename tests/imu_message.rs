@@ -210,6 +210,36 @@ async fn without_highres_imu_another_imu_message_is_taken() {
     );
 }
 
+/// A HIGHRES_IMU that trickles at 2.5 Hz (a link that lets one in 20
+/// through) beside a SCALED_IMU at 50 Hz: the trickle is no IMU stream,
+/// so the SCALED_IMU is taken once 0.5 s have passed without HIGHRES_IMU
+/// flowing, and the trickle never takes it back (it had kept the filter at
+/// 2.5 Hz: each of its samples came within the 0.5 s wait).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn highres_imu_trickling_is_not_taken() {
+    let run = beside_sending(
+        apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ImuMessageChoice::Auto,
+        5.0,
+        |t| t % 0.4 < 0.02,
+    )
+    .await;
+    eprintln!("counters {:?}", run.counters);
+    assert_eq!(run.count("imu_message_switched"), 1, "{:?}", run.counters);
+    assert_eq!(run.count("imu_gap_restart"), 0, "{:?}", run.counters);
+    // Every message is fused once or ignored, and only about the first
+    // 0.5 s of SCALED_IMU (25) and the trickle after the switch are ignored.
+    assert_eq!(
+        run.count("imu_samples"),
+        run.count("imu_scaled") + run.count("imu_highres")
+            - run.count("imu_message_ignored")
+            - run.count("imu_duplicate"),
+        "{:?}",
+        run.counters
+    );
+    assert!(run.count("imu_message_ignored") <= 50, "{:?}", run.counters);
+}
+
 /// A HIGHRES_IMU in 1 s bursts with 2.5 s gaps, beside a SCALED_IMU that
 /// never stops: taken over once, never given back to the bursts (it must
 /// flow 3 s first), so the filter meets one gap of 0.5 s, at the switch,

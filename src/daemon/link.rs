@@ -103,10 +103,15 @@ struct RxState {
     /// autopilot other than PX4 that sends none (ArduPilot on a 1 MB board)
     /// has its `RAW_IMU` or `SCALED_IMU` taken instead.
     last_highres: Instant,
+    /// When a `HIGHRES_IMU` last came within [`HIGHRES_MAX_INTERVAL`] of
+    /// the one before: a stream at an IMU's rate. A trickle (a link that
+    /// lets 1 or 2.5 of them through a second) never sets it, so `auto`
+    /// does not stay on, or go back to, a message that starves the filter.
+    last_highres_flowing: Instant,
     /// Since when `HIGHRES_IMU` has come without a pause of
-    /// [`HIGHRES_FALLBACK_AFTER`]: `auto` goes back to it only once it has
-    /// flowed for [`HIGHRES_STEADY_FOR`], so a stream in bursts does not
-    /// flap the message taken.
+    /// [`HIGHRES_MAX_INTERVAL`]: `auto` goes back to it only once it has
+    /// flowed for [`HIGHRES_STEADY_FOR`], so a stream in bursts, or a
+    /// trickle, does not flap the message taken.
     highres_since: Option<Instant>,
     /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
     /// the same sample, when only its magnetometer has a new reading.
@@ -169,6 +174,7 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
         imu_choice: cfg.mavlink.imu_message,
         kind: None,
         last_highres: Instant::now(),
+        last_highres_flowing: Instant::now(),
         highres_since: None,
         last_imu: None,
     };
@@ -324,19 +330,26 @@ const HIGHRES_FALLBACK_AFTER: Duration = Duration::from_millis(500);
 /// How long `HIGHRES_IMU` must flow again before `auto` goes back to it.
 const HIGHRES_STEADY_FOR: Duration = Duration::from_secs(3);
 
+/// The longest interval between two `HIGHRES_IMU` of a stream that flows
+/// (10 Hz, a fifth of the slowest rate an autopilot streams it at): any
+/// longer and it is a trickle, no IMU for the filter.
+const HIGHRES_MAX_INTERVAL: Duration = Duration::from_millis(100);
+
 /// Whether an IMU sample that came in `kind` is taken: the message taken
 /// (`Receive::imu_message`) is, another is not. With `auto` beside an
 /// autopilot other than PX4, `HIGHRES_IMU` is taken while it flows, another
-/// IMU message once it has not come for [`HIGHRES_FALLBACK_AFTER`], and
-/// `HIGHRES_IMU` again once it has flowed for [`HIGHRES_STEADY_FOR`] (each
-/// switch logged and counted).
+/// IMU message once it has not flowed (two within [`HIGHRES_MAX_INTERVAL`])
+/// for [`HIGHRES_FALLBACK_AFTER`], and `HIGHRES_IMU` again once it has
+/// flowed for [`HIGHRES_STEADY_FOR`] (each switch logged and counted).
 fn take_imu(kind: ImuMessage, st: &mut RxState, r: &Receive) -> bool {
     let now = Instant::now();
     if kind == ImuMessage::Highres {
-        if now.duration_since(st.last_highres) > HIGHRES_FALLBACK_AFTER {
+        if now.duration_since(st.last_highres) > HIGHRES_MAX_INTERVAL {
             st.highres_since = None;
+        } else {
+            st.last_highres_flowing = now;
+            st.highres_since.get_or_insert(st.last_highres);
         }
-        st.highres_since.get_or_insert(now);
         st.last_highres = now;
     }
     let taken = ImuMessage::from_u8(r.imu_message.load(Ordering::Relaxed));
@@ -349,7 +362,7 @@ fn take_imu(kind: ImuMessage, st: &mut RxState, r: &Receive) -> bool {
             st.highres_since
                 .is_some_and(|since| now.duration_since(since) >= HIGHRES_STEADY_FOR)
         } else {
-            taken == ImuMessage::Highres && now.duration_since(st.last_highres) > HIGHRES_FALLBACK_AFTER
+            taken == ImuMessage::Highres && now.duration_since(st.last_highres_flowing) > HIGHRES_FALLBACK_AFTER
         };
     if switch {
         r.imu_message.store(kind.to_u8(), Ordering::Relaxed);
@@ -663,6 +676,7 @@ mod tests {
             imu_choice: ImuMessageChoice::Auto,
             kind: Some(AutopilotKind::Px4),
             last_highres: Instant::now(),
+            last_highres_flowing: Instant::now(),
             highres_since: None,
             last_imu: None,
         };
