@@ -18,35 +18,54 @@ use common::flights::{self, racetrack};
 /// copies).
 const POSE_IDX: [usize; 6] = [TH, TH + 1, TH + 2, P, P + 1, P + 2];
 
-/// `augment` with the time-offset column equals the dense `J P Jᵀ`.
+/// `augment` with the time-offset column equals the dense `J P Jᵀ`; with
+/// the vibration's jitter on (§3f, V2), the view's attitude block alone
+/// gains it: a symmetric, positive 3×3 whose trace is three times the
+/// logged jitter's square (`trace(R J_B Rᵀ) = trace(J_B)`).
 #[test]
 fn augmenting_a_view_equals_the_dense_product() {
-    let (ds, cfg) = racetrack(3, 2.0);
-    let mut run = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
-    for k in 0..10 {
-        run.step_frame(k);
+    for jitter in [false, true] {
+        let (ds, mut cfg) = racetrack(3, 2.0);
+        cfg.estimator.vibration_jitter = jitter;
+        let mut run = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
+        for k in 0..10 {
+            run.step_frame(k);
+        }
+        let mut est = run.est.clone();
+        est.sync();
+        let n = est.covariance().nrows();
+        let imu = *est.imu_state();
+        let w_W = imu.q_W_B * est.time_offset_body_rate();
+        let v = imu.v_B_in_W;
+        let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
+        let mut j = DMatrix::zeros(6, n);
+        for (i, &r) in POSE_IDX.iter().enumerate() {
+            j[(i, r)] = 1.0;
+            j[(i, TD)] = c[i];
+        }
+        let cross = est.covariance() * j.transpose();
+        let block = &j * &cross;
+        let at = est.gnss_clones_offset();
+        est.augment_view(at);
+        let p = est.covariance();
+        let got_cross = p.view((0, at), (n, 6)).into_owned();
+        let got_block = p.view((at, at), (6, 6)).into_owned();
+        assert!((got_cross - cross).amax() < 1e-12 * p.amax());
+        let mut added = got_block - block;
+        let theta = added.view((0, 0), (3, 3)).into_owned();
+        added.view_mut((0, 0), (3, 3)).fill(0.0);
+        assert!(added.amax() < 1e-12 * p.amax(), "jitter {jitter}: beyond the attitude block");
+        let jit = est.stats.vibration_jitter_rad;
+        if jitter {
+            assert!(jit > 0.0, "the armed IMU's jitter measured");
+            assert!((&theta - theta.transpose()).amax() < 1e-18);
+            assert!(theta.symmetric_eigenvalues().min() > 0.0);
+            assert!((theta.trace() - 3.0 * jit * jit).abs() < 1e-9 * theta.trace(), "{theta} vs {jit}");
+        } else {
+            assert_eq!(jit, 0.0);
+            assert!(theta.amax() < 1e-12 * p.amax());
+        }
     }
-    let mut est = run.est.clone();
-    est.sync();
-    let n = est.covariance().nrows();
-    let imu = *est.imu_state();
-    let w_W = imu.q_W_B * est.time_offset_body_rate();
-    let v = imu.v_B_in_W;
-    let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
-    let mut j = DMatrix::zeros(6, n);
-    for (i, &r) in POSE_IDX.iter().enumerate() {
-        j[(i, r)] = 1.0;
-        j[(i, TD)] = c[i];
-    }
-    let cross = est.covariance() * j.transpose();
-    let block = &j * &cross;
-    let at = est.gnss_clones_offset();
-    est.augment_view(at);
-    let p = est.covariance();
-    let got_cross = p.view((0, at), (n, 6)).into_owned();
-    let got_block = p.view((at, at), (6, 6)).into_owned();
-    assert!((got_cross - cross).amax() < 1e-12 * p.amax());
-    assert!((got_block - block).amax() < 1e-12 * p.amax());
 }
 
 /// The camera–IMU time offset is estimated online (§3b): from a prior of
