@@ -54,13 +54,19 @@ fn augmenting_a_view_equals_the_dense_product() {
         let mut added = got_block - block;
         let theta = added.view((0, 0), (3, 3)).into_owned();
         added.view_mut((0, 0), (3, 3)).fill(0.0);
-        assert!(added.amax() < 1e-12 * p.amax(), "jitter {jitter}: beyond the attitude block");
+        assert!(
+            added.amax() < 1e-12 * p.amax(),
+            "jitter {jitter}: beyond the attitude block"
+        );
         let jit = est.stats.vibration_jitter_rad;
         if jitter {
             assert!(jit > 0.0, "the armed IMU's jitter measured");
             assert!((&theta - theta.transpose()).amax() < 1e-18);
             assert!(theta.symmetric_eigenvalues().min() > 0.0);
-            assert!((theta.trace() - 3.0 * jit * jit).abs() < 1e-9 * theta.trace(), "{theta} vs {jit}");
+            assert!(
+                (theta.trace() - 3.0 * jit * jit).abs() < 1e-9 * theta.trace(),
+                "{theta} vs {jit}"
+            );
         } else {
             assert_eq!(jit, 0.0);
             assert!(theta.amax() < 1e-12 * p.amax());
