@@ -34,8 +34,8 @@ fn flights(scenario: &str, jitter: bool) -> eval::ModeSummary {
 }
 
 /// Measured (2 seeds, 30 s, compressed), with / without the jitter:
-/// racetrack NIS per dof 0.95 / 1.45, 0 / 2 resets, position NEES 4.6 /
-/// 11.8, tilt NEES 1.8 / 5.7, ATE aligned 0.24 / 0.52 m; hover 0.93 / 1.42,
+/// racetrack NIS per dof 0.96 / 1.45, 0 / 2 resets, position NEES 4.5 /
+/// 11.8, tilt NEES 1.8 / 5.7, ATE aligned 0.24 / 0.52 m; hover 0.95 / 1.42,
 /// 0 / 3 resets, position NEES 4.1 / 16.2, ATE aligned 0.011 / 0.28 m.
 #[test]
 fn precise_features_on_a_vibrating_imu_stay_consistent() {

@@ -158,6 +158,9 @@ impl Estimator {
         let c = [w_W.x, w_W.y, w_W.z, v.x, v.y, v.z];
         self.augment(at, &POSE_IDX, Some(&c));
         if self.s.vibration_jitter {
+            // 0 logged while there is no figure (too few samples since a
+            // start or a gap), never the last one's.
+            self.stats.vibration_jitter_rad = 0.0;
             if let Some(j_B) = super::vibration::jitter_var_rad2(&self.rate_history) {
                 let r = self.imu.q_W_B.to_rotation_matrix().into_inner();
                 let j_W = r * Matrix3::from_diagonal(&j_B) * r.transpose();
