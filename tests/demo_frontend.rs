@@ -8,7 +8,7 @@
 //! Each feature comes with the tracker's own σ. With `camera.frontend_sigma`
 //! on and `camera.model_noise_px = 0.01` (the config this test gives the
 //! demo: the simulator's lens is exact), the filter weighs each feature by
-//! it: the NIS per degree of freedom is inside [0.5, 2] (0.59 on this
+//! it: the NIS per degree of freedom is inside [0.5, 2] (0.63 on this
 //! flight; 0.027 with every feature weighed with 1 px, the default), and the
 //! log keeps the σ (its schema says so), so a replay of it is the flight bit
 //! for bit.

@@ -90,9 +90,9 @@ pub struct CameraConfig {
     /// (`cmsckf-frontend` sends one), with `model_noise_px` added in
     /// quadrature; off (the default), every feature is weighed with
     /// `pixel_noise_px`. Off by default: on, the rendered flights' NIS per
-    /// dof is at most 0.5 (0.59 over 15 s) even with an exact lens, and
-    /// the EuRoC-folder flight lost accuracy (0.29 m aligned at 1 px, 0.45
-    /// m with the σ; docs/frontend.md, "Pixel noise").
+    /// dof is 0.54 over 20-30 s (0.63 over 15 s) even with an exact lens, and
+    /// the EuRoC-folder flight lost accuracy (0.29-0.37 m aligned at 1 px,
+    /// 0.43-0.46 m with the σ; docs/frontend.md, "Pixel noise").
     pub frontend_sigma: bool,
     /// The camera model's own error (px, one sigma): added in quadrature
     /// to each σ a front-end sends with its features, for what no
