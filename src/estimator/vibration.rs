@@ -30,6 +30,10 @@ use nalgebra::{Matrix4, Vector3, Vector4};
 /// well.
 const WINDOW_S: f64 = 0.1;
 
+/// Fewest samples a window spans, however fast the IMU (see [`WINDOW_S`]);
+/// also how many of the last intervals give the sampling interval.
+const WINDOW_MIN_SPAN: usize = 16;
+
 /// Windows whose median is taken (the last 0.5 s of gyro samples from 160
 /// Hz up; 1.6 s at 50 Hz).
 const WINDOWS: usize = 5;
@@ -47,7 +51,6 @@ const MAX_JITTER_RAD: f64 = 0.1;
 const MAX_SAMPLE_GAP_S: f64 = 0.05;
 
 /// Least-squares cubic fit of one window, accumulated sample by sample.
-#[derive(Clone, Copy)]
 struct CubicFit {
     n: usize,
     /// `Σ φ φᵀ`, `φ = [1, u, u², u³]`, `u` the time within the window
@@ -122,10 +125,10 @@ impl CubicFit {
 /// the history from its newest sample; no allocation.
 pub(super) fn jitter_var_rad2(history: &VecDeque<(f64, Vector3<f64>)>) -> Option<Vector3<f64>> {
     let &(t_end, _) = history.back()?;
-    // The sampling interval, over up to the last 16 intervals.
-    let k = history.len().saturating_sub(1).min(16);
+    // The sampling interval, over up to the last WINDOW_MIN_SPAN intervals.
+    let k = history.len().saturating_sub(1).min(WINDOW_MIN_SPAN);
     let dt_s = (t_end - history.get(history.len().checked_sub(1 + k)?)?.0) / k.max(1) as f64;
-    let window_s = WINDOW_S.max(16.0 * dt_s);
+    let window_s = WINDOW_S.max(WINDOW_MIN_SPAN as f64 * dt_s);
     // A window counts whole: at least 80 % of the samples it should hold.
     let min_in_window = MIN_SAMPLES.max((0.8 * window_s / dt_s).floor() as usize);
     let max_gap_s = MAX_SAMPLE_GAP_S.max(2.5 * dt_s);
@@ -173,7 +176,7 @@ pub(super) fn jitter_var_rad2(history: &VecDeque<(f64, Vector3<f64>)>) -> Option
         return None;
     }
     // The median per axis (of an even count, the mean of the middle two),
-    // held to MAX_JITTER_RAD.
+    // held to MAX_JITTER_RAD (an overflow's infinity included).
     let w = &per_window[..n_windows];
     let var = Vector3::from_fn(|a, _| {
         let mut v = [0.0; WINDOWS];
@@ -189,13 +192,7 @@ pub(super) fn jitter_var_rad2(history: &VecDeque<(f64, Vector3<f64>)>) -> Option
             0.5 * (v[m - 1] + v[m])
         }
     });
-    Some(var.map(|v| {
-        if v.is_nan() {
-            MAX_JITTER_RAD * MAX_JITTER_RAD
-        } else {
-            v.min(MAX_JITTER_RAD * MAX_JITTER_RAD)
-        }
-    }))
+    Some(var.map(|v| v.min(MAX_JITTER_RAD * MAX_JITTER_RAD)))
 }
 
 #[cfg(test)]
@@ -229,11 +226,10 @@ mod tests {
 
     /// The simulator's armed lines give the swing of the attitude the
     /// filter integrates from their samples, per axis, within 15 % (30 %
-    /// under 160 Hz), from a 50 Hz `RAW_IMU` (the lines aliased to 13 and 11 Hz, windows of
-    /// 0.32 s) to 1 kHz: the trapezoid of a line sampled every `dt` swings
-    /// by `A dt cos(π f dt) / (2 sin(π f dt))`, whose variance is half its
-    /// square (`(A / 2πf)² / 2` as `dt → 0`).
-
+    /// under 160 Hz), from a 50 Hz `RAW_IMU` (the lines aliased to 13 and
+    /// 11 Hz, windows of 0.32 s) to 1 kHz: the trapezoid of a line sampled
+    /// every `dt` swings by `A dt cos(π f dt) / (2 sin(π f dt))`, whose
+    /// variance is half its square (`(A / 2πf)² / 2` as `dt → 0`).
     #[test]
     fn armed_lines_give_their_swing() {
         let lines = [(37.0, 0.06), (61.0, 0.03)];
