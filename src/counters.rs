@@ -125,6 +125,10 @@ counters! {
     // The IMU on the fusion thread.
     ImuSamples = "imu_samples", event;
     ImuTimeBackwards = "imu_time_backwards", reject;
+    /// An IMU sample stamped with the time of the one before it but other
+    /// values: two samples cannot share a time, so the later is refused
+    /// (the first stands). Not a time going back.
+    ImuConflictingDuplicate = "imu_conflicting_duplicate", reject;
     ImuTimeOutlier = "imu_time_outlier", reject;
     ImuRejected = "imu_rejected", reject;
     /// A non-finite sample reached the estimator.

@@ -35,11 +35,12 @@ fn highres(t_s: f64, zacc: f32) -> apm::MavMessage {
     })
 }
 
-/// A still vehicle's `SCALED_IMU` at `t_s` (ms, mG, mrad/s).
-fn scaled(t_s: f64) -> apm::MavMessage {
+/// A still vehicle's `SCALED_IMU` at `t_s` (ms, mG, mrad/s), carrying
+/// `zacc` (mG).
+fn scaled(t_s: f64, zacc: i16) -> apm::MavMessage {
     apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
         time_boot_ms: (t_s * 1e3).round() as u32,
-        zacc: -1000,
+        zacc,
         xgyro: 2,
         ..Default::default()
     })
@@ -48,14 +49,16 @@ fn scaled(t_s: f64) -> apm::MavMessage {
 /// What happened beside an autopilot of `kind` that streams both
 /// messages for `secs`, each at 50 Hz (half the rate the daemon asks for,
 /// so that it asks for the one it takes), every fourth SCALED_IMU sent
-/// twice: the daemon's interval requests and its counters, with what was
-/// sent.
+/// twice and every seventh followed by another sample at its time (other
+/// values): the daemon's interval requests and its counters, with what
+/// was sent.
 struct Run {
     requests: Vec<(u32, f32)>,
     counters: std::collections::BTreeMap<String, u64>,
     highres_sent: u64,
     scaled_sent: u64,
     repeats_sent: u64,
+    conflicts_sent: u64,
 }
 
 async fn beside(kind: apm::MavAutopilot, choice: ImuMessageChoice, secs: f64) -> Run {
@@ -83,6 +86,7 @@ async fn beside_sending(
         highres_sent: 0,
         scaled_sent: 0,
         repeats_sent: 0,
+        conflicts_sent: 0,
     };
     let mut buf = [0u8; 2048];
     while started.elapsed() < Duration::from_secs_f64(secs) {
@@ -102,12 +106,16 @@ async fn beside_sending(
             next_highres += 0.02;
         }
         if now >= next_scaled {
-            let m = scaled(10.0 + next_scaled);
+            let m = scaled(10.0 + next_scaled, -1000);
             ap.send(&m).await;
             run.scaled_sent += 1;
             if run.scaled_sent.is_multiple_of(4) {
                 ap.send(&m).await;
                 run.repeats_sent += 1;
+            }
+            if run.scaled_sent.is_multiple_of(7) {
+                ap.send(&scaled(10.0 + next_scaled, -990)).await;
+                run.conflicts_sent += 1;
             }
             next_scaled += 0.02;
         }
@@ -140,7 +148,8 @@ impl Run {
             self.count("imu_samples"),
             self.count("imu_scaled") + self.count("imu_highres")
                 - self.count("imu_message_ignored")
-                - self.count("imu_duplicate"),
+                - self.count("imu_duplicate")
+                - self.count("imu_conflicting_duplicate"),
             "{:?}",
             self.counters
         );
@@ -162,10 +171,22 @@ async fn beside_px4_scaled_imu_is_taken_and_highres_imu_ignored() {
     // have shown the autopilot an input_rejected state.
     assert!(run.count("imu_duplicate") + 2 >= run.repeats_sent, "{:?}", run.counters);
     assert_eq!(run.count("imu_time_backwards"), 0, "{:?}", run.counters);
+    // Another sample at a time already taken is refused as that, not as a
+    // time going back, and the first stands.
+    assert!(
+        run.count("imu_conflicting_duplicate") + 2 >= run.conflicts_sent,
+        "{:?}",
+        run.counters
+    );
+    assert!(
+        run.count("imu_conflicting_duplicate") <= run.conflicts_sent,
+        "{:?}",
+        run.counters
+    );
     // What was fused is every SCALED_IMU once.
     assert_eq!(
         run.count("imu_samples"),
-        run.count("imu_scaled") - run.count("imu_duplicate"),
+        run.count("imu_scaled") - run.count("imu_duplicate") - run.count("imu_conflicting_duplicate"),
         "{:?}",
         run.counters
     );
@@ -217,7 +238,7 @@ async fn without_highres_imu_another_imu_message_is_taken() {
     assert!((15..=60).contains(&ignored), "{:?}", run.counters);
     assert_eq!(
         run.count("imu_samples"),
-        run.count("imu_scaled") - ignored - run.count("imu_duplicate"),
+        run.count("imu_scaled") - ignored - run.count("imu_duplicate") - run.count("imu_conflicting_duplicate"),
         "{:?}",
         run.counters
     );

@@ -403,6 +403,22 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
                 counters.add(Counter::ImuDuplicate, 1);
                 return None;
             }
+            // Another sample at the same time: one of the two is wrong,
+            // and the first has been fused. Refused as what it is, not as
+            // a time going back.
+            if st.last_imu.is_some_and(|(t_last_us, ..)| t_last_us == t_us) {
+                counters.add(Counter::ImuConflictingDuplicate, 1);
+                let n = counters.get(Counter::ImuConflictingDuplicate);
+                if n.is_power_of_two() {
+                    tracing::warn!(
+                        reason = "imu_conflicting_duplicate",
+                        t_us,
+                        count = n,
+                        "IMU sample rejected: another sample had this time with other values"
+                    );
+                }
+                return None;
+            }
             st.last_imu = Some(sample);
             Some(FusionMsg::Imu(ImuMeas {
                 t_s: t_us as f64 * 1e-6,
