@@ -14,6 +14,38 @@ const QR_BLOCK: usize = 16;
 /// Below this many entries the triangularisation is not blocked.
 const QR_BLOCKED_MIN_ENTRIES: usize = 4096;
 
+/// The blocked triangularisation's working buffers, kept per thread and
+/// reused: the camera update triangularises thousands of stacks a second,
+/// and its panels would otherwise allocate seven buffers each (issue 43: no
+/// allocation per frame). Each is cleared and zero-filled to the length a
+/// panel needs, which keeps its capacity.
+#[derive(Default)]
+struct Scratch {
+    /// The panel's reflectors `V` (rows × jb, column-major).
+    v: Vec<f64>,
+    tau: Vec<f64>,
+    /// dlarft's `T` (jb × jb), its transpose, and one column of its
+    /// recurrence.
+    t: Vec<f64>,
+    t_tr: Vec<f64>,
+    t_col: Vec<f64>,
+    /// `Vᵀ`, `Vᵀ C` and `Tᵀ (Vᵀ C)`.
+    v_tr: Vec<f64>,
+    vtc: Vec<f64>,
+    t_vtc: Vec<f64>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// `buf` as `len` zeros, its capacity kept.
+fn zeroed(buf: &mut Vec<f64>, len: usize) -> &mut [f64] {
+    buf.clear();
+    buf.resize(len, 0.0);
+    buf.as_mut_slice()
+}
+
 /// Householder triangularisation (README §3, N1 and Q1). Chooses the
 /// reflections `Q = H₀ H₁ … H_{p−1}` that zero the sub-diagonal of the
 /// first `p` columns of `a` and applies them to every column, in place:
@@ -27,8 +59,13 @@ const QR_BLOCKED_MIN_ENTRIES: usize = 4096;
 /// dgeqrf: a panel of `QR_BLOCK` reflections is formed column by column,
 /// written as `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (T upper triangular, dlarft), and
 /// applied to the rest of the matrix as two matrix products,
-/// `C ← C − V (Tᵀ (Vᵀ C))`. `O(m p n)`.
+/// `C ← C − V (Tᵀ (Vᵀ C))`. `O(m p n)`. Allocates nothing once this
+/// thread's buffers have grown to the largest panel.
 pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
+    SCRATCH.with(|s| householder_with(a, p, &mut s.borrow_mut()));
+}
+
+fn householder_with(a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
     let (m, n) = a.shape();
     let p = p.min(m).min(n);
     // Small matrices (a track's null-space projection) take each reflection
@@ -38,12 +75,15 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
     while j0 < p {
         let jb = if blocked { QR_BLOCK.min(p - j0) } else { p - j0 };
         let apply_end = if blocked { j0 + jb } else { n };
-        let Some((v, tau)) = reduce_panel(a, j0, jb, apply_end) else {
+        let rows = m - j0;
+        let v = zeroed(&mut s.v, rows * jb);
+        let tau = zeroed(&mut s.tau, jb);
+        if !reduce_panel(a, j0, jb, apply_end, v, tau) {
             return;
-        };
+        }
         let rest = n - apply_end;
         if rest > 0 {
-            apply_block_reflector(a, &v, &tau, j0, rest);
+            apply_block_reflector(a, j0, rest, s);
         }
         j0 += jb;
     }
@@ -51,22 +91,20 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
 
 /// Forms the `jb` reflections of the panel starting at column `j0`, column
 /// by column, each applied at once to the panel's later columns up to
-/// `apply_end` (the whole matrix when not blocked). Returns the panel's
-/// reflectors, `V` (`m − j0` × `jb`, unit diagonal) and `τ`; `None` after
-/// poisoning with NaN everything still to be reduced, on a non-finite or
-/// overflowing column.
+/// `apply_end` (the whole matrix when not blocked), into `v` (`m − j0` ×
+/// `jb`, column-major, unit diagonal; zeros on entry) and `tau` (zeros on
+/// entry). `false` after poisoning with NaN everything still to be reduced,
+/// on a non-finite or overflowing column.
 fn reduce_panel(
     a: &mut nalgebra::DMatrix<f64>,
     j0: usize,
     jb: usize,
     apply_end: usize,
-) -> Option<(nalgebra::DMatrix<f64>, Vec<f64>)> {
-    use nalgebra::DMatrix;
+    v: &mut [f64],
+    tau: &mut [f64],
+) -> bool {
     let (m, n) = a.shape();
     let rows = m - j0;
-    // The panel's reflectors, V (rows × jb, unit diagonal) and τ.
-    let mut v = DMatrix::<f64>::zeros(rows, jb);
-    let mut tau = vec![0.0f64; jb];
     let data = a.as_mut_slice();
     for jj in 0..jb {
         let j = j0 + jj;
@@ -81,7 +119,7 @@ fn reduce_panel(
             for k in j..n {
                 data[k * m + j..(k + 1) * m].fill(f64::NAN);
             }
-            return None;
+            return false;
         }
         if sigma == 0.0 {
             // Zero below the diagonal (or underflowing): H = I
@@ -93,7 +131,7 @@ fn reduce_panel(
         let inv_v0 = 1.0 / (alpha - beta);
         let t = (beta - alpha) / beta;
         tau[jj] = t;
-        let vj = &mut v.as_mut_slice()[jj * rows + jj..(jj + 1) * rows];
+        let vj = &mut v[jj * rows + jj..(jj + 1) * rows];
         vj[0] = 1.0;
         for (vi, ci) in vj[1..].iter_mut().zip(&col[1..]) {
             *vi = ci * inv_v0;
@@ -101,51 +139,65 @@ fn reduce_panel(
         data[j * m + j] = beta;
         data[j * m + j + 1..(j + 1) * m].fill(0.0);
         // The rest of the panel (or of the matrix), column by column.
-        let vj = &v.as_slice()[jj * rows + jj..(jj + 1) * rows];
+        let vj = &v[jj * rows + jj..(jj + 1) * rows];
         for k in j + 1..apply_end {
             let c = &mut data[k * m + j..(k + 1) * m];
             let s = t * dot(vj, c);
             axpy(-s, vj, c);
         }
     }
-    Some((v, tau))
+    true
 }
 
-/// Applies a panel's reflections `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (`b = τ.len()`,
-/// the panel starting at column `j0`) to the `rest` columns right of it, as
-/// two matrix products.
-fn apply_block_reflector(
-    a: &mut nalgebra::DMatrix<f64>,
-    v: &nalgebra::DMatrix<f64>,
-    tau: &[f64],
-    j0: usize,
-    rest: usize,
-) {
-    use nalgebra::DMatrix;
+/// Applies a panel's reflections `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (`V` and `τ`
+/// in `s`, `b = τ.len()`, the panel starting at column `j0`) to the `rest`
+/// columns right of it, as two matrix products.
+fn apply_block_reflector(a: &mut nalgebra::DMatrix<f64>, j0: usize, rest: usize, s: &mut Scratch) {
+    use nalgebra::{DMatrixView, DMatrixViewMut};
     let rows = a.nrows() - j0;
+    let Scratch {
+        v,
+        tau,
+        t,
+        t_tr,
+        t_col,
+        v_tr,
+        vtc,
+        t_vtc,
+    } = s;
     let jb = tau.len();
-    // T (dlarft, forward, columnwise): T_ii = τ_i,
+    let v = &v[..rows * jb];
+    // T (dlarft, forward, columnwise), column-major: T_ii = τ_i,
     // T[0..i, i] = −τ_i T[0..i, 0..i] V[:, 0..i]ᵀ v_i.
-    let mut t = DMatrix::<f64>::zeros(jb, jb);
+    let t = zeroed(t, jb * jb);
     for i in 0..jb {
-        t[(i, i)] = tau[i];
+        t[i + i * jb] = tau[i];
         if i == 0 || tau[i] == 0.0 {
             continue;
         }
-        let vi = &v.as_slice()[i * rows..(i + 1) * rows];
-        let w: Vec<f64> = (0..i)
-            .map(|k| -tau[i] * dot(&v.as_slice()[k * rows..(k + 1) * rows], vi))
-            .collect();
+        let vi = &v[i * rows..(i + 1) * rows];
+        let w = zeroed(t_col, i);
+        for (k, wk) in w.iter_mut().enumerate() {
+            *wk = -tau[i] * dot(&v[k * rows..(k + 1) * rows], vi);
+        }
         for r in 0..i {
-            t[(r, i)] = (r..i).map(|k| t[(r, k)] * w[k]).sum();
+            t[r + i * jb] = (r..i).map(|k| t[r + k * jb] * w[k]).sum();
         }
     }
-    // C ← (I − V T Vᵀ)ᵀ C = C − V (Tᵀ (Vᵀ C)).
-    let vt = v.transpose();
+    // C ← (I − V T Vᵀ)ᵀ C = C − V (Tᵀ (Vᵀ C)), the transposes formed
+    // first so that each product is a plain one (matrixmultiply's kernel).
+    let v = DMatrixView::from_slice(v, rows, jb);
+    let mut v_tr = DMatrixViewMut::from_slice(zeroed(v_tr, jb * rows), jb, rows);
+    v.transpose_to(&mut v_tr);
+    let t = DMatrixView::from_slice(t, jb, jb);
+    let mut t_tr = DMatrixViewMut::from_slice(zeroed(t_tr, jb * jb), jb, jb);
+    t.transpose_to(&mut t_tr);
     let mut c = a.view_mut((j0, j0 + jb), (rows, rest));
-    let w = &vt * &c;
-    let w = t.transpose() * w;
-    c.gemm(-1.0, v, &w, 1.0);
+    let mut w = DMatrixViewMut::from_slice(zeroed(vtc, jb * rest), jb, rest);
+    w.gemm(1.0, &v_tr, &c, 0.0);
+    let mut tw = DMatrixViewMut::from_slice(zeroed(t_vtc, jb * rest), jb, rest);
+    tw.gemm(1.0, &t_tr, &w, 0.0);
+    c.gemm(-1.0, &v, &tw, 1.0);
 }
 
 #[cfg(test)]
