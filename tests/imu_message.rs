@@ -288,3 +288,65 @@ async fn highres_imu_in_bursts_does_not_flap_the_message_taken() {
     // After the switch every SCALED_IMU is fused once: the bursts are not.
     run.assert_each_fused_once_or_ignored();
 }
+
+/// PX4's `SCALED_IMU` carries a u32 of milliseconds since boot, which wraps
+/// after 49.7 days of uptime: the samples across the wrap are fused in
+/// order, with no reboot read into it (a filter restart in flight) and none
+/// refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scaled_imu_time_runs_on_across_its_wrap() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, port): (Config, u16) = common::loopback_config(dir.path());
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    // 1.5 s before the wrap, for 3 s at 50 Hz.
+    let t0_ms: u64 = (1u64 << 32) - 1500;
+    let started = Instant::now();
+    let (mut next_hb, mut k, mut after_wrap) = (0.0, 0u64, 0u64);
+    while started.elapsed() < Duration::from_secs(3) {
+        let now = started.elapsed().as_secs_f64();
+        if now >= next_hb {
+            ap.send(&heartbeat(apm::MavAutopilot::MAV_AUTOPILOT_PX4)).await;
+            next_hb += 0.5;
+        }
+        if now >= k as f64 * 0.02 {
+            let t_ms = t0_ms + 20 * k;
+            after_wrap += u64::from(t_ms >= 1 << 32);
+            ap.send(&apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+                time_boot_ms: t_ms as u32,
+                zacc: -1000,
+                xgyro: 2,
+                ..Default::default()
+            }))
+            .await;
+            k += 1;
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    let c = |n: &str| summary.counters.get(n).copied().unwrap_or(0);
+    eprintln!("{k} sent, {after_wrap} after the wrap: {:?}", summary.counters);
+    assert!(after_wrap > 20, "{after_wrap} samples after the wrap");
+    for bad in [
+        "autopilot_clock_reset",
+        "imu_time_outlier",
+        "imu_time_backwards",
+        "imu_gap_restart",
+    ] {
+        assert_eq!(c(bad), 0, "{bad}: {:?}", summary.counters);
+    }
+    assert_eq!(
+        c("imu_samples"),
+        c("imu_scaled") - c("imu_duplicate"),
+        "{:?}",
+        summary.counters
+    );
+    assert!(
+        c("imu_samples") + 5 >= k,
+        "{} of {k} fused: {:?}",
+        c("imu_samples"),
+        summary.counters
+    );
+}

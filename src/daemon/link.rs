@@ -116,6 +116,41 @@ struct RxState {
     /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
     /// the same sample, when only its magnetometer has a new reading.
     last_imu: Option<(u64, Vector3<f64>, Vector3<f64>)>,
+    /// `SCALED_IMU`'s and `LOCAL_POSITION_NED`'s `time_boot_ms`, unwrapped:
+    /// a u32 of milliseconds wraps after 49.7 days of uptime, which would
+    /// otherwise read as a reboot (a filter restart) in flight.
+    scaled_imu_clock: BootMsClock,
+    local_position_clock: BootMsClock,
+}
+
+/// A `time_boot_ms` stream made continuous across its u32 wrap.
+#[derive(Clone, Copy, Debug, Default)]
+struct BootMsClock {
+    last_raw_ms: Option<u32>,
+    /// Milliseconds added for the wraps seen so far (a multiple of 2³²).
+    wraps_ms: u64,
+}
+
+/// How close to the wrap the last time, and how soon after it the new one,
+/// must be for a step back to be a wrap and not a reboot (ms): a reboot
+/// after 49.7 days that lands within a minute of the wrap is the only
+/// misreading, and it reads as a gap (a restart) all the same.
+const BOOT_MS_WRAP_WINDOW: u32 = 60_000;
+
+impl BootMsClock {
+    /// `raw_ms` on a clock that does not wrap (ms since boot).
+    fn unwrap(&mut self, raw_ms: u32) -> u64 {
+        if let Some(last) = self.last_raw_ms {
+            if last > u32::MAX - BOOT_MS_WRAP_WINDOW && raw_ms < BOOT_MS_WRAP_WINDOW {
+                self.wraps_ms += 1 << 32;
+            } else if raw_ms > u32::MAX - BOOT_MS_WRAP_WINDOW && last < BOOT_MS_WRAP_WINDOW && self.wraps_ms > 0 {
+                // A sample from before the wrap, late: on the old turn.
+                return self.wraps_ms - (1 << 32) + u64::from(raw_ms);
+            }
+        }
+        self.last_raw_ms = Some(raw_ms);
+        self.wraps_ms + u64::from(raw_ms)
+    }
 }
 
 /// Magnetometer readings reach the fusion loop at most this often (µs):
@@ -177,6 +212,8 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
         last_highres_flowing: Instant::now(),
         highres_since: None,
         last_imu: None,
+        scaled_imu_clock: BootMsClock::default(),
+        local_position_clock: BootMsClock::default(),
     };
     tokio::spawn(async move {
         let mut warn = WarnLimit::default();
@@ -389,6 +426,12 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             ..
         } => {
             counters.add(kind.counter(), 1);
+            // SCALED_IMU's time is a u32 of milliseconds (decoded as µs).
+            let t_us = if kind == ImuMessage::Scaled {
+                st.scaled_imu_clock.unwrap((t_us / 1000) as u32) * 1000
+            } else {
+                t_us
+            };
             // One IMU message is taken: the same samples in two messages
             // would come twice, and PX4's HIGHRES_IMU carries EKF2's bias
             // estimates (ImuMessage::auto_for).
@@ -446,7 +489,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
         } => {
             counters.add(Counter::LocalPosition, 1);
             Some(FusionMsg::LocalPosition {
-                t_s: t_boot_ms as f64 * 1e-3,
+                t_s: st.local_position_clock.unwrap(t_boot_ms) as f64 * 1e-3,
                 p_ned_m,
                 v_ned_mps,
             })
@@ -641,6 +684,25 @@ pub(super) fn spawn_sender(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn time_boot_ms_runs_on_across_its_wrap() {
+        let mut c = super::BootMsClock::default();
+        let near = u32::MAX - 15;
+        assert_eq!(c.unwrap(near), u64::from(near));
+        assert_eq!(c.unwrap(near + 10), u64::from(near) + 10);
+        // Past 2³² − 1 ms: on, not back to 4 ms.
+        assert_eq!(c.unwrap(4), (1u64 << 32) + 4);
+        // One from before the wrap, late: where it was, not 49.7 days on.
+        assert_eq!(c.unwrap(near + 12), u64::from(near) + 12);
+        assert_eq!(c.unwrap(24), (1u64 << 32) + 24);
+        // A reboot far from the wrap stays a step back (the time guard's
+        // to judge), and so does a step back within one turn.
+        let mut c = super::BootMsClock::default();
+        assert_eq!(c.unwrap(3_600_000), 3_600_000);
+        assert_eq!(c.unwrap(1_000), 1_000);
+        assert_eq!(c.unwrap(900), 900);
+    }
+
     use super::*;
 
     #[test]
@@ -695,6 +757,8 @@ mod tests {
             last_highres_flowing: Instant::now(),
             highres_since: None,
             last_imu: None,
+            scaled_imu_clock: BootMsClock::default(),
+            local_position_clock: BootMsClock::default(),
         };
         let field = |m: Option<FusionMsg>| match m {
             Some(FusionMsg::Magnetometer { mag_B }) => Some(mag_B.x),
