@@ -4,7 +4,6 @@
 
 mod common;
 
-use std::process::Command;
 
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
@@ -364,17 +363,12 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
     // An independent reader (PyPI `mcap`, installed if missing) reads it
     // cleanly.
     // Every topic and Plot path of the Foxglove layout is in the log.
-    let python = common::python_with(&["mcap", "jsonschema"]);
-    let out = Command::new(&python)
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
-        .arg("--validate")
-        .args([
-            "--layout",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json"),
-        ])
-        .arg(&log_path)
-        .output()
-        .expect("the tests' Python");
+    let out = common::read_mcap(&[
+        std::ffi::OsStr::new("--validate"),
+        "--layout".as_ref(),
+        concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json").as_ref(),
+        log_path.as_os_str(),
+    ]);
     assert!(
         out.status.success(),
         "Python mcap reader: {} {}",

@@ -111,13 +111,7 @@ fn the_demo_flies_on_rendered_images_through_the_front_end() {
         "{with_sigma} of {all} logged features with a σ"
     );
     // ... every record as its channel's schema says (Python's `jsonschema`)
-    let python = common::python_with(&["mcap", "jsonschema"]);
-    let out = Command::new(&python)
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
-        .arg("--validate")
-        .arg(&log)
-        .output()
-        .expect("the tests' Python");
+    let out = common::read_mcap(&[std::ffi::OsStr::new("--validate"), log.as_os_str()]);
     assert!(
         out.status.success(),
         "schema validation: {} {}",

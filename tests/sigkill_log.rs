@@ -56,15 +56,7 @@ fn sigkill_leaves_a_readable_log() {
     );
 
     // Unfinished: a reader that seeks through the summary finds none.
-    let python = common::python_with(&["mcap"]);
-    let seeking = |path: &std::path::Path| {
-        std::process::Command::new(&python)
-            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
-            .arg("--seeking")
-            .arg(path)
-            .output()
-            .expect("the tests' Python")
-    };
+    let seeking = |path: &std::path::Path| common::read_mcap(&[std::ffi::OsStr::new("--seeking"), path.as_os_str()]);
     assert!(!seeking(&log).status.success(), "a killed log has no summary");
     assert!(!cmsckf::io::mcap_log::is_finished(&log).unwrap());
 

@@ -11,6 +11,19 @@ pub mod sitl;
 #[allow(unused_imports)]
 pub use python::python_with;
 
+/// Runs `tests/read_mcap.py`, the independent reader of our logs (PyPI
+/// `mcap`, and `jsonschema` for `--validate`), with `args` in the tests'
+/// Python; its output, whatever its exit.
+pub fn read_mcap<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
+    let validate = args.iter().any(|a| a.as_ref() == "--validate");
+    let python = python_with(if validate { &["mcap", "jsonschema"] } else { &["mcap"] });
+    std::process::Command::new(python)
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_mcap.py"))
+        .args(args)
+        .output()
+        .expect("the tests' Python")
+}
+
 use cmsckf::config::Config;
 
 /// A config on a free loopback UDP port, a socket in `dir`, and no log.
