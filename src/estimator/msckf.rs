@@ -8,6 +8,7 @@
 
 use crate::counters::Counter;
 use std::collections::BTreeSet;
+use std::rc::Rc;
 
 use nalgebra::{DMatrix, DVector, Matrix3};
 
@@ -39,29 +40,45 @@ const LOW_PARALLAX_MAX_SPEED_MPS: f64 = 1.0;
 const REMEMBERED_INVERSE_DEPTH_SIGMA: f64 = 0.6;
 
 /// One gated track's rows: its projected Jacobian over the columns `idx` of
-/// `P`, and its projected residual.
-type TrackRows = (DMatrix<f64>, DVector<f64>, Vec<usize>);
+/// `P`, and its projected residual. The columns are shared with the other
+/// tracks over the same views (most span the whole window).
+type TrackRows = (DMatrix<f64>, DVector<f64>, Rc<[usize]>);
 
 /// `P_sub` of the last gated track and its columns: most tracks span the
-/// whole window, so it is gathered again only when the columns change.
+/// whole window, so it is gathered again, and its columns allocated again,
+/// only when the columns change.
 #[derive(Default)]
 struct GateCache {
-    idx: Vec<usize>,
+    idx: Rc<[usize]>,
+    /// The columns being judged, built here so that an unchanged set
+    /// allocates nothing.
+    scratch: Vec<usize>,
     p: DMatrix<f64>,
 }
 
 impl GateCache {
     /// `P_sub` over the pose columns of the views at `cols` (gathered again
     /// only when they change); the indices.
-    fn gather(&mut self, p: &DMatrix<f64>, cols: &[usize]) -> Vec<usize> {
-        let idx: Vec<usize> = cols.iter().flat_map(|&c| c..c + 6).collect();
-        if idx != self.idx {
-            self.p = DMatrix::zeros(idx.len(), idx.len());
-            math::gather_block(p, &idx, &mut self.p);
-            self.idx.clone_from(&idx);
+    fn gather(&mut self, p: &DMatrix<f64>, cols: &[usize]) -> Rc<[usize]> {
+        self.scratch.clear();
+        self.scratch.extend(cols.iter().flat_map(|&c| c..c + 6));
+        if *self.scratch != *self.idx {
+            self.p = DMatrix::zeros(self.scratch.len(), self.scratch.len());
+            math::gather_block(p, &self.scratch, &mut self.p);
+            self.idx = Rc::from(self.scratch.as_slice());
         }
-        idx
+        Rc::clone(&self.idx)
     }
+}
+
+/// A track's views, their columns in `P` and its observations, as
+/// [`Estimator::track_views`] lays them out: kept for the frame's tracks, so
+/// that each one reuses the buffers of the one before.
+#[derive(Default)]
+struct TrackBuffers {
+    views: Vec<View>,
+    cols: Vec<usize>,
+    obs: Vec<Obs>,
 }
 
 /// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
@@ -227,8 +244,9 @@ impl Estimator {
         let mut rows: Vec<TrackRows> = Vec::new();
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
+        let mut buf = TrackBuffers::default();
         for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
-            let Some(row) = self.gate_track(l, &tr, &ks, &mut gate, report) else {
+            let Some(row) = self.gate_track(l, &tr, &ks, (&mut gate, &mut buf), report) else {
                 continue;
             };
             involved.extend(ks.iter().copied());
@@ -337,10 +355,11 @@ impl Estimator {
     /// The views of track `l`: its clones, then the keyframes `ks`; with
     /// each view's column in `P` (`usize::MAX` for a keyframe not in the
     /// state) and the number of clone observations.
-    fn track_views(&self, l: u64, tr: &Track, ks: &[u64]) -> (Vec<View>, Vec<usize>, Vec<Obs>, usize) {
-        let mut views = Vec::new();
-        let mut cols = Vec::new();
-        let mut obs = Vec::new();
+    fn track_views(&self, l: u64, tr: &Track, ks: &[u64], buf: &mut TrackBuffers) -> usize {
+        let TrackBuffers { views, cols, obs } = buf;
+        views.clear();
+        cols.clear();
+        obs.clear();
         for (seq, o) in &tr.obs {
             let Some(off) = self.clone_offset_by_seq(*seq) else {
                 continue;
@@ -378,7 +397,7 @@ impl Estimator {
             // A keyframe in the state (local), or a Schmidt/full keyframe.
             cols.push(off.unwrap_or(usize::MAX));
         }
-        (views, cols, obs, clone_obs)
+        clone_obs
     }
 
     /// One track through triangulation, the null-space projection and the
@@ -389,10 +408,11 @@ impl Estimator {
         l: u64,
         tr: &Track,
         ks: &[u64],
-        gate: &mut GateCache,
+        (gate, buf): (&mut GateCache, &mut TrackBuffers),
         report: &mut FrameReport,
     ) -> Option<TrackRows> {
-        let (views, cols, obs, clone_obs) = self.track_views(l, tr, ks);
+        let clone_obs = self.track_views(l, tr, ks, buf);
+        let (views, cols, obs) = (&buf.views, &buf.cols, &buf.obs);
         if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
             reject(report, &mut self.stats, Reject::TooFewObservations);
             return None;
@@ -410,7 +430,7 @@ impl Estimator {
         let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
         // NaN (a non-finite bearing) is not enough parallax either.
         if parallax.is_nan() || parallax < min_parallax {
-            return self.gate_low_parallax((l, ks), (&views, &cols, &obs), gate, report);
+            return self.gate_low_parallax((l, ks), (views, cols, obs), gate, report);
         }
         let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
             Ok(p) => p,
@@ -418,7 +438,7 @@ impl Estimator {
             // or a fit that does not settle is the geometry's weakness, not
             // the poses' inconsistency: a low-parallax track.
             Err(Reject::BadDepth | Reject::NotConverged) if parallax < WEAK_PARALLAX_FACTOR * min_parallax => {
-                return self.gate_low_parallax((l, ks), (&views, &cols, &obs), gate, report);
+                return self.gate_low_parallax((l, ks), (views, cols, obs), gate, report);
             }
             Err(r) => {
                 reject(report, &mut self.stats, r);
