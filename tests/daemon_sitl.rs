@@ -4,7 +4,6 @@
 
 mod common;
 
-
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 

@@ -217,7 +217,16 @@ impl Estimator {
                 p_fej_in_W: self.imu.p_B_in_W,
             });
             for o in obs {
-                self.tracks.entry(o.landmark_id).or_default().obs.push((seq, *o));
+                // A track holds at most the window's views (one more while
+                // it slides): room for them once, not grown sample by sample.
+                let cap = self.s.max_clones + 1;
+                self.tracks
+                    .entry(o.landmark_id)
+                    .or_insert_with(|| Track {
+                        obs: Vec::with_capacity(cap),
+                    })
+                    .obs
+                    .push((seq, *o));
             }
         }
     }
