@@ -436,12 +436,12 @@ impl Estimator {
         let info = obs.iter().map(|o| o.W[(0, 0)] * o.W[(0, 0)]).sum::<f64>() / obs.len() as f64;
         let noise_rad = 1.0 / info.sqrt();
         let min_parallax = self.s.min_parallax_rad.max(PARALLAX_NOISE_SIGMAS * noise_rad);
-        let parallax = feature::parallax_rad(&views, &self.s.ext, &obs);
+        let parallax = feature::parallax_rad(views, &self.s.ext, obs);
         // NaN (a non-finite bearing) is not enough parallax either.
         if parallax.is_nan() || parallax < min_parallax {
             return self.gate_low_parallax((l, ks), (views, cols, obs), gate, report);
         }
-        let p_f = match feature::triangulate(&views, &self.s.ext, &obs, &self.s.tri) {
+        let p_f = match feature::triangulate(views, &self.s.ext, obs, &self.s.tri) {
             Ok(p) => p,
             // With little more parallax than the bound, a depth out of range
             // or a fit that does not settle is the geometry's weakness, not
@@ -454,7 +454,7 @@ impl Estimator {
                 return None;
             }
         };
-        let (hx_views, hf, r) = feature::track_system(&views, &self.s.ext, &obs, &p_f);
+        let (hx_views, hf, r) = feature::track_system(views, &self.s.ext, obs, &p_f);
         let (hx, r) = feature::nullspace_project(&hx_views, &hf, &r);
         if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
             reject(report, &mut self.stats, Reject::NonFinite);
@@ -462,8 +462,8 @@ impl Estimator {
         }
         // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
         // from the block-diagonal Jacobian before projection.
-        let idx = gate.gather(&self.P, &cols);
-        let hph = feature::projected_hph(&hx_views, &hf, &obs, &gate.p);
+        let idx = gate.gather(&self.P, cols);
+        let hph = feature::projected_hph(&hx_views, &hf, obs, &gate.p);
         let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob, Reject::Chi2) {
             Ok(nis) => nis,
             Err(why) => {
