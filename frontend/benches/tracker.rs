@@ -54,8 +54,8 @@ fn rendered(c: &mut Criterion) {
     let s = tracker.stats;
     eprintln!(
         "racetrack: {k} frames, {} detected, {} re-identified ({} refused by their first window), {} found again \
-         where a recognised place put them, lost {} by Lucas–Kanade, {} by the first-window check, {} by RANSAC",
-        s.detected, s.reidentified, s.reid_refused, s.reacquired, s.lost_klt, s.lost_anchor, s.lost_ransac
+         where a recognised place put them, lost {} by Lucas–Kanade, {} by the first-window check, {} by its warp's stretch, {} by RANSAC",
+        s.detected, s.reidentified, s.reid_refused, s.reacquired, s.lost_klt, s.lost_anchor, s.lost_warp, s.lost_ransac
     );
 }
 

@@ -134,7 +134,7 @@ impl std::fmt::Display for RunReport {
         write!(
             f,
             "{} frames, {:.2} ms a frame tracking, {} not delivered, {} out of order, {} camera clock restarts, \
-             {} bad headers, {} of the wrong size, camera lost {} times; features detected {}, lost by Lucas–Kanade {}, by their first window {}, by RANSAC {}, re-identified {} (refused by their landmark's window {}), landmarks of recognised places found again {}",
+             {} bad headers, {} of the wrong size, camera lost {} times; features detected {}, lost by Lucas–Kanade {}, by their first window {}, by its warp's stretch {}, by RANSAC {}, re-identified {} (refused by their landmark's window {}), landmarks of recognised places found again {}",
             self.frames,
             self.ms_per_frame(),
             self.frames_dropped,
@@ -146,6 +146,7 @@ impl std::fmt::Display for RunReport {
             s.detected,
             s.lost_klt,
             s.lost_anchor,
+            s.lost_warp,
             s.lost_ransac,
             s.reidentified,
             s.reid_refused,

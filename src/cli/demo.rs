@@ -327,6 +327,7 @@ fn fly(
             "features_detected": r.tracks.detected,
             "lost_klt": r.tracks.lost_klt,
             "lost_anchor": r.tracks.lost_anchor,
+            "lost_warp": r.tracks.lost_warp,
             "lost_ransac": r.tracks.lost_ransac,
             "reidentified": r.tracks.reidentified,
             "reid_refused": r.tracks.reid_refused,
