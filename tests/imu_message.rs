@@ -292,7 +292,7 @@ async fn highres_imu_in_bursts_does_not_flap_the_message_taken() {
 /// PX4's `SCALED_IMU` carries a u32 of milliseconds since boot, which wraps
 /// after 49.7 days of uptime: the samples across the wrap are fused in
 /// order, with no reboot read into it (a filter restart in flight) and none
-/// refused.
+/// refused; `SYSTEM_TIME`'s boot time runs on with them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scaled_imu_time_runs_on_across_its_wrap() {
     let dir = tempfile::tempdir().unwrap();
@@ -308,6 +308,13 @@ async fn scaled_imu_time_runs_on_across_its_wrap() {
         let now = started.elapsed().as_secs_f64();
         if now >= next_hb {
             ap.send(&heartbeat(apm::MavAutopilot::MAV_AUTOPILOT_PX4)).await;
+            // Its Unix time against its boot time, across the wrap too.
+            let boot_ms = t0_ms + (now * 1e3) as u64;
+            ap.send(&apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
+                time_unix_usec: 1_796_000_000_000_000 + boot_ms * 1000,
+                time_boot_ms: boot_ms as u32,
+            }))
+            .await;
             next_hb += 0.5;
         }
         if now >= k as f64 * 0.02 {
@@ -329,11 +336,15 @@ async fn scaled_imu_time_runs_on_across_its_wrap() {
     let c = |n: &str| summary.counters.get(n).copied().unwrap_or(0);
     eprintln!("{k} sent, {after_wrap} after the wrap: {:?}", summary.counters);
     assert!(after_wrap > 20, "{after_wrap} samples after the wrap");
+    // SYSTEM_TIME's boot time is unwrapped with it: Unix time less boot
+    // time stays put, no sample of it refused (GNSS time hangs on it).
+    assert!(c("system_time") >= 5, "{:?}", summary.counters);
     for bad in [
         "autopilot_clock_reset",
         "imu_time_outlier",
         "imu_time_backwards",
         "imu_gap_restart",
+        "system_time_outlier",
     ] {
         assert_eq!(c(bad), 0, "{bad}: {:?}", summary.counters);
     }

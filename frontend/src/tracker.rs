@@ -523,22 +523,26 @@ impl Tracker {
     }
 }
 
-/// Landmark `id`'s first stored look (`Reid::window`) matched at `pos` in
-/// `img` by the affine check from the identity (in `a`'s buffers): the point it lands on
-/// and its σ against the landmark's first look (`Anchor::sigma_px` of the
-/// check's own residual), if the residual is within `share` (and the noise
-/// of `noise_grey`) and the point within `REID_MAX_SHIFT_PX` of `pos`.
 /// Whether the warp's linear part `a` stretches, shrinks or shears the
 /// window by more than the fraction `x` (`TrackerParams::max_warp_stretch`):
 /// its singular values outside `[1/(1+x), 1+x]`, or their ratio over `1+x`.
-/// A non-finite warp is stretched.
+/// A mirrored window (a negative determinant) or a non-finite warp is
+/// stretched too: neither is a surface seen again.
 fn a_stretched(a: &nalgebra::Matrix2<f32>, x: f32) -> bool {
+    if !(a.iter().all(|v| v.is_finite()) && a.determinant() > 0.0) {
+        return true;
+    }
     let sv = a.singular_values();
     let (hi, lo) = (sv[0].max(sv[1]), sv[0].min(sv[1]));
     let limit = 1.0 + x;
     !(hi <= limit && lo * limit >= 1.0 && hi <= lo * limit)
 }
 
+/// Landmark `id`'s first stored look (`Reid::window`) matched at `pos` in
+/// `img` by the affine check from the identity (in `a`'s buffers): the point it lands on
+/// and its σ against the landmark's first look (`Anchor::sigma_px` of the
+/// check's own residual), if the residual is within `share` (and the noise
+/// of `noise_grey`) and the point within `REID_MAX_SHIFT_PX` of `pos`.
 fn check_against(
     a: &mut Anchor,
     reid: &Reid,
@@ -576,6 +580,10 @@ mod tests {
         assert!(!a_stretched(&d(1.1, 0.95), 0.2));
         assert!(a_stretched(&d(1.15, 0.93), 0.2));
         assert!(a_stretched(&d(f32::NAN, 1.0), 0.2));
+        assert!(a_stretched(&d(f32::INFINITY, 1.0), 0.2));
+        // A mirror keeps every length: still no view of the same surface.
+        assert!(a_stretched(&d(1.0, -1.0), 0.2));
+        assert!(a_stretched(&nalgebra::Matrix2::zeros(), 0.2));
     }
 
     /// A plane zoomed 1 % a frame: a track held to its first window

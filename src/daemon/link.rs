@@ -116,40 +116,49 @@ struct RxState {
     /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
     /// the same sample, when only its magnetometer has a new reading.
     last_imu: Option<(u64, Vector3<f64>, Vector3<f64>)>,
-    /// `SCALED_IMU`'s and `LOCAL_POSITION_NED`'s `time_boot_ms`, unwrapped:
-    /// a u32 of milliseconds wraps after 49.7 days of uptime, which would
-    /// otherwise read as a reboot (a filter restart) in flight.
+    /// `SCALED_IMU`'s, `LOCAL_POSITION_NED`'s and `SYSTEM_TIME`'s
+    /// `time_boot_ms`, unwrapped: a u32 of milliseconds wraps after 49.7
+    /// days of uptime, which would otherwise read as a reboot (a filter
+    /// restart in flight), and shift GNSS time by the wrap.
     scaled_imu_clock: BootMsClock,
     local_position_clock: BootMsClock,
+    system_time_clock: BootMsClock,
 }
 
-/// A `time_boot_ms` stream made continuous across its u32 wrap.
+/// A `time_boot_ms` stream made continuous across its u32 wrap, without
+/// a reference clock: each time is read on the turn that puts it nearest
+/// the stream's last, and only a time within [`BOOT_MS_NEAR`] of it
+/// moves the stream on. Anything further (a reboot, a stray or forged
+/// stamp, a stream back after a long silence) is passed on as it came, on
+/// the first turn, for the daemon's time guard to judge, and changes
+/// nothing here: one bad stamp never becomes the reference.
 #[derive(Clone, Copy, Debug, Default)]
 struct BootMsClock {
-    last_raw_ms: Option<u32>,
-    /// Milliseconds added for the wraps seen so far (a multiple of 2³²).
-    wraps_ms: u64,
+    /// The latest time taken (ms, unwrapped).
+    last_ms: Option<u64>,
 }
 
-/// How close to the wrap the last time, and how soon after it the new one,
-/// must be for a step back to be a wrap and not a reboot (ms): a reboot
-/// after 49.7 days that lands within a minute of the wrap is the only
-/// misreading, and it reads as a gap (a restart) all the same.
-const BOOT_MS_WRAP_WINDOW: u32 = 60_000;
+/// How near the stream's last time a new one must be to move it on (ms).
+const BOOT_MS_NEAR: u64 = 60_000;
 
 impl BootMsClock {
     /// `raw_ms` on a clock that does not wrap (ms since boot).
     fn unwrap(&mut self, raw_ms: u32) -> u64 {
-        if let Some(last) = self.last_raw_ms {
-            if last > u32::MAX - BOOT_MS_WRAP_WINDOW && raw_ms < BOOT_MS_WRAP_WINDOW {
-                self.wraps_ms += 1 << 32;
-            } else if raw_ms > u32::MAX - BOOT_MS_WRAP_WINDOW && last < BOOT_MS_WRAP_WINDOW && self.wraps_ms > 0 {
-                // A sample from before the wrap, late: on the old turn.
-                return self.wraps_ms - (1 << 32) + u64::from(raw_ms);
-            }
+        const TURN: u64 = 1 << 32;
+        let raw = u64::from(raw_ms);
+        let Some(last) = self.last_ms else {
+            self.last_ms = Some(raw);
+            return raw;
+        };
+        // The turn that puts it nearest the last time (never before the
+        // first turn).
+        let turn = (last.saturating_sub(raw) + TURN / 2) / TURN;
+        let t = turn * TURN + raw;
+        if t.abs_diff(last) > BOOT_MS_NEAR {
+            return raw;
         }
-        self.last_raw_ms = Some(raw_ms);
-        self.wraps_ms + u64::from(raw_ms)
+        self.last_ms = Some(last.max(t));
+        t
     }
 }
 
@@ -214,6 +223,7 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
         last_imu: None,
         scaled_imu_clock: BootMsClock::default(),
         local_position_clock: BootMsClock::default(),
+        system_time_clock: BootMsClock::default(),
     };
     tokio::spawn(async move {
         let mut warn = WarnLimit::default();
@@ -558,7 +568,10 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
                 counters.add(Counter::SystemTimeUnset, 1);
                 return None;
             }
-            Some(FusionMsg::SystemTime { unix_us, boot_ms })
+            Some(FusionMsg::SystemTime {
+                unix_us,
+                boot_ms: st.system_time_clock.unwrap(boot_ms),
+            })
         }
         Inbound::GpsGlobalOrigin {
             lat_deg,
@@ -686,21 +699,50 @@ pub(super) fn spawn_sender(
 mod tests {
     #[test]
     fn time_boot_ms_runs_on_across_its_wrap() {
+        let turn = 1u64 << 32;
         let mut c = super::BootMsClock::default();
         let near = u32::MAX - 15;
         assert_eq!(c.unwrap(near), u64::from(near));
         assert_eq!(c.unwrap(near + 10), u64::from(near) + 10);
         // Past 2³² − 1 ms: on, not back to 4 ms.
-        assert_eq!(c.unwrap(4), (1u64 << 32) + 4);
+        assert_eq!(c.unwrap(4), turn + 4);
         // One from before the wrap, late: where it was, not 49.7 days on.
         assert_eq!(c.unwrap(near + 12), u64::from(near) + 12);
-        assert_eq!(c.unwrap(24), (1u64 << 32) + 24);
-        // A reboot far from the wrap stays a step back (the time guard's
-        // to judge), and so does a step back within one turn.
+        assert_eq!(c.unwrap(24), turn + 24);
+        // A reboot after the wrap (its first stamps over a minute from the
+        // wrap's): back on the first turn, for the time guard to judge, and
+        // the rebooted clock stays there. (One whose stamps land within a
+        // minute of the wrap's is read as the wrap's: no reference tells.)
+        assert_eq!(c.unwrap(300_000), 300_000);
+        assert_eq!(c.unwrap(300_020), 300_020);
+        assert_eq!(c.unwrap(3_600_000), 3_600_000);
+        // A reboot far from the wrap stays a step back, and so does a step
+        // back within one turn.
         let mut c = super::BootMsClock::default();
         assert_eq!(c.unwrap(3_600_000), 3_600_000);
         assert_eq!(c.unwrap(1_000), 1_000);
         assert_eq!(c.unwrap(900), 900);
+    }
+
+    /// One stray stamp near the top of the u32 (a firmware's "unknown", or
+    /// a forged packet) is passed on as it came and moves nothing: the next
+    /// genuine sample is on the first turn still.
+    #[test]
+    fn one_stray_stamp_near_the_wrap_moves_nothing() {
+        let mut c = super::BootMsClock::default();
+        assert_eq!(c.unwrap(10_000), 10_000);
+        assert_eq!(c.unwrap(u32::MAX), u64::from(u32::MAX));
+        assert_eq!(c.unwrap(10_020), 10_020);
+        assert_eq!(c.unwrap(u32::MAX - 5), u64::from(u32::MAX - 5));
+        assert_eq!(c.unwrap(10_040), 10_040);
+        // And a stray small stamp just after a real wrap is not a second
+        // wrap.
+        let mut c = super::BootMsClock::default();
+        c.unwrap(u32::MAX - 20);
+        assert_eq!(c.unwrap(0), 1 << 32);
+        assert_eq!(c.unwrap(3), (1 << 32) + 3);
+        assert_eq!(c.unwrap(u32::MAX - 2_000_000), u64::from(u32::MAX - 2_000_000));
+        assert_eq!(c.unwrap(23), (1 << 32) + 23);
     }
 
     use super::*;
@@ -759,6 +801,7 @@ mod tests {
             last_imu: None,
             scaled_imu_clock: BootMsClock::default(),
             local_position_clock: BootMsClock::default(),
+            system_time_clock: BootMsClock::default(),
         };
         let field = |m: Option<FusionMsg>| match m {
             Some(FusionMsg::Magnetometer { mag_B }) => Some(mag_B.x),

@@ -161,7 +161,8 @@ pub enum FusionMsg {
     },
     SystemTime {
         unix_us: u64,
-        boot_ms: u32,
+        /// The autopilot's boot time (ms), unwrapped past its u32.
+        boot_ms: u64,
     },
     Origin {
         lat_deg: f64,

@@ -108,7 +108,7 @@ fn link_vehicle() -> RtcmStream {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SystemTimeRecord {
     pub unix_us: u64,
-    pub boot_ms: u32,
+    pub boot_ms: u64,
 }
 
 /// `/input/rebase_installed`: where the fusion loop installed a global
