@@ -123,6 +123,9 @@ struct RxState {
     scaled_imu_clock: BootMsClock,
     local_position_clock: BootMsClock,
     system_time_clock: BootMsClock,
+    /// The journal's limit on rejection warnings, shared by the link's
+    /// rejections and the IMU's.
+    warn: WarnLimit,
 }
 
 /// A `time_boot_ms` stream made continuous across its u32 wrap, without
@@ -224,9 +227,9 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
         scaled_imu_clock: BootMsClock::default(),
         local_position_clock: BootMsClock::default(),
         system_time_clock: BootMsClock::default(),
+        warn: WarnLimit::default(),
     };
     tokio::spawn(async move {
-        let mut warn = WarnLimit::default();
         loop {
             let got = tokio::select! {
                 got = link.recv() => got,
@@ -256,14 +259,14 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
                 }
                 Err(mav::LinkError::Parse(e)) => {
                     r.counters.add(Counter::MavlinkUndecodable, 1);
-                    if warn.allow() {
+                    if st.warn.allow() {
                         tracing::warn!(reason = "mavlink_undecodable", "{e}");
                     }
                     continue;
                 }
                 Err(mav::LinkError::Rejected(why)) => {
                     r.counters.add(why, 1);
-                    if warn.allow() {
+                    if st.warn.allow() {
                         tracing::warn!(reason = %why, "MAVLink message rejected");
                     }
                     continue;
@@ -461,12 +464,10 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             // a time going back.
             if st.last_imu.is_some_and(|(t_last_us, ..)| t_last_us == t_us) {
                 counters.add(Counter::ImuConflictingDuplicate, 1);
-                let n = counters.get(Counter::ImuConflictingDuplicate);
-                if n.is_power_of_two() {
+                if st.warn.allow() {
                     tracing::warn!(
                         reason = "imu_conflicting_duplicate",
                         t_us,
-                        count = n,
                         "IMU sample rejected: another sample had this time with other values"
                     );
                 }
@@ -697,10 +698,12 @@ pub(super) fn spawn_sender(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn time_boot_ms_runs_on_across_its_wrap() {
         let turn = 1u64 << 32;
-        let mut c = super::BootMsClock::default();
+        let mut c = BootMsClock::default();
         let near = u32::MAX - 15;
         assert_eq!(c.unwrap(near), u64::from(near));
         assert_eq!(c.unwrap(near + 10), u64::from(near) + 10);
@@ -718,7 +721,7 @@ mod tests {
         assert_eq!(c.unwrap(3_600_000), 3_600_000);
         // A reboot far from the wrap stays a step back, and so does a step
         // back within one turn.
-        let mut c = super::BootMsClock::default();
+        let mut c = BootMsClock::default();
         assert_eq!(c.unwrap(3_600_000), 3_600_000);
         assert_eq!(c.unwrap(1_000), 1_000);
         assert_eq!(c.unwrap(900), 900);
@@ -729,7 +732,7 @@ mod tests {
     /// genuine sample is on the first turn still.
     #[test]
     fn one_stray_stamp_near_the_wrap_moves_nothing() {
-        let mut c = super::BootMsClock::default();
+        let mut c = BootMsClock::default();
         assert_eq!(c.unwrap(10_000), 10_000);
         assert_eq!(c.unwrap(u32::MAX), u64::from(u32::MAX));
         assert_eq!(c.unwrap(10_020), 10_020);
@@ -737,15 +740,13 @@ mod tests {
         assert_eq!(c.unwrap(10_040), 10_040);
         // And a stray small stamp just after a real wrap is not a second
         // wrap.
-        let mut c = super::BootMsClock::default();
+        let mut c = BootMsClock::default();
         c.unwrap(u32::MAX - 20);
         assert_eq!(c.unwrap(0), 1 << 32);
         assert_eq!(c.unwrap(3), (1 << 32) + 3);
         assert_eq!(c.unwrap(u32::MAX - 2_000_000), u64::from(u32::MAX - 2_000_000));
         assert_eq!(c.unwrap(23), (1 << 32) + 23);
     }
-
-    use super::*;
 
     #[test]
     fn an_open_unsigned_listener_is_recognised() {
@@ -802,6 +803,7 @@ mod tests {
             scaled_imu_clock: BootMsClock::default(),
             local_position_clock: BootMsClock::default(),
             system_time_clock: BootMsClock::default(),
+            warn: WarnLimit::default(),
         };
         let field = |m: Option<FusionMsg>| match m {
             Some(FusionMsg::Magnetometer { mag_B }) => Some(mag_B.x),
