@@ -38,8 +38,14 @@ fn highres(t_s: f64, zacc: f32) -> apm::MavMessage {
 /// A still vehicle's `SCALED_IMU` at `t_s` (ms, mG, mrad/s), carrying
 /// `zacc` (mG).
 fn scaled(t_s: f64, zacc: i16) -> apm::MavMessage {
+    scaled_at_ms((t_s * 1e3).round() as u64, zacc)
+}
+
+/// The same at `t_ms` since boot, sent as the u32 it is on the wire
+/// (wrapping past 2³² ms, 49.7 days).
+fn scaled_at_ms(t_ms: u64, zacc: i16) -> apm::MavMessage {
     apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
-        time_boot_ms: (t_s * 1e3).round() as u32,
+        time_boot_ms: t_ms as u32,
         zacc,
         xgyro: 2,
         ..Default::default()
@@ -320,13 +326,7 @@ async fn scaled_imu_time_runs_on_across_its_wrap() {
         if now >= k as f64 * 0.02 {
             let t_ms = t0_ms + 20 * k;
             after_wrap += u64::from(t_ms >= 1 << 32);
-            ap.send(&apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
-                time_boot_ms: t_ms as u32,
-                zacc: -1000,
-                xgyro: 2,
-                ..Default::default()
-            }))
-            .await;
+            ap.send(&scaled_at_ms(t_ms, -1000)).await;
             k += 1;
         }
         tokio::time::sleep(Duration::from_millis(1)).await;

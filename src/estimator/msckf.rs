@@ -216,10 +216,10 @@ impl Estimator {
                 p_B_in_W: self.imu.p_B_in_W,
                 p_fej_in_W: self.imu.p_B_in_W,
             });
+            // A track holds at most the window's views (one more while it
+            // slides): room for them once, not grown sample by sample.
+            let cap = self.s.max_clones + 1;
             for o in obs {
-                // A track holds at most the window's views (one more while
-                // it slides): room for them once, not grown sample by sample.
-                let cap = self.s.max_clones + 1;
                 self.tracks
                     .entry(o.landmark_id)
                     .or_insert_with(|| Track {
