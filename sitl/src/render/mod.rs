@@ -251,8 +251,7 @@ impl Renderer {
                 let range = hit.t * norm;
                 // The footprint: a pixel's angle times the range, stretched
                 // by the obliquity of the surface.
-                let cos_in = (hit.n.dot(&d) / norm).abs().max(0.05);
-                let shade = self.world.shade(&hit, range / (self.cam.fx * cos_in));
+                let shade = self.world.shade(&hit, range / self.cam.fx, &(d / norm));
                 // Haze: far surfaces fade into the horizon's grey.
                 let haze = ((range - 60.0) / 300.0).clamp(0.0, 1.0);
                 shade * (1.0 - haze) + 175.0 * haze

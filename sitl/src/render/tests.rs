@@ -158,3 +158,58 @@ fn vignetting_darkens_the_corners_and_the_gain_scales_a_frame() {
     assert!(ratios.iter().all(|r| (r - 1.0).abs() < 0.25), "{ratios:?}");
     assert!(ratios.iter().any(|r| (r - 1.0).abs() > 0.01), "{ratios:?}");
 }
+
+/// Each edge's blur is measured across its own image line: the footprints
+/// match the image Jacobian of a pinhole camera looking along the ray
+/// (central differences), from square-on to grazing, ground and walls,
+/// straight and diagonal views.
+#[test]
+fn edge_footprints_match_the_image_jacobian_across_each_edge() {
+    use super::world::footprint;
+    let (f_px, range_m): (f64, f64) = (458.0, 5.0);
+    let views = [
+        (Vector3::<f64>::new(0.0, 0.0, 1.0), Vector3::z(), (0, 1)),
+        (Vector3::new(0.94, 0.0, 0.33), Vector3::z(), (0, 1)),
+        (Vector3::new(0.7, 0.7, 0.14), Vector3::z(), (0, 1)),
+        (Vector3::new(0.3, -0.9, 0.1), Vector3::z(), (0, 1)),
+        (Vector3::new(0.8, 0.5, -0.2), Vector3::x(), (1, 2)),
+        (Vector3::new(0.2, 0.9, 0.3), Vector3::y(), (0, 2)),
+    ];
+    for (d, n, (u, v)) in views {
+        let d: Vector3<f64> = d.normalize();
+        // The camera: optical axis along the ray, the hit on it.
+        let z_c = d;
+        let x_c = (if d.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() })
+            .cross(&z_c)
+            .normalize();
+        let y_c = z_c.cross(&x_c);
+        let proj = |p: &Vector3<f64>| {
+            nalgebra::Vector2::new(f_px * p.dot(&x_c) / p.dot(&z_c), f_px * p.dot(&y_c) / p.dot(&z_c))
+        };
+        let hit = d * range_m;
+        let h = 1e-5;
+        let jac = |k: usize| {
+            let mut e = Vector3::zeros();
+            e[k] = h;
+            (proj(&(hit + e)) - proj(&(hit - e))) / (2.0 * h)
+        };
+        let (ju, jv) = (jac(u), jac(v));
+        let det = (ju.x * jv.y - ju.y * jv.x).abs();
+        // Surface metres of u (v) that one image pixel across an edge of
+        // constant u (v) spans.
+        let (across_u, across_v) = (jv.norm() / det, ju.norm() / det);
+        let fp = footprint(range_m / f_px, &d, &n, (u, v));
+        for (got, want) in [(fp.edge_m[0], across_u), (fp.edge_m[1], across_v)] {
+            assert!((got - want).abs() < 1e-6 * want, "d {d:?}: {got} m against {want} m");
+        }
+        // Detail fades over the largest: the footprint along the steepest
+        // foreshortening, 1 / the Jacobian's smallest singular value.
+        let jm = nalgebra::Matrix2::from_columns(&[ju, jv]);
+        let smallest = jm.singular_values().min();
+        assert!(
+            (fp.fade_m - 1.0 / smallest).abs() < 1e-6 * fp.fade_m,
+            "d {d:?}: fade {}",
+            fp.fade_m
+        );
+    }
+}

@@ -4,7 +4,8 @@
 //! stored, nothing repeats, and any point of any surface is exact.
 //!
 //! Intensity at surface point `(x, y)` (m), seen with a pixel footprint `f`
-//! (m, the surface length one pixel covers):
+//! (m, the surface length one pixel covers; `Footprint`: its largest for
+//! the fades, and across each edge for its blur):
 //!
 //! `I = 112 + Σ_o a_o w(f, c_o) (2 n_o(x/c_o, y/c_o) − 1) + Σ_l b_l w(f, s_l) R_l(x, y; f)`
 //!
@@ -25,6 +26,26 @@ const EDGE_FOOTPRINTS: f64 = 2.0;
 const OCTAVES: [(f64, f64); 1] = [(1.4, 36.0)];
 /// Rectangle layers: (cell m, fill probability, offset of the grid m).
 const RECT_LAYERS: [(f64, f64, f64); 2] = [(1.3, 0.6, 0.0), (0.9, 0.45, 0.41)];
+
+/// What one pixel covers of a surface (m): over all directions, the
+/// largest (`fade_m`, which fades detail out), and across each edge
+/// direction (`edge_m[0]` across an edge of constant `x`, `edge_m[1]`
+/// across one of constant `y`), which blurs the edges.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Footprint {
+    pub fade_m: f64,
+    pub edge_m: [f64; 2],
+}
+
+impl Footprint {
+    /// A pixel square to the surface: `f_m` in every direction.
+    pub fn square(f_m: f64) -> Self {
+        Self {
+            fade_m: f_m,
+            edge_m: [f_m; 2],
+        }
+    }
+}
 
 /// A texture, drawn from a seed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -92,9 +113,11 @@ impl Texture {
     }
 
     /// The intensity (grey levels, 0–255) at surface point `(x_m, y_m)`
-    /// seen with footprint `footprint_m` (module docs). This runs for every
+    /// seen with footprint `fp` (module docs). This runs for every
     /// pixel: it divides only once.
-    pub fn at(&self, x_m: f64, y_m: f64, footprint_m: f64) -> f64 {
+    pub fn at(&self, x_m: f64, y_m: f64, fp: &Footprint) -> f64 {
+        let footprint_m = fp.fade_m;
+        let [fx_m, fy_m] = fp.edge_m;
         let mut v = 112.0;
         for (o, &(cell, amp)) in OCTAVES.iter().enumerate() {
             let w = survives(footprint_m, 2.0 * cell);
@@ -104,9 +127,11 @@ impl Texture {
                 v += amp * w * (2.0 * n - 1.0);
             }
         }
-        // Edges are blurred over EDGE_FOOTPRINTS footprints, and at least
-        // 2 cm: the image is band-limited and needs no anti-aliasing.
-        let inv_edge = 1.0 / (EDGE_FOOTPRINTS * footprint_m).max(0.02);
+        // Edges are blurred over EDGE_FOOTPRINTS footprints across them, and
+        // at least 2 cm: the image is band-limited and needs no
+        // anti-aliasing.
+        let inv_edge_x = 1.0 / (EDGE_FOOTPRINTS * fx_m).max(0.02);
+        let inv_edge_y = 1.0 / (EDGE_FOOTPRINTS * fy_m).max(0.02);
         for (l, &(cell, fill, offset)) in RECT_LAYERS.iter().enumerate() {
             // A rectangle under a footprint fades by itself (its blurred
             // edges meet); whole layers drop out once a footprint outgrows
@@ -127,11 +152,16 @@ impl Texture {
             let x0 = ix as f64 * cell - offset + (cell - w_m) * pos;
             let y0 = iy as f64 * cell - offset + (cell - h_m) * (1.0 - pos);
             // Signed distances inside each edge, in footprints.
-            let d = [x_m - x0, x0 + w_m - x_m, y_m - y0, y0 + h_m - y_m];
-            if d.iter().any(|&e| e * inv_edge <= -0.5) {
+            let d = [
+                (x_m - x0) * inv_edge_x,
+                (x0 + w_m - x_m) * inv_edge_x,
+                (y_m - y0) * inv_edge_y,
+                (y0 + h_m - y_m) * inv_edge_y,
+            ];
+            if d.iter().any(|&e| e <= -0.5) {
                 continue;
             }
-            let inside: f64 = d.iter().map(|&e| smoothstep(e * inv_edge + 0.5)).product();
+            let inside: f64 = d.iter().map(|&e| smoothstep(e + 0.5)).product();
             let sign = if h & (1 << 63) != 0 { 1.0 } else { -1.0 };
             let b = sign * (40.0 + 40.0 * unit(mix(h), 0));
             v += b * keep * inside;
@@ -150,8 +180,11 @@ mod tests {
         let mut differ = 0;
         for k in 0..200 {
             let (x, y) = (k as f64 * 0.37 - 30.0, k as f64 * 0.11 + 5.0);
-            assert_eq!(a.at(x, y, 0.01), a.at(x, y, 0.01));
-            if (a.at(x, y, 0.01) - b.at(x, y, 0.01)).abs() > 1.0 {
+            assert_eq!(
+                a.at(x, y, &Footprint::square(0.01)),
+                a.at(x, y, &Footprint::square(0.01))
+            );
+            if (a.at(x, y, &Footprint::square(0.01)) - b.at(x, y, &Footprint::square(0.01))).abs() > 1.0 {
                 differ += 1;
             }
         }
@@ -162,7 +195,9 @@ mod tests {
     fn detail_fades_to_the_mean_as_the_footprint_grows() {
         let t = Texture::new(3);
         let spread = |f: f64| {
-            let v: Vec<f64> = (0..2000).map(|k| t.at(k as f64 * 0.173, k as f64 * 0.071, f)).collect();
+            let v: Vec<f64> = (0..2000)
+                .map(|k| t.at(k as f64 * 0.173, k as f64 * 0.071, &Footprint::square(f)))
+                .collect();
             let m = v.iter().sum::<f64>() / v.len() as f64;
             (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
         };

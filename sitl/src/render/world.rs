@@ -6,7 +6,7 @@
 
 use nalgebra::Vector3;
 
-use super::texture::Texture;
+use super::texture::{Footprint, Texture};
 use rand::Rng;
 
 use crate::rng::rng_for;
@@ -139,13 +139,15 @@ impl World {
         best
     }
 
-    /// The intensity of `hit` seen with footprint `footprint_m`: the surface's
-    /// texture in its own coordinates, shaded by which way it faces, so a
-    /// block stands out from the ground behind it.
-    pub fn shade(&self, hit: &Hit, footprint_m: f64) -> f64 {
+    /// The intensity of `hit`, seen along the unit ray `d_unit` by pixels
+    /// that each span `pixel_m` (m) of a surface square to the ray at the
+    /// hit's range: the surface's texture in its own coordinates (world
+    /// axes `(u, v)`), seen through [`footprint`], shaded by which way it
+    /// faces, so a block stands out from the ground behind it.
+    pub fn shade(&self, hit: &Hit, pixel_m: f64, d_unit: &Vector3<f64>) -> f64 {
         let p = &hit.p_in_W;
         if hit.surface == 0 {
-            return self.ground.at(p.x, p.y, footprint_m);
+            return self.ground.at(p.x, p.y, &footprint(pixel_m, d_unit, &hit.n, (0, 1)));
         }
         let b = &self.blocks[(hit.surface - 1) as usize];
         // Each face is its own texture: seed by the face's axis and side.
@@ -155,12 +157,36 @@ impl World {
         );
         let tex = Texture::new(b.seed ^ (axis as u64 * 2 + side + 1));
         let (u, v) = match axis {
-            0 => (p.y, p.z),
-            1 => (p.x, p.z),
-            _ => (p.x, p.y),
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
         };
         let light = [0.8, 1.0, 1.1][axis] * if side == 1 { 0.85 } else { 1.0 };
-        (tex.at(u, v, footprint_m) * light).min(255.0)
+        (tex.at(p[u], p[v], &footprint(pixel_m, d_unit, &hit.n, (u, v))) * light).min(255.0)
+    }
+}
+
+/// What one pixel covers of a surface of normal `n` whose texture runs
+/// along world axes `(u, v)`, seen along the unit ray `d_unit` by pixels
+/// that each span `pixel_m` (m) square to the ray.
+///
+/// A surface seen obliquely is foreshortened in one direction only, so an
+/// edge is blurred over its two pixels across its own image line, as a
+/// lens blurs it, not over the obliquity's worst case in both directions
+/// (which blurred an edge along the ground many pixels wide, and slid the
+/// corners it met as the camera climbed). With `J` the image's Jacobian
+/// from the surface's `(u, v)`, one pixel across an edge `u = const` (its
+/// image line along `J e_v`) spans `|J e_v| / |det J|` of `u`: with
+/// `J ≈ (1/pixel_m) Π` (`Π` the projection square to the ray),
+/// `|Π e_v| = √(1 − (e_v·d)²)` and `|det Π| = cos_in = |n·d|`, that is
+/// `pixel_m · √(1 − d_v²) / cos_in`; the same with `u` and `v` swapped.
+/// Detail fades over the largest footprint, `pixel_m / cos_in`.
+pub(super) fn footprint(pixel_m: f64, d_unit: &Vector3<f64>, n: &Vector3<f64>, (u, v): (usize, usize)) -> Footprint {
+    let fade_m = pixel_m / n.dot(d_unit).abs().max(0.05);
+    let across = |along: usize| fade_m * (1.0 - d_unit[along] * d_unit[along]).max(0.0).sqrt();
+    Footprint {
+        fade_m,
+        edge_m: [across(v), across(u)],
     }
 }
 
