@@ -11,11 +11,16 @@ use cmsckf::eval;
 mod common;
 use common::flights::racetrack;
 
-/// Largest drift of compressed from full over a 75 s flight, normalised
+/// Largest drift of compressed from full over a 75–95 s flight, normalised
 /// ([`Snapshot::max_rel_diff`]; the covariance alone stays within 1e-9, the
 /// nominal state within a few 1e-9 of its σ: see
-/// `compressed_equals_full_after_every_global_update`).
-const STATE_DRIFT: f64 = 5e-9;
+/// `compressed_equals_full_after_every_global_update`). The filter
+/// amplifies round-off about tenfold every 50 s (two full filters started
+/// 1e-15 apart drift alike), so where it lands depends on the flight:
+/// 1.3e-9 after the promotions of the 95 s flight below with keyframe
+/// rotation Jacobians at the latest estimate, 5.2e-9 with them at the
+/// first estimate (README §3d), which keeps the yaw unobservable.
+const STATE_DRIFT: f64 = 1e-8;
 
 /// The keyframes a frame's rebase demoted, if it started one: held before
 /// the frame (`ids_before`), neither global before the rebase nor local

@@ -163,7 +163,10 @@ impl Estimator {
             self.stats.vibration_jitter_rad = 0.0;
             if let Some(j_B) = super::vibration::jitter_var_rad2(&self.rate_history) {
                 let r = self.imu.q_W_B.to_rotation_matrix().into_inner();
+                // R J Rᵀ rounds its (i, j) and (j, i) products apart: made
+                // exactly symmetric, as the rest of P is kept.
                 let j_W = r * Matrix3::from_diagonal(&j_B) * r.transpose();
+                let j_W = (j_W + j_W.transpose()) * 0.5;
                 let mut blk = self.P.view_mut((at, at), (3, 3));
                 blk += j_W;
                 self.stats.vibration_jitter_rad = (j_B.sum() / 3.0).sqrt();

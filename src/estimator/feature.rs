@@ -23,9 +23,6 @@ pub struct View {
     /// estimate (its value when it entered the state, README §3d), so the
     /// unobservable yaw and position stay unobservable.
     pub p_lin_in_W: Vector3<f64>,
-    /// Maps the state's rotation error to the world-frame perturbation:
-    /// identity for clones, `J_l(δ̂)` for keyframes (README §4).
-    pub chart: Matrix3<f64>,
 }
 
 /// One observation: undistorted normalised coordinates and the whitening
@@ -106,8 +103,9 @@ fn proj_jacobian(p_c: &Vector3<f64>) -> Matrix2x3<f64> {
 
 /// Predicted normalised coordinates and the Jacobians with respect to the
 /// view's pose error `[δθ, δp]` (2×6) and the landmark (2×3) (README §3,
-/// eqs. C2–C4): `∂p_C/∂δθ = R_B_Cᵀ R_W_Bᵀ [p_f − p_B^FE]× · chart` (with the
-/// view's first-estimate position, §3d),
+/// eqs. C2–C4): `∂p_C/∂δθ = R_B_Cᵀ R_W_Bᵀ [p_f − p_B^FE]×` (with the
+/// view's first-estimate position, §3d; a keyframe's rotation error `δ` is
+/// taken at its first estimate too, where its chart is the identity, §4),
 /// `∂p_C/∂δp = −R_B_Cᵀ R_W_Bᵀ`, `∂p_C/∂p_f = R_B_Cᵀ R_W_Bᵀ`.
 pub fn measure(
     v: &View,
@@ -117,7 +115,7 @@ pub fn measure(
     let p_c = point_in_camera(v, e, p_f);
     let jp = proj_jacobian(&p_c);
     let r_cw = e.R_B_C.transpose() * v.R_W_B.transpose();
-    let d_th = r_cw * skew(&(p_f - v.p_lin_in_W)) * v.chart;
+    let d_th = r_cw * skew(&(p_f - v.p_lin_in_W));
     let mut h_pose = nalgebra::Matrix2x6::zeros();
     h_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&(jp * d_th));
     h_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-jp * r_cw));
@@ -483,75 +481,56 @@ mod tests {
         }
     }
 
-    fn view(yaw: f64, p: Vector3<f64>, chart: Matrix3<f64>) -> View {
+    fn view(yaw: f64, p: Vector3<f64>) -> View {
         View {
             R_W_B: exp_so3(&Vector3::new(0.05, -0.02, yaw))
                 .to_rotation_matrix()
                 .into_inner(),
             p_B_in_W: p,
             p_lin_in_W: p,
-            chart,
         }
     }
 
-    /// Projection Jacobians (clone and keyframe chart) against central
-    /// differences.
+    /// Projection Jacobians against central differences.
     #[test]
     fn measurement_jacobians_match_finite_differences() {
         let e = ext();
         let p_f = Vector3::new(12.0, 3.0, -2.0);
-        let delta = Vector3::new(0.01, -0.02, 0.015);
-        let jl = crate::estimator::math::left_jacobian(&delta);
-        for chart in [Matrix3::identity(), jl] {
-            let v0 = view(0.1, Vector3::new(1.0, 0.5, -3.0), chart);
-            let (_, hp, hf) = measure(&v0, &e, &p_f);
-            let h = 1e-6;
-            for k in 0..6 {
-                let perturb = |s: f64| {
-                    let mut v = v0;
-                    if k < 3 {
-                        // Rotation error in the chart: R = Exp(δ + ε) R0 with
-                        // R0 = Exp(−δ) R̂ when chart = J_l(δ); Exp(ε) R̂ otherwise.
-                        let mut eps = Vector3::zeros();
-                        eps[k] = s;
-                        let r = if chart == Matrix3::identity() {
-                            exp_so3(&eps).to_rotation_matrix().into_inner() * v0.R_W_B
-                        } else {
-                            let r0 = exp_so3(&(-delta)).to_rotation_matrix().into_inner() * v0.R_W_B;
-                            exp_so3(&(delta + eps)).to_rotation_matrix().into_inner() * r0
-                        };
-                        v.R_W_B = r;
-                    } else {
-                        v.p_B_in_W[k - 3] += s;
-                    }
-                    measure(&v, &e, &p_f).0
-                };
-                let col = (perturb(h) - perturb(-h)) / (2.0 * h);
-                assert!(
-                    (col - hp.column(k)).norm() < 1e-7,
-                    "pose col {k}: {col} vs {}",
-                    hp.column(k)
-                );
-            }
-            for k in 0..3 {
-                let mut d = Vector3::zeros();
-                d[k] = h;
-                let col = (measure(&v0, &e, &(p_f + d)).0 - measure(&v0, &e, &(p_f - d)).0) / (2.0 * h);
-                assert!((col - hf.column(k)).norm() < 1e-8);
-            }
+        let v0 = view(0.1, Vector3::new(1.0, 0.5, -3.0));
+        let (_, hp, hf) = measure(&v0, &e, &p_f);
+        let h = 1e-6;
+        for k in 0..6 {
+            let perturb = |s: f64| {
+                let mut v = v0;
+                if k < 3 {
+                    // World-frame rotation error: R = Exp(ε) R̂.
+                    let mut eps = Vector3::zeros();
+                    eps[k] = s;
+                    v.R_W_B = exp_so3(&eps).to_rotation_matrix().into_inner() * v0.R_W_B;
+                } else {
+                    v.p_B_in_W[k - 3] += s;
+                }
+                measure(&v, &e, &p_f).0
+            };
+            let col = (perturb(h) - perturb(-h)) / (2.0 * h);
+            assert!(
+                (col - hp.column(k)).norm() < 1e-7,
+                "pose col {k}: {col} vs {}",
+                hp.column(k)
+            );
+        }
+        for k in 0..3 {
+            let mut d = Vector3::zeros();
+            d[k] = h;
+            let col = (measure(&v0, &e, &(p_f + d)).0 - measure(&v0, &e, &(p_f - d)).0) / (2.0 * h);
+            assert!((col - hf.column(k)).norm() < 1e-8);
         }
     }
 
     fn synthetic(p_f: &Vector3<f64>) -> (Vec<View>, Vec<Obs>) {
         let e = ext();
         let views: Vec<_> = (0..5)
-            .map(|i| {
-                view(
-                    0.02 * i as f64,
-                    Vector3::new(0.0, 0.6 * i as f64, -3.0),
-                    Matrix3::identity(),
-                )
-            })
+            .map(|i| view(0.02 * i as f64, Vector3::new(0.0, 0.6 * i as f64, -3.0)))
             .collect();
         let obs = (0..5)
             .map(|i| Obs {
@@ -637,25 +616,14 @@ mod tests {
     /// The gate's `H P Hᵀ` equals the dense projected product also for long
     /// tracks, where `nullspace_project` (and, from 32 observations, both
     /// calls) take the blocked triangularisation, and when several
-    /// observations share a view (keyframes with `chart ≠ I` included).
+    /// observations share a view.
     #[test]
     fn gate_covariance_matches_the_dense_projection_on_long_and_shared_tracks() {
         let e = ext();
         let p_f = Vector3::new(15.0, 2.0, -1.0);
         for (n_obs, n_views) in [(12usize, 12usize), (24, 24), (40, 40), (9, 4)] {
             let views: Vec<_> = (0..n_views)
-                .map(|i| {
-                    let chart = if i % 3 == 2 {
-                        crate::estimator::math::left_jacobian(&Vector3::new(0.01, -0.02, 0.03 * i as f64))
-                    } else {
-                        Matrix3::identity()
-                    };
-                    view(
-                        0.01 * i as f64,
-                        Vector3::new(0.05 * i as f64, 0.3 * i as f64, -3.0),
-                        chart,
-                    )
-                })
+                .map(|i| view(0.01 * i as f64, Vector3::new(0.05 * i as f64, 0.3 * i as f64, -3.0)))
                 .collect();
             let obs: Vec<_> = (0..n_obs)
                 .map(|i| {
@@ -692,13 +660,7 @@ mod tests {
     fn low_parallax_rows_vanish_at_the_truth_and_match_finite_differences() {
         let e = ext();
         let views: Vec<_> = (0..8)
-            .map(|i| {
-                view(
-                    0.01 * i as f64,
-                    Vector3::new(0.003 * i as f64, 0.01 * i as f64, -3.0),
-                    Matrix3::identity(),
-                )
-            })
+            .map(|i| view(0.01 * i as f64, Vector3::new(0.003 * i as f64, 0.01 * i as f64, -3.0)))
             .collect();
         let obs_of = |p_f: &Vector3<f64>| -> Vec<Obs> {
             (0..views.len())

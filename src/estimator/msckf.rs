@@ -10,10 +10,10 @@ use crate::counters::Counter;
 use std::collections::BTreeSet;
 use std::rc::Rc;
 
-use nalgebra::{DMatrix, DVector, Matrix3};
+use nalgebra::{DMatrix, DVector};
 
 use super::feature::{self, Obs, Reject, View};
-use super::math::{self, left_jacobian};
+use super::math;
 use super::{
     CloneState, Estimator, FilterEvent, FrameReport, GlobalReason, InputError, Mode, NormObs, Stats, Track,
     MAX_KEYFRAMES_PER_TRACK, PENDING_PROMOTIONS_PER_FRAME,
@@ -383,7 +383,6 @@ impl Estimator {
                 R_W_B: c.q_W_B.to_rotation_matrix().into_inner(),
                 p_B_in_W: c.p_B_in_W,
                 p_lin_in_W: c.p_fej_in_W,
-                chart: Matrix3::identity(),
             });
             cols.push(off);
         }
@@ -401,7 +400,6 @@ impl Estimator {
                 R_W_B: kf.q_W_B().to_rotation_matrix().into_inner(),
                 p_B_in_W: kf.p_B_in_W,
                 p_lin_in_W: kf.p_fej_in_W,
-                chart: left_jacobian(&kf.delta),
             });
             // A keyframe in the state (local), or a Schmidt/full keyframe.
             cols.push(off.unwrap_or(usize::MAX));

@@ -15,10 +15,19 @@
 //! the update itself passing its χ² gate.
 
 use crate::counters::Counter;
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
-use super::propagate::{BG, V};
+use super::propagate::{BG, TH, V};
 use super::{math, Estimator, ImuMeas, ImuState, NormObs, Stillness};
+
+/// Z1's block on the attitude error `δθ` (world frame): the body-frame
+/// velocity `R_W_Bᵀ v`, rotated back by the estimate's `R̂_W_B`, is
+/// `Exp(−δθ) (v̂ + δv)`, whose derivative in `δθ` is `[v]×` (and `I` in
+/// `δv`), taken at the velocity's first estimate `v^FE` so that the
+/// unobservable yaw `N = [g; −[v^FE]× g]` stays in its null space (§3d F6).
+fn body_velocity_theta_jacobian(v_fe: &Vector3<f64>) -> Matrix3<f64> {
+    math::skew(v_fe)
+}
 
 /// Fewest features seen both now and at the last clone to judge disparity.
 const MIN_COMMON_FEATURES: usize = 5;
@@ -96,8 +105,9 @@ impl Estimator {
     }
 
     /// Takes the frame as a zero-velocity update when the vehicle is still
-    /// (§3c, eqs. Z1, Z2): `0 = v + n`, `n ~ N(0, σ_z² I)` (`H = I` on the
-    /// velocity, `r = −v̂`), and the mean gyro rate `ω̄_m = b_g + n̄`,
+    /// (§3c, eqs. Z1, Z2): the body-frame velocity `0 = R_W_Bᵀ v + n`,
+    /// `n ~ N(0, σ_z² I)` (whitened: `H = [[v^FE]×, I]` on `[δθ, δv]`,
+    /// `r = −v̂`, §3d F6), and the mean gyro rate `ω̄_m = b_g + n̄`,
     /// `n̄ ~ N(0, σ_g²/T)` (`H = I` on the gyro bias, `r = ω̄_m − b̂_g`): at
     /// rest the gyro measures its bias, which holds the attitude still.
     /// Returns whether it did.
@@ -132,29 +142,36 @@ impl Estimator {
         if !self.median_disparity(obs).is_some_and(|d| d <= z.max_disparity) {
             return false;
         }
-        // Z1: 0 = v + n_v, σ_z; Z2: ω̄_m = b_g + n̄_g, the mean rate over the
-        // interval, with the white gyro noise averaged: σ_g / √T.
+        // Z1: the body-frame velocity is zero, 0 = R_W_Bᵀ v + n_v, σ_z,
+        // whitened by R_W_B (isotropic noise): H = [[v^FE]× on δθ, I on δv],
+        // r = −v̂. Its δθ column keeps the unobservable yaw unobservable
+        // (§3d, eq. F6): with N_θ = g, N_v = −[v^FE]× g, H N = 0. Z2:
+        // ω̄_m = b_g + n̄_g, the mean rate over the interval, with the white
+        // gyro noise averaged: σ_g / √T.
         let v = self.imu.v_B_in_W;
+        let v_fe = v - self.fej_dv;
         let Some(w_mean) = still.mean_rate_radps() else {
             return false;
         };
         // Its noise is the white gyro noise averaged, σ_g / √T, or the
         // vibration's, the per-axis scatter over √n, whichever is larger.
         let sigma_w = (self.s.imu.gyro_noise_density / still.span_s.sqrt()).max(gyro_scatter / (3.0 * n).sqrt());
-        let cols = [V, V + 1, V + 2, BG, BG + 1, BG + 2];
-        let mut h = DMatrix::zeros(6, 6);
+        let cols = [TH, TH + 1, TH + 2, V, V + 1, V + 2, BG, BG + 1, BG + 2];
+        let mut h = DMatrix::zeros(6, 9);
+        h.view_mut((0, 0), (3, 3))
+            .copy_from(&(body_velocity_theta_jacobian(&v_fe) / z.sigma_mps));
         let mut r = DVector::zeros(6);
         for k in 0..3 {
-            h[(k, k)] = 1.0 / z.sigma_mps;
+            h[(k, 3 + k)] = 1.0 / z.sigma_mps;
             r[k] = -v[k] / z.sigma_mps;
-            h[(3 + k, 3 + k)] = 1.0 / sigma_w;
+            h[(3 + k, 6 + k)] = 1.0 / sigma_w;
             r[3 + k] = (w_mean[k] - self.imu.b_g[k]) / sigma_w;
         }
         if !(still.span_s > 0.0 && math::all_finite(r.as_slice())) {
             return false;
         }
         // The gate: rᵀ (H P Hᵀ + I)⁻¹ r on the whitened rows.
-        let mut p_sub = DMatrix::zeros(6, 6);
+        let mut p_sub = DMatrix::zeros(9, 9);
         math::gather_block(&self.P, &cols, &mut p_sub);
         let s = &h * p_sub * h.transpose() + DMatrix::identity(6, 6);
         let Some(ch) = s.clone().cholesky() else {
@@ -181,5 +198,33 @@ impl Estimator {
         self.ekf_update(&h, &cols, &r, false);
         self.stats.zupt_updates += 1;
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Z1's attitude block against central differences of
+    /// `Exp(−δθ) v`, and the yaw's null space: `H_θ g + H_v (−[v]× g) = 0`.
+    #[test]
+    fn body_velocity_jacobian_matches_finite_differences_and_keeps_the_yaw_unobservable() {
+        let v = Vector3::new(0.3, -0.12, 0.05);
+        let h_th = body_velocity_theta_jacobian(&v);
+        let step = 1e-6;
+        for k in 0..3 {
+            let mut d = Vector3::zeros();
+            d[k] = step;
+            let f = |s: f64| math::exp_so3(&(-d * s)) * v;
+            let col = (f(1.0) - f(-1.0)) / (2.0 * step);
+            assert!(
+                (col - h_th.column(k)).norm() < 1e-9,
+                "column {k}: {col} vs {}",
+                h_th.column(k)
+            );
+        }
+        let g = Vector3::new(0.0, 0.0, 9.81);
+        let n_v = -v.cross(&g);
+        assert!((h_th * g + n_v).norm() < 1e-12);
     }
 }
