@@ -131,8 +131,7 @@ fn a_euroc_folder_flies_through_the_front_end_and_the_daemon() {
     assert_eq!(report.reset_count, 0);
     // The folder's world is its own (a motion-capture room's): the daemon's
     // is set up at its start, so the error is measured after alignment.
-    // Measured: 0.16 and 0.20 m in two runs (0.29 twice before tracks
-    // ended at a 20 % stretch of their first window; 0.42-0.43 m in four
-    // runs weighed by the front-end's σ, model noise 0.1 or 0.01 px).
+    // Measured: 0.38 m (seeds 1-5: 0.15-0.38 m; weighed by the front-end's
+    // σ at model noise 0.01 px, 0.10-0.28 m: docs/frontend.md).
     assert!(report.ate_aligned_m < 0.5, "aligned ATE {} m", report.ate_aligned_m);
 }

@@ -89,10 +89,10 @@ pub struct CameraConfig {
     /// Whether each feature is weighed by the σ its front-end sends with it
     /// (`cmsckf-frontend` sends one), with `model_noise_px` added in
     /// quadrature; off (the default), every feature is weighed with
-    /// `pixel_noise_px`. Off by default: on, `demo --frontend` gives a NIS
-    /// per dof of 0.57-0.60 with an exact lens and no loss of accuracy, but
-    /// the EuRoC-folder flight loses it (0.16-0.20 m aligned at 1 px, 0.42
-    /// m with the σ; docs/frontend.md, "Why the σ is still off by default").
+    /// `pixel_noise_px`. Off by default: on, the rendered flights are as
+    /// accurate as at 1 px and their NIS per dof is 0.55-0.66, but only at
+    /// a `model_noise_px` of 0.01, an exact lens, which a real camera is
+    /// not (docs/frontend.md, "Why the σ was off by default").
     pub frontend_sigma: bool,
     /// The camera model's own error (px, one sigma): added in quadrature
     /// to each σ a front-end sends with its features, for what no
