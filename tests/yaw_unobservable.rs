@@ -25,20 +25,36 @@ fn the_yaw_sigma_never_shrinks_without_a_heading_reference() {
     let sim = eval::sim_config_for(&cfg);
     for seed in [3, 5] {
         let ds = Dataset::generate("racetrack", seed, Some(45.0), &sim).unwrap();
-        for mode in [Mode::Msckf, Mode::Compressed] {
+        for mode in [Mode::Msckf, Mode::Compressed, Mode::Full] {
             let r = eval::run(&ds, &cfg, mode, seed, false);
             let sigma_deg: Vec<f64> = r.cov_pose.iter().map(|c| c[(2, 2)].sqrt().to_degrees()).collect();
-            let (first, least) = (sigma_deg[0], sigma_deg.iter().copied().fold(f64::INFINITY, f64::min));
-            let err_deg = {
-                let k = sigma_deg.len() - 1;
-                (r.q_est[k] * r.q_true[k].inverse()).scaled_axis().z.to_degrees()
-            };
+            // Against the prior itself, not the first frame's (already a
+            // zero-velocity update).
+            let first = cfg.init.sigma_yaw_deg;
+            let least = sigma_deg.iter().copied().fold(f64::INFINITY, f64::min);
+            let k = sigma_deg.len() - 1;
+            let err_deg = (r.q_est[k] * r.q_true[k].inverse()).scaled_axis().z.to_degrees();
+            let st = &r.stats;
             eprintln!(
-                "seed {seed} {mode:?}: yaw σ {first:.3}° at the start, least {least:.3}°, last {:.3}°; yaw error at the end {err_deg:.2}°; resets {}",
-                sigma_deg[sigma_deg.len() - 1],
-                r.resets
+                "seed {seed} {mode:?}: yaw σ {first:.3}° at the start, least {least:.3}°, last {:.3}°; yaw error at \
+                 the end {err_deg:.2}°; resets {}; zero-velocity updates {}, tracks {}, loop-closure updates {}, \
+                 global updates {}",
+                sigma_deg[k], r.resets, st.zupt_updates, st.tracks_used, st.loop_closure_updates, st.global_updates
             );
             assert_eq!(r.resets, 0, "seed {seed} {mode:?}");
+            // Every kind of row that leaked ran: the standing's zero-velocity
+            // updates, the camera's tracks, and in compressed mode keyframes
+            // observed again through the global part.
+            assert!(
+                st.zupt_updates > 50 && st.tracks_used > 5000,
+                "seed {seed} {mode:?}: {st:?}"
+            );
+            if mode == Mode::Compressed {
+                assert!(
+                    st.loop_closure_updates > 0 && st.global_updates > 0,
+                    "seed {seed}: {st:?}"
+                );
+            }
             // The gyro's noise only adds. The start's velocity and position,
             // drawn off the truth by their σ (0.2 m/s, 5 cm), tie about 1 %
             // of the yaw to them through N_v = −[v̂]×g, N_p = −[p̂]×g: that
