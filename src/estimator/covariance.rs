@@ -286,6 +286,13 @@ impl Estimator {
         }
     }
 
+    /// The body position's first estimate (§3d, F5/C5): its value before
+    /// the updates not yet stepped past, the one the propagated null space
+    /// holds; what a new clone or keyframe takes as its own.
+    pub(super) fn p_first_estimate(&self) -> Vector3<f64> {
+        self.imu.p_B_in_W - self.fej_dp
+    }
+
     /// Applies a correction to the local nominal state.
     pub(super) fn inject(&mut self, dx: &DVector<f64>) {
         self.imu = propagate::boxplus(&self.imu, &dx.as_slice()[..IMU_DIM]);

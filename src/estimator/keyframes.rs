@@ -44,9 +44,7 @@ impl Estimator {
                 q0_W_B: self.imu.q_W_B,
                 delta: Vector3::zeros(),
                 p_B_in_W: self.imu.p_B_in_W,
-                // The position before any update not yet stepped past (§3d
-                // C5): the value the propagated null space holds.
-                p_fej_in_W: self.imu.p_B_in_W - self.fej_dp,
+                p_fej_in_W: self.p_first_estimate(),
                 obs: kobs,
                 last_used_s: t_s,
             },

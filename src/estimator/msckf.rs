@@ -214,9 +214,7 @@ impl Estimator {
                 seq,
                 q_W_B: self.imu.q_W_B,
                 p_B_in_W: self.imu.p_B_in_W,
-                // The position before any update not yet stepped past (§3d
-                // C5): the value the propagated null space holds.
-                p_fej_in_W: self.imu.p_B_in_W - self.fej_dp,
+                p_fej_in_W: self.p_first_estimate(),
             });
             // A track holds at most the window's views (one more while it
             // slides): room for them once, not grown sample by sample.

@@ -249,8 +249,8 @@ impl Renderer {
         match self.world.cast(o, &d, in_view) {
             Some(hit) if hit.surface != 0 || hit.t * norm < GROUND_RANGE_M => {
                 let range = hit.t * norm;
-                // The footprint: a pixel's angle times the range, stretched
-                // by the obliquity of the surface.
+                // A pixel's angle times the range; the surface's obliquity
+                // stretches it per edge direction (`world::footprint`).
                 let shade = self.world.shade(&hit, range / self.cam.fx, &(d / norm));
                 // Haze: far surfaces fade into the horizon's grey.
                 let haze = ((range - 60.0) / 300.0).clamp(0.0, 1.0);
