@@ -391,14 +391,26 @@ pub fn low_parallax_system(
     // The depth is the views' own, from their mean centre c̄ = Σ c_i / n,
     // c_i = p_B_i + R_W_B_i p_C_in_B: the landmark moves along b̄ with
     // them, ∂p/∂δp_i = b̄ b̄ᵀ / n and ∂p/∂δθ_i = −b̄ b̄ᵀ [R_W_B_i p_C_in_B]× / n
-    // (the parts across b̄ are projected out with the others), so a
-    // translation of the whole window leaves the residual as it is, as the
-    // unobservable position must (LP1′).
+    // − b̄ b̄ᵀ [p − c̄_FE]× / n (the parts across b̄ are projected out with
+    // the others), so a translation or a turn about gravity of the whole
+    // window leaves the residual as it is, as the unobservable position
+    // and yaw must (LP1′).
     let h_d = &hf * b;
     let n = obs.len() as f64;
+    // The landmark's offset from the views, p − c̄_FE (centres at their
+    // first estimates), turns with the views: its share along b̄,
+    // −b̄ᵀ [p − c̄_FE]× δθ_i / n on each view's rotation (LP1′). With it a
+    // turn of the whole window about gravity, at the first estimates C5
+    // takes it at, leaves the rows exactly as they are.
+    let c_fe = obs
+        .iter()
+        .map(|o| views[o.view].p_lin_in_W + views[o.view].R_W_B * e.p_C_in_B)
+        .sum::<Vector3<f64>>()
+        / n;
+    let turn = b.transpose() * skew(&(p - c_fe));
     for o in obs {
         let v = &views[o.view];
-        let d_rot = -(b.transpose() * skew(&(v.R_W_B * e.p_C_in_B))) / n;
+        let d_rot = -(b.transpose() * skew(&(v.R_W_B * e.p_C_in_B)) + turn) / n;
         let d_pos = b.transpose() / n;
         let mut block = hx.view_mut((0, 6 * o.view), (2 * obs.len(), 6));
         block.columns_mut(0, 3).gemm(1.0, &h_d, &d_rot, 1.0);
@@ -724,22 +736,38 @@ mod tests {
             let sum: DVector<f64> = (0..views.len()).map(|i| hx.column(6 * i + 3 + axis).into_owned()).sum();
             assert!(sum.norm() < 1e-9 * hx.norm(), "axis {axis}: {}", sum.norm());
         }
-        // So is a turn of the whole world about gravity (C5 with the views
-        // at their first estimates): δθ_i = ĝ, δp_i = −[p_i]× ĝ.
+        // So is a turn of the whole world about gravity (C5 at the views'
+        // first estimates): δθ_i = ĝ, δp_i = −[p_i^FE]× ĝ, exactly, also with
+        // the first estimates away from the current positions and the
+        // landmark off the mean bearing (noisy bearings).
         let g = Vector3::z();
-        let mut yaw = DVector::zeros(6 * views.len());
-        for (i, v) in views.iter().enumerate() {
-            yaw.rows_mut(6 * i, 3).copy_from(&g);
-            yaw.rows_mut(6 * i + 3, 3).copy_from(&(-skew(&v.p_B_in_W) * g));
+        let yaw_of = |vs: &[View]| {
+            let mut yaw = DVector::zeros(6 * vs.len());
+            for (i, v) in vs.iter().enumerate() {
+                yaw.rows_mut(6 * i, 3).copy_from(&g);
+                yaw.rows_mut(6 * i + 3, 3).copy_from(&(-skew(&v.p_lin_in_W) * g));
+            }
+            yaw
+        };
+        let mut moved = views.clone();
+        for (i, v) in moved.iter_mut().enumerate() {
+            v.p_lin_in_W += Vector3::new(0.4 - 0.1 * i as f64, 0.05 * i as f64, 0.2);
         }
-        // Exactly so but for `b̄ᵀ (ĝ × U u)`: the landmark's offset across the
-        // mean bearing (centimetres here) turned by the yaw.
-        assert!(
-            (&hx * &yaw).norm() < 1e-6 * hx.norm(),
-            "yaw: {} of {}",
-            (&hx * &yaw).norm(),
-            hx.norm()
-        );
+        let mut noisy = obs.clone();
+        for (i, o) in noisy.iter_mut().enumerate() {
+            o.xn += Vector2::new(0.004, -0.003) * if i % 2 == 0 { 1.0 } else { -1.0 };
+        }
+        for (vs, os) in [(&views, &obs), (&moved, &obs), (&views, &noisy), (&moved, &noisy)] {
+            let rows = low_parallax_system(vs, &e, os, prior(p_f), 0.1).unwrap();
+            let leak = (&rows.hx * yaw_of(vs)).norm();
+            assert!(leak < 1e-12 * rows.hx.norm(), "yaw: {leak} of {}", rows.hx.norm());
+            for axis in 0..3 {
+                let sum: DVector<f64> = (0..vs.len())
+                    .map(|i| rows.hx.column(6 * i + 3 + axis).into_owned())
+                    .sum();
+                assert!(sum.norm() < 1e-9 * rows.hx.norm(), "axis {axis}: {}", sum.norm());
+            }
+        }
         // Remembered at 5 m, truly at 4 m, 10 m or at infinity: the
         // residual is about |1 − 5/d| / κ sigmas, never more.
         for d in [4.0, 10.0, 1e6] {
