@@ -450,6 +450,10 @@ pub struct SimConfig {
     pub vibration: VibrationConfig,
     /// The rendered camera (`crate::render`, `demo --frontend`).
     pub render: crate::render::RenderConfig,
+    /// How the camera's true lens differs from `camera`, its calibration
+    /// (`crate::lens`): drawn per flight, rendered and projected through;
+    /// the daemon is given `camera`.
+    pub lens: crate::lens::LensErrorConfig,
 }
 
 impl SimConfig {
@@ -516,7 +520,8 @@ impl Validate for SimConfig {
         self.autopilot.validate(&p("autopilot"))?;
         self.wind.validate(&p("wind"))?;
         self.vibration.validate(&p("vibration"))?;
-        self.render.validate(&p("render"))
+        self.render.validate(&p("render"))?;
+        self.lens.validate(&p("lens"))
     }
 }
 

@@ -85,8 +85,12 @@ impl Dataset {
             imu.push(m);
         }
 
-        let cam = Camera::from_config(&cfg.camera);
-        let mut fsim = FeatureSim::new(&cfg.features, cam, cfg.camera.pixel_noise_px);
+        let true_camera = cfg.lens.draw(&cfg.camera, &mut rng_for(seed, 12));
+        let mut fsim = FeatureSim::new(
+            &cfg.features,
+            Camera::from_config(&true_camera),
+            cfg.camera.pixel_noise_px,
+        );
         let n_cam = (duration * cfg.camera.rate_hz).floor() as usize + 1;
         let frames = (0..n_cam)
             .map(|k| {
@@ -147,8 +151,24 @@ impl Dataset {
             base_arp_ecef_m,
             ephemerides: gnss_model.ephemerides,
             track_stats: fsim.stats,
+            true_camera: Some(true_camera),
             trajectory: traj.clone(),
         }
+    }
+
+    /// The camera as the flight saw it: its true lens if simulated, else
+    /// the calibration (the best a recorded flight knows).
+    pub fn camera_as_flown(&self) -> &cmsckf_models::sensors::CameraConfig {
+        self.true_camera.as_ref().unwrap_or(&self.cfg.camera)
+    }
+
+    /// How far the flight's lens puts each pixel from where its
+    /// calibration does (RMS over the image, px; `crate::lens`); `None`
+    /// for a recorded flight.
+    pub fn lens_rms_px(&self) -> Option<f64> {
+        self.true_camera
+            .as_ref()
+            .map(|lens| crate::lens::reprojection_rms_px(&self.cfg.camera, lens))
     }
 
     /// The autopilot's landed state at flight time `t_s`, as its land
@@ -194,12 +214,13 @@ impl Dataset {
         ));
         let s = &self.track_stats;
         out.push(format!(
-            "camera: {:.1} Hz, {} frames, {:.1} features/frame, σ {:.2} px, {} landmarks, {} re-identifications, {} outliers; \
-             clock offset t_d {:+.1} ms (t_imu = t_cam + t_d), delivered {:.0}–{:.0} ms after exposure",
+            "camera: {:.1} Hz, {} frames, {:.1} features/frame, σ {:.2} px, lens {} off its calibration, {} landmarks, \
+             {} re-identifications, {} outliers; clock offset t_d {:+.1} ms (t_imu = t_cam + t_d), delivered {:.0}–{:.0} ms after exposure",
             c.camera.rate_hz,
             self.frames.len(),
             s.observations as f64 / s.frames.max(1) as f64,
             c.camera.pixel_noise_px,
+            self.lens_rms_px().map_or("unknown".to_string(), |px| format!("{px:.2} px RMS")),
             s.landmarks,
             s.reidentified,
             s.outliers,
@@ -310,7 +331,7 @@ impl Renderer {
     pub fn for_dataset(ds: &Dataset) -> Self {
         Self::new(
             World::around(&ds.trajectory, ds.seed),
-            Camera::from_config(&ds.cfg.camera),
+            Camera::from_config(ds.camera_as_flown()),
             ds.cfg.render.clone(),
         )
     }
@@ -386,12 +407,16 @@ mod tests {
         cfg.features.outlier_prob = 0.0;
         let seed = 3;
         let ds = Dataset::generate("racetrack", seed, Some(3.0), &cfg).unwrap();
-        let cam = Camera::from_config(&cfg.camera);
+        // Seen through its own lens, drawn off the calibration ...
+        assert!(ds.true_camera.as_ref().is_some_and(|lens| *lens != cfg.camera));
+        assert!(ds.lens_rms_px().is_some_and(|px| px > 0.0));
+        let cam = Camera::from_config(ds.camera_as_flown());
         // The same front end on the same stream, fed the truth at exposure.
         let mut sim = FeatureSim::new(&cfg.features, cam.clone(), 0.0);
         let mut rng = rng_for(seed, 3);
         let [lo, hi] = cfg.camera_latency_s;
         let (mut lat_min, mut lat_max, mut off_px) = (f64::MAX, 0.0f64, 0.0f64);
+        let (calibrated, mut lens_px) = (Camera::from_config(&cfg.camera), 0.0f64);
         for (k, f) in ds.frames.iter().enumerate() {
             assert_eq!(f.t_exposure_s, k as f64 / cfg.camera.rate_hz);
             assert!((f.t_s - (f.t_exposure_s - 0.012)).abs() < 1e-12, "{f:?}");
@@ -412,12 +437,21 @@ mod tests {
                 let uv = Vector2::new(o.u_px, o.v_px);
                 let proj = cam.project(&(T_C_W * p).coords).unwrap();
                 assert!((proj - uv).norm() < 1e-6, "{proj} vs {uv}");
+                if let Some(cal) = calibrated.project(&(T_C_W * p).coords) {
+                    lens_px = lens_px.max((cal - uv).norm());
+                }
                 if let Some(at_stamp) = cam.project(&(T_C_W_at_stamp * p).coords) {
                     off_px = off_px.max((at_stamp - uv).norm());
                 }
             }
         }
         assert!(off_px > 1.0, "the stamp's pose projects within {off_px} px");
+        // ... which puts the features a fraction of a pixel from where the
+        // calibration would.
+        assert!(
+            lens_px > 0.01 && lens_px < 2.0,
+            "the lens moves a feature by up to {lens_px} px"
+        );
         assert!(lat_min < lo + 0.003 && lat_max > hi - 0.003, "{lat_min}..{lat_max}");
     }
 

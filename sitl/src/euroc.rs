@@ -147,6 +147,7 @@ pub fn load(root: &Path, cfg: &SimConfig) -> Result<Dataset, TrajectoryError> {
         base_arp_ecef_m: None,
         ephemerides: Vec::new(),
         track_stats: TrackStats::default(),
+        true_camera: None,
         trajectory: traj,
     })
 }

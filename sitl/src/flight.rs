@@ -37,6 +37,11 @@ pub struct Dataset {
     pub base_arp_ecef_m: Option<[f64; 3]>,
     pub ephemerides: Vec<BroadcastEphemeris>,
     pub track_stats: TrackStats,
+    /// The camera as it really is: `cfg.camera`, the calibration the daemon
+    /// is given, moved by a draw of `cfg.lens` (`crate::lens`). Features
+    /// are projected and images rendered through it. `None` for a recorded
+    /// flight, whose real lens is unknown.
+    pub true_camera: Option<cmsckf_models::sensors::CameraConfig>,
     /// The ground truth itself, for sampling at any time.
     pub trajectory: Trajectory,
 }

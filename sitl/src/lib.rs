@@ -10,7 +10,8 @@
 //!   shared sensor and Earth models of `cmsckf-models`
 //! - [`rtcm_out`]: the simulated receiver's RTCM3 (MSM7)
 //! - [`render`]: the camera's images of a textured world, with each
-//!   pixel's true world point
+//!   pixel's true world point; [`lens`]: the true lens they are seen
+//!   through, which differs from its calibration as a real one does
 //! - [`euroc`]: a EuRoC/ASL folder's IMU, images and truth, to serve
 //! - [`dataset`]: a whole simulated flight, and its CSV export; [`flight`]:
 //!   the record of a flight, simulated or loaded; [`rng`]: its seeded streams
@@ -26,6 +27,7 @@ pub mod features;
 pub mod flight;
 pub mod gnss;
 pub mod imu;
+pub mod lens;
 pub mod metrics;
 pub mod render;
 pub mod rng;

@@ -302,6 +302,10 @@ fn fly(
     let summary = summary?;
     let mut out = serde_json::to_value(&report)?;
     out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
+    // How far the simulated lens puts each pixel from where the daemon's
+    // calibration does (RMS over the image, px).
+    // A recorded flight's lens is unknown (null).
+    out["lens_rms_px"] = ds.lens_rms_px().into();
     if let Ok(s) = &summary {
         out["daemon_counters"] = serde_json::to_value(&s.counters)?;
         let count = |c: Counter| s.counters.get(c.as_str()).copied().unwrap_or(0);

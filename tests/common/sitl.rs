@@ -292,12 +292,13 @@ pub struct TruthCamera {
 impl TruthCamera {
     pub fn new(cfg: &Config) -> Self {
         let sim = cmsckf::eval::sim_config_for(cfg);
+        // Seen through a lens that differs from its calibration, as a
+        // real one does (`cmsckf_sitl::lens`).
+        let lens = sim
+            .lens
+            .draw(&cfg.camera, &mut rand_chacha::ChaCha8Rng::seed_from_u64(12));
         Self {
-            sim: FeatureSim::new(
-                &sim.features,
-                Camera::from_config(&cfg.camera),
-                cfg.camera.pixel_noise_px,
-            ),
+            sim: FeatureSim::new(&sim.features, Camera::from_config(&lens), cfg.camera.pixel_noise_px),
             rng: rand_chacha::ChaCha8Rng::seed_from_u64(7),
             socket_path: cfg.features.socket.clone(),
             socket: None,
