@@ -150,10 +150,16 @@ grep -q '^User=cmsckf$' "$pkg/lib/systemd/system/cmsckf.service" \
   || { echo "package-deb.sh: config/cmsckf.service changed shape; update the sed above" >&2; exit 1; }
 install -m 0644 packaging/cmsckf-frontend.service "$pkg/lib/systemd/system/cmsckf-frontend.service"
 install -m 0644 packaging/cmsckf-frontend.default "$pkg/etc/default/cmsckf-frontend"
-# The config: the defaults, with the clock a V4L2 front-end stamps with.
-sed -e 's|^clock = "autopilot"  |clock = "monotonic"  |' config/default.toml > "$pkg/etc/cmsckf/cmsckf.toml"
+# The config: the defaults, with the clock a V4L2 front-end stamps with,
+# and the per-frame error such a camera adds that its front-end cannot see:
+# a host's stamp jitters by a millisecond or two, 0.05-0.5 px at this
+# focal length at a multirotor's turn rates (docs/packaging.md).
+sed -e 's|^clock = "autopilot"  |clock = "monotonic"  |' \
+    -e 's|^model_noise_px = 0.01 |model_noise_px = 0.1  |' config/default.toml > "$pkg/etc/cmsckf/cmsckf.toml"
 grep -q '^clock = "monotonic"' "$pkg/etc/cmsckf/cmsckf.toml" \
   || { echo "package-deb.sh: config/default.toml's features.clock line changed shape" >&2; exit 1; }
+grep -q '^model_noise_px = 0.1 ' "$pkg/etc/cmsckf/cmsckf.toml" \
+  || { echo "package-deb.sh: config/default.toml's camera.model_noise_px line changed shape" >&2; exit 1; }
 chmod 0644 "$pkg/etc/cmsckf/cmsckf.toml"
 install -m 0644 README.md "$pkg/usr/share/doc/cmsckf/README.md"
 install -m 0644 packaging/copyright "$pkg/usr/share/doc/cmsckf/copyright"

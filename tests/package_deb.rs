@@ -158,6 +158,10 @@ fn the_debian_package_holds_a_runnable_daemon_its_units_config_and_debug_info() 
         toml.contains("\nclock = \"monotonic\""),
         "the packaged config keeps the autopilot clock"
     );
+    assert!(
+        toml.contains("\nmodel_noise_px = 0.1 "),
+        "the packaged config leaves a host-stamped camera's jitter out of the model noise"
+    );
 
     // The units start what the package holds, as its user, with its config.
     let unit = std::fs::read_to_string(root.join("lib/systemd/system/cmsckf.service")).unwrap();

@@ -88,18 +88,21 @@ pub struct CameraConfig {
     pub pixel_noise_px: f64,
     /// Whether each feature is weighed by the σ its front-end sends with it
     /// (`cmsckf-frontend` sends one), with `model_noise_px` added in
-    /// quadrature; off (the default), every feature is weighed with
-    /// `pixel_noise_px`. Off by default: on, the rendered flights are as
-    /// accurate as at 1 px and their NIS per dof is 0.55-0.66, but only at
-    /// a `model_noise_px` of 0.01, an exact lens, which a real camera is
-    /// not (docs/frontend.md, "Why the σ was off by default").
+    /// quadrature (on, the default); off, every feature is weighed with
+    /// `pixel_noise_px`. A feature sent without a σ is weighed with
+    /// `pixel_noise_px` either way. On, the rendered flights' NIS per dof is
+    /// 0.55–0.59 through a lens 0.1–0.8 px off its calibration, where 1 px
+    /// gives 0.015 (docs/frontend.md, "How the default was chosen").
     pub frontend_sigma: bool,
-    /// The camera model's own error (px, one sigma): added in quadrature
-    /// to each σ a front-end sends with its features, for what no
-    /// front-end can see in one image (a lens that differs from its
-    /// calibration, whose reprojection RMS is a measure of it). 0.1 by
-    /// default, the low end of a real calibration's 0.1–0.3 px; the
-    /// simulator renders through the exact model, where 0.01 fits.
+    /// The error of each feature's position that its front-end's σ does not
+    /// hold and that differs from frame to frame (px, one sigma): added in
+    /// quadrature to each σ a front-end sends. Not the calibration's
+    /// reprojection RMS: a lens off its calibration errs smoothly over the
+    /// image, and a track's landmark and views absorb it (a simulated lens
+    /// 0.1–0.8 px RMS off left the NIS unchanged; 0.8 px bent the path,
+    /// which no model noise covers: calibrate). 0.01 by default, the
+    /// least accepted; raise it for what a frame's stamp or a rolling
+    /// shutter adds (docs/frontend.md says how to measure it on a log).
     pub model_noise_px: f64,
     /// Frame rate (Hz).
     pub rate_hz: f64,
@@ -118,8 +121,8 @@ impl Default for CameraConfig {
             p_C_in_B_m: [0.10, 0.0, 0.02],
             q_B_C_xyzw: [0.5, 0.5, 0.5, 0.5],
             pixel_noise_px: 1.0,
-            frontend_sigma: false,
-            model_noise_px: 0.1,
+            frontend_sigma: true,
+            model_noise_px: 0.01,
             rate_hz: 30.0,
         }
     }

@@ -36,8 +36,9 @@ pub struct NormFrame {
     pub rejects: FrameRejects,
 }
 
-/// A feature's pixel noise: the σ its front-end sent, with the camera
-/// model's own error added in quadrature, or one σ for features that come
+/// A feature's pixel noise: the σ its front-end sent, with the error each
+/// frame adds that the front-end's σ does not hold (`camera.model_noise_px`)
+/// added in quadrature, or one σ for features that come
 /// without, and for all when the front-end's are not taken (README.md §3,
 /// eq. W1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -175,9 +176,9 @@ mod tests {
         for bad in [0.0, -1.0, 1e-9, 5e3, f64::NAN, f64::INFINITY] {
             assert_eq!(n.noise.sigma_px(&with(Some(bad))), 1.0);
         }
-        // Off (the default), every feature is weighed with the default.
+        // Off, every feature is weighed with the default.
         c.frontend_sigma = false;
         assert_eq!(Normaliser::new(&c).noise.sigma_px(&with(Some(0.12))), 1.0);
-        assert!(!CameraConfig::default().frontend_sigma);
+        assert!(CameraConfig::default().frontend_sigma, "on by default");
     }
 }
