@@ -10,12 +10,22 @@ use std::process::Command;
 
 #[test]
 fn the_demo_flies_on_an_armed_vibrating_imu_and_reports_its_confidence() {
+    // Run where a user would, in a directory of its own: the flight log
+    // lands there (not in the source tree).
+    let dir = tempfile::tempdir().unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
         .args(["demo", "--duration-s", "40", "--json"])
+        .current_dir(dir.path())
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let logs: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    assert_eq!(logs.len(), 1, "the demo writes one flight log in its working directory");
     let num = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} missing: {r}"));
     eprintln!(
         "first estimate {:.2} s, ZUPTs {}, resets {}, ATE {:.3} m, position NEES {:.2} ({:.0}% in 95%), NIS/dof {:.2}, lowest quality {}",
