@@ -153,6 +153,30 @@ mod tests {
             assert_eq!(parse_line(bad, 10).unwrap_err().reason(), Counter::FeatureBadSigma);
         }
         assert!(parse_line(br#"{"v":1,"t_us":1,"features":[[1,10,20,1e999]]}"#, 10).is_err());
+        // The range's ends are taken, a hair outside them is not; a σ that
+        // is not a number is a syntax error.
+        for (sigma, usable) in [
+            ("0.001", true),
+            ("1000", true),
+            ("0.000999", false),
+            ("1000.001", false),
+        ] {
+            let line = format!(r#"{{"v":1,"t_us":1,"features":[[1,10,20,{sigma}]]}}"#);
+            let got = parse_line(line.as_bytes(), 10);
+            if usable {
+                assert_eq!(got.unwrap().features[0].sigma_px, Some(sigma.parse().unwrap()));
+            } else {
+                assert_eq!(got.unwrap_err().reason(), Counter::FeatureBadSigma, "{sigma}");
+            }
+        }
+        for odd in ["null", r#""0.1""#, "true"] {
+            let line = format!(r#"{{"v":1,"t_us":1,"features":[[1,10,20,{odd}]]}}"#);
+            assert_eq!(
+                parse_line(line.as_bytes(), 10).unwrap_err().reason(),
+                Counter::FeatureLineSyntax,
+                "{odd}"
+            );
+        }
         let five = br#"{"v":1,"t_us":1,"features":[[1,10,20,0.1,3]]}"#;
         assert_eq!(parse_line(five, 10).unwrap_err().reason(), Counter::FeatureLineSyntax);
     }
