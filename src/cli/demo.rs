@@ -303,8 +303,8 @@ fn fly(
     let mut out = serde_json::to_value(&report)?;
     out["daemon_alive"] = serde_json::Value::Bool(summary.is_ok());
     // How far the simulated lens puts each pixel from where the daemon's
-    // calibration does (RMS over the image, px).
-    // A recorded flight's lens is unknown (null).
+    // calibration does (RMS over the image, px); null for a recorded
+    // flight, whose lens is unknown.
     out["lens_rms_px"] = ds.lens_rms_px().into();
     if let Ok(s) = &summary {
         out["daemon_counters"] = serde_json::to_value(&s.counters)?;
