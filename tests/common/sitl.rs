@@ -50,6 +50,12 @@ impl FlightDir {
         };
         Self { path, truth_csv, _temp }
     }
+
+    /// A file of this name beside the log, when the folder is kept.
+    pub fn kept_file(&self, name: &str) -> Option<File> {
+        self.truth_csv.as_ref()?;
+        Some(File::create(self.path.join(name)).unwrap())
+    }
 }
 
 /// The autopilot's positions, each scored against the truth of its instant
@@ -289,14 +295,19 @@ pub struct TruthCamera {
     last_frame_t_s: f64,
 }
 
+/// The camera's true lens: drawn around the calibration the daemon is
+/// given, as a real lens differs from its calibration
+/// (`cmsckf_sitl::lens`), from a fixed seed (these flights have none).
+fn true_lens(cfg: &Config) -> cmsckf_models::sensors::CameraConfig {
+    cmsckf::eval::sim_config_for(cfg)
+        .lens
+        .draw(&cfg.camera, &mut rand_chacha::ChaCha8Rng::seed_from_u64(12))
+}
+
 impl TruthCamera {
     pub fn new(cfg: &Config) -> Self {
         let sim = cmsckf::eval::sim_config_for(cfg);
-        // Seen through a lens that differs from its calibration, as a
-        // real one does (`cmsckf_sitl::lens`).
-        let lens = sim
-            .lens
-            .draw(&cfg.camera, &mut rand_chacha::ChaCha8Rng::seed_from_u64(12));
+        let lens = true_lens(cfg);
         Self {
             sim: FeatureSim::new(&sim.features, Camera::from_config(&lens), cfg.camera.pixel_noise_px),
             rng: rand_chacha::ChaCha8Rng::seed_from_u64(7),
@@ -336,5 +347,181 @@ impl TruthCamera {
                 self.socket = None;
             }
         }
+    }
+}
+
+/// The camera as a drone carries it: the simulator's truth rendered as
+/// images of a textured world (`cmsckf_sitl::render`, through the true
+/// lens) and tracked by the real front-end (`cmsckf-frontend`'s tracker,
+/// each feature with its σ, given the calibration) into the daemon's
+/// socket. Rendering and tracking run on a thread of their own, as the
+/// front-end is a process of its own on a drone: the test's loop hands it
+/// a pose per frame and never waits. When the thread falls behind, it
+/// renders the newest pose and skips the older ones (a camera driver that
+/// drops frames), and says how many.
+///
+/// Each tracked position is also scored against the truth: the world
+/// point under the pixel where its id was first seen, projected at each
+/// later frame's true pose through the true lens (as
+/// `frontend/tests/rendered.rs` scores tracks); with `scores` given, each
+/// goes to that CSV (`t_s,id,age,u_px,v_px,du_px,dv_px,sigma_px,depth_m`).
+pub struct RenderedCamera {
+    tx: Option<std::sync::mpsc::SyncSender<TruthSample>>,
+    worker: Option<std::thread::JoinHandle<anyhow::Result<RenderedReport>>>,
+    frame_dt_s: f64,
+    last_frame_t_s: f64,
+    /// Poses not handed over because the thread's queue was full.
+    pub queue_full: u64,
+}
+
+/// What the rendered camera did over a flight.
+#[derive(Debug, Default)]
+pub struct RenderedReport {
+    pub frames: u64,
+    /// Frames whose line could not be written to the daemon.
+    pub frames_not_delivered: u64,
+    /// Poses skipped because a newer one was waiting.
+    pub skipped: u64,
+    pub tracks: cmsckf_frontend::tracker::TrackStats,
+    /// Tracked positions scored against their world point, and how many
+    /// of them erred by more than 3 σ (σ the one the daemon weighs them
+    /// with: `pixel_noise_px`, or with `camera.frontend_sigma` the
+    /// tracker's with `model_noise_px` added).
+    pub scored: u64,
+    pub beyond_3_sigma: u64,
+    /// Milliseconds spent tracking (the tracker alone) over all frames.
+    pub tracking_ms: f64,
+}
+
+impl RenderedCamera {
+    /// A camera over a world built around `path_ne` (the planned route's
+    /// horizontal points in the truth's NED frame, m), writing to the
+    /// socket `cfg.features.socket` at `cfg.camera.rate_hz`.
+    pub fn new(cfg: &Config, path_ne: &[[f64; 2]], world_seed: u64, scores: Option<File>) -> Self {
+        use cmsckf_frontend::image::Gray;
+        use cmsckf_frontend::output::frame_line_into;
+        use cmsckf_frontend::run::{Sink, SocketSink};
+        use cmsckf_frontend::tracker::{Tracker, TrackerParams};
+        use cmsckf_sitl::render::{RenderConfig, Renderer, World};
+        let mut renderer = Renderer::new(
+            World::around_path(path_ne, world_seed),
+            Camera::from_config(&true_lens(cfg)),
+            RenderConfig::default(),
+        );
+        let calibration = Camera::from_config(&cfg.camera);
+        // The σ the daemon weighs each position with.
+        let (frontend_sigma, model_noise_px, pixel_noise_px) = (
+            cfg.camera.frontend_sigma,
+            cfg.camera.model_noise_px,
+            cfg.camera.pixel_noise_px,
+        );
+        let socket = PathBuf::from(&cfg.features.socket);
+        let (tx, rx) = std::sync::mpsc::sync_channel::<TruthSample>(8);
+        let worker = std::thread::spawn(move || {
+            let mut tracker = Tracker::new(TrackerParams::default(), Some(calibration));
+            let mut sink = SocketSink::lazy(&socket);
+            let mut scores = scores.map(std::io::BufWriter::new);
+            let mut report = RenderedReport::default();
+            let (mut poses, mut bytes, mut img, mut line) = (Vec::new(), Vec::new(), Gray::new(1, 1), String::new());
+            // Each id's world point (the first pixel's).
+            let mut points = std::collections::HashMap::<u64, Vector3<f64>>::new();
+            while let Ok(mut sample) = rx.recv() {
+                while let Ok(newer) = rx.try_recv() {
+                    sample = newer;
+                    report.skipped += 1;
+                }
+                let T_W_C = renderer.camera_pose(&sample);
+                poses.clear();
+                poses.push(T_W_C);
+                report.frames += 1;
+                renderer.render(&poses, report.frames, &mut bytes);
+                img.set_from_u8(renderer.width(), renderer.height(), &bytes);
+                let start = std::time::Instant::now();
+                let feats = tracker.process(&img);
+                report.tracking_ms += start.elapsed().as_secs_f64() * 1e3;
+                let t_us = (sample.t_s * 1e6).round() as u64;
+                frame_line_into(&mut line, t_us, 0, feats);
+                if !sink.send(line.as_bytes()) {
+                    report.frames_not_delivered += 1;
+                }
+                for f in feats {
+                    let uv = [f64::from(f.u_px), f64::from(f.v_px)];
+                    let Some(p_in_W) = points.get(&f.id).copied() else {
+                        if let Some(hit) = renderer.surface_point(&T_W_C, uv) {
+                            points.insert(f.id, hit.p_in_W);
+                        }
+                        continue;
+                    };
+                    let Some(q) = renderer.project(&T_W_C, &p_in_W) else {
+                        continue;
+                    };
+                    let (du, dv) = (uv[0] - q[0], uv[1] - q[1]);
+                    let sigma = if frontend_sigma && f.sigma_px > 0.0 {
+                        f64::from(f.sigma_px).hypot(model_noise_px)
+                    } else {
+                        pixel_noise_px
+                    };
+                    report.scored += 1;
+                    report.beyond_3_sigma += u64::from(du.hypot(dv) > 3.0 * sigma);
+                    if let Some(w) = scores.as_mut() {
+                        let depth_m = T_W_C.inverse_transform_point(&p_in_W.into()).z;
+                        writeln!(
+                            w,
+                            "{},{},{},{:.3},{:.3},{:.4},{:.4},{:.4},{:.2}",
+                            sample.t_s, f.id, f.age, uv[0], uv[1], du, dv, f.sigma_px, depth_m
+                        )?;
+                    }
+                }
+            }
+            let _ = sink.flush();
+            report.tracks = tracker.stats;
+            Ok(report)
+        });
+        Self {
+            tx: Some(tx),
+            worker: Some(worker),
+            frame_dt_s: 1.0 / cfg.camera.rate_hz,
+            last_frame_t_s: f64::NEG_INFINITY,
+            queue_full: 0,
+        }
+    }
+
+    /// A frame of the pose at `t_s` (autopilot time), if one is due.
+    pub fn see(&mut self, t_s: f64, p_B_in_W: Vector3<f64>, v_B_in_W: Vector3<f64>, q_W_B: UnitQuaternion<f64>) {
+        if t_s - self.last_frame_t_s < self.frame_dt_s * 0.99 {
+            return;
+        }
+        self.last_frame_t_s = t_s;
+        let sample = TruthSample {
+            t_s,
+            p_B_in_W,
+            v_B_in_W,
+            a_B_in_W: Vector3::zeros(),
+            q_W_B,
+            w_B: Vector3::zeros(),
+        };
+        if let Some(tx) = &self.tx {
+            if tx.try_send(sample).is_err() {
+                self.queue_full += 1;
+            }
+        }
+    }
+
+    /// Ends the stream and gives what the front-end did.
+    pub fn finish(mut self) -> anyhow::Result<RenderedReport> {
+        self.tx = None;
+        match self.worker.take() {
+            Some(w) => w
+                .join()
+                .map_err(|_| anyhow::anyhow!("the rendered camera's thread panicked"))?,
+            None => anyhow::bail!("the rendered camera already finished"),
+        }
+    }
+}
+
+impl Drop for RenderedCamera {
+    fn drop(&mut self) {
+        // Closing the queue ends the front-end's loop.
+        self.tx = None;
     }
 }

@@ -62,8 +62,16 @@ impl World {
                 [p.x, p.y]
             })
             .collect();
+        Self::around_path(&path, seed)
+    }
+
+    /// A world around a path given as horizontal points (m, north and
+    /// east; closely spaced, since the clearance is kept from the points):
+    /// for a flight whose trajectory is not known ahead, as beside an
+    /// autopilot's SITL, whose planned route it is.
+    pub fn around_path(path: &[[f64; 2]], seed: u64) -> Self {
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in &path {
+        for p in path {
             for i in 0..2 {
                 lo[i] = lo[i].min(p[i] - REACH_M);
                 hi[i] = hi[i].max(p[i] + REACH_M);
