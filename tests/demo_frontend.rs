@@ -4,11 +4,11 @@
 //! cmsckf-frontend's loop tracks them and writes the daemon's feature
 //! socket, the daemon flies on them and answers the SITL autopilot over
 //! loopback UDP. A short racetrack (15 s, real time) with the default
-//! config: every rendered frame reaches the front-end and every tracked
+//! config, the front-end's σ taken: every rendered frame reaches the front-end and every tracked
 //! frame the daemon, which never resets and keeps its 30 Hz output; its
 //! accuracy stays within a bound measured on this flight. Each feature
-//! comes with the tracker's own σ, and by default the filter weighs each
-//! feature by it: the NIS per degree of freedom is inside [0.5, 2] (0.65
+//! comes with the tracker's own σ, and with `camera.frontend_sigma` on
+//! (off by default: docs/frontend.md) the filter weighs each feature by it: the NIS per degree of freedom is inside [0.5, 2] (0.65
 //! on this flight; 0.027 with every feature weighed with 1 px), and the
 //! log keeps the σ (its schema says so), so a replay of it is the flight bit
 //! for bit.
@@ -21,10 +21,22 @@ mod common;
 fn the_demo_flies_on_rendered_images_through_the_front_end() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("front.mcap");
-    // The default config, as a user starts with.
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml");
+    // The default config, as a user starts with, with the front-end's σ
+    // taken (`camera.frontend_sigma`, off by default).
+    let default = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml")).unwrap();
+    assert!(
+        default.contains("\nfrontend_sigma = false "),
+        "the default config's frontend_sigma"
+    );
+    let config = dir.path().join("sigma.toml");
+    std::fs::write(
+        &config,
+        default.replace("\nfrontend_sigma = false ", "\nfrontend_sigma = true  "),
+    )
+    .unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_cmsckf"))
-        .args(["demo", "--frontend", "--duration-s", "15", "--json", "--config", config])
+        .args(["demo", "--frontend", "--duration-s", "15", "--json", "--config"])
+        .arg(&config)
         .arg("--log")
         .arg(&log)
         .output()

@@ -1,10 +1,14 @@
 //! A front-end that claims more than it has: with `camera.frontend_sigma`
-//! on (the default), each feature is weighed by the σ its front-end sends,
+//! on (off by default), each feature is weighed by the σ its front-end sends,
 //! so a front-end whose σ is too small for its tracks is the way a visual
 //! error reaches the filter with full weight. The feature oracle's tracks
 //! carry 1 px of noise; these flights send some or all of them with a σ of
 //! 0.001 px (the least the feature socket takes), and read what the filter
-//! makes of it against the truth: never a confident wrong estimate.
+//! makes of it against the truth: never a confident wrong estimate. These
+//! claims err at random, frame by frame; tracks that slide together (a
+//! fast climb's, beside PX4's SITL) can fit a wrong scale with a small NIS,
+//! which this does not catch: why the σ is off by default
+//! (docs/frontend.md).
 
 use cmsckf::config::Config;
 use cmsckf::estimator::propagate::P;
@@ -63,8 +67,10 @@ fn fly(ds: &Dataset, cfg: &Config, sigma_px: impl Fn(u64) -> Option<f64>) -> Ver
 }
 
 fn flight(scenario: &str, duration_s: f64) -> (Config, Dataset) {
-    let cfg = Config::default();
-    assert!(cfg.camera.frontend_sigma, "the front-end's σ is taken by default");
+    // The front-end's σ taken (`camera.frontend_sigma`, off by default),
+    // at the default model noise.
+    let mut cfg = Config::default();
+    cfg.camera.frontend_sigma = true;
     let ds = Dataset::generate(scenario, 1, Some(duration_s), &sim_config_for(&cfg)).unwrap();
     (cfg, ds)
 }

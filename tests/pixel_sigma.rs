@@ -38,7 +38,7 @@ fn fly(ds: &Dataset, cfg: &Config, mut sigma_px: impl FnMut(usize) -> Option<f64
 #[test]
 fn one_loose_observation_does_not_turn_its_track_away() {
     let mut cfg = Config::default();
-    cfg.camera.frontend_sigma = true; // the default, pinned here
+    cfg.camera.frontend_sigma = true; // off by default
     let ds = Dataset::generate("racetrack", 1, Some(20.0), &sim_config_for(&cfg)).unwrap();
     // The oracle's 1 px, sent as each feature's σ (plus the model noise's
     // 0.01 px in quadrature) ...

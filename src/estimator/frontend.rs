@@ -176,13 +176,16 @@ mod tests {
         for bad in [0.0, -1.0, 1e-9, 5e3, f64::NAN, f64::INFINITY] {
             assert_eq!(n.noise.sigma_px(&with(Some(bad))), 1.0);
         }
-        // The default config: the least σ the socket takes weighs no more
-        // than the model noise allows (0.001 ⊕ 0.01 px).
-        let d = Normaliser::new(&CameraConfig::default());
+        // The default model noise with the σ on: the least σ the socket
+        // takes weighs no more than the model noise allows (0.001 ⊕ 0.01 px).
+        let d = Normaliser::new(&CameraConfig {
+            frontend_sigma: true,
+            ..CameraConfig::default()
+        });
         assert!((d.noise.sigma_px(&with(Some(0.001))) - 0.001f64.hypot(0.01)).abs() < 1e-15);
         // Off, every feature is weighed with the default.
         c.frontend_sigma = false;
         assert_eq!(Normaliser::new(&c).noise.sigma_px(&with(Some(0.12))), 1.0);
-        assert!(CameraConfig::default().frontend_sigma, "on by default");
+        assert!(!CameraConfig::default().frontend_sigma, "off by default");
     }
 }
