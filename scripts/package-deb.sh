@@ -153,7 +153,8 @@ install -m 0644 packaging/cmsckf-frontend.default "$pkg/etc/default/cmsckf-front
 # The config: the defaults, with the clock a V4L2 front-end stamps with,
 # and the per-frame error such a camera adds that its front-end cannot see:
 # a host's stamp jitters by a millisecond or two, 0.05-0.5 px at this
-# focal length at a multirotor's turn rates (docs/packaging.md).
+# focal length at a multirotor's turn rates (docs/packaging.md). It weighs
+# only with camera.frontend_sigma turned on (off by default).
 sed -e 's|^clock = "autopilot"  |clock = "monotonic"  |' \
     -e 's|^model_noise_px = 0.01 |model_noise_px = 0.1  |' config/default.toml > "$pkg/etc/cmsckf/cmsckf.toml"
 grep -q '^clock = "monotonic"' "$pkg/etc/cmsckf/cmsckf.toml" \

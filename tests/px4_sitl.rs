@@ -492,7 +492,8 @@ fn px4_flies_on_cmsckf_alone() {
     let front = camera.finish().expect("the rendered camera's front-end ran");
     eprintln!(
         "the rendered camera: {} frames tracked at {:.1} ms a frame, {} poses skipped behind, {} not queued, \
-         {} frames not delivered; {} positions scored against their world point, {} beyond 3 σ; tracks {:?}",
+         {} frames not delivered; {} positions scored against their world point, {} beyond 3 σ, {} out of view; \
+         tracks {:?}",
         front.frames,
         front.tracking_ms / front.frames.max(1) as f64,
         front.skipped,
@@ -500,6 +501,7 @@ fn px4_flies_on_cmsckf_alone() {
         front.frames_not_delivered,
         front.scored,
         front.beyond_3_sigma,
+        front.unseen,
         front.tracks
     );
     let _ = stop_daemon.send(());
@@ -539,18 +541,20 @@ fn px4_flies_on_cmsckf_alone() {
     eprintln!("PX4 vehicle_visual_odometry in the hover: {visual_odometry:?}");
     assert!(finished, "flight did not finish within {BUDGET:?}: stuck in {phase:?}");
     assert!(accepted_after_s.is_some(), "EKF2 never fused our estimates");
-    // The camera kept up (1699 frames a flight measured, none skipped for
-    // lateness but 1, every line delivered), and its tracks are what the
-    // daemon weighs them as: 0.33-0.44 % of positions beyond 3 σ measured.
+    // The camera kept up (1671-1837 frames a flight measured, at most 3
+    // skipped for lateness, every line delivered), and the tracker's own
+    // error (the lens's offset from its calibration aside) fits the σ the
+    // daemon weighs it with: 0.28-0.44 % of positions beyond 3 σ measured,
+    // a position whose world point is out of view counted as beyond.
     assert!(
         front.frames > 1000 && front.frames_not_delivered == 0 && front.skipped + queue_full < 50,
         "the rendered camera: {front:?}, {queue_full} not queued"
     );
+    let wrong = front.beyond_3_sigma + front.unseen;
     assert!(
-        front.scored > 50_000 && (front.beyond_3_sigma as f64) < 0.02 * front.scored as f64,
-        "tracked positions beyond 3 σ: {} of {}",
-        front.beyond_3_sigma,
-        front.scored
+        front.scored > 50_000 && (wrong as f64) < 0.02 * (front.scored + front.unseen) as f64,
+        "tracked positions beyond 3 σ or out of view: {wrong} of {}",
+        front.scored + front.unseen
     );
     assert!(
         ekf_reports > 100 && ekf_not_fusing == 0,
@@ -594,15 +598,15 @@ fn px4_flies_on_cmsckf_alone() {
     // 0.2-0.7 m off; the box's first leg inherits it (docs/setup-px4.md).
     // The camera is now the rendered one, tracked by our front-end (every
     // flight above flew the feature oracle at 1 px). Weighed at 1 px each
-    // (the default), six flights at 2026-12-05 (one of them in CI): take-off
-    // 0.30-0.68 m, box 0.51-0.71 m, hover 0.20-0.57 m, descent and landing
+    // (the default), seven flights at 2026-12-05 (one of them in CI): take-off
+    // 0.30-0.68 m, box 0.51-0.71 m, hover 0.20-0.61 m, descent and landing
     // 0.38-0.77 m and 1.59 m in the CI flight (no log kept), 0 restarts; of
     // the tracked positions after their first frame (134-150 k a flight), a
     // median 0.055 px from their world point, 2.4 % beyond 1 px and
-    // 0.33-0.44 % beyond 3 px. With each weighed by the front-end's σ
+    // 0.28-0.44 % beyond 3 px. With each weighed by the front-end's σ
     // (`camera.frontend_sigma`): at model noise 0.01 px a restart at the
     // lift-off (61 % of 61 tracks refused) and in another flight the box
-    // 1.56 m; at 0.1 px one climb 6 m off with a σ of 0.1 m and no restart
+    // 1.56 m; at 0.1 px one climb 6.5 m off under a σ of 0.13 m and no restart
     // (the lift-off's tracks slid by more than their σ, 12-16 % beyond 3 σ,
     // and together fit a wrong scale: NIS per dof 0.15) and one box 1.03 m;
     // at 0.3 px the box 0.87 m. Hence the default (docs/frontend.md).

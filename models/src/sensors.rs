@@ -93,7 +93,7 @@ pub struct CameraConfig {
     /// `pixel_noise_px` either way. On, the simulator's rendered flights
     /// read a NIS per dof of 0.55–0.59 where 1 px gives 0.015, but beside
     /// PX4's SITL the tracks of a vertical take-off slid by more than their
-    /// σ and one flight in four climbed 6 m off with a σ of 0.1 m, no NIS
+    /// σ and one flight in five climbed 6.5 m off under a σ of 0.13 m, no NIS
     /// or restart seeing it; off, none did (docs/frontend.md, "Why the σ is
     /// off by default").
     pub frontend_sigma: bool,

@@ -174,8 +174,10 @@ fn human_report(out: &serde_json::Value, speedup: f64) -> String {
         format!("{nis:.2}"),
         if (0.5..=2.0).contains(&nis) {
             "the pixel noise fits the tracks (1 is exact)"
+        } else if nis < 0.5 {
+            "the tracks err less than the pixel noise they are weighed with (1 is exact): safe, not tight"
         } else {
-            "the pixel noise does not fit the tracks (1 is exact)"
+            "the tracks err more than the pixel noise says (1 is exact): OVERCONFIDENT"
         },
     );
     let resets = out["reset_count"].as_u64().unwrap_or(0);

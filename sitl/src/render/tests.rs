@@ -213,3 +213,32 @@ fn edge_footprints_match_the_image_jacobian_across_each_edge() {
         );
     }
 }
+
+#[test]
+fn a_route_keeps_its_blocks_clear_and_an_empty_one_gives_the_ground_alone() {
+    // A 10 m box: every block at least the clearance from each point.
+    let route: Vec<[f64; 2]> = (0..=40)
+        .map(|k| {
+            let s = f64::from(k) * 1.0;
+            match k {
+                0..=10 => [s, 0.0],
+                11..=20 => [10.0, s - 10.0],
+                21..=30 => [30.0 - s, 10.0],
+                _ => [0.0, 40.0 - s],
+            }
+        })
+        .collect();
+    let w = World::around_path(&route, 1);
+    assert!(!w.blocks.is_empty());
+    for b in &w.blocks {
+        for p in &route {
+            let dx = (p[0] - (b.min.x + b.max.x) / 2.0).abs() - (b.max.x - b.min.x) / 2.0;
+            let dy = (p[1] - (b.min.y + b.max.y) / 2.0).abs() - (b.max.y - b.min.y) / 2.0;
+            assert!(
+                dx.max(0.0).hypot(dy.max(0.0)) >= 5.0 - 1e-9,
+                "a block within 5 m of the route"
+            );
+        }
+    }
+    assert!(World::around_path(&[], 1).blocks.is_empty());
+}

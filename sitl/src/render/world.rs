@@ -70,6 +70,13 @@ impl World {
     /// for a flight whose trajectory is not known ahead, as beside an
     /// autopilot's SITL, whose planned route it is.
     pub fn around_path(path: &[[f64; 2]], seed: u64) -> Self {
+        if path.is_empty() {
+            // No route: the ground alone.
+            return Self {
+                blocks: Vec::new(),
+                ground: Texture::new(seed),
+            };
+        }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in path {
             for i in 0..2 {
