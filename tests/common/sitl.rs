@@ -283,6 +283,45 @@ impl Truth {
     }
 }
 
+/// When a camera of `rate_hz` takes its next frame from a stream of truth
+/// samples: at the first sample a frame's period (less 1 %) after the last
+/// frame (with a simulator's 4 ms steps and 30 Hz, one each 36 ms).
+struct FrameClock {
+    frame_dt_s: f64,
+    last_frame_t_s: f64,
+}
+
+impl FrameClock {
+    fn new(rate_hz: f64) -> Self {
+        Self {
+            frame_dt_s: 1.0 / rate_hz,
+            last_frame_t_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// The frame's truth sample, if the pose at `t_s` is one.
+    fn due(
+        &mut self,
+        t_s: f64,
+        p_B_in_W: Vector3<f64>,
+        v_B_in_W: Vector3<f64>,
+        q_W_B: UnitQuaternion<f64>,
+    ) -> Option<TruthSample> {
+        if t_s - self.last_frame_t_s < self.frame_dt_s * 0.99 {
+            return None;
+        }
+        self.last_frame_t_s = t_s;
+        Some(TruthSample {
+            t_s,
+            p_B_in_W,
+            v_B_in_W,
+            a_B_in_W: Vector3::zeros(),
+            q_W_B,
+            w_B: Vector3::zeros(),
+        })
+    }
+}
+
 /// A synthetic camera on the simulator's truth: the daemon's simulated
 /// landmarks, seen at the configured rate and pixel noise, written to the
 /// daemon's feature socket (reconnecting when it is not there yet).
@@ -291,8 +330,7 @@ pub struct TruthCamera {
     rng: rand_chacha::ChaCha8Rng,
     socket_path: String,
     socket: Option<UnixStream>,
-    frame_dt_s: f64,
-    last_frame_t_s: f64,
+    clock: FrameClock,
 }
 
 /// The camera's true lens: drawn around the calibration the daemon is
@@ -313,24 +351,14 @@ impl TruthCamera {
             rng: rand_chacha::ChaCha8Rng::seed_from_u64(7),
             socket_path: cfg.features.socket.clone(),
             socket: None,
-            frame_dt_s: 1.0 / cfg.camera.rate_hz,
-            last_frame_t_s: f64::NEG_INFINITY,
+            clock: FrameClock::new(cfg.camera.rate_hz),
         }
     }
 
     /// A frame of the pose at `t_s` (autopilot time), if one is due.
     pub fn see(&mut self, t_s: f64, p_B_in_W: Vector3<f64>, v_B_in_W: Vector3<f64>, q_W_B: UnitQuaternion<f64>) {
-        if t_s - self.last_frame_t_s < self.frame_dt_s * 0.99 {
+        let Some(sample) = self.clock.due(t_s, p_B_in_W, v_B_in_W, q_W_B) else {
             return;
-        }
-        self.last_frame_t_s = t_s;
-        let sample = TruthSample {
-            t_s,
-            p_B_in_W,
-            v_B_in_W,
-            a_B_in_W: Vector3::zeros(),
-            q_W_B,
-            w_B: Vector3::zeros(),
         };
         let frame = self.sim.frame(&sample, &mut self.rng);
         let feats: Vec<String> = frame
@@ -373,8 +401,7 @@ impl TruthCamera {
 pub struct RenderedCamera {
     tx: Option<std::sync::mpsc::SyncSender<TruthSample>>,
     worker: Option<std::thread::JoinHandle<anyhow::Result<RenderedReport>>>,
-    frame_dt_s: f64,
-    last_frame_t_s: f64,
+    clock: FrameClock,
     /// Poses not handed over because the thread's queue was full.
     pub queue_full: u64,
 }
@@ -418,19 +445,14 @@ impl RenderedCamera {
             RenderConfig::default(),
         );
         let calibration = Camera::from_config(&cfg.camera);
-        // The σ the daemon weighs each position with.
-        let (frontend_sigma, model_noise_px, pixel_noise_px) = (
-            cfg.camera.frontend_sigma,
-            cfg.camera.model_noise_px,
-            cfg.camera.pixel_noise_px,
-        );
+        // The σ the daemon weighs each position with, by its own rule.
+        let noise = cmsckf::estimator::frontend::Normaliser::new(&cfg.camera).noise;
         let socket = PathBuf::from(&cfg.features.socket);
         let (tx, rx) = std::sync::mpsc::sync_channel::<TruthSample>(8);
         let worker = std::thread::spawn(move || {
             let mut tracker = Tracker::new(TrackerParams::default(), Some(calibration));
             let mut sink = SocketSink::lazy(&socket);
             let mut scores = scores.map(std::io::BufWriter::new);
-            let mut scores_failed = false;
             let mut report = RenderedReport::default();
             let (mut poses, mut bytes, mut img, mut line) = (Vec::new(), Vec::new(), Gray::new(1, 1), String::new());
             // Each id's world point (the first pixel's).
@@ -470,14 +492,16 @@ impl RenderedCamera {
                         continue;
                     };
                     let (du, dv) = (uv[0] - q[0], uv[1] - q[1]);
-                    let sigma = if frontend_sigma && f.sigma_px > 0.0 {
-                        f64::from(f.sigma_px).hypot(model_noise_px)
-                    } else {
-                        pixel_noise_px
-                    };
+                    // As the line carries it: no σ when the tracker has none (0).
+                    let sigma = noise.sigma_px(&cmsckf_models::feature_wire::PixelFeature {
+                        landmark_id: f.id,
+                        u_px: uv[0],
+                        v_px: uv[1],
+                        sigma_px: (f.sigma_px > 0.0).then_some(f64::from(f.sigma_px)),
+                    });
                     report.scored += 1;
                     report.beyond_3_sigma += u64::from(du.hypot(dv) > 3.0 * sigma);
-                    if let (false, Some(w)) = (scores_failed, scores.as_mut()) {
+                    if let Some(w) = scores.as_mut() {
                         let depth_m = T_W_C.inverse_transform_point(&p_in_W.into()).z;
                         let written = writeln!(
                             w,
@@ -488,12 +512,12 @@ impl RenderedCamera {
                             // The scores are for reading afterwards; the
                             // flight goes on without them.
                             eprintln!("tracks.csv: {e}: no more scores written");
-                            scores_failed = true;
+                            scores = None;
                         }
                     }
                 }
             }
-            if let Some(mut w) = scores.filter(|_| !scores_failed) {
+            if let Some(mut w) = scores {
                 let _ = w.flush();
             }
             let _ = sink.flush();
@@ -503,25 +527,15 @@ impl RenderedCamera {
         Self {
             tx: Some(tx),
             worker: Some(worker),
-            frame_dt_s: 1.0 / cfg.camera.rate_hz,
-            last_frame_t_s: f64::NEG_INFINITY,
+            clock: FrameClock::new(cfg.camera.rate_hz),
             queue_full: 0,
         }
     }
 
     /// A frame of the pose at `t_s` (autopilot time), if one is due.
     pub fn see(&mut self, t_s: f64, p_B_in_W: Vector3<f64>, v_B_in_W: Vector3<f64>, q_W_B: UnitQuaternion<f64>) {
-        if t_s - self.last_frame_t_s < self.frame_dt_s * 0.99 {
+        let Some(sample) = self.clock.due(t_s, p_B_in_W, v_B_in_W, q_W_B) else {
             return;
-        }
-        self.last_frame_t_s = t_s;
-        let sample = TruthSample {
-            t_s,
-            p_B_in_W,
-            v_B_in_W,
-            a_B_in_W: Vector3::zeros(),
-            q_W_B,
-            w_B: Vector3::zeros(),
         };
         if let Some(tx) = &self.tx {
             match tx.try_send(sample) {
