@@ -283,6 +283,11 @@ counters! {
     /// A start on the ground again when the origin came late, so that the
     /// compass yaw has its declination.
     RestartLocated = "restart_located", event;
+    /// The filter's yaw conditioned on a better compass mean while the
+    /// vehicle stood (estimator README eq. H1).
+    CompassYawConditioned = "compass_yaw_conditioned", event;
+    /// Compass readings not averaged: their heading far from the mean.
+    CompassOutlier = "compass_outlier", event;
     // Starts, restarts and outputs.
     InitStatic = "init_static", event;
     InitInFlight = "init_in_flight", event;

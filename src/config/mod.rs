@@ -298,7 +298,9 @@ pub struct InitConfig {
     /// (deg). Magnetometers beside motors and wiring are off by degrees.
     pub sigma_yaw_autopilot_deg: f64,
     /// Initial yaw sigma when the yaw is the compass's, from the autopilot's
-    /// magnetometer and the WMM declination (deg).
+    /// magnetometer and the WMM declination (deg): the compass's bias, which
+    /// no averaging removes. The mean's own noise is added from the
+    /// readings' scatter (estimator README §7, eq. H1).
     pub sigma_yaw_compass_deg: f64,
     /// A restart keeps our own last estimate and adds this position sigma
     /// (m): the filter was inconsistent, so its error is not known to be as

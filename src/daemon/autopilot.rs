@@ -464,6 +464,11 @@ impl AutopilotView {
         sum.try_normalize(1e-9)
     }
 
+    /// The latest magnetometer readings (body frame), oldest first.
+    pub(super) fn mag_readings_B(&self) -> impl Iterator<Item = &Vector3<f64>> {
+        self.mag_B.iter()
+    }
+
     pub(super) fn unix_days(&self) -> Option<i64> {
         self.unix_days
     }

@@ -21,6 +21,7 @@ use std::time::Instant;
 use tokio::sync::mpsc;
 
 use super::autopilot::AutopilotView;
+use super::compass::{CompassMean, MAX_TURN_RAD};
 use super::cross_check::VelocityCrossCheck;
 use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
@@ -83,6 +84,9 @@ pub struct Fusion {
     pacer: OutputPacer,
     /// Our velocity against the autopilot's own, when it has a fix.
     cross_check: VelocityCrossCheck,
+    /// A compass start's running mean while the vehicle stands, and the
+    /// filter's yaw at the start (`on_magnetometer`).
+    compass: Option<(CompassMean, f64)>,
     log: FlightLog,
 }
 
@@ -178,6 +182,7 @@ impl Fusion {
             queue: MeasurementQueue::default(),
             pacer: OutputPacer::new(&cfg),
             cross_check: VelocityCrossCheck::default(),
+            compass: None,
             log: FlightLog::new(log, cfg.log.new_log_on_disarm),
             cfg,
         }
@@ -211,9 +216,17 @@ impl Fusion {
             FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu(m, ctx),
-            other => self
-                .autopilot
-                .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
+            other => {
+                let mag_B = match &other {
+                    FusionMsg::Magnetometer { mag_B } => Some(*mag_B),
+                    _ => None,
+                };
+                self.autopilot
+                    .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters);
+                if let Some(m) = mag_B {
+                    self.on_magnetometer(&m, &ctx.counters);
+                }
+            }
         }
         if !had_frame && self.gnss.frame().is_some() {
             self.on_located(&ctx.out);
@@ -516,7 +529,12 @@ impl Fusion {
 
     /// `start`'s filter becomes the running one at the IMU sample time `t_s`.
     fn install_filter(&mut self, start: Start, t_s: f64, counters: &Counters) {
-        let Start { mut est, is_static } = start;
+        let Start {
+            mut est,
+            is_static,
+            compass,
+        } = start;
+        self.compass = compass.map(|c| (c, est.imu_state().q_W_B.euler_angles().2));
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
         self.est_gen += 1;
         self.est = Some(est);
@@ -544,6 +562,59 @@ impl Fusion {
         tracing::info!(static_start = is_static, t_s, "filter initialised");
     }
 
+    /// A magnetometer reading while the vehicle stands disarmed on the
+    /// ground since a compass start: the mean's noise averages down, and
+    /// the filter's yaw is conditioned on each better mean (estimator
+    /// README eq. H1, `compass.rs`). Arming, leaving the ground or a turn
+    /// (the filter's yaw moved by more than [`MAX_TURN_RAD`] beyond the
+    /// shifts it took) ends it for this filter.
+    fn on_magnetometer(&mut self, mag_B: &nalgebra::Vector3<f64>, counters: &Counters) {
+        let (Some((mean, yaw0)), Some(est)) = (self.compass.as_mut(), self.est.as_mut()) else {
+            return;
+        };
+        let d = est.imu_state().q_W_B.euler_angles().2 - *yaw0 - mean.shifted_rad;
+        let why = if !self.autopilot.disarmed_on_ground() {
+            Some("armed or off the ground".to_string())
+        } else if d.sin().atan2(d.cos()).abs() > MAX_TURN_RAD {
+            Some("the vehicle turned".to_string())
+        } else {
+            let outliers = mean.outliers;
+            let step = mean.push(mag_B);
+            if mean.outliers > outliers {
+                counters.add(Counter::CompassOutlier, 1);
+            }
+            match step.map(|s| (s, est.condition_yaw_on_compass(s.shift_rad, s.drop_rad2))) {
+                Some((s, Ok(()))) => {
+                    mean.held(s);
+                    counters.add(Counter::CompassYawConditioned, 1);
+                    None
+                }
+                Some((_, Err(e))) => Some(e.to_string()),
+                None => None,
+            }
+        };
+        if let Some(why) = why {
+            self.end_compass_mean(self.last_imu_t, &why);
+        }
+    }
+
+    /// Ends the compass averaging (if any) and says in the log what it did.
+    fn end_compass_mean(&mut self, t_s: f64, why: &str) {
+        let Some((mean, _)) = self.compass.take() else {
+            return;
+        };
+        let text = format!(
+            "compass: the yaw is the mean of {} readings (one reading scatters by {:.2}°, {} refused), \
+             moved {:+.2}° since the start; averaging ended: {why}",
+            mean.readings(),
+            mean.reading_sigma_rad().to_degrees(),
+            mean.outliers,
+            mean.shifted_rad.to_degrees(),
+        );
+        tracing::info!(readings = mean.readings(), "{text}");
+        self.log.text(Level::Info, t_s, &text);
+    }
+
     /// Drops the filter so that the next IMU sample starts a fresh one (the
     /// one reset path): `reset_counter` moves on, the autopilot gets a
     /// `STATUSTEXT`, the log a `/log` line, and the status shows
@@ -559,6 +630,7 @@ impl Fusion {
             text: format!("cmsckf reset: {why}"),
         });
         self.est = None;
+        self.end_compass_mean(t_s, "the filter restarted");
         self.cross_check.reset();
         self.starter.plan_restart(t_s, kind, &self.cfg, &self.autopilot);
         self.autopilot.forget_for_restart(kind);

@@ -22,6 +22,7 @@ use cmsckf_models::magnetic;
 use nalgebra::{UnitQuaternion, Vector3};
 
 use super::autopilot::AutopilotView;
+use super::compass::CompassMean;
 use super::Restart;
 use crate::config::{Config, YawSource};
 use crate::counters::{Counter, Counters};
@@ -246,6 +247,9 @@ pub(super) struct Start {
     pub(super) est: Estimator,
     /// A static start (the IMU said the vehicle was still).
     pub(super) is_static: bool,
+    /// A static start's compass mean, which the readings while the vehicle
+    /// stands improve (`compass.rs`); `None` for any other yaw.
+    pub(super) compass: Option<CompassMean>,
 }
 
 impl Default for Starter {
@@ -299,7 +303,11 @@ impl Starter {
             Some(est) => {
                 counters.add(Counter::InitFromCarriedEstimate, 1);
                 self.in_place_t = Some(m.t_s);
-                Start { est, is_static: false }
+                Start {
+                    est,
+                    is_static: false,
+                    compass: None,
+                }
             }
             None => self.try_init(m, cfg, ap, frame)?,
         };
@@ -429,7 +437,7 @@ impl Starter {
         {
             return Err(Waiting::NoOrigin);
         }
-        let (yaw, yaw_sigma_deg) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
+        let (yaw, yaw_sigma_deg, compass) = first_yaw(cfg, ap, frame, &tilt).ok_or(Waiting::NoYaw)?;
         let (x0, mut p0) =
             initial_state(m.t_s, cfg, ap, is_static.then_some(&w), [roll, pitch, yaw]).ok_or(if is_static {
                 Waiting::NoGravity
@@ -441,7 +449,13 @@ impl Starter {
         let _ = est.add_imu(m);
         let (_, _, yaw) = x0.q_W_B.euler_angles();
         tracing::info!(yaw_deg = yaw.to_degrees(), "initial yaw");
-        Ok(Start { est, is_static })
+        // Only a static start's readings average: the vehicle stands.
+        let compass = compass.filter(|_| is_static);
+        Ok(Start {
+            est,
+            is_static,
+            compass,
+        })
     }
 
     /// Where the next filter starts after a restart of `kind` at `t_s` (the
@@ -531,39 +545,48 @@ fn initial_state(
     Some((x0, p0))
 }
 
-/// The first yaw (rad) and its sigma (deg), from `init.yaw_source`, for a
-/// body whose rotation without yaw is `tilt`; `None` while the source has
-/// nothing to give.
+/// The first yaw (rad), its sigma (deg) and, from the compass, the mean
+/// the readings while the vehicle stands improve; from `init.yaw_source`,
+/// for a body whose rotation without yaw is `tilt`; `None` while the source
+/// has nothing to give.
 fn first_yaw(
     cfg: &Config,
     ap: &AutopilotView,
     frame: Option<NedFrame>,
     tilt: &UnitQuaternion<f64>,
-) -> Option<(f64, f64)> {
+) -> Option<(f64, f64, Option<CompassMean>)> {
     let i = &cfg.init;
-    let autopilot = ap.attitude().map(|(_, _, yaw)| (yaw, i.sigma_yaw_autopilot_deg));
+    let autopilot = ap.attitude().map(|(_, _, yaw)| (yaw, i.sigma_yaw_autopilot_deg, None));
     let compass = || compass_yaw(cfg, ap, frame, tilt);
     match i.yaw_source {
-        YawSource::Config => Some((i.yaw_deg.to_radians(), i.sigma_yaw_deg)),
+        YawSource::Config => Some((i.yaw_deg.to_radians(), i.sigma_yaw_deg, None)),
         YawSource::Autopilot => autopilot,
         YawSource::Compass => compass(),
         YawSource::Auto => compass().or(autopilot),
     }
 }
 
-/// The compass's true heading (rad) and its sigma (deg): the mean of the
-/// latest magnetometer readings (eq. M1) with the WMM declination at our
-/// origin, today.
+/// The compass's true heading (rad) and its sigma (deg), with the WMM
+/// declination at our origin, today (eq. M1): the mean heading of the
+/// latest magnetometer readings, whose sigma holds the compass's bias
+/// (`init.sigma_yaw_compass_deg`), the declination model's and the mean's
+/// own noise, `s²/N` from the readings' scatter (eq. H1); with one reading
+/// its heading, without that noise.
 fn compass_yaw(
     cfg: &Config,
     ap: &AutopilotView,
     frame: Option<NedFrame>,
     tilt: &UnitQuaternion<f64>,
-) -> Option<(f64, f64)> {
+) -> Option<(f64, f64, Option<CompassMean>)> {
     let frame = frame?;
-    let mag_B = ap.mag_direction_B()?;
     let (lat, lon, h) = ecef_to_llh(&frame.origin_ecef);
     let (dec_deg, dec_sigma_deg) = magnetic::declination_deg(lat.to_degrees(), lon.to_degrees(), h, ap.unix_days()?)?;
+    let bias_sigma_deg = cfg.init.sigma_yaw_compass_deg.hypot(dec_sigma_deg);
+    if let Some(mean) = CompassMean::start(ap.mag_readings_B(), tilt, dec_deg.to_radians()) {
+        let sigma_deg = bias_sigma_deg.hypot(mean.noise_var_rad2().sqrt().to_degrees());
+        return Some((mean.yaw_rad(), sigma_deg, Some(mean)));
+    }
+    let mag_B = ap.mag_direction_B()?;
     let yaw = magnetic::heading_rad(tilt, &mag_B, dec_deg.to_radians())?;
-    Some((yaw, cfg.init.sigma_yaw_compass_deg.hypot(dec_sigma_deg)))
+    Some((yaw, bias_sigma_deg, None))
 }

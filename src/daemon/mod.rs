@@ -24,6 +24,7 @@
 
 mod autopilot;
 mod base_use;
+mod compass;
 mod cross_check;
 mod estimate_message;
 mod features;
