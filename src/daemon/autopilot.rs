@@ -442,6 +442,11 @@ impl AutopilotView {
         self.armed == Some(false) && self.zupt_allowed()
     }
 
+    /// Whether it is armed, once its HEARTBEAT has said.
+    pub(super) fn armed(&self) -> Option<bool> {
+        self.armed
+    }
+
     /// Roll, pitch, yaw (rad), as `ATTITUDE` last said.
     pub(super) fn attitude(&self) -> Option<(f64, f64, f64)> {
         self.attitude

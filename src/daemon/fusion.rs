@@ -21,7 +21,7 @@ use std::time::Instant;
 use tokio::sync::mpsc;
 
 use super::autopilot::AutopilotView;
-use super::compass::{CompassMean, MAX_TURN_RAD};
+use super::compass::{CompassMean, Pushed, StillSinceStart};
 use super::cross_check::VelocityCrossCheck;
 use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
@@ -85,8 +85,8 @@ pub struct Fusion {
     /// Our velocity against the autopilot's own, when it has a fix.
     cross_check: VelocityCrossCheck,
     /// A compass start's running mean while the vehicle stands, and the
-    /// filter's yaw at the start (`on_magnetometer`).
-    compass: Option<(CompassMean, f64)>,
+    /// attitude it stood at (`on_magnetometer`).
+    compass: Option<(CompassMean, StillSinceStart)>,
     log: FlightLog,
 }
 
@@ -534,7 +534,10 @@ impl Fusion {
             is_static,
             compass,
         } = start;
-        self.compass = compass.map(|c| (c, est.imu_state().q_W_B.euler_angles().2));
+        // Not in Schmidt mode, whose keyframes take no corrections (§6).
+        self.compass = compass
+            .filter(|_| est.mode() != crate::estimator::Mode::Schmidt)
+            .map(|c| (c, StillSinceStart::new(&est.imu_state().q_W_B)));
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
         self.est_gen += 1;
         self.est = Some(est);
@@ -560,42 +563,69 @@ impl Fusion {
             },
         );
         tracing::info!(static_start = is_static, t_s, "filter initialised");
+        self.start_compass_mean(t_s);
     }
 
     /// A magnetometer reading while the vehicle stands disarmed on the
     /// ground since a compass start: the mean's noise averages down, and
     /// the filter's yaw is conditioned on each better mean (estimator
-    /// README eq. H1, `compass.rs`). Arming, leaving the ground or a turn
-    /// (the filter's yaw moved by more than [`MAX_TURN_RAD`] beyond the
-    /// shifts it took) ends it for this filter.
+    /// README eq. H1, `compass.rs`). Arming, leaving the ground, a tilt or
+    /// a turn (the filter's attitude against the start's), or a run of
+    /// readings far off the mean ends it for this filter; an autopilot that
+    /// has not yet said whether it is armed holds it.
     fn on_magnetometer(&mut self, mag_B: &nalgebra::Vector3<f64>, counters: &Counters) {
-        let (Some((mean, yaw0)), Some(est)) = (self.compass.as_mut(), self.est.as_mut()) else {
+        let (Some((mean, still)), Some(est)) = (self.compass.as_mut(), self.est.as_mut()) else {
             return;
         };
-        let d = est.imu_state().q_W_B.euler_angles().2 - *yaw0 - mean.shifted_rad;
+        if self.autopilot.armed().is_none() {
+            return;
+        }
+        let t_s = self.last_imu_t;
+        let q = est.predict(t_s).q_W_B;
         let why = if !self.autopilot.disarmed_on_ground() {
             Some("armed or off the ground".to_string())
-        } else if d.sin().atan2(d.cos()).abs() > MAX_TURN_RAD {
-            Some("the vehicle turned".to_string())
+        } else if let Some(moved) = still.moved(&q) {
+            Some(moved.to_string())
         } else {
             let outliers = mean.outliers;
-            let step = mean.push(mag_B);
-            if mean.outliers > outliers {
-                counters.add(Counter::CompassOutlier, 1);
-            }
-            match step.map(|s| (s, est.condition_yaw_on_compass(s.shift_rad, s.drop_rad2))) {
-                Some((s, Ok(()))) => {
-                    mean.held(s);
-                    counters.add(Counter::CompassYawConditioned, 1);
-                    None
-                }
-                Some((_, Err(e))) => Some(e.to_string()),
-                None => None,
+            let pushed = mean.push(t_s, mag_B);
+            counters.add(Counter::CompassOutlier, u64::from(mean.outliers - outliers));
+            match pushed {
+                Pushed::Nothing => None,
+                Pushed::End(why) => Some(why),
+                Pushed::Step(step) => match est.condition_yaw_on_compass(step.shift_rad, step.drop_rad2) {
+                    Ok(()) => {
+                        let yaw_after = est.predict(t_s).q_W_B.euler_angles().2;
+                        still.yaw_moved_by(yaw_after - q.euler_angles().2);
+                        mean.held(step);
+                        counters.add(Counter::CompassYawConditioned, 1);
+                        None
+                    }
+                    Err(e) => Some(e.to_string()),
+                },
             }
         };
         if let Some(why) = why {
-            self.end_compass_mean(self.last_imu_t, &why);
+            self.end_compass_mean(t_s, &why);
         }
+    }
+
+    /// Says in the log where a compass start's yaw came from, and that
+    /// readings while the vehicle stands will refine it.
+    fn start_compass_mean(&mut self, t_s: f64) {
+        let (Some((mean, _)), Some(est)) = (self.compass.as_ref(), self.est.as_ref()) else {
+            return;
+        };
+        let text = format!(
+            "compass: the start's yaw {:.2}° (σ {:.2}°) is the mean of {} readings, one scattering by {:.2}°; \
+             readings while the vehicle stands still and disarmed refine it",
+            mean.start_yaw_rad.to_degrees(),
+            est.imu_covariance()[(2, 2)].sqrt().to_degrees(),
+            mean.readings().0,
+            mean.reading_sigma_rad().to_degrees(),
+        );
+        tracing::info!("{text}");
+        self.log.text(Level::Info, t_s, &text);
     }
 
     /// Ends the compass averaging (if any) and says in the log what it did.
@@ -603,15 +633,23 @@ impl Fusion {
         let Some((mean, _)) = self.compass.take() else {
             return;
         };
+        let (averaged, held) = mean.readings();
+        let sigma = self
+            .est
+            .as_ref()
+            .map_or(f64::NAN, |e| e.imu_covariance()[(2, 2)].sqrt().to_degrees());
         let text = format!(
-            "compass: the yaw is the mean of {} readings (one reading scatters by {:.2}°, {} refused), \
-             moved {:+.2}° since the start; averaging ended: {why}",
-            mean.readings(),
+            "compass: the yaw holds the mean of {held} readings ({averaged} averaged, one scattering by {:.2}°, \
+             {} refused): {} steps moved it {:+.2}° from the start's (the mean's noise σ {:.2}° → {:.2}°; the \
+             yaw's σ now {sigma:.2}°); averaging ended: {why}",
             mean.reading_sigma_rad().to_degrees(),
             mean.outliers,
+            mean.steps,
             mean.shifted_rad.to_degrees(),
+            mean.start_var_rad2.sqrt().to_degrees(),
+            mean.held_noise_var_rad2().sqrt().to_degrees(),
         );
-        tracing::info!(readings = mean.readings(), "{text}");
+        tracing::info!(held, averaged, "{text}");
         self.log.text(Level::Info, t_s, &text);
     }
 

@@ -56,7 +56,7 @@ impl Estimator {
             .min_by_key(|(_, id)| **id)
             .map_or(TH + 2, |(j, _)| self.kf_offset(j) + 2);
         let var = self.P[(col, col)];
-        if drop_rad2 >= var || var.is_nan() {
+        if !var.is_finite() || drop_rad2 >= var {
             return Err(YawConditionError::DropTooLarge {
                 drop_rad2,
                 var_rad2: var,
