@@ -667,8 +667,8 @@ impl Fusion {
             severity: if kind == Restart::Unhealthy { 2 } else { 4 },
             text: format!("cmsckf reset: {why}"),
         });
-        self.est = None;
         self.end_compass_mean(t_s, "the filter restarted");
+        self.est = None;
         self.cross_check.reset();
         self.starter.plan_restart(t_s, kind, &self.cfg, &self.autopilot);
         self.autopilot.forget_for_restart(kind);

@@ -570,8 +570,8 @@ fn first_yaw(
 /// declination at our origin, today (eq. M1): the mean heading of the
 /// latest magnetometer readings, whose sigma holds the compass's bias
 /// (`init.sigma_yaw_compass_deg`), the declination model's and the mean's
-/// own noise, `s²/N` from the readings' scatter (eq. H1); with one reading
-/// its heading, without that noise.
+/// own noise, `s²/N` from the readings' scatter (eq. H1); with fewer than
+/// five readings their mean direction's heading, without that noise.
 fn compass_yaw(
     cfg: &Config,
     ap: &AutopilotView,

@@ -137,7 +137,20 @@ fn world_ray(v: &View, e: &Extrinsic, o: &Obs) -> (Vector3<f64>, Vector3<f64>) {
 /// id, a gross pixel error) sits at one end of the widest pair and would
 /// otherwise make a still camera's track look wide.
 pub fn parallax_rad(views: &[View], e: &Extrinsic, obs: &[Obs]) -> f64 {
-    let dirs: Vec<Vector3<f64>> = obs.iter().map(|o| world_ray(&views[o.view], e, o).1).collect();
+    // The rays on the stack for a track of up to 32 views (the defaults'
+    // longest is 11 clones and 8 keyframes): no allocation per track.
+    let mut stack = [Vector3::zeros(); 32];
+    let mut heap = Vec::new();
+    let dirs: &mut [Vector3<f64>] = if obs.len() <= stack.len() {
+        &mut stack[..obs.len()]
+    } else {
+        heap.resize(obs.len(), Vector3::zeros());
+        &mut heap
+    };
+    for (d, o) in dirs.iter_mut().zip(obs) {
+        *d = world_ray(&views[o.view], e, o).1;
+    }
+    let dirs = &*dirs;
     // The widest pair, by the smallest cosine.
     let widest_without = |skip: Option<usize>| {
         let mut best = (1.0f64, 0, 0);
@@ -455,17 +468,19 @@ pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMat
     if rows <= 3 {
         return DMatrix::zeros(0, 0);
     }
-    let blocks: Vec<(usize, nalgebra::SMatrix<f64, 2, 6>)> = obs
-        .iter()
-        .enumerate()
-        .map(|(i, o)| (6 * o.view, hx.fixed_view::<2, 6>(2 * i, 6 * o.view).into_owned()))
-        .collect();
+    // Each observation's 2×6 block J_i of `hx`, read in place.
+    let block = |i: usize| {
+        let c = 6 * obs[i].view;
+        (c, hx.fixed_view::<2, 6>(2 * i, c))
+    };
     // [H_f | M], M's blocks M_ij = J_i P_ij J_jᵀ, j ≥ i, mirrored.
     let mut a = DMatrix::zeros(rows, 3 + rows);
     a.columns_mut(0, 3).copy_from(hf);
-    for (i, (ci, ji)) in blocks.iter().enumerate() {
-        for (j, (cj, jj)) in blocks.iter().enumerate().skip(i) {
-            let mij = ji * p.fixed_view::<6, 6>(*ci, *cj) * jj.transpose();
+    for i in 0..obs.len() {
+        let (ci, ji) = block(i);
+        for j in i..obs.len() {
+            let (cj, jj) = block(j);
+            let mij = ji * p.fixed_view::<6, 6>(ci, cj) * jj.transpose();
             a.fixed_view_mut::<2, 2>(2 * i, 3 + 2 * j).copy_from(&mij);
             a.fixed_view_mut::<2, 2>(2 * j, 3 + 2 * i).copy_from(&mij.transpose());
         }
