@@ -1,8 +1,8 @@
 //! The compass heading averaged while the vehicle stands before take-off
 //! (estimator README §7, eq. H1). Why this exists: the filter starts from
 //! the mean heading of the last second's magnetometer readings, and some
-//! magnetometers scatter by degrees a reading (PX4's SIH by 2.2° a 100 ms
-//! reading: a 0.4-1.4° error in that mean, up to 0.3 m across a 10 m box).
+//! magnetometers scatter by degrees a reading (PX4's SIH by 1.7-2.9° a 100 ms
+//! reading: a 0.6-1.7° error in that mean, up to 0.3 m across a 10 m box).
 //! Every reading that comes while the vehicle stands still and disarmed
 //! averages that noise down; the compass's bias (hard iron, the
 //! declination model) does not average, so the yaw's sigma keeps it. This

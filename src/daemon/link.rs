@@ -165,9 +165,10 @@ impl BootMsClock {
     }
 }
 
-/// Magnetometer readings reach the fusion loop at most this often (µs):
-/// they only give the first yaw, so 10 Hz is plenty, each the mean of the
-/// readings of its period.
+/// Magnetometer readings reach the fusion loop at most this often (µs),
+/// each the mean of the readings of its period: they give the first yaw,
+/// and the mean that refines it while the vehicle stands (`compass.rs`,
+/// whose steps and settling count 100 ms readings).
 const MAG_PERIOD_US: u64 = 100_000;
 
 /// The magnetic field's direction of the IMU messages, the mean of each
