@@ -5,7 +5,9 @@
 //! take-off more readings come; their mean's noise shrinks, its bias does
 //! not. The daemon keeps that mean (`daemon/compass.rs`) and conditions the
 //! filter's yaw on each improvement, exactly, so the yaw gets the better
-//! mean and its sigma loses the noise's share and nothing more.
+//! mean and its sigma loses the noise's share and nothing more. Tested
+//! against eq. H1 on a standing flight in `tests/compass_yaw.rs` (the
+//! simulator is the tests', never the estimator's).
 
 use nalgebra::{DMatrix, DVector};
 
@@ -69,97 +71,5 @@ impl Estimator {
         let r = DVector::from_element(1, shift_rad * var / drop_rad2 / sqrt_r);
         self.ekf_update(&h, &[col], &r, false);
         Ok(())
-    }
-}
-
-#[cfg(all(test, feature = "sim"))]
-mod tests {
-    use super::*;
-    use crate::config::Config;
-    use crate::eval::{sim_config_for, Runner};
-    use cmsckf_sitl::dataset::Dataset;
-
-    /// A filter that has stood 4 s on the ground (the racetrack's standstill,
-    /// its frames zero-velocity updates).
-    fn standing(mode: Mode) -> Estimator {
-        let cfg = Config::default();
-        let mut sim = sim_config_for(&cfg);
-        sim.standstill_s = 5.0;
-        let ds = Dataset::generate("racetrack", 3, Some(4.0), &sim).unwrap();
-        let mut run = Runner::new(&ds, &cfg, mode, 3);
-        for k in 0..ds.frames.len() {
-            run.step_frame(k);
-        }
-        run.est
-    }
-
-    /// Eq. H1 against its definition: conditioning on a known shift of the
-    /// compass mean moves the reference yaw (the oldest keyframe's) by the
-    /// whole shift and every state by its regression on that yaw, and takes
-    /// exactly `drop` off that yaw's variance: `P − P e eᵀ P drop / P_ψψ²`.
-    #[test]
-    fn conditioning_moves_the_yaw_by_the_shift_and_its_variance_by_the_drop() {
-        let mut est = standing(Mode::Compressed);
-        assert!(
-            !est.local_kfs.is_empty(),
-            "a standing filter with a camera has its first keyframe"
-        );
-        est.sync();
-        let col = est.kf_offset(0) + 2;
-        let p0 = est.P.clone();
-        let kf_id = est.local_kfs[0];
-        let kf_yaw0 = est.keyframes[&kf_id].q_W_B().euler_angles().2;
-        let imu_yaw0 = est.imu.q_W_B.euler_angles().2;
-        let bg0 = est.imu.b_g;
-        let (shift, drop) = (0.8_f64.to_radians(), 0.8 * p0[(col, col)]);
-        est.condition_yaw_on_compass(shift, drop).unwrap();
-        let kf_yaw1 = est.keyframes[&kf_id].q_W_B().euler_angles().2;
-        let imu_yaw1 = est.imu.q_W_B.euler_angles().2;
-        // The keyframe's pose holds the start's yaw: it moves by the shift.
-        assert!(
-            ((kf_yaw1 - kf_yaw0) - shift).abs() < 1e-3 * shift,
-            "{} vs {shift}",
-            kf_yaw1 - kf_yaw0
-        );
-        // The body's by its regression on it (its drift since is its own).
-        let beta = p0[(2, col)] / p0[(col, col)];
-        assert!(beta > 0.5 && beta < 1.01, "regression {beta}");
-        assert!(((imu_yaw1 - imu_yaw0) - beta * shift).abs() < 1e-3 * shift);
-        let dbg = (est.imu.b_g - bg0).z;
-        let beta_bg = p0[(11, col)] / p0[(col, col)];
-        assert!((dbg - beta_bg * shift).abs() < 1e-9 + 1e-6 * (beta_bg * shift).abs());
-        // The covariance: a rank-one downdate along P e.
-        let pe = p0.column(col).into_owned();
-        let expected = &p0 - &pe * pe.transpose() * (drop / (p0[(col, col)] * p0[(col, col)]));
-        let err = (&est.P - &expected).abs().max();
-        assert!(err < 1e-12, "P differs from H1 by {err}");
-        assert!((p0[(col, col)] - est.P[(col, col)] - drop).abs() < 1e-12);
-    }
-
-    /// Bad arguments leave the filter as it was; Schmidt mode refuses.
-    #[test]
-    fn conditioning_refuses_what_it_cannot_do() {
-        let mut est = standing(Mode::Compressed);
-        est.sync();
-        let before = est.P.clone();
-        let var = est.P[(est.kf_offset(0) + 2, est.kf_offset(0) + 2)];
-        assert!(matches!(
-            est.condition_yaw_on_compass(f64::NAN, 1e-6),
-            Err(YawConditionError::NotFinite { .. })
-        ));
-        assert!(matches!(
-            est.condition_yaw_on_compass(0.01, 0.0),
-            Err(YawConditionError::NotFinite { .. })
-        ));
-        assert!(matches!(
-            est.condition_yaw_on_compass(0.01, var),
-            Err(YawConditionError::DropTooLarge { .. })
-        ));
-        assert_eq!(est.P, before);
-        let mut schmidt = standing(Mode::Schmidt);
-        assert_eq!(
-            schmidt.condition_yaw_on_compass(0.01, 1e-6),
-            Err(YawConditionError::Schmidt)
-        );
     }
 }
