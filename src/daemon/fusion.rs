@@ -216,17 +216,21 @@ impl Fusion {
             FusionMsg::Rtcm { bytes, stream } => self.on_rtcm(&bytes, stream, &ctx.counters),
             FusionMsg::Frame(fr, norm) => self.on_frame(fr, norm, ctx),
             FusionMsg::Imu(m) => self.on_imu(m, ctx),
-            other => {
-                let mag_B = match &other {
-                    FusionMsg::Magnetometer { mag_B } => Some(*mag_B),
-                    _ => None,
-                };
-                self.autopilot
-                    .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters);
-                if let Some(m) = mag_B {
-                    self.on_magnetometer(&m, &ctx.counters);
-                }
+            // The autopilot's view keeps (and logs) the reading first; the
+            // compass averaging then takes it.
+            FusionMsg::Magnetometer { mag_B } => {
+                self.autopilot.on_message(
+                    FusionMsg::Magnetometer { mag_B },
+                    self.last_imu_t,
+                    &mut self.gnss,
+                    &self.log,
+                    &ctx.counters,
+                );
+                self.on_magnetometer(&mag_B, &ctx.counters);
             }
+            other => self
+                .autopilot
+                .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
         }
         if !had_frame && self.gnss.frame().is_some() {
             self.on_located(&ctx.out);
