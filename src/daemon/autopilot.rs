@@ -23,6 +23,11 @@ use crate::io::messages::Outbound;
 
 /// Magnetometer readings kept for the compass yaw (10 Hz: about 1 s).
 const MAG_READINGS: usize = 10;
+
+/// How long after the autopilot's landed state turns to "in the air"
+/// zero-velocity updates stay allowed (s): a take-off's spin-up on the
+/// ground (see [`AutopilotView::zupt_allowed`]).
+const TAKEOFF_GRACE_S: f64 = 3.0;
 /// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
 /// believed once this many messages agree on it.
 const SYSTEM_TIME_TOL_S: f64 = 1.0;
@@ -94,6 +99,8 @@ pub(super) struct AutopilotView {
     /// When it disarmed after an arming, until the log is rotated.
     disarmed_since: Option<f64>,
     on_ground: Option<bool>,
+    /// When (IMU time) its landed state last turned to "in the air".
+    left_ground_t: Option<f64>,
     /// Which autopilot its HEARTBEAT says it is.
     kind: Option<AutopilotKind>,
     /// When (IMU time) it last reported a 3D GNSS fix of its own.
@@ -117,6 +124,7 @@ impl Default for AutopilotView {
             mode: None,
             disarmed_since: None,
             on_ground: None,
+            left_ground_t: None,
             kind: None,
             fix_t: None,
             unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
@@ -199,6 +207,7 @@ impl AutopilotView {
                 }
                 if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
                     log_autopilot(AutopilotRecord::OnGround(g));
+                    self.left_ground_t = (!g && self.on_ground == Some(true)).then_some(t_s);
                     self.on_ground = on_ground;
                 }
             }
@@ -320,15 +329,31 @@ impl AutopilotView {
         }
     }
 
-    /// Whether a zero-velocity update may be taken: on the ground, by the
-    /// autopilot's landed state, else by its being disarmed; with neither
-    /// known (an autopilot that says nothing), by the IMU and camera alone.
-    pub(super) fn zupt_allowed(&self) -> bool {
+    /// On the ground by the autopilot's word: its landed state, else its
+    /// being disarmed; with neither known (an autopilot that says nothing),
+    /// `true`, and the IMU and camera judge alone.
+    fn landed(&self) -> bool {
         match (self.on_ground, self.armed) {
             (Some(on_ground), _) => on_ground,
             (None, Some(armed)) => !armed,
             (None, None) => true,
         }
+    }
+
+    /// Whether a zero-velocity update may be taken at `t_s` (IMU time): on
+    /// the ground by the autopilot's word, or within [`TAKEOFF_GRACE_S`] of
+    /// its landed state turning to "in the air". A land detector says so
+    /// while the motors spin up, before the vehicle rises (PX4's SIH: 1.1 s
+    /// before): with the updates ended then, the IMU alone carried the
+    /// velocity through that second and strayed by ±0.2 m/s. Within the
+    /// grace the IMU, the camera's disparity, the estimated speed and the
+    /// update's χ² gate decide, as they do for an autopilot that reports no
+    /// landed state (`estimator::zupt`).
+    pub(super) fn zupt_allowed(&self, t_s: f64) -> bool {
+        self.landed()
+            || self
+                .left_ground_t
+                .is_some_and(|t0| (0.0..TAKEOFF_GRACE_S).contains(&(t_s - t0)))
     }
 
     /// Tells the autopilot our origin once it is known
@@ -439,7 +464,7 @@ impl AutopilotView {
 
     /// Disarmed and on the ground, by what the autopilot last said.
     pub(super) fn disarmed_on_ground(&self) -> bool {
-        self.armed == Some(false) && self.zupt_allowed()
+        self.armed == Some(false) && self.landed()
     }
 
     /// Whether it is armed, once its HEARTBEAT has said.
@@ -591,6 +616,49 @@ mod tests {
         );
         assert!(gnss.frame().is_some());
         assert!(watch(&mut ap, 136.0, 60.0, &counters).is_empty());
+    }
+
+    /// The landed state turning to "in the air" leaves zero-velocity
+    /// updates allowed for `TAKEOFF_GRACE_S` (the spin-up on the ground),
+    /// then not; landing again allows them at once. A disarmed vehicle's
+    /// "on the ground" stays the autopilot's word alone.
+    #[test]
+    fn zero_velocity_updates_outlast_the_land_detector_by_the_take_off_grace() {
+        let counters = Counters::default();
+        let mut gnss = GnssIn::new(&crate::config::Config::default());
+        let log = FlightLog::new(None, false);
+        let mut ap = AutopilotView::default();
+        let mut state = |ap: &mut AutopilotView, t_s: f64, armed: bool, on_ground: bool| {
+            ap.on_message(
+                FusionMsg::VehicleState {
+                    armed: Some(armed),
+                    on_ground: Some(on_ground),
+                    kind: Some(AutopilotKind::Px4),
+                    mode: None,
+                },
+                t_s,
+                &mut gnss,
+                &log,
+                &counters,
+            );
+        };
+        // Never on the ground by its word: no grace (no landing to leave).
+        state(&mut ap, 1.0, true, false);
+        assert!(!ap.zupt_allowed(1.5));
+        state(&mut ap, 2.0, false, true);
+        assert!(ap.zupt_allowed(2.0) && ap.disarmed_on_ground());
+        state(&mut ap, 10.0, true, true);
+        assert!(ap.zupt_allowed(10.5) && !ap.disarmed_on_ground());
+        state(&mut ap, 12.0, true, false);
+        assert!(ap.zupt_allowed(12.0) && ap.zupt_allowed(12.0 + TAKEOFF_GRACE_S - 0.01));
+        assert!(!ap.zupt_allowed(12.0 + TAKEOFF_GRACE_S));
+        // A time before the turn (an IMU sample stamped earlier) is not in it.
+        assert!(!ap.zupt_allowed(11.9));
+        // The same state repeated does not restart the grace.
+        state(&mut ap, 20.0, true, false);
+        assert!(!ap.zupt_allowed(20.5));
+        state(&mut ap, 40.0, true, true);
+        assert!(ap.zupt_allowed(40.0));
     }
 
     #[test]

@@ -475,7 +475,7 @@ impl Fusion {
             log: self.log.logger(),
         };
         self.pacer.emit(m, est, cx, counters, out);
-        est.set_zupt_allowed(self.autopilot.zupt_allowed());
+        est.set_zupt_allowed(self.autopilot.zupt_allowed(m.t_s));
         let cx = FuseCtx {
             rebase: &mut self.rebase,
             est_gen: self.est_gen,
