@@ -116,16 +116,12 @@ impl Drop for Sitl {
 /// PX4's parameters for external vision as its only position, height and
 /// yaw source (docs/setup-px4.md gives each one's reason). rcS applies
 /// each `PX4_PARAM_<NAME>` with `param set` on start.
-const PARAMS: [(&str, &str); 9] = [
+const PARAMS: [(&str, &str); 8] = [
     ("EKF2_EV_CTRL", "15"),
     ("EKF2_HGT_REF", "3"),
     ("EKF2_GPS_CTRL", "0"),
     ("SENS_EN_GPSSIM", "0"),
     ("EKF2_MAG_TYPE", "5"),
-    // EKF2 takes this number as a floor on the EV yaw's *variance*
-    // (`Ekf::controlEvYawFusion`): the default 0.1 fuses our yaw as σ 18°
-    // whatever we send. 0.001 rad² lets our variance through.
-    ("EKF2_EVA_NOISE", "0.001"),
     // EKF2's IMU noise as SIH's IMU has it in flight (0.07 rad/s and
     // 0.87 m/s² per 250 Hz sample, averaged over EKF2's ~100 Hz step),
     // as cmsckf's own `imu.*_noise_density` are set below: with the

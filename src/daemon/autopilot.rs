@@ -27,7 +27,12 @@ const MAG_READINGS: usize = 10;
 /// How long after the autopilot's landed state turns to "in the air"
 /// zero-velocity updates stay allowed (s): a take-off's spin-up on the
 /// ground (see [`AutopilotView::zupt_allowed`]).
-const TAKEOFF_GRACE_S: f64 = 3.0;
+const TAKEOFF_GRACE_S: f64 = 2.0;
+
+/// How long the landed state must have said "on the ground" for its turn
+/// to "in the air" to open the take-off grace (s): a touch-and-go, ground
+/// effect's flicker or a stale copy between two "in the air" opens none.
+const LANDED_CONFIRM_S: f64 = 2.0;
 /// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
 /// believed once this many messages agree on it.
 const SYSTEM_TIME_TOL_S: f64 = 1.0;
@@ -99,7 +104,11 @@ pub(super) struct AutopilotView {
     /// When it disarmed after an arming, until the log is rotated.
     disarmed_since: Option<f64>,
     on_ground: Option<bool>,
-    /// When (IMU time) its landed state last turned to "in the air".
+    /// Since when (IMU time) its landed state has said "on the ground".
+    on_ground_since: Option<f64>,
+    /// When (IMU time) its landed state turned to "in the air" after
+    /// [`LANDED_CONFIRM_S`] on the ground, while the take-off grace lasts:
+    /// cleared when the camera sees motion.
     left_ground_t: Option<f64>,
     /// Which autopilot its HEARTBEAT says it is.
     kind: Option<AutopilotKind>,
@@ -124,6 +133,7 @@ impl Default for AutopilotView {
             mode: None,
             disarmed_since: None,
             on_ground: None,
+            on_ground_since: None,
             left_ground_t: None,
             kind: None,
             fix_t: None,
@@ -207,7 +217,9 @@ impl AutopilotView {
                 }
                 if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
                     log_autopilot(AutopilotRecord::OnGround(g));
-                    self.left_ground_t = (!g && self.on_ground == Some(true)).then_some(t_s);
+                    let confirmed = self.on_ground_since.is_some_and(|t0| t_s - t0 >= LANDED_CONFIRM_S);
+                    self.left_ground_t = (!g && self.on_ground == Some(true) && confirmed).then_some(t_s);
+                    self.on_ground_since = g.then_some(t_s);
                     self.on_ground = on_ground;
                 }
             }
@@ -342,18 +354,36 @@ impl AutopilotView {
 
     /// Whether a zero-velocity update may be taken at `t_s` (IMU time): on
     /// the ground by the autopilot's word, or within [`TAKEOFF_GRACE_S`] of
-    /// its landed state turning to "in the air". A land detector says so
-    /// while the motors spin up, before the vehicle rises (PX4's SIH: 1.1 s
-    /// before): with the updates ended then, the IMU alone carried the
-    /// velocity through that second and strayed by ±0.2 m/s. Within the
-    /// grace the IMU, the camera's disparity, the estimated speed and the
-    /// update's χ² gate decide, as they do for an autopilot that reports no
-    /// landed state (`estimator::zupt`).
+    /// its landed state turning to "in the air" after [`LANDED_CONFIRM_S`]
+    /// on the ground, until the camera sees motion ([`Self::camera_moved`]).
+    /// A land detector says "in the air" while the motors spin up, before
+    /// the vehicle rises (PX4's SIH: 1.1 s before): with the updates ended
+    /// then, the IMU alone carried the velocity through that second and
+    /// strayed by ±0.2 m/s. Within the grace the IMU, the camera's
+    /// disparity, the estimated speed and the update's χ² gate decide, as
+    /// they do for an autopilot that reports no landed state
+    /// (`estimator::zupt`). A gentle climb that the camera does not see
+    /// (far features only) may be held still until the grace's end: its
+    /// length bounds that.
     pub(super) fn zupt_allowed(&self, t_s: f64) -> bool {
         self.landed()
             || self
                 .left_ground_t
                 .is_some_and(|t0| (0.0..TAKEOFF_GRACE_S).contains(&(t_s - t0)))
+    }
+
+    /// The camera saw motion at `t_s` (a frame's features moved past the
+    /// stillness bound, `Stats::zupt_camera_moved`): within the take-off
+    /// grace, that ends it for good. The IMU's tests alone do not: the
+    /// spin-up's thrust and vibration fail them on the ground (measured
+    /// beside PX4's SITL: the first frame after the land detector's turn).
+    /// `true` when this ended it.
+    pub(super) fn camera_moved(&mut self, t_s: f64) -> bool {
+        let open = !self.landed() && self.zupt_allowed(t_s);
+        if open {
+            self.left_ground_t = None;
+        }
+        open
     }
 
     /// Tells the autopilot our origin once it is known
@@ -618,10 +648,11 @@ mod tests {
         assert!(watch(&mut ap, 136.0, 60.0, &counters).is_empty());
     }
 
-    /// The landed state turning to "in the air" leaves zero-velocity
-    /// updates allowed for `TAKEOFF_GRACE_S` (the spin-up on the ground),
-    /// then not; landing again allows them at once. A disarmed vehicle's
-    /// "on the ground" stays the autopilot's word alone.
+    /// The landed state turning to "in the air" after `LANDED_CONFIRM_S` on
+    /// the ground leaves zero-velocity updates allowed for
+    /// `TAKEOFF_GRACE_S` (the spin-up on the ground) or until the camera
+    /// sees motion, then not; landing again allows them at once. A
+    /// disarmed vehicle's "on the ground" stays the autopilot's word alone.
     #[test]
     fn zero_velocity_updates_outlast_the_land_detector_by_the_take_off_grace() {
         let counters = Counters::default();
@@ -659,6 +690,21 @@ mod tests {
         assert!(!ap.zupt_allowed(20.5));
         state(&mut ap, 40.0, true, true);
         assert!(ap.zupt_allowed(40.0));
+        // A second on the ground (a touch-and-go, ground effect's flicker, a
+        // stale copy) opens no grace.
+        state(&mut ap, 41.0, true, false);
+        assert!(!ap.zupt_allowed(41.5));
+        // After LANDED_CONFIRM_S on the ground it does, until the camera
+        // sees motion, which ends it for good.
+        state(&mut ap, 42.0, true, true);
+        let t0 = 42.0 + LANDED_CONFIRM_S;
+        state(&mut ap, t0, true, false);
+        assert!(ap.zupt_allowed(t0 + 0.1));
+        assert!(ap.camera_moved(t0 + 0.3));
+        assert!(!ap.zupt_allowed(t0 + 0.4) && !ap.camera_moved(t0 + 0.4));
+        // On the ground by its word, motion changes nothing.
+        state(&mut ap, 60.0, true, true);
+        assert!(!ap.camera_moved(60.5) && ap.zupt_allowed(60.5));
     }
 
     #[test]

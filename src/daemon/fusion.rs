@@ -476,6 +476,7 @@ impl Fusion {
         };
         self.pacer.emit(m, est, cx, counters, out);
         est.set_zupt_allowed(self.autopilot.zupt_allowed(m.t_s));
+        let moved_before = est.stats.zupt_camera_moved;
         let cx = FuseCtx {
             rebase: &mut self.rebase,
             est_gen: self.est_gen,
@@ -486,6 +487,13 @@ impl Fusion {
             base: self.gnss.base_use_mut(),
         };
         self.queue.fuse_covered(m.t_s, est, cx);
+        if est.stats.zupt_camera_moved > moved_before && self.autopilot.camera_moved(m.t_s) {
+            self.log.text(
+                Level::Info,
+                m.t_s,
+                "take-off: the camera sees motion; the zero-velocity updates kept through the spin-up end",
+            );
+        }
         // Without measurements (camera and GNSS both out) nothing moved the
         // filter on: carry it behind the IMU, so that the covariance in the
         // outputs grows as the error does and the IMU buffer never fills.

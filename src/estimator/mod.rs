@@ -270,6 +270,10 @@ pub struct Stats {
     pub gnss_epochs_late: u64,
     /// Frames taken as zero-velocity updates instead of clones (§3c).
     pub zupt_updates: u64,
+    /// Frames, while zero-velocity updates were allowed, whose features had
+    /// moved in the image past `zupt.max_disparity_px` since the last clone:
+    /// the camera saw motion, whatever the IMU said (§3c).
+    pub zupt_camera_moved: u64,
     /// Tracks used at their landmark's remembered depth for want of
     /// parallax (§3e).
     pub low_parallax_tracks: u64,

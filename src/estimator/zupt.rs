@@ -113,6 +113,17 @@ impl Estimator {
     /// Returns whether it did.
     pub(super) fn zero_velocity_update(&mut self, still: &Stillness, obs: &[NormObs]) -> bool {
         let z = self.s.zupt;
+        // The camera's verdict alone, counted whatever the IMU's: what
+        // tells the caller a vehicle has begun to move (a take-off's end of
+        // the spin-up, `daemon::autopilot`).
+        let disparity = if z.enabled && self.zupt_allowed {
+            self.median_disparity(obs)
+        } else {
+            None
+        };
+        if disparity.is_some_and(|d| d > z.max_disparity) {
+            self.stats.zupt_camera_moved += 1;
+        }
         let n = f64::from(still.samples.max(1));
         let (gyro_mean, gyro_scatter) = still.gyro();
         let (accel_mean, accel_scatter) = still.accel();
@@ -139,7 +150,7 @@ impl Estimator {
         {
             return false;
         }
-        if !self.median_disparity(obs).is_some_and(|d| d <= z.max_disparity) {
+        if !disparity.is_some_and(|d| d <= z.max_disparity) {
             return false;
         }
         // Z1: the body-frame velocity is zero, 0 = R_W_Bᵀ v + n_v, σ_z,
