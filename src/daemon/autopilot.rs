@@ -366,8 +366,14 @@ impl AutopilotView {
     /// (far features only) may be held still until the grace's end: its
     /// length bounds that.
     pub(super) fn zupt_allowed(&self, t_s: f64) -> bool {
-        self.landed()
-            || self
+        self.landed() || self.in_takeoff_grace(t_s)
+    }
+
+    /// In the air by the autopilot's word, within the take-off grace at
+    /// `t_s` (see [`Self::zupt_allowed`]).
+    fn in_takeoff_grace(&self, t_s: f64) -> bool {
+        !self.landed()
+            && self
                 .left_ground_t
                 .is_some_and(|t0| (0.0..TAKEOFF_GRACE_S).contains(&(t_s - t0)))
     }
@@ -379,7 +385,7 @@ impl AutopilotView {
     /// beside PX4's SITL: the first frame after the land detector's turn).
     /// `true` when this ended it.
     pub(super) fn camera_moved(&mut self, t_s: f64) -> bool {
-        let open = !self.landed() && self.zupt_allowed(t_s);
+        let open = self.in_takeoff_grace(t_s);
         if open {
             self.left_ground_t = None;
         }
