@@ -4,6 +4,8 @@
 //!   taken from a racetrack flight after 10 s (2–3 keyframes);
 //! - `gnss_update`: one GNSS epoch (pseudoranges and range rates, GPS and Galileo) fused at its own
 //!   instant, on the same flight at 10 s with GNSS on, compressed mode;
+//! - `householder/400x73`: the camera update's stacked triangularisation (README §3, Q1) at its mean shape
+//!   on udel_gore with OpenVINS's settings (400 rows, 72 state columns and the residual);
 //! - `feature_line_decode`: parsing one 200-feature JSON line of the feature socket;
 //! - `rtcm_decode`: framing, CRC and decoding of one real MSM7 epoch (station 3040).
 //!
@@ -108,6 +110,24 @@ fn bench_gnss_update(c: &mut Criterion) {
     });
 }
 
+fn bench_householder(c: &mut Criterion) {
+    use nalgebra::DMatrix;
+    // A dense stand-in with the stacked system's mean shape (`evaluate
+    // --scenario tum:udel_gore --sim-config config/sim-openvins.toml`: 400 rows
+    // over 72 state columns a frame); its entries do not change the work.
+    let (m, n) = (400, 73);
+    let a = DMatrix::from_fn(m, n, |i, j| {
+        ((i * 31 + j * 17) % 23) as f64 / 7.0 - 1.5 + (i as f64 * 0.1).sin()
+    });
+    c.bench_function("householder/400x73", |b| {
+        b.iter_batched_ref(
+            || a.clone(),
+            |x| cmsckf::estimator::math::householder_in_place(x, n - 1),
+            BatchSize::SmallInput,
+        )
+    });
+}
+
 fn bench_decode(c: &mut Criterion) {
     let mut line = String::from("{\"v\":1,\"t_us\":123456789,\"cam\":0,\"features\":[");
     for i in 0..200 {
@@ -152,6 +172,7 @@ criterion_group!(
     bench_propagate,
     bench_msckf_update,
     bench_gnss_update,
+    bench_householder,
     bench_decode
 );
 criterion_main!(benches);

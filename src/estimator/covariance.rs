@@ -16,13 +16,16 @@ use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, CLOCK_DIM, GNSS_CLONE
 impl Estimator {
     /// Propagates the active block with the transition `f` and noise `q` of
     /// one IMU interval (§2, eq. F2): `P_AA ← F P_AA Fᵀ + Q`, symmetrised;
-    /// the cross-covariances wait in `f_acc` for [`Self::sync`].
-    pub(super) fn propagate_covariance(&mut self, f: &MatActive, q: &MatActive) {
-        let paa = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
-        let mut new = f * paa * f.transpose() + q;
+    /// the cross-covariances wait in `f_acc` for [`Self::sync`]. `P_AA` is
+    /// symmetric, so `F P_AA Fᵀ = F (F P_AA)ᵀ`: two of `F`'s structured
+    /// left products and a transpose.
+    pub(super) fn propagate_covariance(&mut self, f: &propagate::ActiveTransition, q: &MatActive) {
+        let paa: MatActive = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
+        let fp = f.mul_left(&paa);
+        let mut new = f.mul_left(&fp.transpose()) + q;
         new = (new + new.transpose()) * 0.5;
         self.P.fixed_view_mut::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).copy_from(&new);
-        self.f_acc = f * self.f_acc;
+        self.f_acc = f.mul_left(&self.f_acc);
     }
 
     /// Applies the accumulated IMU transition to the cross-covariances and

@@ -9,12 +9,12 @@
 //! `covariance.rs`'s), and the low-latency prediction the outputs use.
 
 use crate::counters::Counter;
-use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
 
 use super::math::{exp_so3, skew};
 use cmsckf_models::sensors::ImuConfig;
 
-use super::{Estimator, InputError, MatActive, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP, ISB_SYSTEMS};
+use super::{Estimator, InputError, MatActive, ACTIVE_DIM, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP, ISB_SYSTEMS};
 
 pub type Mat15 = SMatrix<f64, 15, 15>;
 
@@ -191,6 +191,61 @@ pub fn transition(x: &ImuState, m0: &ImuMeas, m1: &ImuMeas, imu: &ImuConfig) -> 
     (f, q)
 }
 
+/// The blocks of `F − I` that [`transition`] fills (eq. F2), as (row,
+/// column) offsets: the attitude's response to the gyro bias, the
+/// velocity's to the attitude and both biases, the position's to the
+/// attitude, the velocity and both biases. Every other block of `F` is the
+/// identity's.
+pub const TRANSITION_BLOCKS: [(usize, usize); 8] =
+    [(TH, BG), (V, TH), (V, BG), (V, BA), (P, TH), (P, V), (P, BG), (P, BA)];
+
+/// One step's transition of the active block (§2, eqs. F2 and K1) kept as
+/// what it is: the identity plus the IMU's eight 3×3 blocks
+/// ([`TRANSITION_BLOCKS`]) and the clock's `∂b/∂d = Δt`. `F X` then costs
+/// 8 × 9 multiply-adds a column instead of a dense product's 21 × 21: the
+/// covariance step runs at every IMU sample (400 Hz on OpenVINS's
+/// simulator), where the dense products were a third of a frame's time
+/// (issue 43's profile, docs/performance.md).
+#[derive(Clone, Copy, Debug)]
+pub struct ActiveTransition {
+    pub imu: [Matrix3<f64>; 8],
+    pub clock_dt_s: f64,
+}
+
+impl ActiveTransition {
+    /// Reads the blocks of an IMU transition `f15` (zero elsewhere off the
+    /// identity, as [`transition`] builds it) and the step's `Δt`.
+    pub fn new(f15: &Mat15, dt_s: f64) -> Self {
+        Self {
+            imu: TRANSITION_BLOCKS.map(|(r, c)| f15.fixed_view::<3, 3>(r, c).into_owned()),
+            clock_dt_s: dt_s,
+        }
+    }
+
+    /// `F X` (`X` has the active block's rows), without allocating:
+    /// `(F X)_r = X_r + Σ_c N_rc X_c` over the blocks, and the clock bias's
+    /// row gains `Δt` times the drift's.
+    pub fn mul_left(&self, x: &MatActive) -> MatActive {
+        let mut y = *x;
+        for (&(r, c), b) in TRANSITION_BLOCKS.iter().zip(&self.imu) {
+            for j in 0..ACTIVE_DIM {
+                for i in 0..3 {
+                    y[(r + i, j)] += b[(i, 0)] * x[(c, j)] + b[(i, 1)] * x[(c + 1, j)] + b[(i, 2)] * x[(c + 2, j)];
+                }
+            }
+        }
+        for j in 0..ACTIVE_DIM {
+            y[(CLK_B, j)] += self.clock_dt_s * x[(CLK_D, j)];
+        }
+        y
+    }
+
+    /// The dense `F` (for tests and checks).
+    pub fn dense(&self) -> MatActive {
+        self.mul_left(&MatActive::identity())
+    }
+}
+
 /// Samples further apart than this (s) leave a gap: the samples at its ends
 /// say nothing of the motion in between (a 20 Hz IMU, 50 ms apart with
 /// jitter, still samples it).
@@ -352,9 +407,7 @@ impl Estimator {
             self.fej_dv = Vector3::zeros();
             self.fej_dp = Vector3::zeros();
         }
-        let mut f = MatActive::identity();
-        f.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
-        f[(CLK_B, CLK_D)] = dt;
+        let f = ActiveTransition::new(&f15, dt);
         let mut q = MatActive::zeros();
         q.fixed_view_mut::<15, 15>(0, 0).copy_from(&q15);
         let (qb, qd) = (self.s.clock_bias_rw.powi(2), self.s.clock_drift_rw.powi(2));
@@ -531,6 +584,30 @@ pub(super) mod tests {
                 f.column(k).iter().collect::<Vec<_>>()
             );
         }
+    }
+
+    /// The structured transition is the dense one: [`transition`] fills
+    /// only [`TRANSITION_BLOCKS`] off the identity (so nothing is dropped),
+    /// and `F X` through the blocks equals the dense product, the clock's
+    /// `Δt` included.
+    #[test]
+    fn structured_transition_equals_the_dense_product() {
+        let x = state();
+        let (f15, _) = transition(&x, &meas(0.0), &meas(0.0025), &ImuConfig::default());
+        let mut rest = f15 - Mat15::identity();
+        for (r, c) in TRANSITION_BLOCKS {
+            rest.fixed_view_mut::<3, 3>(r, c).fill(0.0);
+        }
+        assert_eq!(rest.amax(), 0.0, "transition fills a block outside TRANSITION_BLOCKS");
+        let dt = 0.0025;
+        let f = ActiveTransition::new(&f15, dt);
+        let mut dense = MatActive::identity();
+        dense.fixed_view_mut::<15, 15>(0, 0).copy_from(&f15);
+        dense[(CLK_B, CLK_D)] = dt;
+        assert_eq!(f.dense(), dense);
+        let xm = MatActive::from_fn(|i, j| ((i * 7 + j * 13) % 11) as f64 - 5.0 + 0.1 * (i + j) as f64);
+        let err = (f.mul_left(&xm) - dense * xm).amax();
+        assert!(err <= 1e-12 * (dense * xm).amax(), "F X differs by {err}");
     }
 
     /// §3b, eq. T3: the body pose at `t + δt_d` moves by `[R ω_B; v] δt_d`.

@@ -9,6 +9,7 @@
 //! filter logic, lets them be tested against nalgebra's references and
 //! tuned without touching the equations that use them.
 
+mod kernels;
 mod qr;
 mod triangular;
 

@@ -7,7 +7,7 @@
 //! exactly those of the reference convention (dlarfg) so that results do
 //! not change.
 
-use super::{axpy, dot};
+use super::kernels::{Kernels, Portable};
 
 /// Columns per panel of the blocked Householder triangularisation.
 const QR_BLOCK: usize = 16;
@@ -65,7 +65,29 @@ pub fn householder_in_place(a: &mut nalgebra::DMatrix<f64>, p: usize) {
     SCRATCH.with(|s| householder_with(a, p, &mut s.borrow_mut()));
 }
 
+/// Runs the triangularisation with AVX2 and FMA where the CPU has them,
+/// else with the portable kernels (`kernels.rs` says why).
 fn householder_with(a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(k) = super::kernels::Avx2Fma::detect() {
+        // SAFETY: `k` exists only where the CPU has AVX2 and FMA.
+        unsafe { householder_avx2_fma(k, a, p, s) };
+        return;
+    }
+    householder_body(Portable, a, p, s);
+}
+
+/// The triangularisation compiled with AVX2 and FMA enabled, so that the
+/// kernels inline into it. Unsafe only as any such function is: the CPU
+/// must have the features, which `_k` proves.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn householder_avx2_fma(k: super::kernels::Avx2Fma, a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
+    householder_body(k, a, p, s);
+}
+
+#[inline(always)]
+fn householder_body<K: Kernels>(k: K, a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
     let (m, n) = a.shape();
     let p = p.min(m).min(n);
     // Small matrices (a track's null-space projection) take each reflection
@@ -78,12 +100,12 @@ fn householder_with(a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
         let rows = m - j0;
         let v = zeroed(&mut s.v, rows * jb);
         let tau = zeroed(&mut s.tau, jb);
-        if !reduce_panel(a, j0, jb, apply_end, v, tau) {
+        if !reduce_panel(k, a, j0, jb, apply_end, v, tau) {
             return;
         }
         let rest = n - apply_end;
         if rest > 0 {
-            apply_block_reflector(a, j0, rest, s);
+            apply_block_reflector(k, a, j0, rest, s);
         }
         j0 += jb;
     }
@@ -95,7 +117,9 @@ fn householder_with(a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
 /// `jb`, column-major, unit diagonal; zeros on entry) and `tau` (zeros on
 /// entry). `false` after poisoning with NaN everything still to be reduced,
 /// on a non-finite or overflowing column.
-fn reduce_panel(
+#[inline(always)]
+fn reduce_panel<K: Kernels>(
+    k: K,
     a: &mut nalgebra::DMatrix<f64>,
     j0: usize,
     jb: usize,
@@ -110,7 +134,7 @@ fn reduce_panel(
         let j = j0 + jj;
         let col = &data[j * m + j..(j + 1) * m];
         let alpha = col[0];
-        let sigma = dot(&col[1..], &col[1..]);
+        let sigma = k.dot(&col[1..], &col[1..]);
         let norm = (alpha * alpha + sigma).sqrt();
         if !norm.is_finite() {
             // Non-finite or overflowing entries: poison everything
@@ -140,10 +164,10 @@ fn reduce_panel(
         data[j * m + j + 1..(j + 1) * m].fill(0.0);
         // The rest of the panel (or of the matrix), column by column.
         let vj = &v[jj * rows + jj..(jj + 1) * rows];
-        for k in j + 1..apply_end {
-            let c = &mut data[k * m + j..(k + 1) * m];
-            let s = t * dot(vj, c);
-            axpy(-s, vj, c);
+        for col_k in j + 1..apply_end {
+            let c = &mut data[col_k * m + j..(col_k + 1) * m];
+            let s = t * k.dot(vj, c);
+            k.axpy(-s, vj, c);
         }
     }
     true
@@ -152,7 +176,8 @@ fn reduce_panel(
 /// Applies a panel's reflections `H₀ ⋯ H_{b−1} = I − V T Vᵀ` (`V` and `τ`
 /// in `s`, `b = τ.len()`, the panel starting at column `j0`) to the `rest`
 /// columns right of it, as two matrix products.
-fn apply_block_reflector(a: &mut nalgebra::DMatrix<f64>, j0: usize, rest: usize, s: &mut Scratch) {
+#[inline(always)]
+fn apply_block_reflector<K: Kernels>(kern: K, a: &mut nalgebra::DMatrix<f64>, j0: usize, rest: usize, s: &mut Scratch) {
     use nalgebra::{DMatrixView, DMatrixViewMut};
     let rows = a.nrows() - j0;
     let Scratch {
@@ -178,7 +203,7 @@ fn apply_block_reflector(a: &mut nalgebra::DMatrix<f64>, j0: usize, rest: usize,
         let vi = &v[i * rows..(i + 1) * rows];
         let w = zeroed(t_col, i);
         for (k, wk) in w.iter_mut().enumerate() {
-            *wk = -tau[i] * dot(&v[k * rows..(k + 1) * rows], vi);
+            *wk = -tau[i] * kern.dot(&v[k * rows..(k + 1) * rows], vi);
         }
         for r in 0..i {
             t[r + i * jb] = (r..i).map(|k| t[r + k * jb] * w[k]).sum();
