@@ -357,6 +357,9 @@ pub struct Estimator {
     s: Settings,
     /// Whether the vehicle may be still (see [`Estimator::set_zupt_allowed`]).
     zupt_allowed: bool,
+    /// The frame's feature displacements, for their median (zero-velocity
+    /// updates), kept so that a frame allocates nothing for them.
+    disparity_buf: Vec<f64>,
     g_W: Vector3<f64>,
     t_s: f64,
     imu: ImuState,
@@ -495,6 +498,7 @@ impl Estimator {
             last_kf_t_s: f64::NEG_INFINITY,
             stats: Stats::default(),
             zupt_allowed: true,
+            disparity_buf: Vec::new(),
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }

@@ -90,18 +90,21 @@ impl Estimator {
 
     /// Median displacement (normalised units) of the features seen both in
     /// `obs` and at their track's last clone; `None` with too few in common.
-    fn median_disparity(&self, obs: &[NormObs]) -> Option<f64> {
-        let mut d: Vec<f64> = obs
-            .iter()
-            .filter_map(|o| {
-                let last = self.tracks.get(&o.landmark_id)?.obs.last()?;
-                Some((o.xn - last.1.xn).norm())
-            })
-            .collect();
-        if d.len() < MIN_COMMON_FEATURES {
-            return None;
-        }
-        cmsckf_models::stats::percentile(&mut d, 0.5)
+    /// Reuses the estimator's buffer: no allocation once it has grown.
+    fn median_disparity(&mut self, obs: &[NormObs]) -> Option<f64> {
+        let mut d = std::mem::take(&mut self.disparity_buf);
+        d.clear();
+        d.extend(obs.iter().filter_map(|o| {
+            let last = self.tracks.get(&o.landmark_id)?.obs.last()?;
+            Some((o.xn - last.1.xn).norm())
+        }));
+        let median = if d.len() < MIN_COMMON_FEATURES {
+            None
+        } else {
+            cmsckf_models::stats::percentile(&mut d, 0.5)
+        };
+        self.disparity_buf = d;
+        median
     }
 
     /// Takes the frame as a zero-velocity update when the vehicle is still
