@@ -204,8 +204,8 @@ pub const TRANSITION_BLOCKS: [(usize, usize); 8] =
 /// ([`TRANSITION_BLOCKS`]) and the clock's `∂b/∂d = Δt`. `F X` then costs
 /// 8 × 9 multiply-adds a column instead of a dense product's 21 × 21: the
 /// covariance step runs at every IMU sample (400 Hz on OpenVINS's
-/// simulator), where the dense products were a third of a frame's time
-/// (issue 43's profile, docs/performance.md).
+/// simulator), where the dense products were a quarter of the estimator's
+/// time (issue 43's profile, docs/performance.md).
 #[derive(Clone, Copy, Debug)]
 pub struct ActiveTransition {
     pub imu: [Matrix3<f64>; 8],

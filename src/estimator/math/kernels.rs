@@ -6,11 +6,18 @@
 //! any companion computer, and its vector code is then two lanes wide with
 //! separate multiplies and adds. The Householder triangularisation is the
 //! camera update's largest cost (issue 43's profile, docs/performance.md),
-//! and on a CPU with AVX2 and FMA (any x86-64 since 2013) four lanes of
-//! fused multiply-adds do its column operations in about half the time.
+//! and on a CPU with AVX2 and FMA (Intel's Core since 2013, AMD's since
+//! 2015; not the Atom, Celeron and Pentium Silver parts of some companion
+//! computers, which take the portable path) four lanes of fused
+//! multiply-adds do its column operations. The profile in
+//! docs/performance.md gives what the change (with the IMU step's) saved.
 //! The two paths differ by round-off only (a fused multiply-add rounds
-//! once). Other architectures (the arm64 package) take the portable path,
-//! which the compiler vectorises for their baseline (NEON).
+//! once, and the sums are taken in another order), so a replay is bit for
+//! bit only on a CPU that takes the same path. Other architectures (the
+//! arm64 package) take the portable path, which the compiler vectorises
+//! for their baseline (NEON).
+
+#![deny(unsafe_op_in_unsafe_fn)]
 
 use super::{axpy, dot};
 
@@ -158,6 +165,33 @@ mod tests {
                 y.push(42.0);
                 k.axpy(0.5, &a, &mut y);
                 paths.push(("avx2+fma", k.dot(&a, &b), y));
+            }
+            // Mismatched lengths: the common length only, nothing read or
+            // written beyond the shorter slice.
+            let longer: Vec<f64> = a.iter().copied().chain([7.0, -3.0, 5.0]).collect();
+            let mut short_y = b.clone();
+            let mut kernels_out = vec![(Portable.dot(&longer, &b), {
+                Portable.axpy(0.5, &longer, &mut short_y);
+                short_y
+            })];
+            #[cfg(target_arch = "x86_64")]
+            if let Some(k) = Avx2Fma::detect() {
+                let mut short_y = b.clone();
+                k.axpy(0.5, &longer, &mut short_y);
+                kernels_out.push((k.dot(&b, &longer), short_y));
+            }
+            for (d, y) in kernels_out {
+                assert!(
+                    (d - plain).abs() <= 1e-14 * scale,
+                    "dot over mismatched lengths at n = {n}"
+                );
+                assert_eq!(y.len(), n);
+                for i in 0..n {
+                    assert!(
+                        (y[i] - (b[i] + 0.5 * a[i])).abs() <= 1e-15 * 8.0,
+                        "axpy, x longer than y, at {i} of {n}"
+                    );
+                }
             }
             for (name, d, y) in paths {
                 assert!(

@@ -5,7 +5,7 @@
 //! finiteness checks here).
 //!
 //! Why it exists: the filter's cost is in a few dense kernels whose
-//! results must not change by a bit; keeping them here, apart from the
+//! results must not change but by round-off; keeping them here, apart from the
 //! filter logic, lets them be tested against nalgebra's references and
 //! tuned without touching the equations that use them.
 

@@ -1,11 +1,12 @@
 //! The Householder triangularisation (README §3, N1 and Q1), plain for
-//! small matrices and blocked as LAPACK's dgeqrf for large ones.
+//! small matrices and blocked as LAPACK's dgeqrf for large ones, with the
+//! column kernels of `kernels.rs` (AVX2 and FMA where the CPU has them).
 //!
 //! Why it exists: the track update projects onto the left null space of
 //! the feature Jacobian (N1) and compresses the stacked rows (Q1) with it;
-//! it is the camera update's main cost, and its reflections must stay
-//! exactly those of the reference convention (dlarfg) so that results do
-//! not change.
+//! it is the camera update's main cost, and its reflections stay those of
+//! the reference convention (dlarfg) on either kernel path, so that the
+//! paths differ by round-off only.
 
 use super::kernels::{Kernels, Portable};
 
@@ -79,7 +80,7 @@ fn householder_with(a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
 
 /// The triangularisation compiled with AVX2 and FMA enabled, so that the
 /// kernels inline into it. Unsafe only as any such function is: the CPU
-/// must have the features, which `_k` proves.
+/// must have the features, which `k` proves.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn householder_avx2_fma(k: super::kernels::Avx2Fma, a: &mut nalgebra::DMatrix<f64>, p: usize, s: &mut Scratch) {
@@ -231,11 +232,53 @@ mod householder_tests {
     use crate::estimator::math::all_finite;
     use nalgebra::DMatrix;
 
+    /// Each kernel path this CPU can run, as a triangularisation: the
+    /// portable one always, AVX2+FMA where detected (so that a CI machine
+    /// with AVX2 still tests the path an Atom or arm64 board takes).
+    type Triangularise = Box<dyn Fn(&mut DMatrix<f64>, usize)>;
+
+    fn paths() -> Vec<(&'static str, Triangularise)> {
+        let mut v: Vec<(&'static str, Triangularise)> = vec![(
+            "portable",
+            Box::new(|a: &mut DMatrix<f64>, p: usize| householder_body(Portable, a, p, &mut Scratch::default())),
+        )];
+        #[cfg(target_arch = "x86_64")]
+        if let Some(k) = super::super::kernels::Avx2Fma::detect() {
+            v.push((
+                "avx2+fma",
+                Box::new(move |a: &mut DMatrix<f64>, p: usize| {
+                    // SAFETY: `k` exists only where the CPU has AVX2 and FMA.
+                    unsafe { householder_avx2_fma(k, a, p, &mut Scratch::default()) }
+                }),
+            ));
+        }
+        v
+    }
+
     /// `Qᵀ A` keeps `AᵀA` (Q orthogonal), is upper triangular in the
     /// chosen columns, and leaves nothing to the rest: checked against
-    /// nalgebra's QR on tall, square, wide and rank-deficient matrices.
+    /// nalgebra's QR on tall, square, wide and rank-deficient matrices, on
+    /// every kernel path; and the paths agree with each other to round-off.
     #[test]
     fn householder_triangularises_and_preserves_the_gram_matrix() {
+        for (name, qr) in paths() {
+            check_triangularisation(name, &*qr);
+        }
+        let all = paths();
+        if let [(_, a), (_, b), ..] = &all[..] {
+            let m0 = DMatrix::from_fn(145, 73, |i, j| (((i * 13 + j * 7) % 19) as f64 - 9.0) / 5.0);
+            let (mut x, mut y) = (m0.clone(), m0.clone());
+            a(&mut x, 72);
+            b(&mut y, 72);
+            let err = (&x - &y).abs().max();
+            assert!(
+                err <= 1e-11 * m0.abs().max() * 145.0,
+                "the kernel paths differ by {err}"
+            );
+        }
+    }
+
+    fn check_triangularisation(name: &str, householder: &dyn Fn(&mut DMatrix<f64>, usize)) {
         let cases = [
             (145usize, 73usize, 72usize, false),
             (145, 73, 72, true),
@@ -256,24 +299,24 @@ mod householder_tests {
                 a.column_mut(2).copy_from(&c0);
             }
             let mut q = a.clone();
-            householder_in_place(&mut q, p);
+            householder(&mut q, p);
             for j in 0..p.min(m) {
                 for i in j + 1..m {
-                    assert_eq!(q[(i, j)], 0.0, "({i}, {j}) of {m}×{n}");
+                    assert_eq!(q[(i, j)], 0.0, "{name}: ({i}, {j}) of {m}×{n}");
                 }
             }
             let mut big = a.clone();
             big[(m - 1, 0)] = 1e200;
-            householder_in_place(&mut big, p);
+            householder(&mut big, p);
             assert!(
                 !all_finite(big.as_slice()),
-                "{m}×{n}: an overflowing column must poison the result"
+                "{name}: {m}×{n}: an overflowing column must poison the result"
             );
             let g0 = a.transpose() * &a;
             let g1 = q.transpose() * &q;
             assert!(
                 (&g0 - &g1).abs().max() <= 1e-12 * g0.abs().max(),
-                "{m}×{n}: Gram matrix changed"
+                "{name}: {m}×{n}: Gram matrix changed"
             );
             if p + 1 >= n && m >= n && !deficient {
                 // |R| agrees with nalgebra's R row by row (signs may differ).
