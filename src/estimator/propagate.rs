@@ -240,7 +240,8 @@ impl ActiveTransition {
         y
     }
 
-    /// The dense `F` (for tests and checks).
+    /// The dense `F` (for the tests).
+    #[cfg(test)]
     pub fn dense(&self) -> MatActive {
         self.mul_left(&MatActive::identity())
     }

@@ -145,66 +145,50 @@ mod tests {
     use super::*;
 
     /// Both paths agree with a plain sum to round-off at every length
-    /// (each tail and block case), and `axpy` leaves `y` beyond the
-    /// common length alone.
+    /// (each tail and block case), `axpy` leaves `y` beyond the common
+    /// length alone, and over slices of different lengths both use the
+    /// common length only (either argument of `dot` the longer, `x` longer
+    /// than `y` in `axpy`).
     #[test]
     fn both_paths_match_the_plain_sums_at_every_length() {
+        check("portable", Portable);
+        #[cfg(target_arch = "x86_64")]
+        if let Some(k) = Avx2Fma::detect() {
+            check("avx2+fma", k);
+        }
+    }
+
+    fn check<K: Kernels>(name: &str, k: K) {
         for n in 0..40usize {
             let a: Vec<f64> = (0..n).map(|i| ((i * 37 % 17) as f64 - 8.0) / 3.0).collect();
             let b: Vec<f64> = (0..n).map(|i| ((i * 11 % 13) as f64 - 6.0) / 7.0).collect();
             let plain: f64 = a.iter().zip(&b).map(|(x, y)| x * y).sum();
             let scale = a.iter().zip(&b).map(|(x, y)| (x * y).abs()).sum::<f64>().max(1.0);
-            let mut paths: Vec<(&str, f64, Vec<f64>)> = Vec::new();
+            let longer: Vec<f64> = a.iter().copied().chain([7.0, -3.0, 5.0]).collect();
+            for (case, d) in [
+                ("equal", k.dot(&a, &b)),
+                ("a longer", k.dot(&longer, &b)),
+                ("b longer", k.dot(&b, &longer)),
+            ] {
+                assert!(
+                    (d - plain).abs() <= 1e-14 * scale,
+                    "{name} dot, lengths {case}, at n = {n}: {d} vs {plain}"
+                );
+            }
             let mut y = b.clone();
             y.push(42.0);
-            Portable.axpy(0.5, &a, &mut y);
-            paths.push(("portable", Portable.dot(&a, &b), y));
-            #[cfg(target_arch = "x86_64")]
-            if let Some(k) = Avx2Fma::detect() {
-                let mut y = b.clone();
-                y.push(42.0);
-                k.axpy(0.5, &a, &mut y);
-                paths.push(("avx2+fma", k.dot(&a, &b), y));
-            }
-            // Mismatched lengths: the common length only, nothing read or
-            // written beyond the shorter slice.
-            let longer: Vec<f64> = a.iter().copied().chain([7.0, -3.0, 5.0]).collect();
+            k.axpy(0.5, &a, &mut y);
+            assert_eq!(y[n], 42.0, "{name} axpy wrote past the common length");
             let mut short_y = b.clone();
-            let mut kernels_out = vec![(Portable.dot(&longer, &b), {
-                Portable.axpy(0.5, &longer, &mut short_y);
-                short_y
-            })];
-            #[cfg(target_arch = "x86_64")]
-            if let Some(k) = Avx2Fma::detect() {
-                let mut short_y = b.clone();
-                k.axpy(0.5, &longer, &mut short_y);
-                kernels_out.push((k.dot(&b, &longer), short_y));
-            }
-            for (d, y) in kernels_out {
-                assert!(
-                    (d - plain).abs() <= 1e-14 * scale,
-                    "dot over mismatched lengths at n = {n}"
-                );
+            k.axpy(0.5, &longer, &mut short_y);
+            for y in [&y[..n], &short_y[..]] {
                 assert_eq!(y.len(), n);
-                for i in 0..n {
-                    assert!(
-                        (y[i] - (b[i] + 0.5 * a[i])).abs() <= 1e-15 * 8.0,
-                        "axpy, x longer than y, at {i} of {n}"
-                    );
-                }
-            }
-            for (name, d, y) in paths {
-                assert!(
-                    (d - plain).abs() <= 1e-14 * scale,
-                    "{name} dot at n = {n}: {d} vs {plain}"
-                );
                 for i in 0..n {
                     assert!(
                         (y[i] - (b[i] + 0.5 * a[i])).abs() <= 1e-15 * 8.0,
                         "{name} axpy at {i} of {n}"
                     );
                 }
-                assert_eq!(y[n], 42.0, "{name} axpy wrote past the common length");
             }
         }
     }
