@@ -262,6 +262,41 @@ pub fn triangulate(
     Ok(p)
 }
 
+/// The buffers a track's gate works in (`track_system_into`,
+/// `nullspace_project_into`, `projected_hph_into` and the χ² gate's
+/// factor), kept across tracks and frames so that gating a track allocates
+/// nothing once they have grown to the longest track (issue 43). Their
+/// contents are scratch: a clone starts empty.
+#[derive(Default)]
+pub struct TrackScratch {
+    /// `track_system`'s whitened `H_x` (`2m × 6·n_views`), `H_f` (`2m × 3`)
+    /// and residual.
+    pub hx: DMatrix<f64>,
+    pub hf: DMatrix<f64>,
+    pub r: DVector<f64>,
+    /// `[H_f | H_x | r]` reflected by `nullspace_project_into`.
+    pub projected: DMatrix<f64>,
+    /// `projected_hph_into`'s two reflected stacks; the projected `H P Hᵀ`
+    /// is `hph_b[3.., 3..]`.
+    pub hph_a: DMatrix<f64>,
+    pub hph_b: DMatrix<f64>,
+    /// The χ² gate's `S` (then its Cholesky factor) and `S⁻¹ r`.
+    pub s: DMatrix<f64>,
+    pub s_inv_r: DVector<f64>,
+}
+
+impl Clone for TrackScratch {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl std::fmt::Debug for TrackScratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("TrackScratch")
+    }
+}
+
 /// The stacked, whitened residual of a track and its Jacobians with respect
 /// to the views' poses (`2m × 6·n_views`) and the landmark (`2m × 3`).
 pub fn track_system(
@@ -270,17 +305,23 @@ pub fn track_system(
     obs: &[Obs],
     p_f: &Vector3<f64>,
 ) -> (DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
+    let mut w = TrackScratch::default();
+    track_system_into(views, e, obs, p_f, &mut w);
+    (w.hx, w.hf, w.r)
+}
+
+/// [`track_system`] into `w.hx`, `w.hf` and `w.r`.
+pub fn track_system_into(views: &[View], e: &Extrinsic, obs: &[Obs], p_f: &Vector3<f64>, w: &mut TrackScratch) {
     let m = obs.len();
-    let mut hx = DMatrix::zeros(2 * m, 6 * views.len());
-    let mut hf = DMatrix::zeros(2 * m, 3);
-    let mut r = DVector::zeros(2 * m);
+    super::math::reshape_zeroed(&mut w.hx, 2 * m, 6 * views.len());
+    super::math::reshape_zeroed(&mut w.hf, 2 * m, 3);
+    super::math::reshape_zeroed_vector(&mut w.r, 2 * m);
     for (i, o) in obs.iter().enumerate() {
         let (z, hp, hfi) = measure(&views[o.view], e, p_f);
-        hx.view_mut((2 * i, 6 * o.view), (2, 6)).copy_from(&(o.W * hp));
-        hf.view_mut((2 * i, 0), (2, 3)).copy_from(&(o.W * hfi));
-        r.rows_mut(2 * i, 2).copy_from(&(o.W * (o.xn - z)));
+        w.hx.view_mut((2 * i, 6 * o.view), (2, 6)).copy_from(&(o.W * hp));
+        w.hf.view_mut((2 * i, 0), (2, 3)).copy_from(&(o.W * hfi));
+        w.r.rows_mut(2 * i, 2).copy_from(&(o.W * (o.xn - z)));
     }
-    (hx, hf, r)
 }
 
 /// Projects `r = H_x δx + H_f δp_f + n` onto the left null space of `H_f`
@@ -288,18 +329,31 @@ pub fn track_system(
 /// the last `2m − 3` rows of `Qᵀ H_x` and `Qᵀ r` are free of `δp_f`. With
 /// whitened (unit) noise the projected noise stays unit.
 pub fn nullspace_project(hx: &DMatrix<f64>, hf: &DMatrix<f64>, r: &DVector<f64>) -> (DMatrix<f64>, DVector<f64>) {
-    let (rows, nx) = hx.shape();
-    // [H_f | H_x | r], reflected on its first three columns.
-    let mut a = DMatrix::zeros(rows, 3 + nx + 1);
-    a.columns_mut(0, 3).copy_from(hf);
-    a.columns_mut(3, nx).copy_from(hx);
-    a.column_mut(3 + nx).copy_from(r);
-    super::math::householder_in_place(&mut a, 3);
-    let (r0, keep) = (3.min(rows), rows.saturating_sub(3));
+    let mut a = DMatrix::zeros(0, 0);
+    let (r0, keep) = nullspace_project_into(hx, hf, r, &mut a);
+    let nx = hx.ncols();
     (
         super::math::block_owned(&a, r0, 3, keep, nx),
         DVector::from_column_slice(&a.column(3 + nx).as_slice()[r0..]),
     )
+}
+
+/// [`nullspace_project`] into `a`: `[H_f | H_x | r]` reflected on its first
+/// three columns. The projected rows are `a[r0.., 3..3 + n_x]` and their
+/// residual `a[r0.., 3 + n_x]`; returns `(r0, rows kept)`.
+pub fn nullspace_project_into(
+    hx: &DMatrix<f64>,
+    hf: &DMatrix<f64>,
+    r: &DVector<f64>,
+    a: &mut DMatrix<f64>,
+) -> (usize, usize) {
+    let (rows, nx) = hx.shape();
+    super::math::reshape_zeroed(a, rows, 3 + nx + 1);
+    a.columns_mut(0, 3).copy_from(hf);
+    a.columns_mut(3, nx).copy_from(hx);
+    a.column_mut(3 + nx).copy_from(r);
+    super::math::householder_in_place(a, 3);
+    (3.min(rows), rows.saturating_sub(3))
 }
 
 /// Largest angle between a low-parallax track's mean bearing and its
@@ -464,9 +518,27 @@ pub fn low_parallax_system(
 /// Equal to `(Q₂ᵀ H_x) P (Q₂ᵀ H_x)ᵀ`, which costs `(2m−3)·(6m)²` with the
 /// dense projected Jacobian: about a fifth of that at m = 11.
 pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMatrix<f64>) -> DMatrix<f64> {
+    let (mut a, mut b) = (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0));
+    let keep = projected_hph_into(hx, hf, obs, p, (&mut a, &mut b));
+    if keep == 0 {
+        return DMatrix::zeros(0, 0);
+    }
+    super::math::block_owned(&b, 3, 3, keep, keep)
+}
+
+/// [`projected_hph`] in the buffers `(a, b)`: the result is `b[3.., 3..]`,
+/// `keep × keep`; returns `keep` (0 for a track of at most three rows,
+/// which keeps none).
+pub fn projected_hph_into(
+    hx: &DMatrix<f64>,
+    hf: &DMatrix<f64>,
+    obs: &[Obs],
+    p: &DMatrix<f64>,
+    (a, b): (&mut DMatrix<f64>, &mut DMatrix<f64>),
+) -> usize {
     let rows = hx.nrows();
     if rows <= 3 {
-        return DMatrix::zeros(0, 0);
+        return 0;
     }
     // Each observation's 2×6 block J_i of `hx`, read in place.
     let block = |i: usize| {
@@ -474,7 +546,7 @@ pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMat
         (c, hx.fixed_view::<2, 6>(2 * i, c))
     };
     // [H_f | M], M's blocks M_ij = J_i P_ij J_jᵀ, j ≥ i, mirrored.
-    let mut a = DMatrix::zeros(rows, 3 + rows);
+    super::math::reshape_zeroed(a, rows, 3 + rows);
     a.columns_mut(0, 3).copy_from(hf);
     for i in 0..obs.len() {
         let (ci, ji) = block(i);
@@ -485,14 +557,14 @@ pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMat
             a.fixed_view_mut::<2, 2>(2 * j, 3 + 2 * i).copy_from(&mij.transpose());
         }
     }
-    super::math::householder_in_place(&mut a, 3);
+    super::math::householder_in_place(a, 3);
     // [H_f | (Q₂ᵀ M)ᵀ]: the same reflections again.
     let keep = rows - 3;
-    let mut b = DMatrix::zeros(rows, 3 + keep);
+    super::math::reshape_zeroed(b, rows, 3 + keep);
     b.columns_mut(0, 3).copy_from(hf);
     b.columns_mut(3, keep).tr_copy_from(&a.view((3, 3), (keep, rows)));
-    super::math::householder_in_place(&mut b, 3);
-    super::math::block_owned(&b, 3, 3, keep, keep)
+    super::math::householder_in_place(b, 3);
+    keep
 }
 
 #[cfg(test)]

@@ -360,6 +360,8 @@ pub struct Estimator {
     /// The frame's feature displacements, for their median (zero-velocity
     /// updates), kept so that a frame allocates nothing for them.
     disparity_buf: Vec<f64>,
+    /// The buffers a track's gate works in, kept for the same reason.
+    gate_scratch: msckf::GateScratch,
     g_W: Vector3<f64>,
     t_s: f64,
     imu: ImuState,
@@ -499,6 +501,7 @@ impl Estimator {
             stats: Stats::default(),
             zupt_allowed: true,
             disparity_buf: Vec::new(),
+            gate_scratch: msckf::GateScratch::default(),
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }

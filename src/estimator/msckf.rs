@@ -44,53 +44,92 @@ const REMEMBERED_INVERSE_DEPTH_SIGMA: f64 = 0.6;
 /// tracks over the same views (most span the whole window).
 type TrackRows = (DMatrix<f64>, DVector<f64>, Rc<[usize]>);
 
-/// `P_sub` of the last gated track and its columns: most tracks span the
-/// whole window, so it is gathered again, and its columns allocated again,
-/// only when the columns change.
+/// The columns of the last gated track's `P_sub`, shared with the rows of
+/// every track over the same views (most span the whole window): a frame's
+/// own, since `P` changes with each update.
 #[derive(Default)]
 struct GateCache {
-    idx: Rc<[usize]>,
-    /// The columns being judged, built here so that an unchanged set
-    /// allocates nothing.
-    scratch: Vec<usize>,
-    p: DMatrix<f64>,
+    idx: Option<Rc<[usize]>>,
 }
 
 impl GateCache {
-    /// `P_sub` over the pose columns of the views at `cols` (gathered again
-    /// only when they change); the indices.
-    fn gather(&mut self, p: &DMatrix<f64>, cols: &[usize]) -> Rc<[usize]> {
-        self.scratch.clear();
-        self.scratch.extend(cols.iter().flat_map(|&c| c..c + 6));
-        if *self.scratch != *self.idx {
-            self.p = DMatrix::zeros(self.scratch.len(), self.scratch.len());
-            math::gather_block(p, &self.scratch, &mut self.p);
-            self.idx = Rc::from(self.scratch.as_slice());
+    /// `P_sub` over the pose columns of the views at `cols`, into `p_sub`
+    /// (gathered again, and its columns allocated again, only when they
+    /// change); the indices.
+    fn gather(
+        &mut self,
+        (buf, p_sub): (&mut Vec<usize>, &mut DMatrix<f64>),
+        p: &DMatrix<f64>,
+        cols: &[usize],
+    ) -> Rc<[usize]> {
+        buf.clear();
+        buf.extend(cols.iter().flat_map(|&c| c..c + 6));
+        match &self.idx {
+            Some(idx) if **idx == **buf => Rc::clone(idx),
+            _ => {
+                math::reshape_zeroed(p_sub, buf.len(), buf.len());
+                math::gather_block(p, buf, p_sub);
+                let idx: Rc<[usize]> = Rc::from(buf.as_slice());
+                self.idx = Some(Rc::clone(&idx));
+                idx
+            }
         }
-        Rc::clone(&self.idx)
     }
 }
 
-/// A track's views, their columns in `P` and its observations, as
-/// [`Estimator::track_views`] lays them out: kept for the frame's tracks, so
-/// that each one reuses the buffers of the one before.
+/// What a track's gate works in, kept by the filter across tracks and
+/// frames so that gating allocates nothing once its buffers have grown
+/// (issue 43): the track's views, their columns in `P` and its
+/// observations as [`Estimator::track_views`] lays them out, its matrices
+/// ([`feature::TrackScratch`]), and the gathered `P_sub` with its columns.
+/// Scratch only: a clone starts empty.
 #[derive(Default)]
-struct TrackBuffers {
+pub(super) struct GateScratch {
     views: Vec<View>,
-    cols: Vec<usize>,
+    view_cols: Vec<usize>,
     obs: Vec<Obs>,
+    track: feature::TrackScratch,
+    cols: Vec<usize>,
+    p_sub: DMatrix<f64>,
+}
+
+impl Clone for GateScratch {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl std::fmt::Debug for GateScratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("GateScratch")
+    }
 }
 
 /// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
-/// whitened noise), against the `prob` quantile of `χ²(len r)`. The NIS if
+/// whitened noise), against the `prob` quantile of `χ²(len r)`. `hph` is
+/// `H P_sub Hᵀ`; `S` and `S⁻¹ r` are formed in the two buffers given. The NIS if
 /// under it; `over` if not (a NaN NIS too); `NonFinite` if `S` is not
 /// positive definite.
-fn chi2_gate(mut hph: DMatrix<f64>, r: &DVector<f64>, prob: f64, over: Reject) -> Result<f64, Reject> {
-    for i in 0..hph.nrows() {
-        hph[(i, i)] += 1.0;
+fn chi2_gate(
+    hph: nalgebra::DMatrixView<f64>,
+    r: nalgebra::DVectorView<f64>,
+    (s, s_inv_r): (&mut DMatrix<f64>, &mut DVector<f64>),
+    (prob, over): (f64, Reject),
+) -> Result<f64, Reject> {
+    let n = hph.nrows();
+    math::reshape_zeroed(s, n, n);
+    s.copy_from(&hph);
+    for i in 0..n {
+        s[(i, i)] += 1.0;
     }
-    let ch = hph.cholesky().ok_or(Reject::NonFinite)?;
-    let nis = r.dot(&ch.solve(r));
+    let ch = std::mem::replace(s, DMatrix::zeros(0, 0))
+        .cholesky()
+        .ok_or(Reject::NonFinite)?;
+    math::reshape_zeroed_vector(s_inv_r, n);
+    s_inv_r.copy_from(&r);
+    ch.solve_mut(s_inv_r);
+    let nis = r.dot(s_inv_r);
+    *s = ch.unpack();
     if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(prob, r.len()) {
         Err(over)
     } else {
@@ -253,14 +292,15 @@ impl Estimator {
         let mut rows: Vec<TrackRows> = Vec::new();
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
-        let mut buf = TrackBuffers::default();
+        let mut scratch = std::mem::take(&mut self.gate_scratch);
         for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
-            let Some(row) = self.gate_track(l, &tr, &ks, (&mut gate, &mut buf), report) else {
+            let Some(row) = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report) else {
                 continue;
             };
             involved.extend(ks.iter().copied());
             rows.push(row);
         }
+        self.gate_scratch = scratch;
         self.forget_landmarks();
         report.tracks_used = rows.len();
         self.stats.tracks_used += rows.len() as u64;
@@ -364,8 +404,13 @@ impl Estimator {
     /// The views of track `l`: its clones, then the keyframes `ks`; with
     /// each view's column in `P` (`usize::MAX` for a keyframe not in the
     /// state) and the number of clone observations.
-    fn track_views(&self, l: u64, tr: &Track, ks: &[u64], buf: &mut TrackBuffers) -> usize {
-        let TrackBuffers { views, cols, obs } = buf;
+    fn track_views(&self, l: u64, tr: &Track, ks: &[u64], buf: &mut GateScratch) -> usize {
+        let GateScratch {
+            views,
+            view_cols: cols,
+            obs,
+            ..
+        } = buf;
         views.clear();
         cols.clear();
         obs.clear();
@@ -415,11 +460,19 @@ impl Estimator {
         l: u64,
         tr: &Track,
         ks: &[u64],
-        (gate, buf): (&mut GateCache, &mut TrackBuffers),
+        (gate, w): (&mut GateCache, &mut GateScratch),
         report: &mut FrameReport,
     ) -> Option<TrackRows> {
-        let clone_obs = self.track_views(l, tr, ks, buf);
-        let (views, cols, obs) = (&buf.views, &buf.cols, &buf.obs);
+        let clone_obs = self.track_views(l, tr, ks, w);
+        let GateScratch {
+            views,
+            view_cols: cols,
+            obs,
+            track,
+            cols: gather_buf,
+            p_sub,
+        } = w;
+        let (views, cols, obs) = (&views[..], &cols[..], &obs[..]);
         if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
             reject(report, &mut self.stats, Reject::TooFewObservations);
             return None;
@@ -437,7 +490,7 @@ impl Estimator {
         let parallax = feature::parallax_rad(views, &self.s.ext, obs);
         // NaN (a non-finite bearing) is not enough parallax either.
         if parallax.is_nan() || parallax < min_parallax {
-            return self.gate_low_parallax((l, ks), (views, cols, obs), gate, report);
+            return self.gate_low_parallax((l, ks), (views, cols, obs), (gate, gather_buf, p_sub, track), report);
         }
         let p_f = match feature::triangulate(views, &self.s.ext, obs, &self.s.tri) {
             Ok(p) => p,
@@ -445,24 +498,38 @@ impl Estimator {
             // or a fit that does not settle is the geometry's weakness, not
             // the poses' inconsistency: a low-parallax track.
             Err(Reject::BadDepth | Reject::NotConverged) if parallax < WEAK_PARALLAX_FACTOR * min_parallax => {
-                return self.gate_low_parallax((l, ks), (views, cols, obs), gate, report);
+                return self.gate_low_parallax((l, ks), (views, cols, obs), (gate, gather_buf, p_sub, track), report);
             }
             Err(r) => {
                 reject(report, &mut self.stats, r);
                 return None;
             }
         };
-        let (hx_views, hf, r) = feature::track_system(views, &self.s.ext, obs, &p_f);
-        let (hx, r) = feature::nullspace_project(&hx_views, &hf, &r);
-        if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
+        // The projected rows, in `track`'s buffers until the track passes.
+        feature::track_system_into(views, &self.s.ext, obs, &p_f, track);
+        let (r0, keep) = feature::nullspace_project_into(&track.hx, &track.hf, &track.r, &mut track.projected);
+        let nx = track.hx.ncols();
+        let hx = track.projected.view((r0, 3), (keep, nx));
+        let r = track.projected.view((r0, 3 + nx), (keep, 1));
+        if !(hx.iter().all(|v| v.is_finite()) && r.iter().all(|v| v.is_finite())) {
             reject(report, &mut self.stats, Reject::NonFinite);
             return None;
         }
         // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
         // from the block-diagonal Jacobian before projection.
-        let idx = gate.gather(&self.P, cols);
-        let hph = feature::projected_hph(&hx_views, &hf, obs, &gate.p);
-        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob, Reject::Chi2) {
+        let idx = gate.gather((gather_buf, p_sub), &self.P, cols);
+        let keep_hph =
+            feature::projected_hph_into(&track.hx, &track.hf, obs, p_sub, (&mut track.hph_a, &mut track.hph_b));
+        debug_assert_eq!(keep_hph, keep);
+        let r_col = track.projected.column(3 + nx);
+        let r = r_col.rows(r0, keep);
+        let hph = if keep_hph == 0 {
+            track.hph_b.view((0, 0), (0, 0))
+        } else {
+            track.hph_b.view((3, 3), (keep_hph, keep_hph))
+        };
+        let gate_bufs = (&mut track.s, &mut track.s_inv_r);
+        let nis = match chi2_gate(hph, r, gate_bufs, (self.s.chi2_gate_prob, Reject::Chi2)) {
             Ok(nis) => nis,
             Err(why) => {
                 reject(report, &mut self.stats, why);
@@ -489,6 +556,9 @@ impl Estimator {
                 }
             }
         }
+        // The rows leave the buffers only for a track that passed.
+        let hx = math::block_owned(&track.projected, r0, 3, keep, nx);
+        let r = DVector::from_column_slice(&track.projected.column(3 + nx).as_slice()[r0..r0 + keep]);
         Some((hx, r, idx))
     }
 
@@ -502,7 +572,12 @@ impl Estimator {
         &mut self,
         (l, ks): (u64, &[u64]),
         (views, cols, obs): (&[View], &[usize], &[Obs]),
-        gate: &mut GateCache,
+        (gate, gather_buf, p_sub, track): (
+            &mut GateCache,
+            &mut Vec<usize>,
+            &mut DMatrix<f64>,
+            &mut feature::TrackScratch,
+        ),
         report: &mut FrameReport,
     ) -> Option<TrackRows> {
         // A still track says "no motion" as firmly as its remembered depth
@@ -532,10 +607,16 @@ impl Estimator {
             return None;
         }
         // G1 with the whitened rows of LP4: S = H P_sub Hᵀ + I.
-        let idx = gate.gather(&self.P, cols);
-        let hph = &hx * &gate.p * hx.transpose();
+        let idx = gate.gather((gather_buf, p_sub), &self.P, cols);
+        let hph = &hx * &*p_sub * hx.transpose();
         // Refused, it counts as poor parallax, never against health.
-        let nis = match chi2_gate(hph, &r, self.s.chi2_gate_prob, Reject::PoorParallax) {
+        let gate_bufs = (&mut track.s, &mut track.s_inv_r);
+        let nis = match chi2_gate(
+            hph.as_view(),
+            r.as_view(),
+            gate_bufs,
+            (self.s.chi2_gate_prob, Reject::PoorParallax),
+        ) {
             Ok(nis) => nis,
             Err(why) => {
                 reject(report, &mut self.stats, why);

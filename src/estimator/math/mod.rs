@@ -41,6 +41,24 @@ pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() + k * ((1.0 - th.cos()) / th2) + k * k * ((th - th.sin()) / (th2 * th))
 }
 
+/// `m` as an `r × c` matrix of zeros, in its own buffer: nothing is
+/// allocated once the buffer has grown to `r·c` (the per-track matrices of
+/// the gates are reshaped this way, issue 43).
+pub fn reshape_zeroed(m: &mut nalgebra::DMatrix<f64>, r: usize, c: usize) {
+    let mut buf: Vec<f64> = std::mem::replace(m, nalgebra::DMatrix::zeros(0, 0)).data.into();
+    buf.clear();
+    buf.resize(r * c, 0.0);
+    *m = nalgebra::DMatrix::from_vec(r, c, buf);
+}
+
+/// `v` as `n` zeros, in its own buffer (as [`reshape_zeroed`]).
+pub fn reshape_zeroed_vector(v: &mut nalgebra::DVector<f64>, n: usize) {
+    let mut buf: Vec<f64> = std::mem::replace(v, nalgebra::DVector::zeros(0)).data.into();
+    buf.clear();
+    buf.resize(n, 0.0);
+    *v = nalgebra::DVector::from_vec(buf);
+}
+
 /// The block of `a` at `(r0, c0)` of size `nr × nc`, copied column by
 /// column (nalgebra's `into_owned` of a view goes element by element).
 pub fn block_owned(a: &nalgebra::DMatrix<f64>, r0: usize, c0: usize, nr: usize, nc: usize) -> nalgebra::DMatrix<f64> {
