@@ -122,6 +122,17 @@ pub fn measure(
     (Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), h_pose, jp * r_cw)
 }
 
+/// The point's camera-frame position, its predicted normalised
+/// coordinates and their Jacobian with respect to the landmark (`∂z/∂p_f =
+/// J_proj R_B_Cᵀ R_W_Bᵀ`, eq. C4): what triangulation's Gauss–Newton needs,
+/// without [`measure`]'s pose Jacobian, computed as `measure` computes them.
+fn measure_point(v: &View, e: &Extrinsic, p_f: &Vector3<f64>) -> (Vector3<f64>, Vector2<f64>, Matrix2x3<f64>) {
+    let p_c = point_in_camera(v, e, p_f);
+    let jp = proj_jacobian(&p_c);
+    let r_cw = e.R_B_C.transpose() * v.R_W_B.transpose();
+    (p_c, Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z), jp * r_cw)
+}
+
 /// An observation's ray in the world: the camera centre
 /// `p_B + R_W_B p_C_in_B` and the unit bearing `R_W_B R_B_C [x_n, y_n, 1]`.
 fn world_ray(v: &View, e: &Extrinsic, o: &Obs) -> (Vector3<f64>, Vector3<f64>) {
@@ -228,12 +239,10 @@ pub fn triangulate(
         let mut jtr = Vector3::zeros();
         let mut cost = 0.0;
         for o in obs {
-            let v = &views[o.view];
-            let p_c = point_in_camera(v, e, &p);
+            let (p_c, z, hf) = measure_point(&views[o.view], e, &p);
             if p_c.z < lim.min_depth_m {
                 return Err(Reject::BadDepth);
             }
-            let (z, _, hf) = measure(v, e, &p);
             let r = o.W * (o.xn - z);
             let j = o.W * hf;
             jtj += j.transpose() * j;
@@ -591,6 +600,22 @@ mod tests {
     }
 
     /// Projection Jacobians against central differences.
+    #[test]
+    fn measure_point_is_measure_without_the_pose_jacobian() {
+        // Triangulation's Gauss–Newton takes it for `measure`: the same
+        // numbers, bit for bit, so that no estimate moves.
+        let e = ext();
+        for (k, p_f) in [Vector3::new(12.0, 3.0, -2.0), Vector3::new(-4.0, 7.5, 1.25)]
+            .iter()
+            .enumerate()
+        {
+            let v = view(0.1 + k as f64, Vector3::new(1.0, 0.5, -3.0));
+            let (z, _, hf) = measure(&v, &e, p_f);
+            let (p_c, z2, hf2) = measure_point(&v, &e, p_f);
+            assert_eq!((z, hf, p_c), (z2, hf2, point_in_camera(&v, &e, p_f)));
+        }
+    }
+
     #[test]
     fn measurement_jacobians_match_finite_differences() {
         let e = ext();
