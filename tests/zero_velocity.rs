@@ -137,3 +137,55 @@ fn a_vibrating_hover_is_still_only_on_the_ground_beside_an_autopilot() {
     // χ²(3)'s mean is 3; over two 40 s flights, well inside 4.7.
     assert!(mean_v < 4.7, "velocity NEES {mean_v}");
 }
+
+/// The camera's own verdict that the vehicle moved
+/// (`Stats::zupt_camera_moved`: a frame's features moved past
+/// `zupt.max_disparity_px` since their last clone), on which the daemon
+/// ends a take-off's zero-velocity grace (`daemon/autopilot.rs`,
+/// `camera_moved`): never while the vehicle stands, and within a few frames
+/// of its starting to move. Zero-velocity updates stay allowed throughout,
+/// as they are within the grace (an autopilot's "in the air" comes before
+/// the vehicle rises), so that the verdict is judged on every frame.
+#[test]
+fn the_camera_says_moved_when_the_vehicle_starts_to_move_and_not_before() {
+    let cfg = Config::default();
+    let sim = eval::sim_config_for(&cfg);
+    for seed in [1, 2] {
+        let ds = Dataset::generate("racetrack", seed, Some(sim.standstill_s + 6.0), &sim).unwrap();
+        // The truth's first instant of motion.
+        let t_move = ds
+            .frames
+            .iter()
+            .map(|f| f.t_s)
+            .find(|&t| ds.trajectory.sample(t).v_B_in_W.norm() > 1e-3)
+            .expect("the vehicle never moves");
+        let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed).without_landed_state();
+        let (mut moved_standing, mut first_moved) = (0, None);
+        for k in 0..ds.frames.len() {
+            let before = run.est.stats.zupt_camera_moved;
+            run.step_frame(k);
+            if run.est.stats.zupt_camera_moved > before {
+                let t = ds.frames[k].t_s;
+                if t < t_move {
+                    moved_standing += 1;
+                } else if first_moved.is_none() {
+                    first_moved = Some(t);
+                }
+            }
+        }
+        let t_seen = first_moved.expect("the camera never saw the vehicle move");
+        eprintln!(
+            "seed {seed}: the vehicle moves at {t_move:.2} s, the camera says so at {t_seen:.2} s (speed then {:.2} m/s, \
+             body rate {:.3} rad/s, height {:.2} m); {moved_standing} standing frames said moved",
+            ds.trajectory.sample(t_seen).v_B_in_W.norm(),
+            ds.trajectory.sample(t_seen).w_B.norm(),
+            -ds.trajectory.sample(t_seen).p_B_in_W.z
+        );
+        assert_eq!(moved_standing, 0, "the camera said moved while the vehicle stood");
+        assert!(
+            t_seen - t_move < 1.5,
+            "the camera saw the motion {:.2} s late",
+            t_seen - t_move
+        );
+    }
+}

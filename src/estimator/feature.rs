@@ -599,7 +599,6 @@ mod tests {
         }
     }
 
-    /// Projection Jacobians against central differences.
     #[test]
     fn measure_point_is_measure_without_the_pose_jacobian() {
         // Triangulation's Gauss–Newton takes it for `measure`: the same
@@ -616,6 +615,7 @@ mod tests {
         }
     }
 
+    /// Projection Jacobians against central differences.
     #[test]
     fn measurement_jacobians_match_finite_differences() {
         let e = ext();

@@ -510,7 +510,8 @@ impl Estimator {
         let (r0, keep) = feature::nullspace_project_into(&track.hx, &track.hf, &track.r, &mut track.projected);
         let nx = track.hx.ncols();
         let hx = track.projected.view((r0, 3), (keep, nx));
-        let r = track.projected.view((r0, 3 + nx), (keep, 1));
+        let r_col = track.projected.column(3 + nx);
+        let r = r_col.rows(r0, keep);
         if !(hx.iter().all(|v| v.is_finite()) && r.iter().all(|v| v.is_finite())) {
             reject(report, &mut self.stats, Reject::NonFinite);
             return None;
@@ -521,8 +522,6 @@ impl Estimator {
         let keep_hph =
             feature::projected_hph_into(&track.hx, &track.hf, obs, p_sub, (&mut track.hph_a, &mut track.hph_b));
         debug_assert_eq!(keep_hph, keep);
-        let r_col = track.projected.column(3 + nx);
-        let r = r_col.rows(r0, keep);
         let hph = if keep_hph == 0 {
             track.hph_b.view((0, 0), (0, 0))
         } else {
