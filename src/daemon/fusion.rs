@@ -476,7 +476,6 @@ impl Fusion {
         };
         self.pacer.emit(m, est, cx, counters, out);
         est.set_zupt_allowed(self.autopilot.zupt_allowed(m.t_s));
-        let moved_before = est.stats.zupt_camera_moved;
         let cx = FuseCtx {
             rebase: &mut self.rebase,
             est_gen: self.est_gen,
@@ -486,8 +485,8 @@ impl Fusion {
             counters,
             base: self.gnss.base_use_mut(),
         };
-        self.queue.fuse_covered(m.t_s, est, cx);
-        if est.stats.zupt_camera_moved > moved_before && self.autopilot.camera_moved(m.t_s) {
+        let fused = self.queue.fuse_covered(m.t_s, est, cx);
+        if fused.camera_moved && self.autopilot.camera_moved(m.t_s) {
             self.log.text(
                 Level::Info,
                 m.t_s,

@@ -97,7 +97,8 @@ impl MeasurementQueue {
     /// time order. A frame older than the filter is late and counted; a
     /// GNSS epoch goes to the filter whatever its time, which fuses it at
     /// that time through its clone or refuses it as late (§8b).
-    pub(super) fn fuse_covered(&mut self, t_imu_s: f64, est: &mut Estimator, mut cx: FuseCtx<'_>) {
+    pub(super) fn fuse_covered(&mut self, t_imu_s: f64, est: &mut Estimator, mut cx: FuseCtx<'_>) -> Fused {
+        let mut fused = Fused::default();
         while let Some((t, item)) = self.pending.front() {
             // A frame is fused at its stamp plus the time offset (§3b): that
             // is the time IMU must cover, and the filter must not be past.
@@ -114,11 +115,22 @@ impl MeasurementQueue {
                 continue;
             }
             match item {
-                Pending::Frame(fr) => fuse_frame(est, t, &fr, &mut self.landmarks, &mut cx),
+                Pending::Frame(fr) => {
+                    fused.camera_moved |= fuse_frame(est, t, &fr, &mut self.landmarks, &mut cx);
+                }
                 Pending::Gnss(sats) => fuse_gnss(est, t, &sats, &mut cx),
             }
         }
+        fused
     }
+}
+
+/// What [`MeasurementQueue::fuse_covered`] fused, as the take-off logic
+/// needs it.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Fused {
+    /// A frame's features said the vehicle moved (`FrameReport::camera_moved`).
+    pub camera_moved: bool,
 }
 
 /// One GNSS epoch into the filter (once the world origin is known).
@@ -180,8 +192,15 @@ fn fuse_gnss(est: &mut Estimator, t: f64, sats: &[SatMeas], cx: &mut FuseCtx<'_>
 }
 
 /// One camera frame into the filter; a global update it starts goes to the
-/// rebase worker.
-fn fuse_frame(est: &mut Estimator, t: f64, fr: &NormFrame, landmarks: &mut LandmarkCloud, cx: &mut FuseCtx<'_>) {
+/// rebase worker. Whether the camera saw the vehicle move
+/// (`FrameReport::camera_moved`).
+fn fuse_frame(
+    est: &mut Estimator,
+    t: f64,
+    fr: &NormFrame,
+    landmarks: &mut LandmarkCloud,
+    cx: &mut FuseCtx<'_>,
+) -> bool {
     let counters = cx.counters;
     let rej = fr.rejects;
     for (name, n) in [
@@ -235,10 +254,12 @@ fn fuse_frame(est: &mut Estimator, t: f64, fr: &NormFrame, landmarks: &mut Landm
             for (k, v) in &rep.rejected {
                 counters.add(k.counter(), *v);
             }
+            rep.camera_moved
         }
         Err(e) => {
             counters.add(Counter::FrameRejected, 1);
             tracing::warn!(error = %e, "frame rejected");
+            false
         }
     }
 }

@@ -343,6 +343,12 @@ pub struct FrameReport {
     pub landmarks_W: Vec<Vector3<f64>>,
     /// The frame was taken as a zero-velocity update (§3c), not a clone.
     pub zupt: bool,
+    /// The camera saw the vehicle move: the frame's features moved past
+    /// `zupt.max_disparity_px` since their last clone, judged while
+    /// zero-velocity updates are allowed (§3c; `Stats::zupt_camera_moved`
+    /// counts these). A take-off's zero-velocity grace ends on it
+    /// (`daemon::autopilot`).
+    pub camera_moved: bool,
 }
 
 /// A landmark's observations in the window.

@@ -162,7 +162,9 @@ impl Estimator {
             .smoothed_rate_radps(t_s)
             .or_else(|| still.mean_rate_radps())
             .map(|w| w - self.imu.b_g);
-        if self.zero_velocity_update(&still, obs) {
+        let (disparity, camera_moved) = self.camera_disparity(obs);
+        report.camera_moved = camera_moved;
+        if self.zero_velocity_update(&still, disparity) {
             self.monitor.push_frame(t_s, &[], 0, 0);
             report.zupt = true;
             return Ok(report);

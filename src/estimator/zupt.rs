@@ -107,26 +107,36 @@ impl Estimator {
         median
     }
 
+    /// The frame's median feature displacement since the last clone, when
+    /// zero-velocity updates may be taken (`None` otherwise, or with too
+    /// few features in common); and the camera's own verdict that the
+    /// vehicle moved (past `zupt.max_disparity`), counted whatever the
+    /// IMU's tests say: what tells the caller a vehicle has begun to move
+    /// (a take-off's end of the spin-up, `daemon::autopilot`).
+    pub(super) fn camera_disparity(&mut self, obs: &[NormObs]) -> (Option<f64>, bool) {
+        let z = self.s.zupt;
+        let disparity = if z.enabled && self.zupt_allowed {
+            self.median_disparity(obs)
+        } else {
+            None
+        };
+        let moved = disparity.is_some_and(|d| d > z.max_disparity);
+        if moved {
+            self.stats.zupt_camera_moved += 1;
+        }
+        (disparity, moved)
+    }
+
     /// Takes the frame as a zero-velocity update when the vehicle is still
     /// (§3c, eqs. Z1, Z2): the body-frame velocity `0 = R_W_Bᵀ v + n`,
     /// `n ~ N(0, σ_z² I)` (whitened: `H = [[v^FE]×, I]` on `[δθ, δv]`,
     /// `r = −v̂`, §3d F6), and the mean gyro rate `ω̄_m = b_g + n̄`,
     /// `n̄ ~ N(0, σ_g²/T)` (`H = I` on the gyro bias, `r = ω̄_m − b̂_g`): at
     /// rest the gyro measures its bias, which holds the attitude still.
-    /// Returns whether it did.
-    pub(super) fn zero_velocity_update(&mut self, still: &Stillness, obs: &[NormObs]) -> bool {
+    /// `disparity` is the frame's [`Self::camera_disparity`]. Returns
+    /// whether it did.
+    pub(super) fn zero_velocity_update(&mut self, still: &Stillness, disparity: Option<f64>) -> bool {
         let z = self.s.zupt;
-        // The camera's verdict alone, counted whatever the IMU's: what
-        // tells the caller a vehicle has begun to move (a take-off's end of
-        // the spin-up, `daemon::autopilot`).
-        let disparity = if z.enabled && self.zupt_allowed {
-            self.median_disparity(obs)
-        } else {
-            None
-        };
-        if disparity.is_some_and(|d| d > z.max_disparity) {
-            self.stats.zupt_camera_moved += 1;
-        }
         let n = f64::from(still.samples.max(1));
         let (gyro_mean, gyro_scatter) = still.gyro();
         let (accel_mean, accel_scatter) = still.accel();
