@@ -273,9 +273,10 @@ pub fn triangulate(
 
 /// The buffers a track's gate works in (`track_system_into`,
 /// `nullspace_project_into`, `projected_hph_into` and the χ² gate's
-/// factor), kept across tracks and frames so that gating a track allocates
-/// nothing once they have grown to the longest track (issue 43). Their
-/// contents are scratch: a clone starts empty.
+/// factor), kept across tracks and frames so that a track's working
+/// matrices allocate nothing once they have grown to the longest track
+/// (issue 43; a passing track's rows are still copied out). Their contents
+/// are scratch: a clone starts empty.
 #[derive(Default)]
 pub struct TrackScratch {
     /// `track_system`'s whitened `H_x` (`2m × 6·n_views`), `H_f` (`2m × 3`)

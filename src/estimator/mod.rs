@@ -345,7 +345,7 @@ pub struct FrameReport {
     pub zupt: bool,
     /// The camera saw the vehicle move: the frame's features moved past
     /// `zupt.max_disparity_px` since their last clone, judged while
-    /// zero-velocity updates are allowed (§3c; `Stats::zupt_camera_moved`
+    /// zero-velocity updates are enabled and allowed (§3c; `Stats::zupt_camera_moved`
     /// counts these). A take-off's zero-velocity grace ends on it
     /// (`daemon::autopilot`).
     pub camera_moved: bool,

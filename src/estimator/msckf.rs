@@ -78,8 +78,9 @@ impl GateCache {
 }
 
 /// What a track's gate works in, kept by the filter across tracks and
-/// frames so that gating allocates nothing once its buffers have grown
-/// (issue 43): the track's views, their columns in `P` and its
+/// frames so that its working buffers allocate nothing once they have grown
+/// (issue 43; a passing track's rows, a new column set's index list and a
+/// low-parallax track's system still do): the track's views, their columns in `P` and its
 /// observations as [`Estimator::track_views`] lays them out, its matrices
 /// ([`feature::TrackScratch`]), and the gathered `P_sub` with its columns.
 /// Scratch only: a clone starts empty.
@@ -107,7 +108,8 @@ impl std::fmt::Debug for GateScratch {
 
 /// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
 /// whitened noise), against the `prob` quantile of `χ²(len r)`. `hph` is
-/// `H P_sub Hᵀ`; `S` and `S⁻¹ r` are formed in the two buffers given. The NIS if
+/// `H P_sub Hᵀ`; `S` and `S⁻¹ r` are formed in the two buffers given (a
+/// failed factorisation drops `S`'s, which the next track grows again). The NIS if
 /// under it; `over` if not (a NaN NIS too); `NonFinite` if `S` is not
 /// positive definite.
 fn chi2_gate(
