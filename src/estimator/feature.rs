@@ -275,8 +275,8 @@ pub fn triangulate(
 /// `nullspace_project_into`, `projected_hph_into` and the χ² gate's
 /// factor), kept across tracks and frames so that a track's working
 /// matrices allocate nothing once they have grown to the longest track
-/// (issue 43; a passing track's rows are still copied out). Their contents
-/// are scratch: a clone starts empty.
+/// (issue 43; a passing track's rows are still copied out). Kept inside the
+/// filter's [`super::math::Scratch`].
 #[derive(Default)]
 pub struct TrackScratch {
     /// `track_system`'s whitened `H_x` (`2m × 6·n_views`), `H_f` (`2m × 3`)
@@ -293,18 +293,6 @@ pub struct TrackScratch {
     /// The χ² gate's `S` (then its Cholesky factor) and `S⁻¹ r`.
     pub s: DMatrix<f64>,
     pub s_inv_r: DVector<f64>,
-}
-
-impl Clone for TrackScratch {
-    fn clone(&self) -> Self {
-        Self::default()
-    }
-}
-
-impl std::fmt::Debug for TrackScratch {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("TrackScratch")
-    }
 }
 
 /// The stacked, whitened residual of a track and its Jacobians with respect

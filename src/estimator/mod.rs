@@ -367,7 +367,7 @@ pub struct Estimator {
     /// updates), kept so that a frame allocates nothing for them.
     disparity_buf: Vec<f64>,
     /// The buffers a track's gate works in, kept for the same reason.
-    gate_scratch: msckf::GateScratch,
+    gate_scratch: math::Scratch<msckf::GateScratch>,
     g_W: Vector3<f64>,
     t_s: f64,
     imu: ImuState,
@@ -507,7 +507,7 @@ impl Estimator {
             stats: Stats::default(),
             zupt_allowed: true,
             disparity_buf: Vec::new(),
-            gate_scratch: msckf::GateScratch::default(),
+            gate_scratch: math::Scratch::default(),
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }

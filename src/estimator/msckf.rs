@@ -83,7 +83,7 @@ impl GateCache {
 /// low-parallax track's system still do): the track's views, their columns in `P` and its
 /// observations as [`Estimator::track_views`] lays them out, its matrices
 /// ([`feature::TrackScratch`]), and the gathered `P_sub` with its columns.
-/// Scratch only: a clone starts empty.
+/// The filter holds it in a [`math::Scratch`]: a clone starts empty.
 #[derive(Default)]
 pub(super) struct GateScratch {
     views: Vec<View>,
@@ -92,18 +92,6 @@ pub(super) struct GateScratch {
     track: feature::TrackScratch,
     cols: Vec<usize>,
     p_sub: DMatrix<f64>,
-}
-
-impl Clone for GateScratch {
-    fn clone(&self) -> Self {
-        Self::default()
-    }
-}
-
-impl std::fmt::Debug for GateScratch {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("GateScratch")
-    }
 }
 
 /// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
@@ -296,7 +284,7 @@ impl Estimator {
         let mut rows: Vec<TrackRows> = Vec::new();
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
-        let mut scratch = std::mem::take(&mut self.gate_scratch);
+        let mut scratch = std::mem::take(&mut self.gate_scratch.0);
         for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
             let Some(row) = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report) else {
                 continue;
@@ -304,7 +292,7 @@ impl Estimator {
             involved.extend(ks.iter().copied());
             rows.push(row);
         }
-        self.gate_scratch = scratch;
+        self.gate_scratch.0 = scratch;
         self.forget_landmarks();
         report.tracks_used = rows.len();
         self.stats.tracks_used += rows.len() as u64;

@@ -41,6 +41,24 @@ pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() + k * ((1.0 - th.cos()) / th2) + k * k * ((th - th.sin()) / (th2 * th))
 }
 
+/// Buffers kept only so that a hot path need not allocate them again: their
+/// contents are scratch, so a clone of the filter starts with empty ones
+/// (`T::default()`) and its debug form shows none of them.
+#[derive(Default)]
+pub struct Scratch<T>(pub T);
+
+impl<T: Default> Clone for Scratch<T> {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl<T> std::fmt::Debug for Scratch<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Scratch")
+    }
+}
+
 /// `m` as an `r × c` matrix of zeros, in its own buffer: nothing is
 /// allocated once the buffer has grown to `r·c` (the per-track matrices of
 /// the gates are reshaped this way, issue 43).
