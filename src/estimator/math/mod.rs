@@ -59,21 +59,26 @@ impl<T> std::fmt::Debug for Scratch<T> {
     }
 }
 
+/// `buf` as `len` zeros, its capacity kept.
+fn zeroed(buf: &mut Vec<f64>, len: usize) -> &mut [f64] {
+    buf.clear();
+    buf.resize(len, 0.0);
+    buf.as_mut_slice()
+}
+
 /// `m` as an `r × c` matrix of zeros, in its own buffer: nothing is
 /// allocated once the buffer has grown to `r·c` (the per-track matrices of
 /// the gates are reshaped this way, issue 43).
 pub fn reshape_zeroed(m: &mut nalgebra::DMatrix<f64>, r: usize, c: usize) {
     let mut buf: Vec<f64> = std::mem::replace(m, nalgebra::DMatrix::zeros(0, 0)).data.into();
-    buf.clear();
-    buf.resize(r * c, 0.0);
+    zeroed(&mut buf, r * c);
     *m = nalgebra::DMatrix::from_vec(r, c, buf);
 }
 
 /// `v` as `n` zeros, in its own buffer (as [`reshape_zeroed`]).
 pub fn reshape_zeroed_vector(v: &mut nalgebra::DVector<f64>, n: usize) {
     let mut buf: Vec<f64> = std::mem::replace(v, nalgebra::DVector::zeros(0)).data.into();
-    buf.clear();
-    buf.resize(n, 0.0);
+    zeroed(&mut buf, n);
     *v = nalgebra::DVector::from_vec(buf);
 }
 

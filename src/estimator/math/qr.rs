@@ -9,6 +9,7 @@
 //! paths differ by round-off only.
 
 use super::kernels::{Kernels, Portable};
+use super::zeroed;
 
 /// Columns per panel of the blocked Householder triangularisation.
 const QR_BLOCK: usize = 16;
@@ -38,13 +39,6 @@ struct Scratch {
 
 thread_local! {
     static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
-}
-
-/// `buf` as `len` zeros, its capacity kept.
-fn zeroed(buf: &mut Vec<f64>, len: usize) -> &mut [f64] {
-    buf.clear();
-    buf.resize(len, 0.0);
-    buf.as_mut_slice()
 }
 
 /// Householder triangularisation (README §3, N1 and Q1). Chooses the
