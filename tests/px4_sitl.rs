@@ -220,6 +220,12 @@ fn px4_flies_on_cmsckf_alone() {
     // SIH's IMU runs at 250 Hz: all of it, as on a real PX4 at its
     // IMU_INTEG_RATE (docs/setup-px4.md).
     cfg.mavlink.imu_rate_hz = 250.0;
+    // The camera at 20 Hz, as EuRoC's: the renderer draws each frame on the
+    // same two cores as PX4, the daemon and the tracker. At 30 Hz, in the
+    // tests' build (`cargo test`, not `--release`), rendering took 28-34 ms
+    // of the 36 ms between frames, and a loaded machine skipped 19-22 % of
+    // them (372 of 1699 in CI at 2026-12-06); at 20 Hz, 6-24 of 1200.
+    cfg.camera.rate_hz = 20.0;
     // SIH's IMU in flight: broadband noise of about 0.07 rad/s and 0.87
     // m/s² per sample at 250 Hz on its worst axes (measured from the
     // flight log's /input/imu, the second half of the take-off to the
@@ -501,11 +507,13 @@ fn px4_flies_on_cmsckf_alone() {
     let queue_full = camera.queue_full;
     let front = camera.finish().expect("the rendered camera's front-end ran");
     eprintln!(
-        "the rendered camera: {} frames tracked at {:.1} ms a frame, {} poses skipped behind, {} not queued, \
-         {} frames not delivered; {} positions scored against their world point, {} beyond 3 σ, {} out of view; \
+        "the rendered camera: {} frames rendered at {:.1} ms a frame, tracked at {:.1} ms, scored at {:.1} ms, \
+         {} poses skipped behind, {} not queued, {} frames not delivered; {} positions scored against their world point, {} beyond 3 σ, {} out of view; \
          tracks {:?}",
         front.frames,
+        front.rendering_ms / front.frames.max(1) as f64,
         front.tracking_ms / front.frames.max(1) as f64,
+        front.scoring_ms / front.frames.max(1) as f64,
         front.skipped,
         queue_full,
         front.frames_not_delivered,
@@ -555,18 +563,17 @@ fn px4_flies_on_cmsckf_alone() {
     eprintln!("PX4 vehicle_visual_odometry in the hover: {visual_odometry:?}");
     assert!(finished, "flight did not finish within {BUDGET:?}: stuck in {phase:?}");
     assert!(accepted_after_s.is_some(), "EKF2 never fused our estimates");
-    // The camera kept up (1671-1837 frames a flight measured, at most 3
-    // skipped for lateness, every line delivered; on 2026-12-06, a day
-    // this machine ran about half as fast, 10 skipped alone and 207 of
-    // 1753 in CI, where the renderer, the tracker, the daemon and PX4 share
-    // two slow cores: the bound is a share of the frames, 15 %, so that a
-    // slow machine fails on the flight's accuracy, if at all, not on the
-    // renderer's pace), and the tracker's own
+    // The camera kept up: at 30 Hz, 1671-1837 frames a flight, at most 3
+    // skipped for lateness in a release build, but 11-22 % in the tests'
+    // own build on a loaded machine; at 20 Hz (above), 1153-1228 frames
+    // with 6 and 24 skipped. The bound is a share of the frames, 15 %, so
+    // that a slow machine fails on the flight's accuracy, if at all, not on
+    // the renderer's pace. Every line was delivered, and the tracker's own
     // error (the lens's offset from its calibration aside) fits the σ the
     // daemon weighs it with: 0.28-0.44 % of positions beyond 3 σ measured,
     // a position whose world point is out of view counted as beyond.
     assert!(
-        front.frames > 1000
+        front.frames > 800
             && front.frames_not_delivered == 0
             && ((front.skipped + queue_full) as f64) < 0.15 * (front.frames + front.skipped) as f64,
         "the rendered camera: {front:?}, {queue_full} not queued"
@@ -638,6 +645,9 @@ fn px4_flies_on_cmsckf_alone() {
     // 0.26-0.66 m. PX4's error exceeds ours by 0.1-0.3 m in the turns and
     // after a loop closure's correction; the climb's height error is the
     // lift-off's tracks (docs/setup-px4.md).
+    // With the camera at 20 Hz (above; every flight before at 30 Hz), in
+    // the tests' build, two flights at 2026-12-06: take-off 0.16/0.54 m, box
+    // 0.64/0.67 m, hover 0.49/0.41 m, landing 0.19/0.40 m, 0 restarts.
     // The bounds below hold for every flight measured at the default.
     assert!(standing.max_m < 0.1, "standing error {standing:?}");
     assert!(climbing.max_m < 1.5, "take-off error {climbing:?}");

@@ -427,6 +427,10 @@ pub struct RenderedReport {
     pub unseen: u64,
     /// Milliseconds spent tracking (the tracker alone) over all frames.
     pub tracking_ms: f64,
+    /// Milliseconds spent rendering over all frames.
+    pub rendering_ms: f64,
+    /// Milliseconds spent scoring the positions against the truth.
+    pub scoring_ms: f64,
 }
 
 impl RenderedCamera {
@@ -466,7 +470,9 @@ impl RenderedCamera {
                 poses.clear();
                 poses.push(T_W_C);
                 report.frames += 1;
+                let start = std::time::Instant::now();
                 renderer.render(&poses, report.frames, &mut bytes);
+                report.rendering_ms += start.elapsed().as_secs_f64() * 1e3;
                 anyhow::ensure!(
                     img.set_from_u8(renderer.width(), renderer.height(), &bytes),
                     "the rendered image does not fit its size"
@@ -479,6 +485,7 @@ impl RenderedCamera {
                 if !sink.send(line.as_bytes()) {
                     report.frames_not_delivered += 1;
                 }
+                let start = std::time::Instant::now();
                 for f in feats {
                     let uv = [f64::from(f.u_px), f64::from(f.v_px)];
                     let Some(p_in_W) = points.get(&f.id).copied() else {
@@ -516,6 +523,7 @@ impl RenderedCamera {
                         }
                     }
                 }
+                report.scoring_ms += start.elapsed().as_secs_f64() * 1e3;
             }
             if let Some(mut w) = scores {
                 let _ = w.flush();
