@@ -173,15 +173,26 @@ impl Dataset {
 
     /// The autopilot's landed state at flight time `t_s`, as its land
     /// detector reports it (`EXTENDED_SYS_STATE`): on the ground while the
-    /// vehicle is within [`LANDED_HEIGHT_M`] of where it started and slower
-    /// than [`LANDED_SPEED_MPS`]. A flight started in the air is never on
-    /// the ground at its start height unless it stops there.
+    /// vehicle is ([`Self::on_ground`]), except for the last
+    /// `autopilot.land_detector_lead_s` before it leaves, when its motors
+    /// spin up and the detector already says "in the air". A flight started
+    /// in the air is never on the ground at its start height unless it
+    /// stops there.
     pub fn landed_at(&self, t_s: f64) -> bool {
-        self.landed(&self.trajectory.sample(t_s))
+        let lead_s = self.cfg.autopilot.land_detector_lead_s;
+        self.on_ground_at(t_s) && (lead_s <= 0.0 || self.on_ground_at(t_s + lead_s))
     }
 
-    /// [`Self::landed_at`] for a truth sample already taken.
-    pub fn landed(&self, s: &TruthSample) -> bool {
+    /// Whether the vehicle is on the ground at flight time `t_s`, truly
+    /// ([`Self::on_ground`]).
+    pub fn on_ground_at(&self, t_s: f64) -> bool {
+        self.on_ground(&self.trajectory.sample(t_s))
+    }
+
+    /// The truth of a sample already taken: on the ground while the vehicle
+    /// is within [`LANDED_HEIGHT_M`] of where it started and slower than
+    /// [`LANDED_SPEED_MPS`].
+    pub fn on_ground(&self, s: &TruthSample) -> bool {
         self.truth.first().is_some_and(|start| {
             (s.p_B_in_W.z - start.truth.p_B_in_W.z).abs() < LANDED_HEIGHT_M && s.v_B_in_W.norm() < LANDED_SPEED_MPS
         })
@@ -347,18 +358,40 @@ fn write_file(path: &Path, s: &str) -> std::io::Result<()> {
 mod tests {
     use super::*;
 
-    /// Landed through the standstill, in the air once climbing.
+    /// On the ground through the standstill, in the air once climbing; the
+    /// land detector says "in the air" its lead before the truth rises.
     #[test]
     fn the_vehicle_is_landed_until_it_takes_off() {
         let cfg = SimConfig::new();
         let ds = Dataset::generate("hover", 1, Some(20.0), &cfg).unwrap();
-        assert!(ds.landed_at(0.0) && ds.landed_at(cfg.standstill_s - 0.5));
+        assert!(ds.on_ground_at(0.0) && ds.on_ground_at(cfg.standstill_s - 0.5));
         let airborne = (0..200)
             .map(|k| f64::from(k) * 0.1)
-            .filter(|t| !ds.landed_at(*t))
+            .filter(|t| !ds.on_ground_at(*t))
             .count();
         assert!(airborne > 50, "airborne {airborne} of 200 instants");
-        assert!(!ds.landed_at(19.9), "hovering at 19.9 s is not landed");
+        assert!(!ds.on_ground_at(19.9), "hovering at 19.9 s is not landed");
+        // The first instant off the ground, by the truth and by the
+        // detector (0.01 s steps).
+        let first = |f: &dyn Fn(f64) -> bool| (0..2000).map(|k| f64::from(k) * 0.01).find(|t| !f(*t));
+        let (rose, said) = (
+            first(&|t| ds.on_ground_at(t)).unwrap(),
+            first(&|t| ds.landed_at(t)).unwrap(),
+        );
+        let lead = cfg.autopilot.land_detector_lead_s;
+        assert!(lead > 1.0);
+        assert!((rose - said - lead).abs() < 0.02, "rose at {rose} s, said at {said} s");
+        // The detector never says "on the ground" in the air.
+        assert!((0..2000)
+            .map(|k| f64::from(k) * 0.01)
+            .all(|t| !ds.landed_at(t) || ds.on_ground_at(t)));
+        // An autopilot that reports the truth says it as the truth leaves.
+        let mut truthful = cfg.clone();
+        truthful.autopilot = crate::config::AutopilotSimConfig::truth();
+        let ds = Dataset::generate("hover", 1, Some(20.0), &truthful).unwrap();
+        assert!((0..2000)
+            .map(|k| f64::from(k) * 0.01)
+            .all(|t| ds.landed_at(t) == ds.on_ground_at(t)));
     }
 
     #[test]

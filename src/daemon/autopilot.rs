@@ -17,6 +17,7 @@ use super::gnss_input::GnssIn;
 use super::time_guard::SteadyValue;
 use super::{FusionMsg, Restart};
 use crate::counters::{Counter, Counters};
+use crate::estimator::landed::LandedGate;
 use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, LocalPositionRecord, SimStateRecord, SystemTimeRecord};
 use crate::io::messages::AutopilotKind;
 use crate::io::messages::Outbound;
@@ -24,15 +25,6 @@ use crate::io::messages::Outbound;
 /// Magnetometer readings kept for the compass yaw (10 Hz: about 1 s).
 const MAG_READINGS: usize = 10;
 
-/// How long after the autopilot's landed state turns to "in the air"
-/// zero-velocity updates stay allowed (s): a take-off's spin-up on the
-/// ground (see [`AutopilotView::zupt_allowed`]).
-const TAKEOFF_GRACE_S: f64 = 2.0;
-
-/// How long the landed state must have said "on the ground" for its turn
-/// to "in the air" to open the take-off grace (s): a touch-and-go, ground
-/// effect's flicker or a stale copy between two "in the air" opens none.
-const LANDED_CONFIRM_S: f64 = 2.0;
 /// SYSTEM_TIME: a change of the Unix − boot offset beyond this (s) is
 /// believed once this many messages agree on it.
 const SYSTEM_TIME_TOL_S: f64 = 1.0;
@@ -103,13 +95,9 @@ pub(super) struct AutopilotView {
     mode: Option<u32>,
     /// When it disarmed after an arming, until the log is rotated.
     disarmed_since: Option<f64>,
-    on_ground: Option<bool>,
-    /// Since when (IMU time) its landed state has said "on the ground".
-    on_ground_since: Option<f64>,
-    /// When (IMU time) its landed state turned to "in the air" after
-    /// [`LANDED_CONFIRM_S`] on the ground, while the take-off grace lasts:
-    /// cleared when the camera sees motion.
-    left_ground_t: Option<f64>,
+    /// Its landed and armed states, and the take-off grace they open
+    /// (IMU time).
+    gate: LandedGate,
     /// Which autopilot its HEARTBEAT says it is.
     kind: Option<AutopilotKind>,
     /// When (IMU time) it last reported a 3D GNSS fix of its own.
@@ -132,9 +120,7 @@ impl Default for AutopilotView {
             armed: None,
             mode: None,
             disarmed_since: None,
-            on_ground: None,
-            on_ground_since: None,
-            left_ground_t: None,
+            gate: LandedGate::default(),
             kind: None,
             fix_t: None,
             unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
@@ -208,6 +194,7 @@ impl AutopilotView {
                     // between two armed ones must not cut the log.
                     self.disarmed_since = (!a && self.armed == Some(true)).then_some(t_s);
                     self.armed = armed;
+                    self.gate.set_armed(a);
                 }
                 if let Some(t0) = self.disarmed_since {
                     if armed == Some(false) && t_s - t0 >= DISARM_CONFIRM_S {
@@ -215,12 +202,10 @@ impl AutopilotView {
                         log.disarmed();
                     }
                 }
-                if let Some(g) = on_ground.filter(|g| Some(*g) != self.on_ground) {
-                    log_autopilot(AutopilotRecord::OnGround(g));
-                    let confirmed = self.on_ground_since.is_some_and(|t0| t_s - t0 >= LANDED_CONFIRM_S);
-                    self.left_ground_t = (!g && self.on_ground == Some(true) && confirmed).then_some(t_s);
-                    self.on_ground_since = g.then_some(t_s);
-                    self.on_ground = on_ground;
+                if let Some(g) = on_ground {
+                    if self.gate.set_on_ground(t_s, g) {
+                        log_autopilot(AutopilotRecord::OnGround(g));
+                    }
                 }
             }
             FusionMsg::Date { unix_days } => {
@@ -341,55 +326,21 @@ impl AutopilotView {
         }
     }
 
-    /// On the ground by the autopilot's word: its landed state, else its
-    /// being disarmed; with neither known (an autopilot that says nothing),
-    /// `true`, and the IMU and camera judge alone.
+    /// On the ground by the autopilot's word ([`LandedGate::landed`]).
     fn landed(&self) -> bool {
-        match (self.on_ground, self.armed) {
-            (Some(on_ground), _) => on_ground,
-            (None, Some(armed)) => !armed,
-            (None, None) => true,
-        }
+        self.gate.landed()
     }
 
-    /// Whether a zero-velocity update may be taken at `t_s` (IMU time): on
-    /// the ground by the autopilot's word, or within [`TAKEOFF_GRACE_S`] of
-    /// its landed state turning to "in the air" after [`LANDED_CONFIRM_S`]
-    /// on the ground, until the camera sees motion ([`Self::camera_moved`]).
-    /// A land detector says "in the air" while the motors spin up, before
-    /// the vehicle rises (PX4's SIH: 1.1 s before): with the updates ended
-    /// then, the IMU alone carried the velocity through that second and
-    /// strayed by ±0.2 m/s. Within the grace the IMU, the camera's
-    /// disparity, the estimated speed and the update's χ² gate decide, as
-    /// they do for an autopilot that reports no landed state
-    /// (`estimator::zupt`). A gentle climb that the camera does not see
-    /// (far features only) may be held still until the grace's end: its
-    /// length bounds that.
+    /// Whether a zero-velocity update may be taken at `t_s` (IMU time):
+    /// [`LandedGate::zupt_allowed`].
     pub(super) fn zupt_allowed(&self, t_s: f64) -> bool {
-        self.landed() || self.in_takeoff_grace(t_s)
+        self.gate.zupt_allowed(t_s)
     }
 
-    /// In the air by the autopilot's word, within the take-off grace at
-    /// `t_s` (see [`Self::zupt_allowed`]).
-    fn in_takeoff_grace(&self, t_s: f64) -> bool {
-        !self.landed()
-            && self
-                .left_ground_t
-                .is_some_and(|t0| (0.0..TAKEOFF_GRACE_S).contains(&(t_s - t0)))
-    }
-
-    /// The camera saw motion at `t_s` (a frame's features moved past the
-    /// stillness bound, `FrameReport::camera_moved`): within the take-off
-    /// grace, that ends it for good. The IMU's tests alone do not: the
-    /// spin-up's thrust and vibration fail them on the ground (measured
-    /// beside PX4's SITL: the first frame after the land detector's turn).
-    /// `true` when this ended it.
+    /// The camera saw motion at `t_s`: [`LandedGate::camera_moved`]. `true`
+    /// when this ended the take-off grace.
     pub(super) fn camera_moved(&mut self, t_s: f64) -> bool {
-        let open = self.in_takeoff_grace(t_s);
-        if open {
-            self.left_ground_t = None;
-        }
-        open
+        self.gate.camera_moved(t_s)
     }
 
     /// Tells the autopilot our origin once it is known
@@ -579,6 +530,7 @@ impl AutopilotView {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimator::landed::{LANDED_CONFIRM_S, TAKEOFF_GRACE_S};
 
     /// What the watch sent over `secs` of IMU at 100 Hz (its absence
     /// worth saying: no origin of ours coming).

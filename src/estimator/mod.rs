@@ -35,6 +35,7 @@ pub mod health;
 pub mod imu_covariance;
 mod inspect;
 mod keyframes;
+pub mod landed;
 pub mod math;
 mod msckf;
 pub mod propagate;

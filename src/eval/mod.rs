@@ -19,6 +19,7 @@ use cmsckf_sitl::dataset::Dataset;
 
 use crate::config::Config;
 use crate::estimator::frontend::{NormObs, Normaliser};
+use crate::estimator::landed::LandedGate;
 use crate::estimator::propagate::{boxplus, Mat15};
 use crate::estimator::Mode;
 use crate::estimator::{Estimator, ImuMeas, ImuState, Stats};
@@ -173,6 +174,9 @@ pub struct Runner<'a> {
     /// Whether the autopilot's landed state gates the zero-velocity
     /// updates, as beside ArduPilot or PX4 (true by default).
     landed_state: bool,
+    /// That landed state as the daemon reads it (the dataset's land
+    /// detector, at each frame), and the take-off grace it opens.
+    gate: LandedGate,
 }
 
 thread_local! {
@@ -212,6 +216,7 @@ impl<'a> Runner<'a> {
             resets: 0,
             healthy: true,
             landed_state: true,
+            gate: LandedGate::default(),
         }
     }
 
@@ -382,9 +387,12 @@ impl<'a> Runner<'a> {
         self.feed_imu(t_f);
         let f = &self.ds.frames[k];
         // What the daemon takes from the autopilot's EXTENDED_SYS_STATE:
-        // zero-velocity updates on the ground only.
+        // zero-velocity updates on the ground, and through the take-off's
+        // spin-up until the camera sees motion (the land detector says "in
+        // the air" before the vehicle rises).
         if self.landed_state {
-            self.est.set_zupt_allowed(self.ds.landed_at(f.t_s));
+            self.gate.set_on_ground(f.t_s, self.ds.landed_at(f.t_s));
+            self.est.set_zupt_allowed(self.gate.zupt_allowed(f.t_s));
         }
         let start = Instant::now();
         self.normaliser.normalise_into(
@@ -396,6 +404,9 @@ impl<'a> Runner<'a> {
         );
         let rep = self.est.process_frame(f.t_s, &self.buf).unwrap_or_default();
         let frame_us = start.elapsed().as_secs_f64() * 1e6;
+        if rep.camera_moved {
+            self.gate.camera_moved(f.t_s);
+        }
         // What the daemon would do: a failed health check resets the filter.
         // Counted at each onset (the evaluation lets the filter run on).
         let healthy = self.est.check_health().is_ok();

@@ -62,10 +62,11 @@ impl Streamer<'_> {
         let (r, p, y) = self.ekf.attitude(&s.q_W_B);
         let (p_B_in_W, v_B_in_W) = self.ekf.local_position(&s);
         let ms = (self.boot(t) / 1000) as u32;
-        // Its land detector's verdict, as ArduPilot and PX4 stream it.
+        // Its land detector's verdict, as ArduPilot and PX4 stream it: "in
+        // the air" while the motors spin up, before the vehicle rises.
         self.send(apm::MavMessage::EXTENDED_SYS_STATE(apm::EXTENDED_SYS_STATE_DATA {
             vtol_state: apm::MavVtolState::MAV_VTOL_STATE_UNDEFINED,
-            landed_state: if self.ds.landed(&s) {
+            landed_state: if self.ds.landed_at(t) {
                 apm::MavLandedState::MAV_LANDED_STATE_ON_GROUND
             } else {
                 apm::MavLandedState::MAV_LANDED_STATE_IN_AIR
