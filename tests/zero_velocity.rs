@@ -141,8 +141,8 @@ fn a_vibrating_hover_is_still_only_on_the_ground_beside_an_autopilot() {
 /// The camera's own verdict that the vehicle moved
 /// (`FrameReport::camera_moved`: a frame's features moved past
 /// `zupt.max_disparity_px` since their last clone), on which the daemon
-/// ends a take-off's zero-velocity grace (`daemon/autopilot.rs`,
-/// `camera_moved`): never while the vehicle stands, and within half a
+/// ends a take-off's zero-velocity grace (`estimator/landed.rs`,
+/// `LandedGate::camera_moved`): never while the vehicle stands, and within half a
 /// second of its starting to move (0.1 s when written: the take-off's first
 /// rotation). Zero-velocity updates stay allowed throughout,
 /// as they are within the grace (an autopilot's "in the air" comes before
@@ -198,9 +198,9 @@ fn the_camera_says_moved_when_the_vehicle_starts_to_move_and_not_before() {
 /// motors spun up. Beside it the runner, as the daemon (one rule:
 /// `estimator::landed`), keeps the zero-velocity updates through that lead
 /// until the camera sees motion: every frame of the lead in which the
-/// vehicle still stands is held still, none once it has moved for half a
-/// second (the camera says so within 0.1 s: the test above), and the
-/// velocity is still right when it rises.
+/// vehicle still stands is held still, none after the camera's verdict
+/// (within half a second of the motion: the test above), and the velocity
+/// is still right when it rises.
 #[test]
 fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
     let cfg = Config::default();
@@ -214,8 +214,8 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
         let t_move = first(&|t| ds.trajectory.sample(t).v_B_in_W.norm() > 1e-3).expect("the vehicle never moves");
         let t_rise = first(&|t| !ds.on_ground_at(t)).expect("the vehicle never leaves the ground");
         let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
-        let (mut standing, mut held, mut moving_zupts) = (0, 0, 0);
-        let mut dv_at_rise = None;
+        let (mut standing, mut held, mut moving_zupts, mut still_allowed) = (0, 0, 0, 0);
+        let (mut dv_at_rise, mut t_seen) = (None, None::<f64>);
         for k in 0..ds.frames.len() {
             let t = ds.frames[k].t_s;
             let (_, rep) = run.step_frame(k);
@@ -223,8 +223,16 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
                 standing += 1;
                 held += usize::from(rep.zupt);
             }
-            if rep.zupt && t > t_move + 0.5 {
-                moving_zupts += 1;
+            // After the camera's verdict (the frame that gave it included)
+            // nothing in the air is held still: the runner's gate closed.
+            if t >= t_said && rep.camera_moved && t_seen.is_none() {
+                t_seen = Some(t);
+            }
+            if t_seen.is_some_and(|t0| t > t0) && !ds.landed_at(t) {
+                moving_zupts += usize::from(rep.zupt);
+                // The gate itself closed (not only the estimator's own
+                // stillness tests refusing a moving frame).
+                still_allowed += usize::from(run.est.zupt_allowed());
             }
             if dv_at_rise.is_none() && t >= t_rise {
                 let truth = ds.trajectory.sample(run.est.time_s());
@@ -232,10 +240,11 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
             }
         }
         let dv = dv_at_rise.expect("a frame after the rise");
+        let t_seen = t_seen.expect("the camera never saw the take-off");
         eprintln!(
-            "seed {seed}: the detector says in the air at {t_said:.2} s, the vehicle moves at {t_move:.2} s and \
-             rises at {t_rise:.2} s; {held} of the {standing} frames standing between held still; {moving_zupts} \
-             updates after it had moved for 0.5 s; velocity {dv:.3} m/s off as it rose"
+            "seed {seed}: the detector says in the air at {t_said:.2} s, the vehicle moves at {t_move:.2} s, the \
+             camera says so at {t_seen:.2} s, and it rises at {t_rise:.2} s; {held} of the {standing} frames standing \
+             between held still; {moving_zupts} updates after the camera's verdict; velocity {dv:.3} m/s off as it rose"
         );
         assert!((t_rise - t_said - lead_s).abs() < 0.05, "the detector's lead");
         assert!(
@@ -243,7 +252,15 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
             "{standing} frames between the detector's turn and the motion"
         );
         assert!(held as f64 >= 0.9 * standing as f64, "the spin-up was not held still");
-        assert_eq!(moving_zupts, 0, "zero-velocity updates in the air");
+        assert!(
+            t_seen < t_said + 2.0,
+            "the camera's verdict came after the grace's own end"
+        );
+        assert_eq!(
+            moving_zupts, 0,
+            "zero-velocity updates after the camera saw the take-off"
+        );
+        assert_eq!(still_allowed, 0, "the take-off grace outlived the camera's verdict");
         assert!(dv < 0.05, "velocity {dv} m/s off as the vehicle rose");
     }
 }

@@ -31,10 +31,14 @@ pub use crate::flight::{Dataset, TruthRow};
 use crate::render::{Renderer, World};
 use crate::rng::rng_for;
 
-/// Height above the start (m) and speed (m/s) under which the simulated
-/// autopilot calls the vehicle landed ([`Dataset::landed_at`]).
+/// Height above the start (m) and speed (m/s) under which the vehicle is
+/// on the ground ([`Dataset::on_ground`]; the simulated autopilot's land
+/// detector, [`Dataset::landed_at`], says so from that truth).
 pub const LANDED_HEIGHT_M: f64 = 0.1;
 pub const LANDED_SPEED_MPS: f64 = 0.1;
+/// The land detector's look-ahead is checked at this spacing (s): no
+/// multirotor leaves the ground and comes back within it.
+pub const LAND_DETECTOR_STEP_S: f64 = 0.05;
 
 /// A draw from `[lo, hi]` (s), uniform; exactly `lo` when they are equal.
 fn uniform_in(range: [f64; 2], rng: &mut ChaCha8Rng) -> f64 {
@@ -173,14 +177,17 @@ impl Dataset {
 
     /// The autopilot's landed state at flight time `t_s`, as its land
     /// detector reports it (`EXTENDED_SYS_STATE`): on the ground while the
-    /// vehicle is ([`Self::on_ground`]), except for the last
-    /// `autopilot.land_detector_lead_s` before it leaves, when its motors
-    /// spin up and the detector already says "in the air". A flight started
-    /// in the air is never on the ground at its start height unless it
-    /// stops there.
+    /// vehicle stays on the ground ([`Self::on_ground`]) from `t_s` to
+    /// `autopilot.land_detector_lead_s` later (checked every
+    /// [`LAND_DETECTOR_STEP_S`]): in the lead before each lift-off its
+    /// motors spin up and the detector already says "in the air", and a hop
+    /// or a stop shorter than the lead is never called landed. A flight
+    /// started in the air is never on the ground at its start height
+    /// unless it stops there.
     pub fn landed_at(&self, t_s: f64) -> bool {
-        let lead_s = self.cfg.autopilot.land_detector_lead_s;
-        self.on_ground_at(t_s) && (lead_s <= 0.0 || self.on_ground_at(t_s + lead_s))
+        let lead_s = self.cfg.autopilot.land_detector_lead_s.max(0.0);
+        let steps = (lead_s / LAND_DETECTOR_STEP_S).ceil() as usize;
+        (0..=steps).all(|k| self.on_ground_at(t_s + (k as f64 * LAND_DETECTOR_STEP_S).min(lead_s)))
     }
 
     /// Whether the vehicle is on the ground at flight time `t_s`, truly
@@ -381,10 +388,6 @@ mod tests {
         let lead = cfg.autopilot.land_detector_lead_s;
         assert!(lead > 1.0);
         assert!((rose - said - lead).abs() < 0.02, "rose at {rose} s, said at {said} s");
-        // The detector never says "on the ground" in the air.
-        assert!((0..2000)
-            .map(|k| f64::from(k) * 0.01)
-            .all(|t| !ds.landed_at(t) || ds.on_ground_at(t)));
         // An autopilot that reports the truth says it as the truth leaves.
         let mut truthful = cfg.clone();
         truthful.autopilot = crate::config::AutopilotSimConfig::truth();

@@ -562,6 +562,12 @@ impl Estimator {
         self.allow_zupt(allowed)
     }
 
+    /// What the caller last said of zero-velocity updates
+    /// ([`Self::set_zupt_allowed`]; allowed until it says).
+    pub fn zupt_allowed(&self) -> bool {
+        self.zupt_allowed
+    }
+
     /// The filter's judgement of itself: covariance, state bounds and the
     /// innovations' monitor (`health.rs`, §9); `Err` says why it failed.
     pub fn check_health(&self) -> Result<(), String> {
