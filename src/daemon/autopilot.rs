@@ -89,14 +89,12 @@ pub(super) struct AutopilotView {
     /// Today in Unix days (the companion's clock at start), for the
     /// declination.
     unix_days: Option<i64>,
-    /// The armed and landed states, when it reports them.
-    armed: Option<bool>,
     /// Its flight mode (logged on change).
     mode: Option<u32>,
     /// When it disarmed after an arming, until the log is rotated.
     disarmed_since: Option<f64>,
-    /// Its landed and armed states, and the take-off grace they open
-    /// (IMU time).
+    /// Its landed and armed states when it reports them, and the take-off
+    /// grace they open (IMU time).
     gate: LandedGate,
     /// Which autopilot its HEARTBEAT says it is.
     kind: Option<AutopilotKind>,
@@ -117,7 +115,6 @@ impl Default for AutopilotView {
             gps_accuracy: None,
             mag_B: VecDeque::with_capacity(MAG_READINGS),
             unix_days: None,
-            armed: None,
             mode: None,
             disarmed_since: None,
             gate: LandedGate::default(),
@@ -187,13 +184,12 @@ impl AutopilotView {
                     self.mode = mode;
                 }
                 // Logged on change only (the HEARTBEAT comes every second).
-                if let Some(a) = armed.filter(|a| Some(*a) != self.armed) {
+                if let Some(a) = armed.filter(|a| Some(*a) != self.gate.armed()) {
                     log_autopilot(AutopilotRecord::Armed(a));
                     // A disarm after an arming ends the flight's log, once it
                     // has lasted DISARM_CONFIRM_S: a stale HEARTBEAT copy
                     // between two armed ones must not cut the log.
-                    self.disarmed_since = (!a && self.armed == Some(true)).then_some(t_s);
-                    self.armed = armed;
+                    self.disarmed_since = (!a && self.gate.armed() == Some(true)).then_some(t_s);
                     self.gate.set_armed(a);
                 }
                 if let Some(t0) = self.disarmed_since {
@@ -440,7 +436,7 @@ impl AutopilotView {
             tracing::warn!(reason = "autopilot_origin_missing", "{text}");
             log.text(Level::Warning, t_s, text);
             // To the pilot's screen on the ground; in the air only the log.
-            if self.armed != Some(true) {
+            if self.armed() != Some(true) {
                 let _ = out.try_send(Outbound::StatusText {
                     severity: 4,
                     text: "cmsckf: autopilot has no EKF origin: set it".to_string(),
@@ -451,12 +447,12 @@ impl AutopilotView {
 
     /// Disarmed and on the ground, by what the autopilot last said.
     pub(super) fn disarmed_on_ground(&self) -> bool {
-        self.armed == Some(false) && self.landed()
+        self.armed() == Some(false) && self.landed()
     }
 
     /// Whether it is armed, once its HEARTBEAT has said.
     pub(super) fn armed(&self) -> Option<bool> {
-        self.armed
+        self.gate.armed()
     }
 
     /// Roll, pitch, yaw (rad), as `ATTITUDE` last said.

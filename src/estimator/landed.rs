@@ -48,6 +48,11 @@ impl LandedGate {
         self.armed = Some(armed);
     }
 
+    /// The autopilot's armed state, once it has said.
+    pub fn armed(&self) -> Option<bool> {
+        self.armed
+    }
+
     /// The land detector's last verdict, if it gave one.
     pub fn on_ground(&self) -> Option<bool> {
         self.on_ground
