@@ -1,11 +1,22 @@
 //! Zero-velocity updates (README §3c): a still vehicle is held by them.
 
 use cmsckf::config::Config;
+use cmsckf::estimator::landed::TAKEOFF_GRACE_S;
 use cmsckf::estimator::Mode;
 use cmsckf::eval;
 use cmsckf_sitl::dataset::Dataset;
 
 mod common;
+
+/// The stamp of the first of `ds`'s frames at which `f` holds.
+fn first_frame(ds: &Dataset, f: impl Fn(f64) -> bool) -> Option<f64> {
+    ds.frames.iter().map(|fr| fr.t_s).find(|&t| f(t))
+}
+
+/// Whether the truth moves at `t_s` (faster than 1 mm/s).
+fn moving(ds: &Dataset, t_s: f64) -> bool {
+    ds.trajectory.sample(t_s).v_B_in_W.norm() > 1e-3
+}
 
 /// What a standstill did: how far the estimate moved after its first
 /// second, the ZUPTs taken of how many frames, and the gyro bias's error
@@ -153,13 +164,7 @@ fn the_camera_says_moved_when_the_vehicle_starts_to_move_and_not_before() {
     let sim = eval::sim_config_for(&cfg);
     for seed in [1, 2] {
         let ds = Dataset::generate("racetrack", seed, Some(sim.standstill_s + 6.0), &sim).unwrap();
-        // The truth's first instant of motion.
-        let t_move = ds
-            .frames
-            .iter()
-            .map(|f| f.t_s)
-            .find(|&t| ds.trajectory.sample(t).v_B_in_W.norm() > 1e-3)
-            .expect("the vehicle never moves");
+        let t_move = first_frame(&ds, |t| moving(&ds, t)).expect("the vehicle never moves");
         let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed).without_landed_state();
         let (mut moved_standing, mut first_moved, mut moved_frames) = (0, None, 0);
         for k in 0..ds.frames.len() {
@@ -209,10 +214,9 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
     assert!(lead_s > 1.0, "the simulated land detector leads by {lead_s} s");
     for seed in [1, 2] {
         let ds = Dataset::generate("racetrack", seed, Some(sim.standstill_s + 6.0), &sim).unwrap();
-        let first = |f: &dyn Fn(f64) -> bool| ds.frames.iter().map(|f| f.t_s).find(|&t| f(t));
-        let t_said = first(&|t| !ds.landed_at(t)).expect("the detector never says in the air");
-        let t_move = first(&|t| ds.trajectory.sample(t).v_B_in_W.norm() > 1e-3).expect("the vehicle never moves");
-        let t_rise = first(&|t| !ds.on_ground_at(t)).expect("the vehicle never leaves the ground");
+        let t_said = first_frame(&ds, |t| !ds.landed_at(t)).expect("the detector never says in the air");
+        let t_move = first_frame(&ds, |t| moving(&ds, t)).expect("the vehicle never moves");
+        let t_rise = first_frame(&ds, |t| !ds.on_ground_at(t)).expect("the vehicle never leaves the ground");
         let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, seed);
         let (mut standing, mut held, mut moving_zupts, mut still_allowed) = (0, 0, 0, 0);
         let (mut dv_at_rise, mut t_seen) = (None, None::<f64>);
@@ -223,8 +227,8 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
                 standing += 1;
                 held += usize::from(rep.zupt);
             }
-            // After the camera's verdict (the frame that gave it included)
-            // nothing in the air is held still: the runner's gate closed.
+            // From the frame after the camera's verdict nothing in the air
+            // is held still: the runner's gate closed on it.
             if t >= t_said && rep.camera_moved && t_seen.is_none() {
                 t_seen = Some(t);
             }
@@ -253,7 +257,7 @@ fn the_zero_velocity_updates_last_through_the_land_detectors_early_take_off() {
         );
         assert!(held as f64 >= 0.9 * standing as f64, "the spin-up was not held still");
         assert!(
-            t_seen < t_said + 2.0,
+            t_seen < t_said + TAKEOFF_GRACE_S,
             "the camera's verdict came after the grace's own end"
         );
         assert_eq!(
