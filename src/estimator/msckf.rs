@@ -501,10 +501,12 @@ impl Estimator {
         feature::track_system_into(views, &self.s.ext, obs, &p_f, track);
         let (r0, keep) = feature::nullspace_project_into(&track.hx, &track.hf, &track.r, &mut track.projected);
         let nx = track.hx.ncols();
-        let hx = track.projected.view((r0, 3), (keep, nx));
+        // `[H_x | r]` is columns 3..=3 + n_x, each contiguous: checked as
+        // slices (a strided view's iterator cost 5 % of the estimator).
+        let finite = (3..=3 + nx).all(|c| math::all_finite(&track.projected.column(c).as_slice()[r0..r0 + keep]));
         let r_col = track.projected.column(3 + nx);
         let r = r_col.rows(r0, keep);
-        if !(hx.iter().all(|v| v.is_finite()) && r.iter().all(|v| v.is_finite())) {
+        if !finite {
             reject(report, &mut self.stats, Reject::NonFinite);
             return None;
         }
