@@ -14,7 +14,10 @@ mod qr;
 mod triangular;
 
 pub use qr::householder_in_place;
-pub use triangular::{add_gram_outside_block, add_symmetric_product, add_symmetric_product_t, upper_mul, LowerSolver};
+pub use triangular::{
+    add_gram_outside_block, add_symmetric_product, add_symmetric_product_t, lower_of_times_upper_t, upper_mul,
+    LowerSolver,
+};
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 

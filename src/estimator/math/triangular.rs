@@ -185,6 +185,32 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
     out
 }
 
+/// The lower triangle of `M Tᵀ` (`M` k × k, `T` upper triangular k × k):
+/// what the EKF update's `S = (T P_cc) Tᵀ + I` needs (U1), since its
+/// Cholesky factor reads only the lower triangle. Column block
+/// `[j0, j0 + b)` takes, on its rows from `j0` down,
+/// `M[j0.., j0..] · (T[j0..j0 + b, j0..])ᵀ`: row `j` of `T` is zero left of
+/// `j`, so about a third of a full product's multiply-adds. `tt` is `Tᵀ`.
+/// Entries above the diagonal are those of `M Tᵀ` within the diagonal
+/// blocks and zero beyond them.
+pub fn lower_of_times_upper_t(m: &nalgebra::DMatrix<f64>, tt: &nalgebra::DMatrix<f64>) -> nalgebra::DMatrix<f64> {
+    let k = m.nrows();
+    debug_assert!(m.ncols() == k && tt.nrows() == k && tt.ncols() == k);
+    let mut out = nalgebra::DMatrix::zeros(k, k);
+    let mut j0 = 0;
+    while j0 < k {
+        let jb = TRI_BLOCK.min(k - j0);
+        out.view_mut((j0, j0), (k - j0, jb)).gemm(
+            1.0,
+            &m.view((j0, j0), (k - j0, k - j0)),
+            &tt.view((j0, j0), (k - j0, jb)),
+            0.0,
+        );
+        j0 += jb;
+    }
+    out
+}
+
 /// Copies the strict lower triangle of the leading `g × g` block onto its
 /// upper one, in place.
 fn mirror_lower_leading(p: &mut nalgebra::DMatrix<f64>, g: usize) {
@@ -315,6 +341,18 @@ mod tri_tests {
             let mut y = b.clone();
             ours.solve_in_place(&mut y);
             assert!((&y - &want).abs().max() <= 1e-12 * want.abs().max().max(1.0), "n {n}");
+            // The lower triangle of M Tᵀ for the upper-triangular T = Lᵀ
+            // (Tᵀ = L is what it takes).
+            let full = &m * &l;
+            let lower = lower_of_times_upper_t(&m, &l);
+            for j in 0..n {
+                for i in j..n {
+                    assert!(
+                        (lower[(i, j)] - full[(i, j)]).abs() <= 1e-12 * full.abs().max(),
+                        "n {n}"
+                    );
+                }
+            }
             // Only the lower triangle is read: garbage above it changes nothing.
             let mut upper = spd.clone();
             for j in 1..n {
