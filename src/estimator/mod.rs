@@ -36,6 +36,7 @@ pub mod imu_covariance;
 mod inspect;
 mod keyframes;
 pub mod landed;
+mod landmarks;
 pub mod math;
 mod msckf;
 pub mod propagate;
@@ -408,7 +409,7 @@ pub struct Estimator {
     tracks: BTreeMap<u64, Track>,
     /// Each landmark's last triangulated position (m, world) and when (s):
     /// where a track of it with too little parallax is linearised (§3e).
-    landmark_memory: BTreeMap<u64, (Vector3<f64>, f64)>,
+    landmark_memory: landmarks::LandmarkMemory,
     /// When the memory last forgot its old landmarks (s).
     landmarks_forgotten_s: f64,
     /// This frame's low-parallax tracks' NIS and dof, kept apart from the
@@ -498,7 +499,7 @@ impl Estimator {
             rebase_runner: RebaseJob::run,
             schmidt_downdate: math::add_gram_outside_block,
             tracks: BTreeMap::new(),
-            landmark_memory: BTreeMap::new(),
+            landmark_memory: landmarks::LandmarkMemory::default(),
             landmarks_forgotten_s: t_s,
             low_parallax_nis: Vec::new(),
             kf_by_landmark: BTreeMap::new(),

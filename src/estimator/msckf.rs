@@ -534,7 +534,7 @@ impl Estimator {
         if self.s.low_parallax_updates {
             // Where a later track of it with too little parallax is
             // linearised (§3e).
-            self.landmark_memory.insert(l, (p_f, self.t_s));
+            self.landmark_memory.insert(l, p_f, self.t_s);
         }
         if !ks.is_empty() {
             report.loop_closure_tracks += 1;
@@ -578,7 +578,7 @@ impl Estimator {
         // or a scene that moves with the vehicle than a distant landmark:
         // used only as slow as a hover.
         let slow = self.imu.v_B_in_W.norm() <= LOW_PARALLAX_MAX_SPEED_MPS;
-        let remembered = self.landmark_memory.get(&l).map(|(p, _)| *p);
+        let remembered = self.landmark_memory.get(l);
         let prior = match remembered {
             Some(p_W) if self.s.low_parallax_updates && ks.is_empty() && slow => feature::DepthPrior {
                 p_W,
@@ -627,18 +627,11 @@ impl Estimator {
     fn forget_landmarks(&mut self) {
         if self.t_s - self.landmarks_forgotten_s >= 1.0 {
             self.landmarks_forgotten_s = self.t_s;
-            let oldest_s = self.t_s - LANDMARK_MEMORY_S;
-            self.landmark_memory.retain(|_, (_, t_s)| *t_s > oldest_s);
+            self.landmark_memory.forget_up_to(self.t_s - LANDMARK_MEMORY_S);
         }
-        let excess = self.landmark_memory.len().saturating_sub(MAX_REMEMBERED_LANDMARKS);
-        if excess > 0 {
-            // More than the bound triangulated within the memory's span (a
-            // rare, dense scene): the `excess` oldest go.
-            let mut times: Vec<f64> = self.landmark_memory.values().map(|(_, t)| *t).collect();
-            let (_, cut, _) = times.select_nth_unstable_by(excess - 1, f64::total_cmp);
-            let cut = *cut;
-            self.landmark_memory.retain(|_, (_, t_s)| *t_s > cut);
-        }
+        // More than the bound triangulated within the memory's span (a
+        // dense scene): the excess oldest go.
+        self.landmark_memory.bound(MAX_REMEMBERED_LANDMARKS);
     }
 
     /// Stacks the gated tracks over the union of their columns, in state
