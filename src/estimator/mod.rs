@@ -254,6 +254,10 @@ pub struct Stats {
     /// Rebase results installed (equal to `global_updates` once none is
     /// pending).
     pub rebases_installed: u64,
+    /// Of those, installs whose base space shrank to the global part's
+    /// columns (§5 R6), and the base coordinates that removed in all.
+    pub base_space_reductions: u64,
+    pub base_space_dims_removed: u64,
     /// Global keyframes brought into the local part for a measurement.
     pub promotions: u64,
     /// Of those, promoted while a rebase job was out (§5 R5).

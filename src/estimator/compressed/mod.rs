@@ -2,7 +2,7 @@
 //! the exact promotion of global keyframes into the local part (§5 P1–P3,
 //! at a cost independent of the global size), and the rebase (global update) split into a
 //! pure [`RebaseJob`] that may run on another thread while the local filter
-//! goes on (§5 R1–R5).
+//! goes on (§5 R1–R5), its base space no larger than the global part (R6).
 //!
 //! Why it exists: the global update is the only step whose cost grows with
 //! the square of the map. Loop closures no longer need one (a promotion
@@ -173,6 +173,10 @@ pub struct RebaseResult {
     base: Base,
     /// `δx_G` for `base.ids[..n_live]`.
     dx_live: DVector<f64>,
+    /// `U` of §5 R6 when the new global part has fewer columns than the
+    /// local part at the rebase (`C' = U R`, `U` orthonormal columns): the
+    /// install maps the accumulators into its smaller base space.
+    reduce: Option<DMatrix<f64>>,
 }
 
 /// Why a rebase result was not installed.

@@ -1,6 +1,7 @@
-//! Rebases (§5 R1–R4): starting one, which demotes keyframes and restarts
-//! the accumulation at once; the pure job that computes the new base; and
-//! installing its result.
+//! Rebases (§5 R1–R4, R6): starting one, which demotes keyframes and
+//! restarts the accumulation at once; the pure job that computes the new
+//! base; and installing its result, with the accumulators' base space
+//! shrunk to the global part's columns when those are fewer.
 //!
 //! Why it exists: the rebase is the one `O(n_L n_G²)` step of the filter;
 //! split this way it can run off the real-time path (on another thread)
@@ -98,6 +99,22 @@ impl RebaseJob {
         }
         let mut c_new = p_lg_new;
         self.unwhiten_new(&mut c_new);
+        // R6: with fewer global columns than local states, the base space
+        // shrinks to C''s column space: C' = U R, U (n_L' × n_G') with
+        // orthonormal columns; the base keeps R and the install maps the
+        // accumulators by U.
+        let reduce = if n_new < nl {
+            let (u, r) = if n_new == 0 {
+                (DMatrix::zeros(nl, 0), DMatrix::zeros(0, 0))
+            } else {
+                let qr = c_new.qr();
+                (qr.q(), qr.r())
+            };
+            c_new = r;
+            Some(u)
+        } else {
+            None
+        };
         RebaseResult {
             seq: self.seq,
             base: Base {
@@ -106,8 +123,41 @@ impl RebaseJob {
                 P_GG0: p0,
             },
             dx_live,
+            reduce,
         }
     }
+}
+
+/// §5 R6 applied to the accumulators: with `E = [U 0; 0 I]` (`U` over the
+/// first `U.nrows()` base coordinates), `Φ̃ ← Φ̃ E`, `Ψ̃ ← Eᵀ Ψ̃ E`,
+/// `q̃ ← Eᵀ q̃`. Every product the filter forms, `Φ̃ C̃`, `C̃ᵀ Ψ̃ C̃`, `C̃ᵀ q̃`,
+/// is unchanged since `C̃ = E C̃_R` (the new base's `C' = U R`, the
+/// promotions' rows as they were), and C1–C3 commute with it.
+fn reduce_base_space(g: &mut Global, u: &DMatrix<f64>) {
+    let (nl, k) = u.shape();
+    let ne = g.Phi.ncols() - nl;
+    let n = g.Phi.nrows();
+    let mut phi = DMatrix::zeros(n, k + ne);
+    phi.columns_mut(0, k).copy_from(&(g.Phi.columns(0, nl) * u));
+    phi.columns_mut(k, ne).copy_from(&g.Phi.columns(nl, ne));
+    let mut psi = DMatrix::zeros(k + ne, k + ne);
+    let psi_11 = u.tr_mul(&(g.Psi.view((0, 0), (nl, nl)) * u));
+    // Exactly symmetric, as the accumulation keeps Ψ̃.
+    psi.view_mut((0, 0), (k, k))
+        .copy_from(&((&psi_11 + psi_11.transpose()) * 0.5));
+    if ne > 0 {
+        let psi_12 = u.tr_mul(&g.Psi.view((0, nl), (nl, ne)));
+        psi.view_mut((0, k), (k, ne)).copy_from(&psi_12);
+        psi.view_mut((k, 0), (ne, k)).copy_from(&psi_12.transpose());
+        psi.view_mut((k, k), (ne, ne))
+            .copy_from(&g.Psi.view((nl, nl), (ne, ne)));
+    }
+    let mut q = DVector::zeros(k + ne);
+    q.rows_mut(0, k).copy_from(&u.tr_mul(&g.q.rows(0, nl)));
+    q.rows_mut(k, ne).copy_from(&g.q.rows(nl, ne));
+    g.Phi = phi;
+    g.Psi = psi;
+    g.q = q;
 }
 
 impl Estimator {
@@ -163,7 +213,15 @@ impl Estimator {
         g.sigma_m = (g.live.iter())
             .map(|(id, b)| (*id, position_sigma_m(&res.base.P_GG0, 6 * b)))
             .collect();
-        // Promotions made while it was computed keep their rows of C̃.
+        // R6: Φ̃ ← Φ̃ [U 0; 0 I], Ψ̃ ← [U 0; 0 I]ᵀ Ψ̃ [U 0; 0 I], q̃ likewise:
+        // the first n_L' base coordinates are the new base's (whitened by
+        // W'), any after them those of promotions made while it was
+        // computed (§5 R5), which keep their rows of C̃.
+        if let Some(u) = &res.reduce {
+            reduce_base_space(g, u);
+            self.stats.base_space_reductions += 1;
+            self.stats.base_space_dims_removed += (u.nrows() - u.ncols()) as u64;
+        }
         g.base = Some(Arc::new(res.base));
         self.stats.rebases_installed += 1;
         Ok(job)
