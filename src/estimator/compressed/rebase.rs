@@ -183,7 +183,9 @@ impl Estimator {
     }
 
     /// Installs a rebase result (§5 R3): the global corrections, and the new
-    /// base. Cheap: `O(n_G)` plus moving the matrices in.
+    /// base. `O(n_G)` plus moving the matrices in, and when the base space
+    /// shrinks (§5 R6) mapping the accumulators by `U`,
+    /// `O(n_L n_L' n_G' + n_L'² n_G')`: local sizes, a few updates' worth.
     /// Returns the job, whose inputs (the old base) the caller may free off
     /// the real-time path.
     pub fn install_rebase(&mut self, res: RebaseResult) -> Result<Option<Arc<RebaseJob>>, InstallError> {
