@@ -5,8 +5,10 @@
 
 use std::collections::BTreeSet;
 
+use cmsckf::config::Config;
 use cmsckf::estimator::{FilterEvent, FrameReport, InstallError, Mode, RebaseResult};
 use cmsckf::eval;
+use cmsckf_sitl::dataset::Dataset;
 
 mod common;
 use common::flights::racetrack;
@@ -192,6 +194,24 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
     assert_eq!(run.est.stats.loop_closure_deferred, 0);
 }
 
+/// Compressed and full flown in lockstep (init seed 3) from the start to
+/// mid-flight, then on to the first frame with three global keyframes;
+/// returns both and the next frame to fly.
+fn compressed_and_full_to_three_global_keyframes<'a>(
+    ds: &'a Dataset,
+    cfg: &Config,
+) -> (eval::Runner<'a>, eval::Runner<'a>, usize) {
+    let mut run = eval::Runner::new(ds, cfg, Mode::Compressed, 3);
+    let mut full = eval::Runner::new(ds, cfg, Mode::Full, 3);
+    let mut mid = 0;
+    while mid < ds.frames.len() && (mid < ds.frames.len() / 2 || run.est.n_global_keyframes() < 3) {
+        run.step_frame(mid);
+        full.step_frame(mid);
+        mid += 1;
+    }
+    (run, full, mid)
+}
+
 /// Marginalising global keyframes (§5 G5: their blocks go dead until the
 /// next rebase drops them) commutes with the compressed accumulation: after
 /// removing the same keyframes from the full filter, both agree after a
@@ -199,15 +219,7 @@ fn promotion_comes_before_a_measurement_on_a_global_keyframe() {
 #[test]
 fn marginalising_global_keyframes_equals_full() {
     let (ds, cfg) = racetrack(3, 60.0);
-    let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, 3);
-    let mut full = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
-    // From mid-flight, the first frame with three global keyframes.
-    let mut mid = 0;
-    while mid < ds.frames.len() && (mid < ds.frames.len() / 2 || run.est.n_global_keyframes() < 3) {
-        run.step_frame(mid);
-        full.step_frame(mid);
-        mid += 1;
-    }
+    let (mut run, mut full, mid) = compressed_and_full_to_three_global_keyframes(&ds, &cfg);
     let n_global = run.est.n_global_keyframes();
     assert!(n_global >= 3, "only {n_global} global keyframes");
     let dropped = run.est.marginalise_oldest_global_keyframes(1);
@@ -491,14 +503,7 @@ fn late_installs_on_a_reduced_base_equal_full_from_a_common_state() {
 #[test]
 fn a_rebase_with_no_global_part_left_keeps_no_base_space() {
     let (ds, cfg) = racetrack(3, 60.0);
-    let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, 3);
-    let mut full = eval::Runner::new(&ds, &cfg, Mode::Full, 3);
-    let mut mid = 0;
-    while mid < ds.frames.len() && (mid < ds.frames.len() / 2 || run.est.n_global_keyframes() < 3) {
-        run.step_frame(mid);
-        full.step_frame(mid);
-        mid += 1;
-    }
+    let (mut run, mut full, mid) = compressed_and_full_to_three_global_keyframes(&ds, &cfg);
     let (mut worst, mut empty_seen) = (0.0f64, 0);
     for _ in 0..4 {
         for id in run.est.marginalise_oldest_global_keyframes(0) {
