@@ -622,6 +622,30 @@ pub enum PoseCovariance {
     ArdupilotCbrt,
 }
 
+/// Which position uncertainty the estimates carry (estimator README eq. O2).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionCovariance {
+    /// `given_yaw` towards PX4, `absolute` towards any other autopilot.
+    #[default]
+    Auto,
+    /// The position's uncertainty in the true north-east-down frame, the
+    /// share of our yaw's uncertainty (the compass's bias, 3° by default)
+    /// included: at 12 m from the start 3° is 0.6 m. Right when the
+    /// autopilot takes its heading from elsewhere (its own compass or GNSS).
+    Absolute,
+    /// The position's uncertainty given our yaw: the share that a rotation
+    /// of our whole frame by our yaw's error explains is removed (the other
+    /// five entries of the pose are conditioned on the yaw), and the yaw's
+    /// own variance is sent as it is. Right when the autopilot takes its
+    /// heading from us (PX4 `EKF2_EV_CTRL` bit 3, ArduPilot
+    /// `EK3_SRC1_YAW = 6`): its frame then turns with ours, and a drift
+    /// across that frame is what its position error is. Sent as absolute,
+    /// EKF2 weighs each of our positions at an σ that no single sample
+    /// errs by, and strays from them (docs/setup-px4.md).
+    GivenYaw,
+}
+
 /// Where the filter's first yaw comes from.
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
@@ -673,6 +697,8 @@ pub struct OutputConfig {
     pub set_gps_origin: bool,
     /// How the pose covariance is written: see [`PoseCovariance`].
     pub covariance: PoseCovariance,
+    /// Which position uncertainty is sent: see [`PositionCovariance`].
+    pub position_covariance: PositionCovariance,
     /// The removed `odometry = true|false`, read only so that an old config
     /// is refused with what replaces it (never written).
     #[serde(skip_serializing)]
@@ -686,6 +712,7 @@ impl Default for OutputConfig {
             message: OutputMessage::Odometry,
             set_gps_origin: false,
             covariance: PoseCovariance::Auto,
+            position_covariance: PositionCovariance::Auto,
             odometry: None,
         }
     }

@@ -59,6 +59,38 @@ pub struct OutputState {
     /// `ODOMETRY` in `MAV_FRAME_LOCAL_NED` (towards PX4) rather than
     /// `MAV_FRAME_LOCAL_FRD` (ArduPilot's only accepted frame).
     pub frame_ned: bool,
+    /// The pose covariance sent is conditioned on the yaw ([`given_yaw`]).
+    pub position_given_yaw: bool,
+}
+
+/// The pose covariance `c` (`[x y z roll pitch yaw]`) given the yaw
+/// (estimator README eq. O2): with `r` the other five and `ψ` the yaw,
+/// `C_r|ψ = C_rr − C_rψ C_ψψ⁻¹ C_ψr`, the yaw's own variance `C_ψψ` kept,
+/// and their correlation 0. It is the covariance of `[δr − K δψ, δψ]`,
+/// `K = C_rψ / C_ψψ`: the position's error once the share explained by a
+/// turn of the frame by our yaw's error is taken out. A yaw variance that
+/// is not positive and finite leaves `c` as it is.
+pub fn given_yaw(c: &Matrix6<f64>) -> Matrix6<f64> {
+    let var_yaw = c[(5, 5)];
+    if !(var_yaw.is_finite() && var_yaw > 0.0) {
+        return *c;
+    }
+    let c_r_yaw = c.fixed_view::<5, 1>(0, 5).into_owned();
+    let mut out = *c;
+    let conditioned = c.fixed_view::<5, 5>(0, 0) - c_r_yaw * c_r_yaw.transpose() / var_yaw;
+    out.fixed_view_mut::<5, 5>(0, 0).copy_from(&conditioned);
+    for k in 0..5 {
+        out[(k, 5)] = 0.0;
+        out[(5, k)] = 0.0;
+    }
+    out
+}
+
+/// Roll, pitch, yaw and the pose covariance as sent at `s`
+/// ([`pose_rpy_covariance`], then [`given_yaw`] when asked).
+pub(super) fn sent_pose(s: &OutputState) -> (Vector3<f64>, Matrix6<f64>) {
+    let (rpy, c) = pose_rpy_covariance(&s.x, &s.imu_cov);
+    (rpy, if s.position_given_yaw { given_yaw(&c) } else { c })
 }
 
 /// The 21 entries of the pose covariance `c` (`[x y z roll pitch yaw]`) as
@@ -175,7 +207,7 @@ pub fn body_velocity_rate_covariance(x: &ImuState, imu_cov: &Mat15, gyro_var: f6
 /// same pose.
 pub fn outputs(s: &OutputState, message: OutputMessage) -> Vec<Outbound> {
     let x = &s.x;
-    let (rpy, c) = pose_rpy_covariance(x, &s.imu_cov);
+    let (rpy, c) = sent_pose(s);
     let t_us = t_us(s.t_s);
     match message {
         OutputMessage::Odometry => {
@@ -257,6 +289,7 @@ mod tests {
             reset_counter: 2,
             pose_covariance: PoseCovariance::Variances,
             frame_ned: false,
+            position_given_yaw: false,
             quality: 100,
         }
     }
@@ -464,6 +497,100 @@ mod tests {
         // cbrt(9² + 4² + 1²) = 4.61 m for our 3 m.
         let plain = reduce(&covariance, [0, 6, 11]);
         assert!((plain - 98f64.cbrt()).abs() < 1e-4, "{plain}");
+    }
+
+    /// Eq. O2: the covariance given the yaw is that of `T e` with
+    /// `T = [I₅ −K; 0 1]`, `K = C_rψ / C_ψψ`, computed as the full product;
+    /// the yaw's own variance is kept and its correlations are 0.
+    #[test]
+    fn given_yaw_is_the_covariance_of_the_error_less_its_yaw_share() {
+        let l = Matrix6::from_fn(|i, j| {
+            if i >= j {
+                0.1 * (1.0 + ((i * 5 + j * 3) % 7) as f64)
+            } else {
+                0.0
+            }
+        });
+        let c = l * l.transpose() + Matrix6::identity() * 1e-3;
+        let mut t = Matrix6::identity();
+        for k in 0..5 {
+            t[(k, 5)] = -c[(k, 5)] / c[(5, 5)];
+        }
+        let expected = t * c * t.transpose();
+        let got = given_yaw(&c);
+        assert!((got - expected).abs().max() < 1e-12, "{got} against {expected}");
+        assert_eq!(got[(5, 5)], c[(5, 5)]);
+        for k in 0..5 {
+            assert!(got[(k, 5)].abs() < 1e-12 && got[(5, k)].abs() < 1e-12);
+            // Conditioning never adds uncertainty.
+            assert!(got[(k, k)] <= c[(k, k)]);
+        }
+        // No yaw variance to condition on: unchanged.
+        let mut flat = c;
+        flat[(5, 5)] = 0.0;
+        assert_eq!(given_yaw(&flat), flat);
+        flat[(5, 5)] = f64::NAN;
+        assert!(given_yaw(&flat)[(0, 0)] == c[(0, 0)]);
+    }
+
+    /// A filter's covariance whose only yaw is a turn of its whole frame
+    /// (the unobservable direction: `δθ = ẑ δψ`, `δv = ẑ×v δψ`,
+    /// `δp = ẑ×p δψ`) on top of an uncorrelated one: given the yaw, the
+    /// position's covariance is the uncorrelated one's, and the body-frame
+    /// velocity's covariance is the same with the turn or without it. A
+    /// yaw error of another origin would be conditioned on too (its share
+    /// of the position is what it is): this is the case where the whole
+    /// share is the turn's.
+    #[test]
+    fn a_turn_of_the_whole_frame_leaves_nothing_given_the_yaw() {
+        let q = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
+        let mut s = output_state(q);
+        s.x.p_B_in_W = Vector3::new(10.0, 6.5, -5.0);
+        s.x.v_B_in_W = Vector3::new(-0.5, 4.0, 0.2);
+        // No attitude uncertainty of its own, so that every yaw error is
+        // the turn's (a tilt's would reach the yaw through the Euler map).
+        let base = Mat15::from_diagonal(&nalgebra::SVector::<f64, 15>::from_fn(|i, _| {
+            if i < TH + 3 {
+                0.0
+            } else {
+                1e-3 * (1 + i % 4) as f64
+            }
+        }));
+        let mut g = nalgebra::SVector::<f64, 15>::zeros();
+        g[TH + 2] = 1.0;
+        g.fixed_rows_mut::<3>(V).copy_from(&Vector3::z().cross(&s.x.v_B_in_W));
+        g.fixed_rows_mut::<3>(P_OFF)
+            .copy_from(&Vector3::z().cross(&s.x.p_B_in_W));
+        let sigma_yaw = 3f64.to_radians();
+        s.imu_cov = base + g * g.transpose() * sigma_yaw * sigma_yaw;
+
+        let (_, absolute) = pose_rpy_covariance(&s.x, &s.imu_cov);
+        // 3° at 12 m: 0.6 m of the east's σ is the turn's.
+        assert!(absolute[(1, 1)].sqrt() > 0.5, "{}", absolute[(1, 1)].sqrt());
+        s.position_given_yaw = true;
+        let (_, sent) = sent_pose(&s);
+        let (_, base_pose) = pose_rpy_covariance(&s.x, &base);
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((sent[(i, j)] - base_pose[(i, j)]).abs() < 1e-12, "({i},{j}): {sent}");
+            }
+        }
+        assert!(
+            (sent[(5, 5)] - absolute[(5, 5)]).abs() < 1e-15,
+            "the yaw's variance is sent whole"
+        );
+        let Some(Outbound::Odometry { pose_covariance, .. }) = outputs(&s, OutputMessage::Odometry).into_iter().next()
+        else {
+            panic!("no ODOMETRY")
+        };
+        assert_eq!(pose_covariance, upper21(&sent));
+
+        let with_turn = body_velocity_rate_covariance(&s.x, &s.imu_cov, 0.0);
+        let without = body_velocity_rate_covariance(&s.x, &base, 0.0);
+        assert!(
+            (with_turn - without).abs().max() < 1e-12,
+            "{with_turn} against {without}"
+        );
     }
 
     #[test]

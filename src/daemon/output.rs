@@ -15,7 +15,7 @@ use tokio::sync::mpsc;
 
 use super::estimate_message::{gyro_white_variance, outputs, pose_rpy_covariance, quality, t_us, upper21, OutputState};
 use super::records;
-use crate::config::{Config, PoseCovariance, YawSource};
+use crate::config::{Config, PoseCovariance, PositionCovariance, YawSource};
 use crate::counters::{Counter, Counters};
 use crate::estimator::imu_covariance::pose_block;
 use crate::estimator::{Estimator, ImuMeas, ImuState};
@@ -116,6 +116,11 @@ impl OutputPacer {
             },
             // North-referenced unless the first yaw was a configured one.
             frame_ned: cx.autopilot == Some(AutopilotKind::Px4) && cfg.init.yaw_source != YawSource::Config,
+            position_given_yaw: match cfg.output.position_covariance {
+                PositionCovariance::Auto => cx.autopilot == Some(AutopilotKind::Px4),
+                PositionCovariance::GivenYaw => true,
+                PositionCovariance::Absolute => false,
+            },
             t_s: m.t_s,
             x,
             imu_cov,
@@ -197,7 +202,8 @@ fn log_state(l: &McapLogger, t_s: f64, x: &ImuState, est: &Estimator) {
 /// instant.
 fn log_estimate(l: &McapLogger, s: &OutputState, message: crate::config::OutputMessage) {
     let (rpy, covariance) = pose_rpy_covariance(&s.x, &s.imu_cov);
-    let sent = super::estimate_message::pose_covariance21(&covariance, s.pose_covariance);
+    let (_, sent) = super::estimate_message::sent_pose(s);
+    let sent = super::estimate_message::pose_covariance21(&sent, s.pose_covariance);
     l.log(
         Topic::OutputVpe,
         s.t_s,
