@@ -332,6 +332,7 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         "Configuration in force",
         "The autopilot EKF's test ratios",
         "What we sent: ODOMETRY quality",
+        "Position σ the autopilot read from what we sent",
         "filter initialised",
     ] {
         assert!(page.contains(section), "the report lacks {section}");

@@ -60,6 +60,15 @@ fn series(label: &str, color: &'static str, dash: bool) -> Series {
     }
 }
 
+/// North, east and down σ: the filter's, and the one the autopilot read.
+fn sigma_series() -> Vec<Series> {
+    vec![
+        series("σ north", BLUE, false),
+        series("σ east", ORANGE, false),
+        series("σ down", GREEN, false),
+    ]
+}
+
 fn finite(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
@@ -156,16 +165,22 @@ pub(super) fn plots(d: &Data) -> String {
     }
     out.push(plot(
         "sigma",
-        "Position σ the filter claims (what the autopilot weighs us by)",
+        "Position σ the filter claims",
         "m",
-        vec![
-            series("σ north", BLUE, false),
-            series("σ east", ORANGE, false),
-            series("σ down", GREEN, false),
-        ],
+        sigma_series(),
         d.sigma_p.iter().map(|(t, s)| (*t, *s)),
         &m,
     ));
+    if !d.sent_sigma_p.is_empty() {
+        out.push(plot(
+            "sigma_sent",
+            "Position σ the autopilot read from what we sent (what it weighs us by; towards PX4 given our yaw)",
+            "m",
+            sigma_series(),
+            d.sent_sigma_p.iter().map(|(t, s)| (*t, *s)),
+            &m,
+        ));
+    }
     if !d.autopilot_ratios.is_empty() {
         out.push(plot(
             "autopilot",

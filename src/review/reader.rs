@@ -51,6 +51,9 @@ pub(super) struct Data {
     pub autopilot_ratios: Vec<(f64, f64, f64)>,
     /// What we sent: `t, quality, speed (m/s)`.
     pub sent: Vec<(f64, f64, f64)>,
+    /// The position σ (north, east, down; m) the autopilot read from what we
+    /// sent, at each `/output/...` record ([`sent_position_sigma`]): `t, σ`.
+    pub sent_sigma_p: Vec<(f64, [f64; 3])>,
     /// GNSS epochs fused: `t, code residual RMS (m), range-rate residual RMS
     /// (m/s)` before the update (NaN when none).
     pub gnss_residuals: Vec<(f64, f64, f64)>,
@@ -132,6 +135,25 @@ fn mode_text(kind: Option<AutopilotKind>, m: u32) -> String {
         },
         _ => format!("mode {m}"),
     }
+}
+
+/// The position σ (north, east, down; m) an autopilot reads from the 21
+/// pose covariance entries we sent (`pose_covariance_sent`): ArduPilot
+/// reduces them to one σ, `cbrt(c₀² + c₆² + c₁₁²)` (estimator README eq.
+/// O1), any other autopilot reads the variances `c₀, c₆, c₁₁`. Towards PX4
+/// they are the position's given our yaw (eq. O2), smaller than the
+/// filter's own σ. `None` for a log without them, or entries not finite
+/// and non-negative.
+fn sent_position_sigma(c: &Value, kind: Option<AutopilotKind>) -> Option<[f64; 3]> {
+    let [c0, c6, c11] = [0, 6, 11].map(|k| c[k].as_f64().unwrap_or(f64::NAN));
+    if ![c0, c6, c11].iter().all(|x| x.is_finite() && *x >= 0.0) {
+        return None;
+    }
+    Some(if kind == Some(AutopilotKind::ArduPilot) {
+        [(c0 * c0 + c6 * c6 + c11 * c11).cbrt(); 3]
+    } else {
+        [c0.sqrt(), c6.sqrt(), c11.sqrt()]
+    })
 }
 
 /// What kind of event a timeline row is (its filter in the report).
@@ -304,6 +326,9 @@ impl LogReader {
                     a.iter().filter_map(Value::as_f64).map(|x| x * x).sum::<f64>().sqrt()
                 });
                 d.sent.push((t, q, speed));
+                if let Some(sigma) = sent_position_sigma(&v["pose_covariance_sent"], d.autopilot_kind) {
+                    d.sent_sigma_p.push((t, sigma));
+                }
             }
             Topic::Location => d.push_location(t, &v),
             Topic::GnssFix => d.push_fix(&v),
@@ -381,6 +406,7 @@ impl Data {
         self.truth.retain(|p| ok(p.0));
         self.autopilot_ratios.retain(|p| ok(p.0));
         self.sent.retain(|p| ok(p.0));
+        self.sent_sigma_p.retain(|p| ok(p.0));
         self.gnss_residuals.retain(|p| ok(p.0));
         self.events.retain(|e| ok(e.t));
         for v in self.kf_sigma.values_mut() {
@@ -618,6 +644,26 @@ mod reference_tests {
             assert!(texts.contains(&"mode POSCTL (0x30000)".to_string()), "{texts:?}");
             assert!(texts.contains(&"mode OFFBOARD (0x60000)".to_string()), "{texts:?}");
         }
+    }
+
+    /// What the autopilot weighs us by: PX4 reads the variances axis by
+    /// axis, ArduPilot its cube-root reduction of them (eq. O1); a log
+    /// without the entries gives nothing.
+    #[test]
+    fn the_sigma_sent_is_read_as_the_autopilot_reads_it() {
+        let mut c = vec![0.0f64; 21];
+        (c[0], c[6], c[11]) = (0.09, 0.04, 0.01);
+        let v = serde_json::json!(c);
+        let px4 = sent_position_sigma(&v, Some(AutopilotKind::Px4)).unwrap();
+        assert!((px4[0] - 0.3).abs() < 1e-12 && (px4[1] - 0.2).abs() < 1e-12 && (px4[2] - 0.1).abs() < 1e-12);
+        // ArduPilot's encoding of σ = 0.3 m: each entry σ^(3/2)/√3.
+        let e = 0.3f64.powf(1.5) / 3f64.sqrt();
+        (c[0], c[6], c[11]) = (e, e, e);
+        let ap = sent_position_sigma(&serde_json::json!(c), Some(AutopilotKind::ArduPilot)).unwrap();
+        assert!(ap.iter().all(|s| (s - 0.3).abs() < 1e-12), "{ap:?}");
+        assert_eq!(sent_position_sigma(&Value::Null, Some(AutopilotKind::Px4)), None);
+        c[6] = -1.0;
+        assert_eq!(sent_position_sigma(&serde_json::json!(c), None), None);
     }
 
     /// The reproducer: a replayed log scored 0.20 m against the
