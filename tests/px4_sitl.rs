@@ -240,6 +240,10 @@ fn px4_flies_on_cmsckf_alone() {
     cfg.gnss.source = cmsckf::config::GnssSource::Off;
     cfg.gnss.origin_llh = vec![HOME[0], HOME[1], geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2])];
     cfg.output.set_gps_origin = true;
+    // EKF2's heading is ours alone (`EKF2_EV_CTRL` bit 3, no GPS, no
+    // compass): our position's covariance goes to it given our yaw
+    // (estimator README eq. O2, docs/setup-px4.md).
+    cfg.output.position_covariance = cmsckf::config::PositionCovariance::GivenYaw;
     // The origin is where the vehicle stands: its start's position in our
     // frame is known to centimetres. PX4 has no position of its own (its
     // GPS_RAW_INT fix is SIH's, not fused), so the daemon starts at PX4's
@@ -650,7 +654,8 @@ fn px4_flies_on_cmsckf_alone() {
     // 0.64/0.67 m, hover 0.49/0.41 m, landing 0.19/0.40 m, 0 restarts.
     // With our position's covariance sent given our yaw (estimator README
     // eq. O2), six flights in the release build at 2026-12-06: EKF2's
-    // largest gap from ours 0.29-0.42 m (a median 0.51 m before), the box
+    // largest gap from ours 0.29-0.42 m and 0.64 m in the sixth (a median
+    // 0.51 m before), the box
     // 0.40/0.53/0.57/0.67/0.68 m, hover 0.24-0.30 m, and in the sixth the
     // lift-off left our height 0.66-0.76 m off (its rocking on the legs,
     // docs/setup-px4.md): take-off 0.97 m, box 1.02 m, hover 0.70 m.

@@ -626,23 +626,21 @@ pub enum PoseCovariance {
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum PositionCovariance {
-    /// `given_yaw` towards PX4, `absolute` towards any other autopilot.
+    /// The position's whole uncertainty, our yaw's share included (the
+    /// compass's bias, 3° by default: 0.6 m at 12 m from the start). Right
+    /// whatever the autopilot takes its heading from.
     #[default]
-    Auto,
-    /// The position's uncertainty in the true north-east-down frame, the
-    /// share of our yaw's uncertainty (the compass's bias, 3° by default)
-    /// included: at 12 m from the start 3° is 0.6 m. Right when the
-    /// autopilot takes its heading from elsewhere (its own compass or GNSS).
     Absolute,
-    /// The position's uncertainty given our yaw: the share that a rotation
-    /// of our whole frame by our yaw's error explains is removed (the other
-    /// five entries of the pose are conditioned on the yaw), and the yaw's
-    /// own variance is sent as it is. Right when the autopilot takes its
-    /// heading from us (PX4 `EKF2_EV_CTRL` bit 3, ArduPilot
-    /// `EK3_SRC1_YAW = 6`): its frame then turns with ours, and a drift
-    /// across that frame is what its position error is. Sent as absolute,
+    /// The position's uncertainty given our yaw: the share that a turn of
+    /// our whole frame by our yaw's error explains is taken out, and the
+    /// yaw's own variance is sent as it is. Right only when the autopilot
+    /// takes its heading from us alone and has no position of its own
+    /// (PX4: `EKF2_EV_CTRL` bit 3 on, `EKF2_GPS_CTRL` 0; ArduPilot:
+    /// `EK3_SRC1_YAW = 6` and no GPS): its frame then turns with ours, and
+    /// a drift across that frame is its position's error. Sent whole,
     /// EKF2 weighs each of our positions at an σ that no single sample
-    /// errs by, and strays from them (docs/setup-px4.md).
+    /// errs by, and strays from them (docs/setup-px4.md). With a heading of
+    /// its own (compass, GNSS) it is overconfident by the turn's share.
     GivenYaw,
 }
 
@@ -712,7 +710,7 @@ impl Default for OutputConfig {
             message: OutputMessage::Odometry,
             set_gps_origin: false,
             covariance: PoseCovariance::Auto,
-            position_covariance: PositionCovariance::Auto,
+            position_covariance: PositionCovariance::Absolute,
             odometry: None,
         }
     }

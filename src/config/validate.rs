@@ -377,6 +377,26 @@ mod tests {
     use super::super::OutputMessage;
     use super::*;
 
+    /// `[output]`: the position's covariance whole by default, given our
+    /// yaw when asked, and a wrong value refused with the two it may be.
+    #[test]
+    fn output_position_covariance_is_absolute_unless_asked() {
+        use crate::config::PositionCovariance;
+        assert_eq!(
+            Config::default().output.position_covariance,
+            PositionCovariance::Absolute
+        );
+        let c = Config::from_toml("[output]\nposition_covariance = \"given_yaw\"\n", "x").unwrap();
+        assert_eq!(c.output.position_covariance, PositionCovariance::GivenYaw);
+        let e = Config::from_toml("[output]\nposition_covariance = \"auto\"\n", "x")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("position_covariance") && e.contains("`absolute`") && e.contains("`given_yaw`"),
+            "{e}"
+        );
+    }
+
     /// `[output]`: one message by name, the default ODOMETRY, and the
     /// removed `odometry` switch refused with what replaces it.
     #[test]

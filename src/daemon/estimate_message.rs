@@ -63,34 +63,43 @@ pub struct OutputState {
     pub position_given_yaw: bool,
 }
 
-/// The pose covariance `c` (`[x y z roll pitch yaw]`) given the yaw
-/// (estimator README eq. O2): with `r` the other five and `ψ` the yaw,
-/// `C_r|ψ = C_rr − C_rψ C_ψψ⁻¹ C_ψr`, the yaw's own variance `C_ψψ` kept,
-/// and their correlation 0. It is the covariance of `[δr − K δψ, δψ]`,
-/// `K = C_rψ / C_ψψ`: the position's error once the share explained by a
-/// turn of the frame by our yaw's error is taken out. A yaw variance that
-/// is not positive and finite leaves `c` as it is.
+/// The covariance `c` of the pose error `[δθ, δp]` (world frame) given the
+/// yaw error `δθ_z`, the turn about the vertical (estimator README eq. O2):
+/// with `r` the other five, `C_r|z = C_rr − C_rz C_zz⁻¹ C_zr`, the yaw's own
+/// variance `C_zz` kept and their correlation 0. It is the covariance of
+/// `[δr − K δθ_z, δθ_z]`, `K = C_rz / C_zz`: the error once the share
+/// explained by a turn of the frame by our yaw's error is taken out. It is
+/// taken on the world rotation error, not on an Euler yaw: near a pitch of
+/// ±90° an Euler yaw holds a tilt error too, which is no turn of the frame.
+/// Symmetrised, its diagonal floored at 0 (round-off); a yaw variance not
+/// positive and finite, or a result not finite, leaves `c` as it is.
 pub fn given_yaw(c: &Matrix6<f64>) -> Matrix6<f64> {
-    let var_yaw = c[(5, 5)];
-    if !(var_yaw.is_finite() && var_yaw > 0.0) {
+    const Z: usize = 2;
+    let var_z = c[(Z, Z)];
+    if !(var_z.is_finite() && var_z > 0.0) {
         return *c;
     }
-    let c_r_yaw = c.fixed_view::<5, 1>(0, 5).into_owned();
-    let mut out = *c;
-    let conditioned = c.fixed_view::<5, 5>(0, 0) - c_r_yaw * c_r_yaw.transpose() / var_yaw;
-    out.fixed_view_mut::<5, 5>(0, 0).copy_from(&conditioned);
-    for k in 0..5 {
-        out[(k, 5)] = 0.0;
-        out[(5, k)] = 0.0;
+    let c_z = c.column(Z).into_owned();
+    let mut out = c - c_z * c_z.transpose() / var_z;
+    out[(Z, Z)] = var_z;
+    out = (out + out.transpose()) * 0.5;
+    for k in 0..6 {
+        out[(k, k)] = out[(k, k)].max(0.0);
     }
-    out
+    if out.iter().all(|x| x.is_finite()) {
+        out
+    } else {
+        *c
+    }
 }
 
-/// Roll, pitch, yaw and the pose covariance as sent at `s`
-/// ([`pose_rpy_covariance`], then [`given_yaw`] when asked).
+/// Roll, pitch, yaw and the pose covariance as sent at `s`: the filter's
+/// `[δθ, δp]` block, given the yaw ([`given_yaw`]) when asked, through the
+/// Euler map ([`rpy_covariance`]).
 pub(super) fn sent_pose(s: &OutputState) -> (Vector3<f64>, Matrix6<f64>) {
-    let (rpy, c) = pose_rpy_covariance(&s.x, &s.imu_cov);
-    (rpy, if s.position_given_yaw { given_yaw(&c) } else { c })
+    let cov = pose_block(&s.imu_cov);
+    let cov = if s.position_given_yaw { given_yaw(&cov) } else { cov };
+    rpy_covariance(&s.x, &cov)
 }
 
 /// The 21 entries of the pose covariance `c` (`[x y z roll pitch yaw]`) as
@@ -170,7 +179,12 @@ pub(super) fn t_us(t_s: f64) -> u64 {
 /// Roll, pitch, yaw of the state and the covariance of `[x y z roll pitch
 /// yaw]`, from that of the pose `[δθ, δp]`.
 pub(super) fn pose_rpy_covariance(x: &ImuState, imu_cov: &Mat15) -> (Vector3<f64>, Matrix6<f64>) {
-    let cov = pose_block(imu_cov);
+    rpy_covariance(x, &pose_block(imu_cov))
+}
+
+/// Roll, pitch, yaw of the state and the covariance of `[x y z roll pitch
+/// yaw]` from `cov`, that of the pose error `[δθ, δp]`.
+fn rpy_covariance(x: &ImuState, cov: &Matrix6<f64>) -> (Vector3<f64>, Matrix6<f64>) {
     let (rpy, m) = euler_and_map(&x.q_W_B);
     let minv = m.try_inverse().unwrap_or_else(Matrix3::identity);
     let mut t = Matrix6::zeros();
@@ -499,9 +513,10 @@ mod tests {
         assert!((plain - 98f64.cbrt()).abs() < 1e-4, "{plain}");
     }
 
-    /// Eq. O2: the covariance given the yaw is that of `T e` with
-    /// `T = [I₅ −K; 0 1]`, `K = C_rψ / C_ψψ`, computed as the full product;
-    /// the yaw's own variance is kept and its correlations are 0.
+    /// Eq. O2: the covariance given the yaw error `δθ_z` is that of `T e`
+    /// with `T = I − K e_zᵀ` off the yaw's row, `K = C_rz / C_zz`, computed
+    /// as the full product; the yaw's own variance is kept and its
+    /// correlations are 0.
     #[test]
     fn given_yaw_is_the_covariance_of_the_error_less_its_yaw_share() {
         let l = Matrix6::from_fn(|i, j| {
@@ -512,25 +527,34 @@ mod tests {
             }
         });
         let c = l * l.transpose() + Matrix6::identity() * 1e-3;
+        let z = 2;
         let mut t = Matrix6::identity();
-        for k in 0..5 {
-            t[(k, 5)] = -c[(k, 5)] / c[(5, 5)];
+        for k in (0..6).filter(|k| *k != z) {
+            t[(k, z)] = -c[(k, z)] / c[(z, z)];
         }
         let expected = t * c * t.transpose();
         let got = given_yaw(&c);
         assert!((got - expected).abs().max() < 1e-12, "{got} against {expected}");
-        assert_eq!(got[(5, 5)], c[(5, 5)]);
-        for k in 0..5 {
-            assert!(got[(k, 5)].abs() < 1e-12 && got[(5, k)].abs() < 1e-12);
+        assert_eq!(got[(z, z)], c[(z, z)]);
+        for k in (0..6).filter(|k| *k != z) {
+            assert!(got[(k, z)].abs() < 1e-12 && got[(z, k)].abs() < 1e-12);
             // Conditioning never adds uncertainty.
             assert!(got[(k, k)] <= c[(k, k)]);
         }
-        // No yaw variance to condition on: unchanged.
+        // No yaw variance to condition on, or a non-finite one: unchanged.
         let mut flat = c;
-        flat[(5, 5)] = 0.0;
+        flat[(z, z)] = 0.0;
         assert_eq!(given_yaw(&flat), flat);
-        flat[(5, 5)] = f64::NAN;
+        flat[(z, z)] = f64::NAN;
         assert!(given_yaw(&flat)[(0, 0)] == c[(0, 0)]);
+        // A yaw variance so small that the division overflows: unchanged.
+        let mut tiny = c;
+        tiny[(z, z)] = 1e-320;
+        assert_eq!(given_yaw(&tiny), tiny);
+        // A pure turn, conditioned: the round-off leaves no negative variance.
+        let g = nalgebra::Vector6::new(0.0, 0.0, 1.0, -6.5, 10.0, 0.0);
+        let turn = g * g.transpose() * 1e-3;
+        assert!(given_yaw(&turn).diagonal().iter().all(|v| *v >= 0.0));
     }
 
     /// A filter's covariance whose only yaw is a turn of its whole frame
@@ -590,6 +614,39 @@ mod tests {
         assert!(
             (with_turn - without).abs().max() < 1e-12,
             "{with_turn} against {without}"
+        );
+    }
+
+    /// A tilt error correlated with the position is no turn of the frame:
+    /// conditioned on the world yaw error it stays whole, even at a pitch
+    /// of 80°, where the Euler yaw's error holds `tan(pitch)` of the tilt.
+    #[test]
+    fn a_tilt_error_is_not_taken_for_the_yaw_near_a_vertical_pitch() {
+        let mut s = output_state(UnitQuaternion::from_euler_angles(0.0, 80f64.to_radians(), 0.3));
+        let mut p = Mat15::identity() * 1e-4;
+        // The tilt about the heading's horizontal axis (a roll, level),
+        // 1°, correlated 0.9 with the north position (σ 0.3 m); the yaw 3°,
+        // uncorrelated with both.
+        let axis = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3) * Vector3::x();
+        let sigma_tilt = 1f64.to_radians();
+        for i in 0..3 {
+            for j in 0..3 {
+                p[(TH + i, TH + j)] = axis[i] * axis[j] * sigma_tilt * sigma_tilt;
+            }
+            p[(TH + i, P_OFF)] = axis[i] * 0.9 * sigma_tilt * 0.3;
+            p[(P_OFF, TH + i)] = p[(TH + i, P_OFF)];
+        }
+        p[(TH + 2, TH + 2)] += 3f64.to_radians().powi(2);
+        p[(P_OFF, P_OFF)] = 0.09;
+        s.imu_cov = p;
+        s.position_given_yaw = true;
+        let (_, sent) = sent_pose(&s);
+        let (_, absolute) = pose_rpy_covariance(&s.x, &s.imu_cov);
+        assert!(
+            (sent[(0, 0)] - absolute[(0, 0)]).abs() < 1e-12,
+            "north σ {} sent against {}",
+            sent[(0, 0)].sqrt(),
+            absolute[(0, 0)].sqrt()
         );
     }
 

@@ -116,11 +116,7 @@ impl OutputPacer {
             },
             // North-referenced unless the first yaw was a configured one.
             frame_ned: cx.autopilot == Some(AutopilotKind::Px4) && cfg.init.yaw_source != YawSource::Config,
-            position_given_yaw: match cfg.output.position_covariance {
-                PositionCovariance::Auto => cx.autopilot == Some(AutopilotKind::Px4),
-                PositionCovariance::GivenYaw => true,
-                PositionCovariance::Absolute => false,
-            },
+            position_given_yaw: cfg.output.position_covariance == PositionCovariance::GivenYaw,
             t_s: m.t_s,
             x,
             imu_cov,

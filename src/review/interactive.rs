@@ -174,7 +174,7 @@ pub(super) fn plots(d: &Data) -> String {
     if !d.sent_sigma_p.is_empty() {
         out.push(plot(
             "sigma_sent",
-            "Position σ the autopilot read from what we sent (what it weighs us by; towards PX4 given our yaw)",
+            "Position σ the autopilot read from what we sent (what it weighs us by, before its own floors)",
             "m",
             sigma_series(),
             d.sent_sigma_p.iter().map(|(t, s)| (*t, *s)),
