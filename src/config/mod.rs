@@ -633,9 +633,9 @@ pub enum PositionCovariance {
     Absolute,
     /// The position's uncertainty given our yaw: the share that a turn of
     /// our whole frame by our yaw's error explains is taken out, and the
-    /// yaw's own variance is sent as it is. Right only when the autopilot
+    /// attitude's covariance is sent as it is. Right only when the autopilot
     /// takes its heading from us alone and has no position of its own
-    /// (PX4: `EKF2_EV_CTRL` bit 3 on, `EKF2_GPS_CTRL` 0; ArduPilot:
+    /// (PX4: `EKF2_EV_CTRL` bit 3 on, `EKF2_MAG_TYPE` 5, `EKF2_GPS_CTRL` 0; ArduPilot:
     /// `EK3_SRC1_YAW = 6` and no GPS): its frame then turns with ours, and
     /// a drift across that frame is its position's error. Sent whole,
     /// EKF2 weighs each of our positions at an σ that no single sample

@@ -63,25 +63,28 @@ pub struct OutputState {
     pub position_given_yaw: bool,
 }
 
-/// The covariance `c` of the pose error `[δθ, δp]` (world frame) given the
-/// yaw error `δθ_z`, the turn about the vertical (estimator README eq. O2):
-/// with `r` the other five, `C_r|z = C_rr − C_rz C_zz⁻¹ C_zr`, the yaw's own
-/// variance `C_zz` kept and their correlation 0. It is the covariance of
-/// `[δr − K δθ_z, δθ_z]`, `K = C_rz / C_zz`: the error once the share
-/// explained by a turn of the frame by our yaw's error is taken out. It is
-/// taken on the world rotation error, not on an Euler yaw: near a pitch of
-/// ±90° an Euler yaw holds a tilt error too, which is no turn of the frame.
-/// Symmetrised, its diagonal floored at 0 (round-off); a yaw variance not
-/// positive and finite, or a result not finite, leaves `c` as it is.
+/// The covariance `c` of the pose error `[δθ, δp]` (world frame) with the
+/// position given the yaw error `δθ_z`, the turn about the vertical
+/// (estimator README eq. O2): the covariance of `[δθ, δp − K δθ_z]`,
+/// `K = C_pz / C_zz`, that is `T c Tᵀ` with `T = I − K e_zᵀ` on the position's
+/// rows. The position's block becomes `C_p|z = C_pp − C_pz C_zz⁻¹ C_zp`,
+/// uncorrelated with `δθ_z`; the attitude's block is `c`'s, so roll, pitch
+/// and yaw go out as they would whole. It is taken on the world rotation
+/// error, not on an Euler yaw: near a pitch of ±90° an Euler yaw holds a
+/// tilt error too, which is no turn of the frame. Symmetrised, its diagonal
+/// floored at 0 (round-off); a yaw variance not positive and finite, or a
+/// result not finite, leaves `c` as it is.
 pub fn given_yaw(c: &Matrix6<f64>) -> Matrix6<f64> {
     const Z: usize = 2;
     let var_z = c[(Z, Z)];
     if !(var_z.is_finite() && var_z > 0.0) {
         return *c;
     }
-    let c_z = c.column(Z).into_owned();
-    let mut out = c - c_z * c_z.transpose() / var_z;
-    out[(Z, Z)] = var_z;
+    let mut t = Matrix6::identity();
+    for k in 3..6 {
+        t[(k, Z)] = -c[(k, Z)] / var_z;
+    }
+    let mut out = t * c * t.transpose();
     out = (out + out.transpose()) * 0.5;
     for k in 0..6 {
         out[(k, k)] = out[(k, k)].max(0.0);
@@ -513,12 +516,12 @@ mod tests {
         assert!((plain - 98f64.cbrt()).abs() < 1e-4, "{plain}");
     }
 
-    /// Eq. O2: the covariance given the yaw error `δθ_z` is that of `T e`
-    /// with `T = I − K e_zᵀ` off the yaw's row, `K = C_rz / C_zz`, computed
-    /// as the full product; the yaw's own variance is kept and its
-    /// correlations are 0.
+    /// Eq. O2: the position's block is the Schur complement
+    /// `C_pp − C_pz C_zp / C_zz`, uncorrelated with the yaw error; the
+    /// attitude's block is untouched; the position's correlation with the
+    /// tilt is `C_pθ − K C_zθ`.
     #[test]
-    fn given_yaw_is_the_covariance_of_the_error_less_its_yaw_share() {
+    fn given_yaw_is_the_covariance_of_the_position_less_its_yaw_share() {
         let l = Matrix6::from_fn(|i, j| {
             if i >= j {
                 0.1 * (1.0 + ((i * 5 + j * 3) % 7) as f64)
@@ -528,25 +531,36 @@ mod tests {
         });
         let c = l * l.transpose() + Matrix6::identity() * 1e-3;
         let z = 2;
-        let mut t = Matrix6::identity();
-        for k in (0..6).filter(|k| *k != z) {
-            t[(k, z)] = -c[(k, z)] / c[(z, z)];
-        }
-        let expected = t * c * t.transpose();
         let got = given_yaw(&c);
-        assert!((got - expected).abs().max() < 1e-12, "{got} against {expected}");
-        assert_eq!(got[(z, z)], c[(z, z)]);
-        for k in (0..6).filter(|k| *k != z) {
-            assert!(got[(k, z)].abs() < 1e-12 && got[(z, k)].abs() < 1e-12);
+        for i in 3..6 {
+            let k_i = c[(i, z)] / c[(z, z)];
+            for j in 3..6 {
+                let schur = c[(i, j)] - c[(i, z)] * c[(z, j)] / c[(z, z)];
+                assert!(
+                    (got[(i, j)] - schur).abs() < 1e-12,
+                    "({i},{j}): {} against {schur}",
+                    got[(i, j)]
+                );
+            }
+            for a in 0..3 {
+                let cross = c[(i, a)] - k_i * c[(z, a)];
+                assert!((got[(i, a)] - cross).abs() < 1e-12 && (got[(a, i)] - cross).abs() < 1e-12);
+            }
+            assert!(got[(i, z)].abs() < 1e-12, "uncorrelated with the yaw");
             // Conditioning never adds uncertainty.
-            assert!(got[(k, k)] <= c[(k, k)]);
+            assert!(got[(i, i)] <= c[(i, i)]);
         }
+        assert_eq!(
+            got.fixed_view::<3, 3>(0, 0),
+            c.fixed_view::<3, 3>(0, 0),
+            "the attitude's block"
+        );
         // No yaw variance to condition on, or a non-finite one: unchanged.
         let mut flat = c;
         flat[(z, z)] = 0.0;
         assert_eq!(given_yaw(&flat), flat);
         flat[(z, z)] = f64::NAN;
-        assert!(given_yaw(&flat)[(0, 0)] == c[(0, 0)]);
+        assert!(given_yaw(&flat)[(3, 3)] == c[(3, 3)]);
         // A yaw variance so small that the division overflows: unchanged.
         let mut tiny = c;
         tiny[(z, z)] = 1e-320;
@@ -571,10 +585,10 @@ mod tests {
         let mut s = output_state(q);
         s.x.p_B_in_W = Vector3::new(10.0, 6.5, -5.0);
         s.x.v_B_in_W = Vector3::new(-0.5, 4.0, 0.2);
-        // No attitude uncertainty of its own, so that every yaw error is
-        // the turn's (a tilt's would reach the yaw through the Euler map).
+        // No yaw error of its own, so that every yaw error is the turn's;
+        // a tilt of its own, uncorrelated.
         let base = Mat15::from_diagonal(&nalgebra::SVector::<f64, 15>::from_fn(|i, _| {
-            if i < TH + 3 {
+            if i == TH + 2 {
                 0.0
             } else {
                 1e-3 * (1 + i % 4) as f64
@@ -648,6 +662,9 @@ mod tests {
             sent[(0, 0)].sqrt(),
             absolute[(0, 0)].sqrt()
         );
+        // Roll, pitch and yaw go out as they would whole.
+        let (a, b) = (sent.fixed_view::<3, 3>(3, 3), absolute.fixed_view::<3, 3>(3, 3));
+        assert!((a - b).abs().max() < 1e-15, "{a} against {b}");
     }
 
     #[test]
