@@ -657,7 +657,7 @@ fn px4_flies_on_cmsckf_alone() {
     // largest gap from ours 0.29-0.42 m and 0.64 m in the sixth (a median
     // 0.51 m before), the box
     // 0.40/0.53/0.57/0.67/0.68 m, hover 0.24-0.30 m, and in the sixth the
-    // lift-off left our height 0.66-0.76 m off (its rocking on the legs,
+    // lift-off left our height 0.66-0.76 m off (its rocking in place at the spin-up,
     // docs/setup-px4.md): take-off 0.97 m, box 1.02 m, hover 0.70 m.
     // The bounds below hold for every flight measured at the default.
     assert!(standing.max_m < 0.1, "standing error {standing:?}");
