@@ -726,6 +726,39 @@ fn px4_flies_on_cmsckf_alone() {
         "ESTIMATOR_STATUS is not in the log"
     );
     assert_eq!(review.autopilot_rejected_reports, 0, "EKF2 rejected our position");
+    // Our position's covariance reached PX4 given our yaw (estimator README
+    // eq. O2): never more than the filter's on any axis, and away from the
+    // start the turn's share taken out. The smallest horizontal σ sent over
+    // the filter's was 0.20-0.21 in four flights at 2026-12-06 (1.0 in a
+    // flight that sent the whole covariance).
+    let bytes = std::fs::read(&cfg.log.path).unwrap();
+    let (mut records, mut over, mut min_share) = (0usize, 0usize, f64::INFINITY);
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic != "/output/vision_position_estimate" {
+            continue;
+        }
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        let entry = |key: &str, k: usize| v[key][k].as_f64().unwrap_or(f64::NAN);
+        records += 1;
+        for k in [0, 6, 11] {
+            over += usize::from(entry("pose_covariance_sent", k) > entry("covariance", k) * (1.0 + 1e-6));
+        }
+        for k in [0, 6] {
+            let whole = entry("covariance", k);
+            if whole > 1e-4 {
+                min_share = min_share.min((entry("pose_covariance_sent", k) / whole).sqrt());
+            }
+        }
+    }
+    eprintln!(
+        "position σ sent to PX4 over the filter's: smallest {min_share:.3} over {records} estimates, {over} axes above"
+    );
+    assert!(
+        records > 1000 && over == 0 && min_share < 0.5,
+        "the covariance sent is not the position's given our yaw: {records} estimates, {over} axes above the \
+         filter's, smallest horizontal share {min_share}"
+    );
     let page = dir.as_path().join("review.html");
     cmsckf::review::review_html(Path::new(&cfg.log.path), &page, None).unwrap();
     let page = std::fs::read_to_string(&page).unwrap();
