@@ -1,5 +1,6 @@
 //! Criterion benchmarks of the real-time path. Workloads:
-//! - `propagate`: one 100 Hz IMU sample through the filter (15 + 2 active states, 11 clones, 3 keyframes);
+//! - `propagate`: one 100 Hz IMU sample through the filter (21 active states: IMU 15, clock 5, time offset 1;
+//!   11 clones, 3 keyframes);
 //! - `msckf_update/N`: one camera frame with N = 50, 100, 200 simulated features, 11 clones, compressed mode,
 //!   taken from a racetrack flight after 10 s (2–3 keyframes);
 //! - `gnss_update`: one GNSS epoch (pseudoranges and range rates, GPS and Galileo) fused at its own
