@@ -6,7 +6,7 @@
 //! (forced, benchmark hooks) are here too; their machinery is
 //! `compressed/`'s.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 
 use nalgebra::Vector3;
 
@@ -130,25 +130,25 @@ impl Estimator {
         self.s.async_rebase = on;
     }
 
-    /// Keyframe observations of landmarks no longer in view (`present` is
-    /// this frame's) become usable by a later track of the same landmark:
+    /// Keyframe observations of landmarks no longer in view
+    /// (`present_sorted`: this frame's, sorted and distinct) become usable by a later track of the same landmark:
     /// that re-detection is the loop closure (§4).
-    pub(super) fn release_keyframe_observations(&mut self, present: &BTreeSet<u64>) {
-        let newly: Vec<u64> = self
-            .pending_eligible
-            .iter()
-            .copied()
-            .filter(|l| !present.contains(l))
-            .collect();
-        for l in newly {
-            self.pending_eligible.remove(&l);
-            if let Some(kfs) = self.kf_by_landmark.get(&l) {
+    pub(super) fn release_keyframe_observations(&mut self, present_sorted: &[u64]) {
+        // In place (no list of the released ones): a landmark still in view
+        // stays pending; one that left has its observations made eligible.
+        let (kf_by_landmark, keyframes) = (&self.kf_by_landmark, &mut self.keyframes);
+        self.pending_eligible.retain(|l| {
+            if present_sorted.binary_search(l).is_ok() {
+                return true;
+            }
+            if let Some(kfs) = kf_by_landmark.get(l) {
                 for k in kfs {
-                    if let Some(o) = self.keyframes.get_mut(k).and_then(|kf| kf.obs.get_mut(&l)) {
+                    if let Some(o) = keyframes.get_mut(k).and_then(|kf| kf.obs.get_mut(l)) {
                         o.eligible = true;
                     }
                 }
             }
-        }
+            false
+        });
     }
 }

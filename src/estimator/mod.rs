@@ -374,6 +374,9 @@ pub struct Estimator {
     disparity_buf: Vec<f64>,
     /// The buffers a track's gate works in, kept for the same reason.
     gate_scratch: math::Scratch<msckf::GateScratch>,
+    /// The frame's landmark ids, its ready tracks and the track lists
+    /// that ended, kept for the same reason (`msckf::FrameScratch`).
+    frame_scratch: math::Scratch<msckf::FrameScratch>,
     g_W: Vector3<f64>,
     t_s: f64,
     imu: ImuState,
@@ -514,6 +517,7 @@ impl Estimator {
             zupt_allowed: true,
             disparity_buf: Vec::new(),
             gate_scratch: math::Scratch::default(),
+            frame_scratch: math::Scratch::default(),
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),
             s,
         }

@@ -133,6 +133,31 @@ fn reject(rep: &mut FrameReport, st: &mut Stats, r: Reject) {
     *st.rejected.entry(r.counter()).or_default() += 1;
 }
 
+/// The buffers one camera frame's bookkeeping works in, kept by the filter
+/// so that a frame allocates none of them again (issue 43): the frame's
+/// landmark ids (sorted, distinct), the ids and tracks ready for the
+/// update, and the observation lists of tracks that ended, for new tracks
+/// to take.
+#[derive(Default)]
+pub(super) struct FrameScratch {
+    present: Vec<u64>,
+    ready: Vec<u64>,
+    ready_tracks: Vec<(u64, Track)>,
+    track_pool: Vec<Vec<(u64, NormObs)>>,
+}
+
+/// Lists kept for new tracks at most: more than a frame's features ever
+/// end at once, so the pool stays bounded whatever the input.
+const TRACK_POOL_MAX: usize = 1024;
+
+/// Gives an ended track's list back for a new track to take, emptied.
+fn recycle(pool: &mut Vec<Vec<(u64, NormObs)>>, mut list: Vec<(u64, NormObs)>) {
+    if pool.len() < TRACK_POOL_MAX && list.capacity() > 0 {
+        list.clear();
+        pool.push(list);
+    }
+}
+
 impl Estimator {
     /// Processes one camera frame stamped `t_cam_s` by the camera's clock
     /// (§3–§5): it is fused at `t_cam_s + t_d` on the IMU clock, with `t_d`
@@ -160,8 +185,13 @@ impl Estimator {
             return Ok(report);
         }
 
-        let present: BTreeSet<u64> = obs.iter().map(|o| o.landmark_id).collect();
-        self.add_view(t_s, obs, &mut report);
+        // The frame's landmarks, sorted and distinct, in a kept buffer.
+        let mut fs = std::mem::take(&mut self.frame_scratch.0);
+        fs.present.clear();
+        fs.present.extend(obs.iter().map(|o| o.landmark_id));
+        fs.present.sort_unstable();
+        fs.present.dedup();
+        self.add_view(t_s, obs, &mut fs.track_pool, &mut report);
 
         // Tracks to use now: lost ones, and those that would lose their
         // oldest observation when the window slides.
@@ -170,24 +200,32 @@ impl Estimator {
         } else {
             None
         };
-        let ready: Vec<u64> = self
-            .tracks
-            .iter()
-            .filter(|(l, tr)| !present.contains(l) || oldest.is_some_and(|s| tr.obs.first().is_some_and(|o| o.0 == s)))
-            .map(|(l, _)| *l)
-            .collect();
-        let ready_tracks: Vec<(u64, Track)> = ready
-            .iter()
-            .filter_map(|l| self.tracks.remove(l).map(|t| (*l, t)))
-            .collect();
-        self.update_tracks(ready_tracks, &mut report);
+        let present = &fs.present;
+        fs.ready.clear();
+        fs.ready.extend(
+            self.tracks
+                .iter()
+                .filter(|(l, tr)| {
+                    present.binary_search(l).is_err()
+                        || oldest.is_some_and(|s| tr.obs.first().is_some_and(|o| o.0 == s))
+                })
+                .map(|(l, _)| *l),
+        );
+        fs.ready_tracks.clear();
+        for l in &fs.ready {
+            if let Some(t) = self.tracks.remove(l) {
+                fs.ready_tracks.push((*l, t));
+            }
+        }
+        self.update_tracks(&mut fs.ready_tracks, &mut fs.track_pool, &mut report);
 
         // Keyframe observations become usable once their landmark has left view
         // (after this frame's update, so only a later re-detection uses them).
-        self.release_keyframe_observations(&present);
+        self.release_keyframe_observations(&fs.present);
         if let Some(seq) = oldest {
-            self.marginalise_clone(seq);
+            self.marginalise_clone(seq, &mut fs.track_pool);
         }
+        self.frame_scratch.0 = fs;
         // Tracks the poses cannot explain: failed the χ² gate, or failed to
         // triangulate to a depth or a fit (§9 D1).
         let count = |r: Reject| report.rejected.get(&r).copied().unwrap_or(0);
@@ -228,7 +266,7 @@ impl Estimator {
     /// The frame's pose enters the state: as a keyframe when one is due
     /// (its observations kept beside it, §4), else as a new clone appended
     /// after the last one, its observations extending the window's tracks.
-    fn add_view(&mut self, t_s: f64, obs: &[NormObs], report: &mut FrameReport) {
+    fn add_view(&mut self, t_s: f64, obs: &[NormObs], pool: &mut Vec<Vec<(u64, NormObs)>>, report: &mut FrameReport) {
         let make_kf = self.s.mode != Mode::Msckf
             && self.s.keyframe_max > 0
             && t_s - self.last_kf_t_s >= self.s.keyframe_interval_s - 1e-9;
@@ -248,13 +286,14 @@ impl Estimator {
                 p_fej_in_W: self.p_first_estimate(),
             });
             // A track holds at most the window's views (one more while it
-            // slides): room for them once, not grown sample by sample.
+            // slides): room for them once, not grown sample by sample, and
+            // taken from the lists of tracks that ended when there are any.
             let cap = self.s.max_clones + 1;
             for o in obs {
                 self.tracks
                     .entry(o.landmark_id)
                     .or_insert_with(|| Track {
-                        obs: Vec::with_capacity(cap),
+                        obs: pool.pop().unwrap_or_else(|| Vec::with_capacity(cap)),
                     })
                     .obs
                     .push((seq, *o));
@@ -262,8 +301,9 @@ impl Estimator {
         }
     }
 
-    /// Marginalises the oldest clone; tracks still holding it drop it.
-    fn marginalise_clone(&mut self, seq: u64) {
+    /// Marginalises the oldest clone; tracks still holding it drop it (an
+    /// emptied track's list goes back to `pool`).
+    fn marginalise_clone(&mut self, seq: u64, pool: &mut Vec<Vec<(u64, NormObs)>>) {
         if let Some(at) = self.clone_offset_by_seq(seq) {
             self.remove_block(at, 6);
         }
@@ -271,13 +311,25 @@ impl Estimator {
         for tr in self.tracks.values_mut() {
             tr.obs.retain(|o| o.0 != seq);
         }
-        self.tracks.retain(|_, t| !t.obs.is_empty());
+        self.tracks.retain(|_, t| {
+            if t.obs.is_empty() {
+                recycle(pool, std::mem::take(&mut t.obs));
+                false
+            } else {
+                true
+            }
+        });
     }
 
     /// Triangulates, projects and gates each track, then applies one stacked
     /// update (§3).
-    fn update_tracks(&mut self, ready: Vec<(u64, Track)>, report: &mut FrameReport) {
-        let mut kf_use = self.keyframes_for_tracks(&ready);
+    fn update_tracks(
+        &mut self,
+        ready: &mut Vec<(u64, Track)>,
+        pool: &mut Vec<Vec<(u64, NormObs)>>,
+        report: &mut FrameReport,
+    ) {
+        let mut kf_use = self.keyframes_for_tracks(ready);
         if self.s.mode == Mode::Compressed {
             self.promote_for_tracks(&mut kf_use, report);
         }
@@ -285,8 +337,10 @@ impl Estimator {
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
         let mut scratch = std::mem::take(&mut self.gate_scratch.0);
-        for ((l, tr), ks) in ready.into_iter().zip(kf_use) {
-            let Some(row) = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report) else {
+        for ((l, tr), ks) in ready.drain(..).zip(kf_use) {
+            let row = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report);
+            recycle(pool, tr.obs);
+            let Some(row) = row else {
                 continue;
             };
             involved.extend(ks.iter().copied());
