@@ -146,13 +146,17 @@ pub(super) struct FrameScratch {
     track_pool: Vec<Vec<(u64, NormObs)>>,
 }
 
-/// Lists kept for new tracks at most: more than a frame's features ever
-/// end at once, so the pool stays bounded whatever the input.
+/// Lists kept for new tracks at most, whatever the input: more ended
+/// tracks than that in one frame are freed. With the lists' own bound
+/// (`recycle`), the pool holds at most 1024 window-sized lists; the other
+/// buffers keep the largest frame's size (`camera.max_features` bounds it).
 const TRACK_POOL_MAX: usize = 1024;
 
-/// Gives an ended track's list back for a new track to take, emptied.
-fn recycle(pool: &mut Vec<Vec<(u64, NormObs)>>, mut list: Vec<(u64, NormObs)>) {
-    if pool.len() < TRACK_POOL_MAX && list.capacity() > 0 {
+/// Gives an ended track's list back for a new track to take, emptied; only
+/// a list of the window's size (`cap`, the size new tracks are made with):
+/// one that grew past it is freed, so the pool cannot keep outsized lists.
+fn recycle(pool: &mut Vec<Vec<(u64, NormObs)>>, mut list: Vec<(u64, NormObs)>, cap: usize) {
+    if pool.len() < TRACK_POOL_MAX && (1..=cap).contains(&list.capacity()) {
         list.clear();
         pool.push(list);
     }
@@ -311,9 +315,10 @@ impl Estimator {
         for tr in self.tracks.values_mut() {
             tr.obs.retain(|o| o.0 != seq);
         }
+        let cap = self.s.max_clones + 1;
         self.tracks.retain(|_, t| {
             if t.obs.is_empty() {
-                recycle(pool, std::mem::take(&mut t.obs));
+                recycle(pool, std::mem::take(&mut t.obs), cap);
                 false
             } else {
                 true
@@ -337,9 +342,10 @@ impl Estimator {
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
         let mut scratch = std::mem::take(&mut self.gate_scratch.0);
+        let cap = self.s.max_clones + 1;
         for ((l, tr), ks) in ready.drain(..).zip(kf_use) {
             let row = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report);
-            recycle(pool, tr.obs);
+            recycle(pool, tr.obs, cap);
             let Some(row) = row else {
                 continue;
             };
