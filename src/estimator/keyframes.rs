@@ -131,7 +131,8 @@ impl Estimator {
     }
 
     /// Keyframe observations of landmarks no longer in view
-    /// (`present_sorted`: this frame's, sorted and distinct) become usable by a later track of the same landmark:
+    /// (`present_sorted`: this frame's, sorted and distinct) become usable
+    /// by a later track of the same landmark:
     /// that re-detection is the loop closure (§4).
     pub(super) fn release_keyframe_observations(&mut self, present_sorted: &[u64]) {
         // In place (no list of the released ones): a landmark still in view

@@ -289,10 +289,9 @@ impl Estimator {
                 p_B_in_W: self.imu.p_B_in_W,
                 p_fej_in_W: self.p_first_estimate(),
             });
-            // A track holds at most the window's views (one more while it
-            // slides): room for them once, not grown sample by sample, and
+            // Room for a track's views once, not grown sample by sample, and
             // taken from the lists of tracks that ended when there are any.
-            let cap = self.s.max_clones + 1;
+            let cap = self.track_capacity();
             for o in obs {
                 self.tracks
                     .entry(o.landmark_id)
@@ -305,6 +304,13 @@ impl Estimator {
         }
     }
 
+    /// The views a track can hold: the window's, and one more while it
+    /// slides. New tracks' lists are made this size, and only lists of it
+    /// are recycled.
+    fn track_capacity(&self) -> usize {
+        self.s.max_clones + 1
+    }
+
     /// Marginalises the oldest clone; tracks still holding it drop it (an
     /// emptied track's list goes back to `pool`).
     fn marginalise_clone(&mut self, seq: u64, pool: &mut Vec<Vec<(u64, NormObs)>>) {
@@ -315,7 +321,7 @@ impl Estimator {
         for tr in self.tracks.values_mut() {
             tr.obs.retain(|o| o.0 != seq);
         }
-        let cap = self.s.max_clones + 1;
+        let cap = self.track_capacity();
         self.tracks.retain(|_, t| {
             if t.obs.is_empty() {
                 recycle(pool, std::mem::take(&mut t.obs), cap);
@@ -342,7 +348,7 @@ impl Estimator {
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
         let mut scratch = std::mem::take(&mut self.gate_scratch.0);
-        let cap = self.s.max_clones + 1;
+        let cap = self.track_capacity();
         for ((l, tr), ks) in ready.drain(..).zip(kf_use) {
             let row = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report);
             recycle(pool, tr.obs, cap);
