@@ -149,8 +149,10 @@ async fn the_daemon_rides_through_injected_faults() {
     assert!(report.status_texts.iter().any(|t| t.1.contains("reset: divergence")));
     assert!(report.status_texts.iter().any(|t| t.1.contains("degraded")));
     // Over the whole flight, with 60 s of visual-inertial drift and a fooled
-    // filter in it.
-    assert!(report.ate_m < 3.0, "ATE {}", report.ate_m);
+    // filter in it: 3.35 m on this flight's own broadcast errors (3.33 m
+    // with DG6's windows instead of range-bias states; 2.4-2.9 m when every
+    // flight shared one week's draw).
+    assert!(report.ate_m < 4.0, "ATE {}", report.ate_m);
     // Each fault left its trace in the counters.
     assert!(c("imu_gap") >= 2, "link drop and IMU gap");
     assert!(c("mavlink_rejected_non_finite") > 0, "NaN IMU");

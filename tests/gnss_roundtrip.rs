@@ -88,12 +88,14 @@ fn simulated_rtcm_round_trips_and_solves() {
         }
         rx.flush(&mut out);
         let mut errs = Vec::new();
+        let mut pdops = Vec::new();
         let mut isb = Vec::new();
         for (r, ep) in out.iter().zip(&ds.gnss) {
             let Ok(s) = &r.fix else { continue };
             assert!(s.sats.iter().all(|(sys, _)| systems.contains(sys)));
             let truth = ds.trajectory.sample(ep.t_s).p_B_in_W;
             errs.push((frame.to_ned(&s.r_ecef_m) - truth).norm());
+            pdops.push(s.pdop);
             // The first clock is GPS's, or Galileo's (= GPS + ISB) alone.
             let expected = ep.clock_bias_m
                 + if systems == [System::Galileo] {
@@ -119,10 +121,20 @@ fn simulated_rtcm_round_trips_and_solves() {
         );
         // Single-epoch fixes with RTKLIB's loose weights (σ ≈ 5.6 m without
         // an ionosphere model): metres, and a 30 m multipath outlier can
-        // pass RAIM.
+        // pass RAIM. Each flight draws its own broadcast errors (0.6 m a
+        // satellite), constant over these 10 s, which the geometry scales:
+        // Galileo alone is a handful of satellites (PDOP about 2.5 against
+        // GPS's 1.6), so its bound is twice GPS's.
         errs.sort_by(|a, b| a.total_cmp(b));
+        pdops.sort_by(|a, b| a.total_cmp(b));
         let median = errs[errs.len() / 2];
-        assert!(median < 3.0, "{systems:?}: median SPP error {median} m ({errs:?})");
+        let pdop = pdops[pdops.len() / 2];
+        eprintln!("{systems:?}: median SPP error {median:.2} m, median PDOP {pdop:.2}");
+        let bound_m = if systems == [System::Galileo] { 6.0 } else { 3.0 };
+        assert!(
+            median < bound_m,
+            "{systems:?}: median SPP error {median} m, PDOP {pdop:.2} ({errs:?})"
+        );
         if systems.len() == 2 {
             // The inter-system bias is estimated, not absorbed.
             isb.sort_by(|a, b| a.total_cmp(b));

@@ -106,7 +106,7 @@ impl Dataset {
             })
             .collect();
 
-        let mut gnss_model = GnssModel::new(&cfg.gnss, &mut rng_gnss);
+        let mut gnss_model = GnssModel::new(&cfg.gnss, &mut rng_gnss).for_flight(seed);
         let gnss = if cfg.gnss.enabled {
             let n = (duration * cfg.gnss.rate_hz).floor() as usize + 1;
             (0..n)

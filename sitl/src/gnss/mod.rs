@@ -77,6 +77,9 @@ pub struct SatObs {
     pub elevation_deg: f64,
     /// Whether a multipath outlier was added (truth, for tests).
     pub multipath: bool,
+    /// The broadcast orbit and clock error on this line of sight (m, truth
+    /// for tests: what a filter's range-bias state estimates).
+    pub broadcast_error_m: f64,
 }
 
 /// One receiver epoch.
@@ -162,8 +165,25 @@ impl GnssModel {
 
     /// Draws each satellite's broadcast error from its own stream (seeded by
     /// the week: the constellation's, not a receiver's).
-    fn with_broadcast_errors(mut self) -> Self {
-        let mut rng: rand_chacha::ChaCha8Rng = rand::SeedableRng::seed_from_u64(self.cfg.start_week as u64 ^ 0x515e);
+    fn with_broadcast_errors(self) -> Self {
+        let seed = self.cfg.start_week as u64 ^ 0x515e;
+        self.with_broadcast_errors_from(seed)
+    }
+
+    /// This receiver on the flight `seed`: each flight draws its own
+    /// broadcast errors and Galileo noise, as flights on different days
+    /// meet different errors (drawn from the week alone, every seed of an
+    /// evaluation shared one draw, and a mean over seeds averaged nothing
+    /// of them). The GPS noise and the orbits come from the flight's stream
+    /// already; a base station beside this receiver keeps its errors.
+    pub fn for_flight(mut self, seed: u64) -> Self {
+        let mixed = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ self.cfg.start_week as u64;
+        self.gal_rng = rand::SeedableRng::seed_from_u64(mixed ^ 0x6a1);
+        self.with_broadcast_errors_from(mixed ^ 0x515e)
+    }
+
+    fn with_broadcast_errors_from(mut self, seed: u64) -> Self {
+        let mut rng: rand_chacha::ChaCha8Rng = rand::SeedableRng::seed_from_u64(seed);
         self.sis_error_m = self
             .ephemerides
             .iter()
@@ -399,6 +419,7 @@ impl GnssModel {
                 cn0_dbhz: (35.0 + 15.0 * sin_el).round(),
                 elevation_deg: el.to_degrees(),
                 multipath,
+                broadcast_error_m: self.sis_error_m[i],
             });
         }
         GnssEpoch {
