@@ -217,6 +217,10 @@ counters! {
     GnssPseudorangeOutlier = "gnss_pseudorange_outlier", event;
     GnssPseudorangeChi2 = "gnss_pseudorange_chi2", event;
     GnssRangeRateChi2 = "gnss_range_rate_chi2", event;
+    /// A single-point code whose satellite found the range-bias block full
+    /// (more than its 40 satellites in view): weighted by DG6's window
+    /// instead of a state.
+    GnssRangeBiasFull = "gnss_range_bias_full", event;
     GnssLate = "gnss_late", event;
     GnssRejected = "gnss_rejected", event;
     GnssTimeInvalid = "gnss_time_invalid", event;

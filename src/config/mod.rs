@@ -438,21 +438,42 @@ pub struct GnssConfig {
     /// Range-rate (Doppler) noise at zenith, one sigma (m/s).
     pub range_rate_sigma_mps: f64,
     /// Broadcast orbit and clock error on each satellite's range, one sigma
-    /// (m). Typically 0.6 m for GPS, but constant over a flight, so a filter
-    /// that fuses it as white noise epoch after epoch must take it wider:
-    /// the default, 2.4 m, is the user range accuracy a healthy GPS
-    /// satellite broadcasts (URA index 0), as RTKLIB weights it. Added to
-    /// single-point codes; differential codes have it removed.
+    /// (m), as one epoch sees it: the default, 2.4 m, is the user range
+    /// accuracy a healthy GPS satellite broadcasts (URA index 0), as RTKLIB
+    /// weights it. It screens outliers (a code far from its constellation's
+    /// median), and weighs the codes of satellites without a range-bias
+    /// state (see `range_bias_states`). Differential codes have it removed.
     pub broadcast_sigma_m: f64,
-    /// Error of the troposphere model at zenith, one sigma (m); grows as
-    /// 1/sin(el). Added to single-point codes; a base nearby removes it.
+    /// Error of the troposphere model at zenith, one sigma (m): the prior of
+    /// its state (or, without range-bias states, a weight growing as
+    /// 1/sin(el)). A base nearby removes it.
     pub troposphere_sigma_m: f64,
-    /// The broadcast and troposphere errors, and a range rate's persistent
-    /// part, hold for the whole flight: fused epoch after epoch as white
-    /// noise, they would be believed once per epoch. So their variance is
-    /// scaled by the epochs in this window (s), at least 1: whatever the
-    /// receiver's rate, they count as one measurement per window (§8c, eq.
-    /// DG6). 4 s keeps the position NEES honest at 1, 5 and 10 Hz.
+    /// Each satellite's broadcast error, and the troposphere model's error
+    /// at zenith, as states of the filter (§8c, eq. DG5′): believed once,
+    /// whatever the rate and the length of the flight. `false`: weighted
+    /// by `broadcast_sigma_m` and `correlation_window_s` instead (eq. DG6),
+    /// which a keyframe map holding an hour of fixes believes about fifty
+    /// times over.
+    pub range_bias_states: bool,
+    /// Prior of a satellite's range-bias state, one sigma (m): the signal in
+    /// space range error of a modern GPS or Galileo satellite; GLONASS's is
+    /// taken twice as wide.
+    pub range_bias_sigma_m: f64,
+    /// How fast a range bias wanders, random walk (m/√s).
+    pub range_bias_rw_m_per_sqrt_s: f64,
+    /// A satellite's state leaves after this long without a fused code (s).
+    pub range_bias_timeout_s: f64,
+    /// How fast the zenith troposphere error wanders, random walk (m/√s);
+    /// its prior is `troposphere_sigma_m`.
+    pub troposphere_rw_m_per_sqrt_s: f64,
+    /// Errors that hold for the whole flight and have no state (a range
+    /// rate's persistent part, a base correction that corrects several
+    /// rover epochs, the base's announced position; and the broadcast and
+    /// troposphere errors without range-bias states): fused epoch after
+    /// epoch as white noise, they would be believed once per epoch. So
+    /// their variance is scaled by the epochs in this window (s), at least
+    /// 1: whatever the receiver's rate, they count as one measurement per
+    /// window (§8c, eq. DG6).
     pub correlation_window_s: f64,
     /// The persistent part of a range rate at zenith, one sigma (m/s): the
     /// troposphere's rate and the signal's flight time, which the model
@@ -540,6 +561,11 @@ impl Default for GnssConfig {
             range_rate_sigma_mps: 0.05,
             broadcast_sigma_m: 2.4,
             troposphere_sigma_m: 0.1,
+            range_bias_states: true,
+            range_bias_sigma_m: 0.6,
+            range_bias_rw_m_per_sqrt_s: 0.002,
+            range_bias_timeout_s: 300.0,
+            troposphere_rw_m_per_sqrt_s: 0.0002,
             correlation_window_s: 4.0,
             range_rate_correlated_sigma_mps: 0.005,
             ionosphere_window_s: 60.0,

@@ -254,6 +254,10 @@ impl Config {
         c.positive("pseudorange_sigma_m", g.pseudorange_sigma_m, 1e3)?;
         c.range("broadcast_sigma_m", g.broadcast_sigma_m, 0.0, 100.0)?;
         c.range("troposphere_sigma_m", g.troposphere_sigma_m, 0.0, 10.0)?;
+        c.positive("range_bias_sigma_m", g.range_bias_sigma_m, 100.0)?;
+        c.range("range_bias_rw_m_per_sqrt_s", g.range_bias_rw_m_per_sqrt_s, 0.0, 1.0)?;
+        c.range("range_bias_timeout_s", g.range_bias_timeout_s, 1.0, 86_400.0)?;
+        c.range("troposphere_rw_m_per_sqrt_s", g.troposphere_rw_m_per_sqrt_s, 0.0, 1.0)?;
         c.positive("range_rate_sigma_mps", g.range_rate_sigma_mps, 1e2)?;
         c.range("correlation_window_s", g.correlation_window_s, 0.0, 600.0)?;
         c.range("ionosphere_window_s", g.ionosphere_window_s, 0.0, 3600.0)?;

@@ -330,6 +330,7 @@ impl Estimator {
             g.nom
                 .correct(&dx.as_slice()[go + GNSS_CLONE_DIM * i..go + GNSS_CLONE_DIM * (i + 1)]);
         }
+        self.inject_range_bias(dx);
     }
 
     /// Resets the clock states `ks` to `values`, uncorrelated with the rest,

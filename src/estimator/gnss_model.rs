@@ -81,6 +81,23 @@ pub struct SatPrediction {
     pub range_rate_mps: f64,
     pub h_range_rate: [f64; GNSS_CLONE_DIM],
     pub elevation_rad: f64,
+    /// The troposphere's mapping `m(el) = T(el) / T(90°)` at the antenna
+    /// (Saastamoinen's ratio, eq. DG5′): the pseudorange's column for the
+    /// zenith troposphere error.
+    pub tropo_map: f64,
+}
+
+/// The troposphere's mapping at the antenna `p_A_in_W` for a satellite at
+/// `el_rad`: `m = T_S(el) / T_S(90°)` (eq. DG5′), the factor by which a
+/// zenith error of the model shows on that line of sight.
+pub fn troposphere_mapping(frame: &NedFrame, p_A_in_W: &Vector3<f64>, el_rad: f64) -> f64 {
+    let (lat, _, h) = ecef_to_llh(&frame.to_ecef(p_A_in_W));
+    let zenith_m = saastamoinen_m(lat, h, std::f64::consts::FRAC_PI_2);
+    if zenith_m > 0.0 {
+        saastamoinen_m(lat, h, el_rad) / zenith_m
+    } else {
+        1.0 / el_rad.sin().max(0.1)
+    }
 }
 
 /// The pseudorange and range rate of `s` seen by the antenna at
@@ -124,6 +141,7 @@ pub fn predict_sat(frame: &NedFrame, nom: &GnssNominal, p_A_in_B_m: &Vector3<f64
         range_rate_mps: rate,
         h_range_rate: h_rate,
         elevation_rad: el,
+        tropo_map: troposphere_mapping(frame, &p_A, el),
     }
 }
 
@@ -292,6 +310,58 @@ pub(super) mod tests {
             let at_origin = predict_sat(&frame, &nom, &Vector3::zeros(), &s);
             assert!((at_origin.pseudorange_m - p.pseudorange_m).abs() > 0.01);
             assert!((at_origin.range_rate_mps - p.range_rate_mps).abs() > 0.01);
+        }
+    }
+
+    /// §8c, eq. DG5′: a single-point code is `K2 + b + m(el) T_z`. Its
+    /// columns on `b` and `T_z` (1 and `m`) against central differences of
+    /// that sum, and the slope of `m(el(p)) T_z` with the position, which
+    /// the row leaves out, against the bound the README gives (1e-7 m/m
+    /// per metre of `T_z`, far below the code's metre of noise).
+    #[test]
+    fn range_bias_and_troposphere_columns_match_finite_differences() {
+        for system in [System::Gps, System::Galileo, System::Glonass, System::BeiDou] {
+            let (frame, s) = sat_of(system);
+            let nom = GnssNominal {
+                imu: state(),
+                gyro_radps: Vector3::new(0.1, -0.2, 0.3),
+                clock: ClockVec::from_column_slice(&[120.0, 3.0, 6.0, -4.0, 9.0]),
+            };
+            let lever = Vector3::new(0.2, -0.1, -0.2);
+            let p = predict_sat(&frame, &nom, &lever, &s);
+            let (b, t_z) = (0.4, 0.15);
+            let code = |pred: &SatPrediction, b: f64, t_z: f64| pred.pseudorange_m + b + pred.tropo_map * t_z;
+            let h = 1e-3;
+            let fd_b = (code(&p, b + h, t_z) - code(&p, b - h, t_z)) / (2.0 * h);
+            let fd_t = (code(&p, b, t_z + h) - code(&p, b, t_z - h)) / (2.0 * h);
+            assert!((fd_b - 1.0).abs() < 1e-5, "{system:?} b column: {fd_b}");
+            assert!(
+                (fd_t - p.tropo_map).abs() < 1e-5,
+                "{system:?} T_z column: {fd_t} vs {}",
+                p.tropo_map
+            );
+            // The mapping is Saastamoinen's own ratio: 1 at zenith, 1/sin el
+            // near it, larger low down.
+            assert!(
+                p.tropo_map >= 1.0 && p.tropo_map < 12.0,
+                "{system:?} m = {}",
+                p.tropo_map
+            );
+            // The left-out slope: m(el(p)) T_z moved by 10 m of position.
+            for k in 0..3 {
+                let mut d = [0.0; GNSS_CLONE_DIM];
+                d[G_P + k] = 10.0;
+                let mut plus = nom;
+                plus.correct(&d);
+                d[G_P + k] = -10.0;
+                let mut minus = nom;
+                minus.correct(&d);
+                let slope = (predict_sat(&frame, &plus, &lever, &s).tropo_map
+                    - predict_sat(&frame, &minus, &lever, &s).tropo_map)
+                    * t_z
+                    / 20.0;
+                assert!(slope.abs() < 1e-7, "{system:?} ∂(m T_z)/∂p{k} = {slope}");
+            }
         }
     }
 

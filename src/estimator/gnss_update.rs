@@ -59,8 +59,24 @@ const MAX_GNSS_LEAD_S: f64 = 2.0;
 /// The transition of a clone's states to its epoch's time.
 type ShiftF = SMatrix<f64, GNSS_CLONE_DIM, GNSS_CLONE_DIM>;
 
-/// One whitened measurement row and its residual.
-type GnssRow = ([f64; GNSS_CLONE_DIM], f64);
+/// One whitened measurement row and its residual: its columns over the
+/// GNSS row order, and over the range-bias block (eq. DG5′) the zenith
+/// troposphere's `m(el)` and the satellite's own bias's 1, by their index
+/// in the block.
+#[derive(Clone, Copy, Debug)]
+struct GnssRow {
+    h: [f64; GNSS_CLONE_DIM],
+    block: BlockCols,
+    r: f64,
+}
+
+/// A row's columns over the range-bias block: `(index in the block,
+/// coefficient)`, at most `T_z`'s and `b_i`'s.
+type BlockCols = [Option<(usize, f64)>; 2];
+
+/// A single-point code's range-bias part of the prediction (m), and its
+/// columns (eq. DG5′).
+type BiasModel = (f64, BlockCols);
 
 /// The median of the finite values (upper median), if any.
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -75,20 +91,27 @@ fn reject(rep: &mut GnssReport, st: &mut Stats, why: Counter) {
     *st.rejected.entry(why).or_default() += 1;
 }
 
-/// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`.
+/// Whitens one scalar measurement row and gates it on `r² / (h P hᵀ + σ²)`,
+/// `P` the covariance of the epoch's columns: the GNSS row order's, then the
+/// range-bias block's, which `block` addresses.
 ///
 /// The gate takes the measurement's sigma for one epoch, `gate_sigma`; the
 /// row is whitened with `sigma`, which may be wider (eq. DG6: an error that
 /// holds over many epochs is believed once per window).
-fn gated<const N: usize>(
-    h: &[f64; N],
+fn gated(
+    h: &[f64; GNSS_CLONE_DIM],
+    block: BlockCols,
     r: f64,
     gate_sigma: f64,
     sigma: f64,
     p: &DMatrix<f64>,
     gate: f64,
-) -> Option<([f64; N], f64)> {
-    let hv = nalgebra::DVector::from_column_slice(h);
+) -> Option<GnssRow> {
+    let mut hv = DVector::zeros(p.nrows());
+    hv.rows_mut(0, GNSS_CLONE_DIM).copy_from_slice(h);
+    for (k, c) in block.iter().flatten() {
+        hv[GNSS_CLONE_DIM + k] += c;
+    }
     let s = (hv.transpose() * p * &hv)[0] + gate_sigma * gate_sigma;
     if !(r.is_finite() && s > 0.0 && sigma > 0.0) || r * r / s > gate {
         return None;
@@ -97,7 +120,11 @@ fn gated<const N: usize>(
     for x in w.iter_mut() {
         *x /= sigma;
     }
-    Some((w, r / sigma))
+    Some(GnssRow {
+        h: w,
+        block: block.map(|e| e.map(|(k, c)| (k, c / sigma))),
+        r: r / sigma,
+    })
 }
 
 /// The clone's states moved by `dt_s` to the epoch's own time (§8b, eq.
@@ -285,8 +312,15 @@ impl Estimator {
             return false;
         }
         // Again: the clock may just have been set.
-        let (nom, cols, f) = self.epoch_states(states, t_s);
-        let mut rows = self.gnss_rows(frame, sats, &nom, &cols, rep);
+        let (nom, mut cols, f) = self.epoch_states(states, t_s);
+        // DG5′: the range-bias block's random walks up to the epoch, and its
+        // states for this epoch's single-point satellites; its columns
+        // follow the epoch's.
+        self.add_range_bias_noise(t_s);
+        let preds = self.prepare_range_biases(frame, sats, &nom, t_s);
+        let block_o = self.range_bias_offset();
+        cols.extend(block_o..block_o + self.range_bias.dim());
+        let mut rows = self.gnss_rows(sats, &preds, &cols, rep);
         let pr_rejected = rep.rejected.get(&Counter::GnssPseudorangeChi2).copied().unwrap_or(0)
             + rep.rejected.get(&Counter::GnssPseudorangeOutlier).copied().unwrap_or(0);
         // D2 judges the filter by its own receiver's codes only: refused
@@ -298,26 +332,70 @@ impl Estimator {
         }
         rep.differential = differential;
         if rows.is_empty() {
+            self.drop_stale_range_biases(t_s);
             return false;
         }
         if let Some(f) = f {
-            // A row at the epoch's time is H F on the clone (D2).
-            for (h, _) in rows.iter_mut() {
-                let hf = nalgebra::SVector::<f64, GNSS_CLONE_DIM>::from_column_slice(h).transpose() * f;
-                h.copy_from_slice(hf.as_slice());
+            // A row at the epoch's time is H F on the clone (D2); the block
+            // does not move in milliseconds.
+            for row in rows.iter_mut() {
+                let hf = nalgebra::SVector::<f64, GNSS_CLONE_DIM>::from_column_slice(&row.h).transpose() * f;
+                row.h.copy_from_slice(hf.as_slice());
             }
         }
-        let mut h = DMatrix::zeros(rows.len(), GNSS_CLONE_DIM);
+        let mut h = DMatrix::zeros(rows.len(), cols.len());
         let mut r = DVector::zeros(rows.len());
-        for (i, (hr, rr)) in rows.iter().enumerate() {
+        for (i, row) in rows.iter().enumerate() {
             for k in 0..GNSS_CLONE_DIM {
-                h[(i, k)] = hr[k];
+                h[(i, k)] = row.h[k];
             }
-            r[i] = *rr;
+            for (k, c) in row.block.iter().flatten() {
+                h[(i, GNSS_CLONE_DIM + k)] += c;
+            }
+            r[i] = row.r;
         }
         self.ekf_update(&h, &cols, &r, false);
+        // The satellites whose codes were fused keep their states.
+        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        for row in &rows {
+            if let Some((k, _)) = row.block[1] {
+                self.range_bias.sats[k - first].last_used_s = t_s;
+            }
+        }
+        self.drop_stale_range_biases(t_s);
         self.stats.updates += 1;
         true
+    }
+
+    /// The epoch's predictions, and with range-bias states on (DG5′) the
+    /// block's states for it: the zenith troposphere's once, and each
+    /// single-point code's satellite above the mask its own, created with
+    /// their priors when new.
+    fn prepare_range_biases(
+        &mut self,
+        frame: &NedFrame,
+        sats: &[SatMeas],
+        nom: &GnssNominal,
+        t_s: f64,
+    ) -> Vec<SatPrediction> {
+        let preds: Vec<SatPrediction> = sats
+            .iter()
+            .map(|s| predict_sat(frame, nom, &self.s.p_A_in_B_m, s))
+            .collect();
+        if !self.s.range_bias_states {
+            return preds;
+        }
+        let mask_rad = self.s.elevation_mask_deg.to_radians();
+        for (s, pred) in sats.iter().zip(&preds) {
+            let single_point = s.correction.is_none() && s.pseudorange_m.is_some_and(f64::is_finite);
+            if single_point && pred.elevation_rad >= mask_rad {
+                self.ensure_troposphere_state(t_s);
+                if self.ensure_range_bias_state(s.system, s.prn, t_s).is_none() {
+                    *self.stats.rejected.entry(Counter::GnssRangeBiasFull).or_default() += 1;
+                }
+            }
+        }
+        preds
     }
 
     /// The clone taken at the instant of an epoch at `t_s`, if any: within
@@ -351,7 +429,8 @@ impl Estimator {
             return;
         };
         self.sync();
-        let at = self.P.nrows();
+        // Before the range-bias block, which stays last.
+        let at = self.range_bias_offset();
         self.augment(at, &GNSS_COLS, None);
         self.gnss_clones.push_back(GnssClone {
             t_s,
@@ -483,30 +562,48 @@ impl Estimator {
         }
     }
 
-    /// The gated, whitened rows of an epoch's measurements against `nom`,
-    /// gated with the covariance of the columns `cols`. Robust pre-screen
-    /// (K5): each constellation's median code residual stands for its clock
+    /// A single-point code's range-bias columns and their part of the
+    /// prediction (eq. DG5′): `b̂_i + m(el) T̂_z`, with `∂h/∂T_z = m(el)` and
+    /// `∂h/∂b_i = 1` by their index in the block. `None` for a differential
+    /// code, which has neither error (DG3), and for a satellite without a
+    /// state (states off, or the block full), which DG6's weights cover.
+    fn range_bias_model(&self, s: &SatMeas, pred: &SatPrediction) -> Option<BiasModel> {
+        if s.correction.is_some() {
+            return None;
+        }
+        let t_z = self.range_bias.tropo_zenith_m?;
+        let k = self.range_bias.slot(s.system, s.prn)?;
+        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let b = self.range_bias.sats[k - first].value_m;
+        Some((b + pred.tropo_map * t_z, [Some((0, pred.tropo_map)), Some((k, 1.0))]))
+    }
+
+    /// The gated, whitened rows of an epoch's measurements predicted by
+    /// `preds`, gated with the covariance of the columns `cols` (the GNSS
+    /// row order's, then the range-bias block's). Robust pre-screen (K5):
+    /// each constellation's median code residual stands for its clock
     /// error, so a code far from it is an outlier whatever the clock's
     /// variance (the χ² gate alone lets a 30 m multipath code through while
     /// the clock is still uncertain).
     fn gnss_rows(
         &mut self,
-        frame: &NedFrame,
         sats: &[SatMeas],
-        nom: &GnssNominal,
+        preds: &[SatPrediction],
         cols: &[usize],
         rep: &mut GnssReport,
     ) -> Vec<GnssRow> {
-        let preds: Vec<SatPrediction> = sats
+        let models: Vec<_> = sats
             .iter()
-            .map(|s| predict_sat(frame, nom, &self.s.p_A_in_B_m, s))
+            .zip(preds)
+            .map(|(s, p)| self.range_bias_model(s, p))
             .collect();
         let median_res = |sys: System| {
             median(
                 sats.iter()
-                    .zip(&preds)
-                    .filter(|(s, _)| s.system == sys)
-                    .filter_map(|(s, p)| s.pseudorange_m.map(|z| z - p.pseudorange_m))
+                    .zip(preds)
+                    .zip(&models)
+                    .filter(|((s, _), _)| s.system == sys)
+                    .filter_map(|((s, p), m)| s.pseudorange_m.map(|z| z - p.pseudorange_m - m.map_or(0.0, |m| m.0)))
                     .collect(),
             )
         };
@@ -518,20 +615,21 @@ impl Estimator {
         math::gather_block(&self.P, cols, &mut p_sub);
         let gate = cmsckf_models::stats::chi2_quantile(0.99, 1);
         let mut rows: Vec<GnssRow> = Vec::new();
-        for (s, pred) in sats.iter().zip(&preds) {
+        for ((s, pred), model) in sats.iter().zip(preds).zip(&models) {
             let median = medians.iter().find(|m| m.0 == s.system).and_then(|m| m.1);
-            self.sat_rows(s, pred, median, &p_sub, gate, rep, &mut rows);
+            self.sat_rows(s, pred, *model, median, &p_sub, gate, rep, &mut rows);
         }
         rows
     }
 
     /// One satellite's pseudorange and range-rate rows (K2, K3), gated;
-    /// its residuals go to the report.
+    /// its residuals go to the report. `model`: its range-bias part (DG5′).
     #[allow(clippy::too_many_arguments)]
     fn sat_rows(
         &mut self,
         s: &SatMeas,
         pred: &SatPrediction,
+        model: Option<BiasModel>,
         median: Option<f64>,
         p_sub: &DMatrix<f64>,
         gate: f64,
@@ -560,13 +658,13 @@ impl Estimator {
             // for tens of minutes along each line of sight, and is metres:
             // it counts once per `ionosphere_window_s`.
             let w_iono = (self.s.ionosphere_window_s / period_s).max(1.0);
-            let (common_var_m2, w) = match s.correction {
-                None => (
-                    self.s.broadcast_sigma_m.powi(2)
-                        + (self.s.troposphere_sigma_m / sin_el).powi(2)
-                        + s.extra_var_m2 * w_iono / w,
-                    w,
-                ),
+            let broadcast_var_m2 = self.s.broadcast_sigma_m.powi(2) + (self.s.troposphere_sigma_m / sin_el).powi(2);
+            let (common_var_m2, w, screen_var_m2) = match (s.correction, model) {
+                // DG5′: the broadcast and troposphere errors are states, in
+                // h P hᵀ; the screen, which has no h P hᵀ, keeps one
+                // epoch's share of them.
+                (None, Some(_)) => (s.extra_var_m2 * w_iono / w, w, broadcast_var_m2),
+                (None, None) => (broadcast_var_m2 + s.extra_var_m2 * w_iono / w, w, 0.0),
                 // DG2′: a held correction carries the base's code noise
                 // (the rover's own, at the same elevation over a short
                 // baseline) and its drift over its age, σ_ċ² a². DG7: every
@@ -575,25 +673,28 @@ impl Estimator {
                 // DG9′: the base's announced position is known to σ_A,
                 // moving every corrected code (and so the rover) by as much
                 // for the whole flight: windowed like DG5's terms.
-                Some(c) => {
+                (Some(c), _) => {
                     let w_b = c.shared_by.clamp(1.0, w);
                     (
                         code_var_m2
                             + (self.s.dgnss_correction_rate_sigma_mps * c.age_s).powi(2)
                             + self.s.base_position_sigma_m.powi(2) * w / w_b,
                         w_b,
+                        0.0,
                     )
                 }
             };
             // One epoch's sigma screens and gates (a 30 m multipath code
             // stays an outlier at any rate); DG6's weighs.
             let epoch_sigma = (white_var_m2 + common_var_m2).sqrt();
+            let screen_sigma = (white_var_m2 + common_var_m2 + screen_var_m2).sqrt();
             let sigma = (white_var_m2 + w * common_var_m2).sqrt();
-            let r = z - pred.pseudorange_m;
+            let (model_m, block) = model.unwrap_or((0.0, [None, None]));
+            let r = z - pred.pseudorange_m - model_m;
             res.1 = Some(r);
-            if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * epoch_sigma) {
+            if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * screen_sigma) {
                 reject(rep, &mut self.stats, Counter::GnssPseudorangeOutlier);
-            } else if let Some(row) = gated(&pred.h_pseudorange, r, epoch_sigma, sigma, p_sub, gate) {
+            } else if let Some(row) = gated(&pred.h_pseudorange, block, r, epoch_sigma, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.pseudoranges_used += 1;
             } else {
@@ -608,7 +709,7 @@ impl Estimator {
             let sigma = (white_var + w * corr_var).sqrt();
             let r = z - pred.range_rate_mps;
             res.2 = Some(r);
-            if let Some(row) = gated(&pred.h_range_rate, r, epoch_sigma, sigma, p_sub, gate) {
+            if let Some(row) = gated(&pred.h_range_rate, [None, None], r, epoch_sigma, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.range_rates_used += 1;
             } else {

@@ -13,13 +13,15 @@
 //! - `compressed/`: the local/global split, rebases and promotions;
 //! - `gnss_model.rs`, `gnss_update.rs`: what a satellite measures (with the
 //!   antenna's lever arm), and the GNSS update that fuses an epoch, late ones
-//!   through their clones;
+//!   through their clones; `range_bias.rs`: the single-point codes' errors
+//!   that hold for the flight, as states;
 //! - `health.rs`: divergence detection and state checks;
 //! - `feature.rs`, `math/`, `frontend.rs`, `settings.rs`: triangulation and
 //!   the track Jacobians, dense kernels, pixel normalisation, settings.
 //!
 //! Error-state layout of the covariance `P` (the *local* part in compressed
-//! mode): `[IMU (15) | local keyframes (6 each) | clones (6 each)]`. Each
+//! mode): `[IMU (15), clock (5), t_d | local keyframes (6 each) | clones (6
+//! each) | GNSS clones (17 each) | range-bias block]`. Each
 //! pose block is `[δθ, δp]`. In `compressed` mode the global keyframes live in
 //! [`Global`]: `P_LG(0)`, `P_GG(0)` frozen at the last global update plus the
 //! accumulated `Φ`, `Ψ` and `q` (§5).
@@ -40,6 +42,7 @@ mod landmarks;
 pub mod math;
 mod msckf;
 pub mod propagate;
+mod range_bias;
 pub mod settings;
 mod snapshot;
 mod vibration;
@@ -274,6 +277,12 @@ pub struct Stats {
     /// GNSS epochs refused as later than `gnss_max_delay_s` (or with no
     /// clone at their instant).
     pub gnss_epochs_late: u64,
+    /// Range-bias states created for satellites, and dropped after their
+    /// satellite went unused for `range_bias_timeout_s` (§8c, DG5′).
+    #[serde(default)]
+    pub range_bias_states_created: u64,
+    #[serde(default)]
+    pub range_bias_states_dropped: u64,
     /// Frames taken as zero-velocity updates instead of clones (§3c).
     pub zupt_updates: u64,
     /// Frames, while zero-velocity updates were allowed, whose features had
@@ -438,6 +447,9 @@ pub struct Estimator {
     /// GNSS clones waiting for their epochs, oldest first; their blocks
     /// sit after the camera clones, `GNSS_CLONE_DIM` each.
     gnss_clones: VecDeque<GnssClone>,
+    /// The single-point codes' persistent errors as states, after the GNSS
+    /// clones (§8c, DG5′).
+    range_bias: range_bias::RangeBiasBlock,
     gnss_grid: Option<GnssGrid>,
     still: Stillness,
     /// The body rate at the last frame, smoothed (T3), its bias removed
@@ -476,6 +488,7 @@ impl Estimator {
             fej_dv: Vector3::zeros(),
             fej_dp: Vector3::zeros(),
             gnss_clones: VecDeque::new(),
+            range_bias: range_bias::RangeBiasBlock::default(),
             gnss_grid: None,
             still: Stillness::default(),
             frame_rate_B: None,

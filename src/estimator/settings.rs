@@ -74,6 +74,16 @@ pub struct Settings {
     /// (§8c, eq. DG5).
     pub broadcast_sigma_m: f64,
     pub troposphere_sigma_m: f64,
+    /// Single-point codes' persistent errors as states (§8c, DG5′): each
+    /// satellite's range bias (prior sigma m, random walk m/√s, dropped
+    /// after this long unused, s) and the zenith troposphere error (prior
+    /// `troposphere_sigma_m`, random walk m/√s). `false`: DG5/DG6's
+    /// windowed weights instead.
+    pub range_bias_states: bool,
+    pub range_bias_sigma_m: f64,
+    pub range_bias_rw_m_per_sqrt_s: f64,
+    pub range_bias_timeout_s: f64,
+    pub troposphere_rw_m_per_sqrt_s: f64,
     /// The window (s) in which those errors, and a range rate's persistent
     /// part (m/s at zenith), count as one measurement (§8c, eq. DG6).
     pub gnss_correlation_window_s: f64,

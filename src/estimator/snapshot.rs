@@ -83,6 +83,15 @@ impl Estimator {
         }
         let go = est.gnss_clones_offset();
         idx.extend(go..go + GNSS_CLONE_DIM * est.gnss_clones.len());
+        // The range-bias block (DG5′): the troposphere, then the satellites
+        // by key, so that two filters' blocks line up whatever order their
+        // satellites arrived in.
+        let bo = est.range_bias_offset();
+        let t_first = usize::from(est.range_bias.tropo_zenith_m.is_some());
+        idx.extend(bo..bo + t_first);
+        let mut sats: Vec<(usize, &super::range_bias::RangeBias)> = est.range_bias.sats.iter().enumerate().collect();
+        sats.sort_by_key(|(_, b)| (b.system, b.prn));
+        idx.extend(sats.iter().map(|(i, _)| bo + t_first + i));
         let P = est.P.select_rows(&idx).select_columns(&idx);
         let mut x = Vec::new();
         // Rotations as rotation vectors, so `x` lines up one to one with
@@ -113,6 +122,8 @@ impl Estimator {
             }
             x.extend(g.nom.clock.iter());
         }
+        x.extend(est.range_bias.tropo_zenith_m);
+        x.extend(sats.iter().map(|(_, b)| b.value_m));
         Snapshot {
             x: DVector::from_vec(x),
             P,

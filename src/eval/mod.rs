@@ -105,6 +105,11 @@ pub struct FlightResult {
     /// `(t, estimated − true clock bias, estimated − true Galileo ISB)` at
     /// each GNSS epoch (m).
     pub clock_errors: Vec<(f64, f64, f64)>,
+    /// Each range-bias state's NEES `(b̂ − b)² / σ²` at the flight's end,
+    /// against the simulator's broadcast error of its satellite (§8c, DG5′;
+    /// the satellites the flight's last epoch saw).
+    #[serde(default)]
+    pub range_bias_nees: Vec<f64>,
 }
 
 /// GNSS input of a run: the broadcast ephemerides, the world origin, and
@@ -465,6 +470,7 @@ fn empty(mode: Mode) -> FlightResult {
         nis_dof: 0,
         max_rel_diff_vs_full: None,
         clock_errors: Vec::new(),
+        range_bias_nees: Vec::new(),
     }
 }
 
@@ -481,12 +487,32 @@ fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
     r.stats = run.est.stats.clone();
     r.keyframes = run.est.keyframes().count();
     r.clock_errors = run.clock_errors.clone();
+    r.range_bias_nees = range_bias_nees(ds, &run.est);
     r.rebase_us = run.rebase_us.clone();
     let (td_s, td_var_s2) = run.est.time_offset();
     r.time_offset_s = td_s;
     r.time_offset_sigma_s = td_var_s2.sqrt();
     r.time_offset_true_s = ds.cfg.camera_time_offset_s;
     r.resets = run.resets;
+}
+
+/// Each range-bias state's `(b̂ − b)² / σ²` against the broadcast error of
+/// its satellite in the flight's last GNSS epoch that saw it.
+fn range_bias_nees(ds: &Dataset, est: &Estimator) -> Vec<f64> {
+    est.range_biases()
+        .into_iter()
+        .filter_map(|(system, prn, b_m, var_m2)| {
+            let truth_m = ds
+                .gnss
+                .iter()
+                .rev()
+                .take(5)
+                .flat_map(|e| e.sats.iter())
+                .find(|s| s.system == system && s.prn == prn)?
+                .broadcast_error_m;
+            (var_m2 > 0.0).then(|| (b_m - truth_m).powi(2) / var_m2)
+        })
+        .collect()
 }
 
 /// What a flight fuses besides the IMU and the camera, and what it knows.

@@ -49,6 +49,10 @@ pub struct ModeSummary {
     /// RMS of the Galileo inter-system-bias error, likewise (m).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub isb_galileo_rmse_m: Option<f64>,
+    /// Mean NEES of the range-bias states at the flights' ends, over every
+    /// satellite of every seed (1 dof each; §8c, DG5′).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nees_range_bias_mean: Option<f64>,
     /// Mean NEES of each part of the state over the flight, and over its
     /// second half: tilt (roll and pitch, 2 dof), yaw (1), position (3) and
     /// velocity (3). A consistent filter gives the degrees of freedom.
@@ -67,6 +71,9 @@ pub struct ModeSummary {
     pub per_seed_time_offset_sigma_ms: Vec<f64>,
     /// GNSS epochs fused, and refused as late, per flight.
     pub gnss_epochs_fused: f64,
+    /// Range-bias states created and dropped per flight (§8c, DG5′).
+    pub range_bias_states_created: f64,
+    pub range_bias_states_dropped: f64,
     pub gnss_epochs_late: f64,
     /// Frames taken as zero-velocity updates, per flight.
     pub zupt_updates: f64,
@@ -245,6 +252,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         // not estimated yet).
         clock_bias_rmse_m: clock_rmse(runs, |c| c.1),
         isb_galileo_rmse_m: clock_rmse(runs, |c| c.2),
+        nees_range_bias_mean: mean_of(runs.iter().flat_map(|r| r.range_bias_nees.iter().copied())),
         nees_tilt_mean: nees_all[0],
         nees_yaw_mean: nees_all[1],
         nees_position_mean: nees_all[2],
@@ -264,6 +272,16 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
             .collect(),
         per_seed_time_offset_sigma_ms: runs.iter().map(|r| r.time_offset_sigma_s * 1e3).collect(),
         gnss_epochs_fused: runs.iter().map(|r| r.stats.gnss_epochs_fused as f64).sum::<f64>() / n,
+        range_bias_states_created: runs
+            .iter()
+            .map(|r| r.stats.range_bias_states_created as f64)
+            .sum::<f64>()
+            / n,
+        range_bias_states_dropped: runs
+            .iter()
+            .map(|r| r.stats.range_bias_states_dropped as f64)
+            .sum::<f64>()
+            / n,
         gnss_epochs_late: runs.iter().map(|r| r.stats.gnss_epochs_late as f64).sum::<f64>() / n,
         zupt_updates: runs.iter().map(|r| r.stats.zupt_updates as f64).sum::<f64>() / n,
         low_parallax_tracks: runs.iter().map(|r| r.stats.low_parallax_tracks as f64).sum::<f64>() / n,
@@ -429,10 +447,11 @@ impl Evaluation {
         for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 if let (Some(b), Some(e)) = (r.clock_bias_rmse_m, r.isb_galileo_rmse_m) {
-                    s += &format!(
-                        "{:<11} clock-bias RMSE {b:.3} m · Galileo ISB RMSE {e:.3} m\n",
-                        m.name()
-                    );
+                    s += &format!("{:<11} clock-bias RMSE {b:.3} m · Galileo ISB RMSE {e:.3} m", m.name());
+                    if let Some(n) = r.nees_range_bias_mean {
+                        s += &format!(" · range-bias NEES {n:.2} (1 dof)");
+                    }
+                    s += "\n";
                 }
             }
         }
