@@ -3,8 +3,9 @@
 //!   11 clones, 3 keyframes);
 //! - `msckf_update/N`: one camera frame with N = 50, 100, 200 simulated features, 11 clones, compressed mode,
 //!   taken from a racetrack flight after 10 s (2–3 keyframes);
-//! - `gnss_update`: one GNSS epoch (pseudoranges and range rates, GPS and Galileo) fused at its own
-//!   instant, on the same flight at 10 s with GNSS on, compressed mode;
+//! - `gnss_update`: one GNSS epoch (pseudoranges and range rates, GPS and Galileo, each satellite's
+//!   range bias and the zenith troposphere as states) fused at its own instant, on the same flight at
+//!   10 s with GNSS on, compressed mode;
 //! - `householder/400x73`: the camera update's stacked triangularisation (README §3, Q1) at its mean shape
 //!   on udel_gore with OpenVINS's settings (400 rows, 72 state columns and the residual);
 //! - `feature_line_decode`: parsing one 200-feature JSON line of the feature socket;
