@@ -218,9 +218,13 @@ counters! {
     GnssPseudorangeChi2 = "gnss_pseudorange_chi2", event;
     GnssRangeRateChi2 = "gnss_range_rate_chi2", event;
     /// A single-point code whose satellite found the range-bias block full
-    /// (more than its 40 satellites in view): weighted by DG6's window
+    /// (40 satellites used within the last 10 s): weighted by DG6's window
     /// instead of a state.
     GnssRangeBiasFull = "gnss_range_bias_full", event;
+    /// A satellite's range-bias state started again after the gate refused
+    /// its codes five epochs in a row: its broadcast error stepped (a new
+    /// ephemeris, another code).
+    GnssRangeBiasRestart = "gnss_range_bias_restart", event;
     GnssLate = "gnss_late", event;
     GnssRejected = "gnss_rejected", event;
     GnssTimeInvalid = "gnss_time_invalid", event;

@@ -9,9 +9,14 @@
 //! equals full while satellites' states leave and come back through an
 //! urban canyon.
 
+use std::cell::Cell;
+
 use cmsckf::config::Config;
+use cmsckf::counters::Counter;
 use cmsckf::estimator::Mode;
 use cmsckf::eval;
+use cmsckf_models::gnss::{SatMeas, System};
+use cmsckf_sitl::dataset::Dataset;
 
 fn evaluate(
     cfg: &Config,
@@ -84,4 +89,95 @@ fn range_bias_states_keep_compressed_equal_to_full_through_a_canyon() {
         "{created} created, {dropped} dropped"
     );
     assert!(m.nees_position_mean <= 6.0, "position NEES {:.2}", m.nees_position_mean);
+}
+
+thread_local! {
+    /// Epochs the measurement map has seen, and the satellite it stepped.
+    static EPOCHS: Cell<usize> = const { Cell::new(0) };
+    static STEPPED_PRN: Cell<Option<u8>> = const { Cell::new(None) };
+}
+
+/// Epochs before the step (s at 1 Hz), and its size (m).
+const STEP_AFTER_EPOCHS: usize = 120;
+const STEP_M: f64 = 3.0;
+
+/// From the 120th epoch on, the first GPS satellite then in view has its
+/// broadcast error 3 m larger: a new ephemeris or clock upload.
+fn step_one_satellite(sats: &mut [SatMeas]) {
+    let n = EPOCHS.with(|c| {
+        let n = c.get();
+        c.set(n + 1);
+        n
+    });
+    if n < STEP_AFTER_EPOCHS {
+        return;
+    }
+    let prn = STEPPED_PRN.with(|p| {
+        if p.get().is_none() {
+            p.set(sats.iter().find(|s| s.system == System::Gps).map(|s| s.prn));
+        }
+        p.get()
+    });
+    for s in sats
+        .iter_mut()
+        .filter(|s| s.system == System::Gps && Some(s.prn) == prn)
+    {
+        s.pseudorange_m = s.pseudorange_m.map(|p| p + STEP_M);
+    }
+}
+
+/// A satellite's broadcast error steps by 3 m two minutes into a flight:
+/// its state, sure of the old value, would have the gate refuse every code
+/// of it for good. After five refusals it starts again at one epoch's
+/// broadcast sigma, learns the new error, and the position is not pulled.
+#[test]
+fn a_step_in_a_satellites_error_restarts_its_state() {
+    let cfg = Config::default();
+    let ds = Dataset::generate("racetrack", 2, Some(240.0), &eval::sim_config_for(&cfg)).unwrap();
+    let mut run = eval::Runner::new(&ds, &cfg, Mode::Compressed, 2)
+        .with_gnss()
+        .with_measurement_map(step_one_satellite);
+    for k in 0..ds.frames.len() {
+        run.step_frame(k);
+    }
+    let prn = STEPPED_PRN.with(|p| p.get()).expect("a GPS satellite stepped");
+    let restarts = run
+        .est
+        .stats
+        .rejected
+        .get(&Counter::GnssRangeBiasRestart)
+        .copied()
+        .unwrap_or(0);
+    let truth_m = ds
+        .gnss
+        .iter()
+        .flat_map(|e| e.sats.iter())
+        .find(|s| s.system == System::Gps && s.prn == prn)
+        .unwrap()
+        .broadcast_error_m
+        + STEP_M;
+    let (_, _, b_m, var_m2) = run
+        .est
+        .range_biases()
+        .into_iter()
+        .find(|b| b.0 == System::Gps && b.1 == prn)
+        .expect("the stepped satellite keeps a state");
+    let t = run.est.time_s();
+    let truth = ds
+        .truth
+        .iter()
+        .min_by(|a, b| (a.truth.t_s - t).abs().total_cmp(&(b.truth.t_s - t).abs()))
+        .unwrap();
+    let e_m = (run.est.imu_state().p_B_in_W - truth.truth.p_B_in_W).norm();
+    eprintln!(
+        "G{prn:02}: {restarts} restart(s), b̂ {b_m:.2} m (σ {:.2}) against {truth_m:.2} m; position error {e_m:.2} m",
+        var_m2.sqrt()
+    );
+    assert!(restarts >= 1, "no restart");
+    let err = b_m - truth_m;
+    assert!(
+        err.abs() < 1.0 && err.abs() < 4.0 * var_m2.sqrt(),
+        "range bias off by {err:.2} m"
+    );
+    assert!(e_m < 1.0, "position error {e_m:.2} m");
 }

@@ -91,12 +91,17 @@ pub struct SatPrediction {
 /// `el_rad`: `m = T_S(el) / T_S(90°)` (eq. DG5′), the factor by which a
 /// zenith error of the model shows on that line of sight.
 pub fn troposphere_mapping(frame: &NedFrame, p_A_in_W: &Vector3<f64>, el_rad: f64) -> f64 {
+    // Floored at sin el = 0.1 (5.7°), as the codes' weights are: Saastamoinen's
+    // 1/cos z is unbounded at the horizon, and one multipath code there
+    // would move the zenith state by as much as every good code together.
+    let floor_rad = 0.1f64.asin();
+    let el_rad = el_rad.max(floor_rad);
     let (lat, _, h) = ecef_to_llh(&frame.to_ecef(p_A_in_W));
     let zenith_m = saastamoinen_m(lat, h, std::f64::consts::FRAC_PI_2);
     if zenith_m > 0.0 {
         saastamoinen_m(lat, h, el_rad) / zenith_m
     } else {
-        1.0 / el_rad.sin().max(0.1)
+        1.0 / el_rad.sin()
     }
 }
 

@@ -317,7 +317,7 @@ impl Estimator {
         // states for this epoch's single-point satellites; its columns
         // follow the epoch's.
         self.add_range_bias_noise(t_s);
-        let preds = self.prepare_range_biases(frame, sats, &nom, t_s);
+        let preds = self.prepare_range_biases(frame, sats, &nom, t_s, rep);
         let block_o = self.range_bias_offset();
         cols.extend(block_o..block_o + self.range_bias.dim());
         let mut rows = self.gnss_rows(sats, &preds, &cols, rep);
@@ -332,7 +332,7 @@ impl Estimator {
         }
         rep.differential = differential;
         if rows.is_empty() {
-            self.drop_stale_range_biases(t_s);
+            self.finish_range_biases(t_s, rep);
             return false;
         }
         if let Some(f) = f {
@@ -359,12 +359,23 @@ impl Estimator {
         let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
         for row in &rows {
             if let Some((k, _)) = row.block[1] {
-                self.range_bias.sats[k - first].last_used_s = t_s;
+                let b = &mut self.range_bias.sats[k - first];
+                b.last_used_s = b.last_used_s.max(t_s);
             }
         }
-        self.drop_stale_range_biases(t_s);
+        self.finish_range_biases(t_s, rep);
         self.stats.updates += 1;
         true
+    }
+
+    /// After an epoch (DG5′): the states of satellites the gate kept
+    /// refusing start again, counted as `gnss_range_bias_restart`; those
+    /// unused for the timeout leave.
+    fn finish_range_biases(&mut self, t_s: f64, rep: &mut GnssReport) {
+        for _ in 0..self.restart_refused_range_biases(t_s) {
+            reject(rep, &mut self.stats, Counter::GnssRangeBiasRestart);
+        }
+        self.drop_stale_range_biases(t_s);
     }
 
     /// The epoch's predictions, and with range-bias states on (DG5′) the
@@ -377,6 +388,7 @@ impl Estimator {
         sats: &[SatMeas],
         nom: &GnssNominal,
         t_s: f64,
+        rep: &mut GnssReport,
     ) -> Vec<SatPrediction> {
         let preds: Vec<SatPrediction> = sats
             .iter()
@@ -391,7 +403,7 @@ impl Estimator {
             if single_point && pred.elevation_rad >= mask_rad {
                 self.ensure_troposphere_state(t_s);
                 if self.ensure_range_bias_state(s.system, s.prn, t_s).is_none() {
-                    *self.stats.rejected.entry(Counter::GnssRangeBiasFull).or_default() += 1;
+                    reject(rep, &mut self.stats, Counter::GnssRangeBiasFull);
                 }
             }
         }
@@ -571,11 +583,15 @@ impl Estimator {
         if s.correction.is_some() {
             return None;
         }
-        let t_z = self.range_bias.tropo_zenith_m?;
         let k = self.range_bias.slot(s.system, s.prn)?;
         let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
         let b = self.range_bias.sats[k - first].value_m;
-        Some((b + pred.tropo_map * t_z, [Some((0, pred.tropo_map)), Some((k, 1.0))]))
+        // Without a troposphere state (`troposphere_sigma_m = 0`) the model
+        // is taken as exact.
+        Some(match self.range_bias.tropo_zenith_m {
+            Some(t_z) => (b + pred.tropo_map * t_z, [Some((0, pred.tropo_map)), Some((k, 1.0))]),
+            None => (b, [None, Some((k, 1.0))]),
+        })
     }
 
     /// The gated, whitened rows of an epoch's measurements predicted by
@@ -692,13 +708,23 @@ impl Estimator {
             let (model_m, block) = model.unwrap_or((0.0, [None, None]));
             let r = z - pred.pseudorange_m - model_m;
             res.1 = Some(r);
+            // The satellite's range-bias state, if any, counts the gate's
+            // refusals in a row (a step of its error, DG5′).
+            let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+            let bias = block[1].map(|(k, _)| k - first);
             if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * screen_sigma) {
                 reject(rep, &mut self.stats, Counter::GnssPseudorangeOutlier);
             } else if let Some(row) = gated(&pred.h_pseudorange, block, r, epoch_sigma, sigma, p_sub, gate) {
                 rows.push(row);
                 rep.pseudoranges_used += 1;
+                if let Some(i) = bias {
+                    self.range_bias.sats[i].refused_in_a_row = 0;
+                }
             } else {
                 reject(rep, &mut self.stats, Counter::GnssPseudorangeChi2);
+                if let Some(i) = bias {
+                    self.range_bias.sats[i].refused_in_a_row += 1;
+                }
             }
         }
         if let Some(z) = s.range_rate_mps.filter(|z| z.is_finite()) {

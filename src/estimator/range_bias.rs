@@ -27,6 +27,13 @@ use super::{Estimator, GNSS_CLONE_DIM};
 /// at once. A satellite beyond them is weighted by DG6's window instead,
 /// and counted.
 pub(super) const MAX_RANGE_BIAS_STATES: usize = 40;
+/// A full block gives the slot of its longest-unused satellite to a new one
+/// once that satellite has been unused this long (s): one that has set or
+/// is behind a building, against one in view now.
+const SLOT_REUSE_AFTER_S: f64 = 10.0;
+/// Codes of a satellite refused in a row after which its state starts again
+/// (see [`RangeBias::refused_in_a_row`]).
+pub(super) const REFUSALS_BEFORE_RESTART: u32 = 5;
 
 /// One satellite's range-bias state.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,6 +44,10 @@ pub(super) struct RangeBias {
     pub value_m: f64,
     /// When a code of it was last fused (s).
     pub last_used_s: f64,
+    /// Its codes refused by the χ² gate in a row: a step of its error
+    /// (a new ephemeris, another code) that the state's own variance no
+    /// longer allows.
+    pub refused_in_a_row: u32,
 }
 
 /// The block's nominal values and bookkeeping.
@@ -139,13 +150,16 @@ impl Estimator {
         }
     }
 
-    /// Creates the zenith troposphere state with its prior, if not yet.
+    /// Creates the zenith troposphere state with its prior, if not yet. A
+    /// prior of 0 (`troposphere_sigma_m = 0`: the model taken as exact)
+    /// makes no state: a state of zero variance would fail the health
+    /// check's positive diagonal.
     pub(super) fn ensure_troposphere_state(&mut self, t_s: f64) {
-        if self.range_bias.tropo_zenith_m.is_some() {
+        if self.range_bias.tropo_zenith_m.is_some() || self.s.troposphere_sigma_m <= 0.0 {
             return;
         }
         if self.range_bias.sats.is_empty() {
-            self.range_bias.noise_t_s = t_s;
+            self.range_bias.noise_t_s = self.range_bias.noise_t_s.max(t_s);
         }
         let at = self.range_bias_offset();
         self.insert_independent(at, &[self.s.troposphere_sigma_m.powi(2)]);
@@ -153,16 +167,33 @@ impl Estimator {
     }
 
     /// A satellite's slot in the block, its state created with the prior
-    /// `(k_sys σ_b)²` if it has none; `None` when the block is full.
+    /// `(k_sys σ_b)²` if it has none; `None` when the block is full of
+    /// satellites in use.
     pub(super) fn ensure_range_bias_state(&mut self, system: System, prn: u8, t_s: f64) -> Option<usize> {
         if let Some(k) = self.range_bias.slot(system, prn) {
             return Some(k);
         }
         if self.range_bias.sats.len() >= MAX_RANGE_BIAS_STATES {
-            return None;
+            let (i, oldest_s) = self
+                .range_bias
+                .sats
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (i, b.last_used_s))
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            if t_s - oldest_s < SLOT_REUSE_AFTER_S {
+                return None;
+            }
+            self.remove_range_bias(i);
         }
-        let at = self.range_bias_offset() + self.range_bias.dim();
         let sigma_m = self.s.range_bias_sigma_m * broadcast_factor(system);
+        self.add_range_bias(system, prn, sigma_m, t_s);
+        self.range_bias.slot(system, prn)
+    }
+
+    /// Appends a satellite's state with the prior sigma `sigma_m`.
+    fn add_range_bias(&mut self, system: System, prn: u8, sigma_m: f64, t_s: f64) {
+        let at = self.range_bias_offset() + self.range_bias.dim();
         self.insert_independent(at, &[sigma_m * sigma_m]);
         self.stats.range_bias_states_created += 1;
         self.range_bias.sats.push(RangeBias {
@@ -170,8 +201,41 @@ impl Estimator {
             prn,
             value_m: 0.0,
             last_used_s: t_s,
+            refused_in_a_row: 0,
         });
-        self.range_bias.slot(system, prn)
+    }
+
+    /// Marginalises the `i`-th satellite's state (A2).
+    fn remove_range_bias(&mut self, i: usize) {
+        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let at = self.range_bias_offset() + first + i;
+        self.remove_block(at, 1);
+        self.range_bias.sats.remove(i);
+        self.stats.range_bias_states_dropped += 1;
+    }
+
+    /// Starts again the state of each satellite whose codes the gate has
+    /// refused [`REFUSALS_BEFORE_RESTART`] times in a row: its error
+    /// stepped (a new ephemeris or clock upload, another code) beyond what
+    /// the state's variance allows, and would lock the satellite out for
+    /// good. The new state's prior is one epoch's broadcast sigma
+    /// (`broadcast_sigma_m`, the user range accuracy), since a step is a new
+    /// error of any size the broadcast allows. Returns how many restarted.
+    pub(super) fn restart_refused_range_biases(&mut self, t_s: f64) -> u64 {
+        let mut restarted = 0;
+        let mut i = 0;
+        while i < self.range_bias.sats.len() {
+            let b = self.range_bias.sats[i];
+            if b.refused_in_a_row >= REFUSALS_BEFORE_RESTART {
+                self.remove_range_bias(i);
+                let sigma_m = self.s.broadcast_sigma_m.max(self.s.range_bias_sigma_m) * broadcast_factor(b.system);
+                self.add_range_bias(b.system, b.prn, sigma_m, t_s);
+                restarted += 1;
+            } else {
+                i += 1;
+            }
+        }
+        restarted
     }
 
     /// Marginalises the states of satellites unused for
@@ -180,14 +244,10 @@ impl Estimator {
     /// filter knew of it.
     pub(super) fn drop_stale_range_biases(&mut self, t_s: f64) {
         let timeout_s = self.s.range_bias_timeout_s;
-        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
         let mut i = 0;
         while i < self.range_bias.sats.len() {
             if t_s - self.range_bias.sats[i].last_used_s > timeout_s {
-                let at = self.range_bias_offset() + first + i;
-                self.remove_block(at, 1);
-                self.range_bias.sats.remove(i);
-                self.stats.range_bias_states_dropped += 1;
+                self.remove_range_bias(i);
             } else {
                 i += 1;
             }
@@ -295,5 +355,65 @@ mod tests {
         assert_eq!(est.troposphere_zenith().map(|t| t.0), Some(0.05));
         let b: Vec<f64> = est.range_biases().iter().map(|b| b.2).collect();
         assert_eq!(b, vec![-0.3, 0.7]);
+    }
+
+    /// `troposphere_sigma_m = 0` takes the model as exact: no zenith state
+    /// (one of zero variance would fail the health check), and the
+    /// satellites' states index from 0.
+    #[test]
+    fn a_zero_troposphere_prior_makes_no_state() {
+        let mut est = estimator();
+        est.s.troposphere_sigma_m = 0.0;
+        est.ensure_troposphere_state(0.0);
+        assert_eq!(est.troposphere_zenith(), None);
+        assert_eq!(est.ensure_range_bias_state(System::Gps, 5, 0.0), Some(0));
+        assert!(est.check_health().is_ok(), "{:?}", est.check_health());
+    }
+
+    /// A full block gives the slot of a satellite unused for 10 s to a new
+    /// one, and refuses while all are in use.
+    #[test]
+    fn a_full_block_reuses_the_slot_of_a_satellite_gone() {
+        let mut est = estimator();
+        for prn in 0..MAX_RANGE_BIAS_STATES as u8 {
+            assert!(est.ensure_range_bias_state(System::Gps, prn + 1, 0.0).is_some());
+        }
+        for b in est.range_bias.sats.iter_mut().skip(1) {
+            b.last_used_s = 8.0;
+        }
+        assert_eq!(est.ensure_range_bias_state(System::Galileo, 3, 9.0), None);
+        assert!(est.ensure_range_bias_state(System::Galileo, 3, 10.5).is_some());
+        assert_eq!(
+            est.range_bias.slot(System::Gps, 1),
+            None,
+            "the longest unused gave its slot"
+        );
+        assert_eq!(est.range_biases().len(), MAX_RANGE_BIAS_STATES);
+        assert_eq!(est.stats.range_bias_states_dropped, 1);
+    }
+
+    /// A satellite whose codes the gate refused five times in a row starts
+    /// again, uncorrelated, at one epoch's broadcast sigma; the others keep
+    /// their states exactly.
+    #[test]
+    fn a_satellite_the_gate_keeps_refusing_starts_again() {
+        let mut est = estimator();
+        est.ensure_troposphere_state(0.0);
+        est.ensure_range_bias_state(System::Gps, 5, 0.0);
+        est.ensure_range_bias_state(System::Gps, 9, 0.0);
+        let n = est.P.nrows();
+        est.range_bias.sats[0].value_m = 0.4;
+        est.range_bias.sats[0].refused_in_a_row = REFUSALS_BEFORE_RESTART - 1;
+        assert_eq!(est.restart_refused_range_biases(1.0), 0);
+        est.range_bias.sats[0].refused_in_a_row = REFUSALS_BEFORE_RESTART;
+        let kept = est.P[(n - 1, n - 1)];
+        assert_eq!(est.restart_refused_range_biases(1.0), 1);
+        assert_eq!(est.P.nrows(), n);
+        let b = est.range_biases();
+        assert_eq!((b[0].1, b[1].1), (9, 5), "the restarted state goes last");
+        assert_eq!(b[0].3, kept);
+        assert_eq!(b[1].2, 0.0);
+        assert_eq!(b[1].3, est.s.broadcast_sigma_m.powi(2));
+        assert!(est.P.row(n - 1).iter().take(n - 1).all(|x| *x == 0.0));
     }
 }
