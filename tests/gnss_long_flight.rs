@@ -156,12 +156,13 @@ fn a_step_in_a_satellites_error_restarts_its_state() {
         .unwrap()
         .broadcast_error_m
         + STEP_M;
-    let (_, _, b_m, var_m2) = run
+    let b = run
         .est
         .range_biases()
         .into_iter()
-        .find(|b| b.0 == System::Gps && b.1 == prn)
+        .find(|b| b.system == System::Gps && b.prn == prn)
         .expect("the stepped satellite keeps a state");
+    let (b_m, var_m2) = (b.b_m, b.var_m2);
     let t = run.est.time_s();
     let truth = ds
         .truth

@@ -441,8 +441,10 @@ pub struct GnssConfig {
     /// (m), as one epoch sees it: the default, 2.4 m, is the user range
     /// accuracy a healthy GPS satellite broadcasts (URA index 0), as RTKLIB
     /// weights it. It screens outliers (a code far from its constellation's
-    /// median), and weighs the codes of satellites without a range-bias
-    /// state (see `range_bias_states`). Differential codes have it removed.
+    /// median), is the prior of a range-bias state started again after a
+    /// step (at least `range_bias_sigma_m`), and weighs the codes of
+    /// satellites without a state (see `range_bias_states`). Differential
+    /// codes have it removed.
     pub broadcast_sigma_m: f64,
     /// Error of the troposphere model at zenith, one sigma (m): the prior of
     /// its state (or, without range-bias states, a weight growing as
@@ -452,8 +454,8 @@ pub struct GnssConfig {
     /// at zenith, as states of the filter (§8c, eq. DG5′): believed once,
     /// whatever the rate and the length of the flight. `false`: weighted
     /// by `broadcast_sigma_m` and `correlation_window_s` instead (eq. DG6),
-    /// which a keyframe map holding an hour of fixes believes about fifty
-    /// times over.
+    /// which a keyframe map holding an hour of fixes believes about ten
+    /// times over (position NEES 34.4 against 3 after an hour).
     pub range_bias_states: bool,
     /// Prior of a satellite's range-bias state, one sigma (m): the signal in
     /// space range error of a modern GPS or Galileo satellite; GLONASS's is

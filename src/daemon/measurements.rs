@@ -149,7 +149,7 @@ fn fuse_gnss(est: &mut Estimator, t: f64, sats: &[SatMeas], cx: &mut FuseCtx<'_>
                         "rejected": rep.rejected, "residuals": rep.residuals, "clock": clock.as_slice(),
                         "clock_var": clock_var.as_slice(),
                         "range_bias": est.range_biases().into_iter()
-                            .map(|(sys, prn, b, var)| json!([format!("{}{prn:02}", sys.letter()), b, var.sqrt()]))
+                            .map(|b| json!([format!("{}{:02}", b.system.letter(), b.prn), b.b_m, b.var_m2.sqrt()]))
                             .collect::<Vec<_>>(),
                         "troposphere_zenith": est.troposphere_zenith().map(|(t, var)| [t, var.sqrt()]),
                         "keyframe_sigma_m": est.keyframe_sigmas().into_iter().take(200).collect::<Vec<_>>(),

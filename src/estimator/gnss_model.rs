@@ -318,13 +318,13 @@ pub(super) mod tests {
         }
     }
 
-    /// §8c, eq. DG5′: a single-point code is `K2 + b + m(el) T_z`. Its
-    /// columns on `b` and `T_z` (1 and `m`) against central differences of
-    /// that sum, and the slope of `m(el(p)) T_z` with the position, which
-    /// the row leaves out, against the bound the README gives (1e-7 m/m
-    /// per metre of `T_z`, far below the code's metre of noise).
+    /// §8c, eq. DG5′: the mapping `m(el)` of the zenith troposphere error
+    /// (the row's `T_z` column; `gnss_update`'s test checks the columns
+    /// against the filter's model), and the slope of `m(el(p)) T_z` with the
+    /// position, which the row leaves out: below 1e-7 m/m at `T_z` = 0.15 m,
+    /// far below the code's metre of noise.
     #[test]
-    fn range_bias_and_troposphere_columns_match_finite_differences() {
+    fn troposphere_mapping_and_its_left_out_slope() {
         for system in [System::Gps, System::Galileo, System::Glonass, System::BeiDou] {
             let (frame, s) = sat_of(system);
             let nom = GnssNominal {

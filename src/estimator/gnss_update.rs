@@ -664,9 +664,10 @@ impl Estimator {
         let w = (self.s.gnss_correlation_window_s / period_s).max(1.0);
         let mut res = (s.prn, None, None);
         if let Some(z) = s.pseudorange_m.filter(|z| z.is_finite()) {
-            // σ² = (σ_P·k / sin el)² + σ_I² [+ σ_eph² + (σ_T / sin el)²] (§8c, eq. DG5):
-            // the broadcast and troposphere terms only for single-point
-            // codes, since a base station's corrections remove them.
+            // σ² = (σ_P·k / sin el)² + σ_I² [+ σ_eph² + (σ_T / sin el)²] (§8c):
+            // the bracket only for a single-point code without a range-bias
+            // state (DG6); with one, those errors are in h P hᵀ (DG5′), and a
+            // base station's corrections remove them (DG3).
             let code_var_m2 = (self.s.pseudorange_sigma_m * s.noise_scale / sin_el).powi(2);
             let white_var_m2 = code_var_m2;
             // DG6′: the ionosphere a single-frequency code leaves (σ_I²,
@@ -688,7 +689,7 @@ impl Estimator {
                 // believed `shared_by` times, at most the window's epochs.
                 // DG9′: the base's announced position is known to σ_A,
                 // moving every corrected code (and so the rover) by as much
-                // for the whole flight: windowed like DG5's terms.
+                // for the whole flight: windowed like DG6's terms.
                 (Some(c), _) => {
                     let w_b = c.shared_by.clamp(1.0, w);
                     (
@@ -795,6 +796,68 @@ impl GnssGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimator::gnss_model::tests::sat_of;
+    use crate::estimator::propagate::tests::state;
+
+    /// §8c, eq. DG5′: the block columns of a single-point code's row
+    /// against central differences of the filter's own model of it
+    /// (`range_bias_model`), the block's estimates moved through the
+    /// correction path (`inject`), for every constellation; a differential
+    /// code has none.
+    #[test]
+    fn range_bias_columns_match_finite_differences_of_the_model() {
+        let s = crate::config::Config::default().estimator_settings();
+        let mut est = Estimator::new(s, 0.0, state(), &(crate::estimator::Mat15::identity() * 0.01));
+        let nom = GnssNominal {
+            imu: state(),
+            gyro_radps: Vector3::new(0.1, -0.2, 0.3),
+            clock: ClockVec::zeros(),
+        };
+        let lever = Vector3::new(0.2, -0.1, -0.2);
+        est.ensure_troposphere_state(0.0);
+        for (i, system) in [System::Gps, System::Galileo, System::Glonass, System::BeiDou]
+            .into_iter()
+            .enumerate()
+        {
+            let (frame, mut sat) = sat_of(system);
+            sat.prn = 3 + i as u8;
+            est.ensure_range_bias_state(system, sat.prn, 0.0);
+            let n = est.P.nrows();
+            let o = est.range_bias_offset();
+            // Estimates away from zero, as in flight.
+            let mut dx = DVector::zeros(n);
+            dx[o] = 0.15;
+            dx[n - 1] = 0.4;
+            est.inject_range_bias(&dx);
+            let pred = predict_sat(&frame, &nom, &lever, &sat);
+            let (_, cols) = est
+                .range_bias_model(&sat, &pred)
+                .expect("a single-point code with its state");
+            let h = 1e-3;
+            for (k, c) in cols.iter().flatten() {
+                let mut step = DVector::zeros(n);
+                step[o + k] = h;
+                let mut plus = est.clone();
+                plus.inject_range_bias(&step);
+                step[o + k] = -h;
+                let mut minus = est.clone();
+                minus.inject_range_bias(&step);
+                let model = |e: &Estimator| e.range_bias_model(&sat, &pred).map_or(f64::NAN, |m| m.0);
+                let fd = (model(&plus) - model(&minus)) / (2.0 * h);
+                assert!((fd - c).abs() < 1e-9, "{system:?} block column {k}: fd {fd} vs {c}");
+            }
+            assert_eq!(cols.iter().flatten().count(), 2, "{system:?}: T_z and b_i");
+            let mut differential = sat;
+            differential.correction = Some(cmsckf_models::gnss::CodeCorrection {
+                base_station_id: 1,
+                base_tow_s: 0.0,
+                age_s: 0.5,
+                shared_by: 1.0,
+                reference_step_m: 0.0,
+            });
+            assert!(est.range_bias_model(&differential, &pred).is_none());
+        }
+    }
 
     #[test]
     fn the_epoch_period_is_learnt_and_relearnt() {

@@ -66,6 +66,7 @@ pub use heading::YawConditionError;
 pub use inspect::SchmidtDowndate;
 use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
+pub use range_bias::RangeBiasEstimate;
 pub use settings::{Mode, Settings, ZuptSettings};
 pub use snapshot::Snapshot;
 

@@ -84,8 +84,10 @@ pub struct Settings {
     pub range_bias_rw_m_per_sqrt_s: f64,
     pub range_bias_timeout_s: f64,
     pub troposphere_rw_m_per_sqrt_s: f64,
-    /// The window (s) in which those errors, and a range rate's persistent
-    /// part (m/s at zenith), count as one measurement (§8c, eq. DG6).
+    /// The window (s) in which errors that hold and have no state (the
+    /// broadcast and troposphere errors without range-bias states, and a
+    /// range rate's persistent part, m/s at zenith) count as one
+    /// measurement (§8c, eq. DG6).
     pub gnss_correlation_window_s: f64,
     pub range_rate_correlated_sigma_mps: f64,
     /// The window (s) in which a single-frequency code's ionosphere error

@@ -500,16 +500,16 @@ fn finish(r: &mut FlightResult, ds: &Dataset, run: &Runner) {
 fn range_bias_nees(ds: &Dataset, est: &Estimator) -> Vec<f64> {
     est.range_biases()
         .into_iter()
-        .filter_map(|(system, prn, b_m, var_m2)| {
+        .filter_map(|b| {
             // Constant over the flight: any epoch that saw the satellite.
             let truth_m = ds
                 .gnss
                 .iter()
                 .rev()
                 .flat_map(|e| e.sats.iter())
-                .find(|s| s.system == system && s.prn == prn)?
+                .find(|s| s.system == b.system && s.prn == b.prn)?
                 .broadcast_error_m;
-            (var_m2 > 0.0).then(|| (b_m - truth_m).powi(2) / var_m2)
+            (b.var_m2 > 0.0).then(|| (b.b_m - truth_m).powi(2) / b.var_m2)
         })
         .collect()
 }

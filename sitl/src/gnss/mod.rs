@@ -163,8 +163,9 @@ impl GnssModel {
         .with_broadcast_errors()
     }
 
-    /// Draws each satellite's broadcast error from its own stream (seeded by
-    /// the week: the constellation's, not a receiver's).
+    /// Draws each satellite's broadcast error from its own stream, seeded by
+    /// the week; a simulated flight (`Dataset`) draws its own instead
+    /// ([`GnssModel::for_flight`]).
     fn with_broadcast_errors(self) -> Self {
         let seed = self.cfg.start_week as u64 ^ 0x515e;
         self.with_broadcast_errors_from(seed)
