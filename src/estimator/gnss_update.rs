@@ -356,7 +356,7 @@ impl Estimator {
         }
         self.ekf_update(&h, &cols, &r, false);
         // The satellites whose codes were fused keep their states.
-        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let first = self.range_bias.first_sat();
         for row in &rows {
             if let Some((k, _)) = row.block[1] {
                 let b = &mut self.range_bias.sats[k - first];
@@ -584,7 +584,7 @@ impl Estimator {
             return None;
         }
         let k = self.range_bias.slot(s.system, s.prn)?;
-        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let first = self.range_bias.first_sat();
         let b = self.range_bias.sats[k - first].value_m;
         // Without a troposphere state (`troposphere_sigma_m = 0`) the model
         // is taken as exact.
@@ -711,7 +711,7 @@ impl Estimator {
             res.1 = Some(r);
             // The satellite's range-bias state, if any, counts the gate's
             // refusals in a row (a step of its error, DG5′).
-            let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+            let first = self.range_bias.first_sat();
             let bias = block[1].map(|(k, _)| k - first);
             if median.is_some_and(|m| (r - m).abs() > OUTLIER_SIGMAS * screen_sigma) {
                 reject(rep, &mut self.stats, Counter::GnssPseudorangeOutlier);

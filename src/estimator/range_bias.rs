@@ -73,14 +73,20 @@ pub(super) struct RangeBiasBlock {
 }
 
 impl RangeBiasBlock {
+    /// Index in the block of the first satellite's state: after `T_z`, if
+    /// there is one.
+    pub fn first_sat(&self) -> usize {
+        usize::from(self.tropo_zenith_m.is_some())
+    }
+
     /// States in the block.
     pub fn dim(&self) -> usize {
-        usize::from(self.tropo_zenith_m.is_some()) + self.sats.len()
+        self.first_sat() + self.sats.len()
     }
 
     /// Index of a satellite's state within the block.
     pub fn slot(&self, system: System, prn: u8) -> Option<usize> {
-        let first = usize::from(self.tropo_zenith_m.is_some());
+        let first = self.first_sat();
         self.sats
             .iter()
             .position(|b| b.system == system && b.prn == prn)
@@ -112,7 +118,7 @@ impl Estimator {
 
     /// Each satellite's range bias and its variance, in state order.
     pub fn range_biases(&self) -> Vec<RangeBiasEstimate> {
-        let o = self.range_bias_offset() + usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let o = self.range_bias_offset() + self.range_bias.first_sat();
         self.range_bias
             .sats
             .iter()
@@ -221,7 +227,7 @@ impl Estimator {
 
     /// Marginalises the `i`-th satellite's state (A2).
     fn remove_range_bias(&mut self, i: usize) {
-        let first = usize::from(self.range_bias.tropo_zenith_m.is_some());
+        let first = self.range_bias.first_sat();
         let at = self.range_bias_offset() + first + i;
         self.remove_block(at, 1);
         self.range_bias.sats.remove(i);

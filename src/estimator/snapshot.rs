@@ -87,7 +87,7 @@ impl Estimator {
         // by key, so that two filters' blocks line up whatever order their
         // satellites arrived in.
         let bo = est.range_bias_offset();
-        let t_first = usize::from(est.range_bias.tropo_zenith_m.is_some());
+        let t_first = est.range_bias.first_sat();
         idx.extend(bo..bo + t_first);
         let mut sats: Vec<(usize, &super::range_bias::RangeBias)> = est.range_bias.sats.iter().enumerate().collect();
         sats.sort_by_key(|(_, b)| (b.system, b.prn));
