@@ -22,9 +22,17 @@ impl Estimator {
     pub(super) fn propagate_covariance(&mut self, f: &propagate::ActiveTransition, q: &MatActive) {
         let paa: MatActive = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
         let fp = f.mul_left(&paa);
-        let mut new = f.mul_left(&fp.transpose()) + q;
-        new = (new + new.transpose()) * 0.5;
-        self.P.fixed_view_mut::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).copy_from(&new);
+        let fpf = f.mul_left(&fp.transpose());
+        // `Q` added and the sum symmetrised as it is written back: no
+        // temporaries of the block's size (issue 43's profile: copies were
+        // a third of this step).
+        let n = self.P.nrows();
+        let out = self.P.as_mut_slice();
+        for j in 0..ACTIVE_DIM {
+            for i in 0..ACTIVE_DIM {
+                out[j * n + i] = 0.5 * ((fpf[(i, j)] + fpf[(j, i)]) + (q[(i, j)] + q[(j, i)]));
+            }
+        }
         self.f_acc = f.mul_left(&self.f_acc);
     }
 

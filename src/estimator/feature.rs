@@ -272,7 +272,7 @@ pub fn triangulate(
 }
 
 /// The buffers a track's gate works in (`track_system_into`,
-/// `nullspace_project_into`, `projected_hph_into` and the χ² gate's
+/// `nullspace_project_into`, `projected_nis_into` and the χ² gate's
 /// factor), kept across tracks and frames so that a track's working
 /// matrices allocate nothing once they have grown to the longest track
 /// (issue 43; a passing track's rows are still copied out). Kept inside the
@@ -286,11 +286,11 @@ pub struct TrackScratch {
     pub r: DVector<f64>,
     /// `[H_f | H_x | r]` reflected by `nullspace_project_into`.
     pub projected: DMatrix<f64>,
-    /// `projected_hph_into`'s two reflected stacks; the projected `H P Hᵀ`
-    /// is `hph_b[3.., 3..]`.
-    pub hph_a: DMatrix<f64>,
-    pub hph_b: DMatrix<f64>,
-    /// The χ² gate's `S` (then its Cholesky factor) and `S⁻¹ r`.
+    /// `projected_nis_into`'s `C = H_x P H_xᵀ + I` (then its Cholesky
+    /// factor) and `L⁻¹ [H_f | r]`.
+    pub c: DMatrix<f64>,
+    pub y: DMatrix<f64>,
+    /// The low-parallax gate's `S` (then its Cholesky factor) and `S⁻¹ r`.
     pub s: DMatrix<f64>,
     pub s_inv_r: DVector<f64>,
 }
@@ -506,63 +506,80 @@ pub fn low_parallax_system(
     Ok(LowParallaxRows { hx, r, p_f: p })
 }
 
-/// The χ² gate's `H P Hᵀ` for the projected track (README §3, G1):
-/// `Q₂ᵀ (H_x P H_xᵀ) Q₂`, where `Q₂` spans the left null space of `H_f` (the
-/// rows `nullspace_project` keeps) and `p` is the covariance of the track's
-/// views in `hx`'s column order. `H_x` from `track_system` is block
-/// diagonal, one 2×6 block per observation, so `M = H_x P H_xᵀ` is `O(m²)`
-/// small products (2×6 by 6×6), and `Q₂ᵀ M Q₂` is the same three reflections
-/// applied twice: `Q₂ᵀ M`, then `Q₂ᵀ (Q₂ᵀ M)ᵀ = Q₂ᵀ M Q₂` as `M` is symmetric.
-/// Equal to `(Q₂ᵀ H_x) P (Q₂ᵀ H_x)ᵀ`, which costs `(2m−3)·(6m)²` with the
-/// dense projected Jacobian: about a fifth of that at m = 11.
-pub fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, obs: &[Obs], p: &DMatrix<f64>) -> DMatrix<f64> {
-    let (mut a, mut b) = (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0));
-    let keep = projected_hph_into(hx, hf, obs, p, (&mut a, &mut b));
-    if keep == 0 {
-        return DMatrix::zeros(0, 0);
-    }
-    super::math::block_owned(&b, 3, 3, keep, keep)
-}
-
-/// [`projected_hph`] in the buffers `(a, b)`: the result is `b[3.., 3..]`,
-/// `keep × keep`; returns `keep` (0 for a track of at most three rows,
-/// which keeps none).
-pub fn projected_hph_into(
-    hx: &DMatrix<f64>,
-    hf: &DMatrix<f64>,
-    obs: &[Obs],
-    p: &DMatrix<f64>,
-    (a, b): (&mut DMatrix<f64>, &mut DMatrix<f64>),
-) -> usize {
+/// `C = H_x P H_xᵀ + I` into `c`, its lower triangle only (README §3, G1′):
+/// `H_x` from `track_system` is block diagonal, one 2×6 block `J_i` per
+/// observation, so `M_ij = J_i P_ij J_jᵀ` is `O(m²)` products of 2×6 by 6×6.
+fn whitened_innovation_covariance(hx: &DMatrix<f64>, obs: &[Obs], p: &DMatrix<f64>, c: &mut DMatrix<f64>) {
     let rows = hx.nrows();
-    if rows <= 3 {
-        return 0;
-    }
-    // Each observation's 2×6 block J_i of `hx`, read in place.
+    super::math::reshape_zeroed(c, rows, rows);
+    let (hs, ps, np) = (hx.as_slice(), p.as_slice(), p.nrows());
+    // J_i as two rows of six, read from the column-major `hx`.
     let block = |i: usize| {
-        let c = 6 * obs[i].view;
-        (c, hx.fixed_view::<2, 6>(2 * i, c))
+        let col = 6 * obs[i].view;
+        let at = |k: usize| (col + k) * rows + 2 * i;
+        (col, [0, 1].map(|a| std::array::from_fn::<f64, 6, _>(|k| hs[at(k) + a])))
     };
-    // [H_f | M], M's blocks M_ij = J_i P_ij J_jᵀ, j ≥ i, mirrored.
-    super::math::reshape_zeroed(a, rows, 3 + rows);
-    a.columns_mut(0, 3).copy_from(hf);
-    for i in 0..obs.len() {
-        let (ci, ji) = block(i);
-        for j in i..obs.len() {
-            let (cj, jj) = block(j);
-            let mij = ji * p.fixed_view::<6, 6>(ci, cj) * jj.transpose();
-            a.fixed_view_mut::<2, 2>(2 * i, 3 + 2 * j).copy_from(&mij);
-            a.fixed_view_mut::<2, 2>(2 * j, 3 + 2 * i).copy_from(&mij.transpose());
+    let cs = c.as_mut_slice();
+    for j in 0..obs.len() {
+        let (cj, jj) = block(j);
+        for i in j..obs.len() {
+            let (ci, ji) = block(i);
+            // T = J_i P_ij (2×6), then M_ij = T J_jᵀ (2×2), i ≥ j: in the
+            // lower triangle. Plain arrays: nalgebra's generic small
+            // products were a tenth of the gate's time.
+            let mut t = [[0.0; 6]; 2];
+            for k in 0..6 {
+                let pc = &ps[(cj + k) * np + ci..(cj + k) * np + ci + 6];
+                for a in 0..2 {
+                    t[a][k] = (0..6).map(|r| ji[a][r] * pc[r]).sum();
+                }
+            }
+            for d in 0..2 {
+                for a in 0..2 {
+                    cs[(2 * j + d) * rows + 2 * i + a] = (0..6).map(|k| t[a][k] * jj[d][k]).sum();
+                }
+            }
         }
     }
-    super::math::householder_in_place(a, 3);
-    // [H_f | (Q₂ᵀ M)ᵀ]: the same reflections again.
-    let keep = rows - 3;
-    super::math::reshape_zeroed(b, rows, 3 + keep);
-    b.columns_mut(0, 3).copy_from(hf);
-    b.columns_mut(3, keep).tr_copy_from(&a.view((3, 3), (keep, rows)));
-    super::math::householder_in_place(b, 3);
-    keep
+    for d in 0..rows {
+        cs[d * rows + d] += 1.0;
+    }
+}
+
+/// The projected track's NIS for the χ² gate (README §3, G1′), without
+/// projecting its covariance: with `C = H_x P H_xᵀ + I` (whitened noise)
+/// and `Q₂` spanning the left null space of `H_f`,
+/// `rᵀ Q₂ (Q₂ᵀ C Q₂)⁻¹ Q₂ᵀ r = rᵀ C⁻¹ r − rᵀ C⁻¹ H_f (H_fᵀ C⁻¹ H_f)⁻¹ H_fᵀ C⁻¹ r`,
+/// the residual of `r` after the landmark's best correction, weighed by
+/// `C`. With `C = L Lᵀ`, `[F | y] = L⁻¹ [H_f | r]`, it is `|y|²` less `y`'s
+/// part in the span of `F`: the last `2m − 3` entries of `y` after the
+/// three reflections that triangularise `F`, squared and summed (no
+/// subtraction, so no cancellation). `r`, `hx`, `hf` are the unprojected,
+/// whitened rows of `track_system`; `p` the covariance of the track's
+/// views in `hx`'s column order. `Ok((nis, dof))`; `Err` when `C` is not
+/// positive definite (a non-finite entry, or a covariance that lost its
+/// definiteness). Works in `(c, y)`, which keep their capacity.
+pub fn projected_nis_into(
+    (hx, hf, r): (&DMatrix<f64>, &DMatrix<f64>, &DVector<f64>),
+    obs: &[Obs],
+    p: &DMatrix<f64>,
+    (c, y): (&mut DMatrix<f64>, &mut DMatrix<f64>),
+) -> Result<(f64, usize), Reject> {
+    let rows = hx.nrows();
+    if rows <= 3 {
+        return Ok((0.0, 0));
+    }
+    whitened_innovation_covariance(hx, obs, p, c);
+    if !super::math::cholesky_lower_in_place(c) {
+        return Err(Reject::NonFinite);
+    }
+    super::math::reshape_zeroed(y, rows, 4);
+    y.columns_mut(0, 3).copy_from(hf);
+    y.column_mut(3).copy_from(r);
+    super::math::solve_lower_in_place(c, y);
+    super::math::householder_in_place(y, 3);
+    let nis = y.column(3).as_slice()[3..].iter().map(|v| v * v).sum();
+    Ok((nis, rows - 3))
 }
 
 #[cfg(test)]
@@ -711,27 +728,71 @@ mod tests {
         let (hf2, _) = nullspace_project(&hf, &hf, &DVector::zeros(2 * obs.len()));
         assert!(hf2.amax() < 1e-9, "{}", hf2.amax());
         assert!(hx2.amax() > 1.0);
-        // The gate's H P Hᵀ from the block-diagonal H_x equals the dense
-        // projected product, for a covariance correlating all the views.
+        // The gate's NIS from the unprojected rows (G1′) equals the dense
+        // projected one (G1), for a covariance correlating all the views.
         let n = hx.ncols();
         let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
         let p = &g * g.transpose() + DMatrix::identity(n, n) * 0.01;
-        let want = &hx2 * &p * hx2.transpose();
-        let got = projected_hph(&hx, &hf, &obs, &p);
-        assert_eq!(got.shape(), want.shape());
-        assert!(
-            (&got - &want).amax() <= 1e-12 * want.amax(),
-            "{}",
-            (&got - &want).amax()
+        // A residual away from the triangulated point, so that the landmark's
+        // own correction is not zero and the identity is exercised.
+        let r = r + DVector::from_fn(2 * obs.len(), |i, _| 30.0 * ((i * 5 % 7) as f64 - 3.0));
+        let (want, dof) = dense_projected_nis(&hx, &hf, &r, &p);
+        let got = projected_nis_into(
+            (&hx, &hf, &r),
+            &obs,
+            &p,
+            (&mut DMatrix::zeros(0, 0), &mut DMatrix::zeros(0, 0)),
         );
+        assert_eq!(got.map(|g| g.1), Ok(dof));
+        let got = got.map(|g| g.0).unwrap_or(f64::NAN);
+        assert!(want > 1.0, "a residual that tests something: {want}");
+        assert!((got - want).abs() <= 1e-10 * want, "{got} vs {want}");
     }
 
-    /// The gate's `H P Hᵀ` equals the dense projected product also for long
-    /// tracks, where `nullspace_project` (and, from 32 observations, both
-    /// calls) take the blocked triangularisation, and when several
-    /// observations share a view.
+    /// The χ² gate's `H P Hᵀ` for the projected track (README §3, G1):
+    /// `Q₂ᵀ (H_x P H_xᵀ) Q₂`, where `Q₂` spans the left null space of `H_f` (the
+    /// rows `nullspace_project` keeps) and `p` is the covariance of the track's
+    /// views in `hx`'s column order: the dense product of the projected rows.
+    /// The gate itself needs only the NIS, which [`projected_nis_into`] takes
+    /// without projecting `H_x P H_xᵀ`; this is its reference in the tests.
+    fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, p: &DMatrix<f64>) -> DMatrix<f64> {
+        let (hx2, _) = nullspace_project(hx, hf, &DVector::zeros(hx.nrows()));
+        &hx2 * p * hx2.transpose()
+    }
+
+    /// G1 the long way: the projected rows `Q₂ᵀ H_x`, `Q₂ᵀ r`, and
+    /// `rᵀ (H P Hᵀ + I)⁻¹ r` through nalgebra's Cholesky; with its dof.
+    fn dense_projected_nis(hx: &DMatrix<f64>, hf: &DMatrix<f64>, r: &DVector<f64>, p: &DMatrix<f64>) -> (f64, usize) {
+        let (_, r2) = nullspace_project(hx, hf, r);
+        let s = projected_hph(hx, hf, p) + DMatrix::identity(r2.len(), r2.len());
+        let s_inv_r = s.cholesky().map(|c| c.solve(&r2));
+        (s_inv_r.map(|x| r2.dot(&x)).unwrap_or(f64::NAN), r2.len())
+    }
+
+    /// The gate's NIS refuses a covariance that is not positive definite
+    /// (a NaN in it, or a negative variance) instead of passing the track.
     #[test]
-    fn gate_covariance_matches_the_dense_projection_on_long_and_shared_tracks() {
+    fn the_gates_nis_refuses_a_covariance_that_is_not_positive_definite() {
+        let e = ext();
+        let p_f = Vector3::new(15.0, 2.0, -1.0);
+        let (views, obs) = synthetic(&p_f);
+        let (hx, hf, r) = track_system(&views, &e, &obs, &p_f);
+        let n = hx.ncols();
+        let bufs = || (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0));
+        for bad in [f64::NAN, -1e6] {
+            let mut p = DMatrix::identity(n, n) * 0.01;
+            p[(0, 0)] = bad;
+            let (mut c, mut y) = bufs();
+            let got = projected_nis_into((&hx, &hf, &r), &obs, &p, (&mut c, &mut y));
+            assert_eq!(got, Err(Reject::NonFinite), "P[0, 0] = {bad}");
+        }
+    }
+
+    /// The gate's NIS equals the dense projected one also for long tracks,
+    /// where `nullspace_project` takes the blocked triangularisation, and
+    /// when several observations share a view.
+    #[test]
+    fn gate_nis_matches_the_dense_projection_on_long_and_shared_tracks() {
         let e = ext();
         let p_f = Vector3::new(15.0, 2.0, -1.0);
         for (n_obs, n_views) in [(12usize, 12usize), (24, 24), (40, 40), (9, 4)] {
@@ -749,17 +810,20 @@ mod tests {
                 })
                 .collect();
             let (hx, hf, r) = track_system(&views, &e, &obs, &p_f);
-            let (hx2, _) = nullspace_project(&hx, &hf, &r);
             let n = hx.ncols();
             let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
             let p = &g * g.transpose() + DMatrix::identity(n, n) * 0.01;
-            let want = &hx2 * &p * hx2.transpose();
-            let got = projected_hph(&hx, &hf, &obs, &p);
-            assert_eq!(got.shape(), (2 * n_obs - 3, 2 * n_obs - 3), "{n_obs} observations");
-            let err = (&got - &want).amax();
+            let r = r + DVector::from_fn(2 * n_obs, |i, _| 30.0 * ((i * 3 % 5) as f64 - 2.0));
+            let (want, dof) = dense_projected_nis(&hx, &hf, &r, &p);
+            let bufs = (&mut DMatrix::zeros(0, 0), &mut DMatrix::zeros(0, 0));
+            let got = projected_nis_into((&hx, &hf, &r), &obs, &p, bufs);
+            assert_eq!(got.map(|g| g.1), Ok(2 * n_obs - 3), "{n_obs} observations");
+            assert_eq!(dof, 2 * n_obs - 3);
+            let got = got.map(|g| g.0).unwrap_or(f64::NAN);
+            assert!(want > 1.0, "a residual that tests something: {want}");
             assert!(
-                err <= 1e-11 * want.amax(),
-                "{n_obs} observations of {n_views} views: {err}"
+                (got - want).abs() <= 1e-9 * want,
+                "{n_obs} observations of {n_views} views: {got} vs {want}"
             );
         }
     }

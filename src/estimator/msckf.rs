@@ -94,12 +94,22 @@ pub(super) struct GateScratch {
     p_sub: DMatrix<f64>,
 }
 
-/// The χ² gate (§3, eq. G1): `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit,
-/// whitened noise), against the `prob` quantile of `χ²(len r)`. `hph` is
-/// `H P_sub Hᵀ`; `S` and `S⁻¹ r` are formed in the two buffers given (a
-/// failed factorisation drops `S`'s, which the next track grows again). The NIS if
-/// under it; `over` if not (a NaN NIS too); `NonFinite` if `S` is not
-/// positive definite.
+/// The χ² test of a NIS of `dof` degrees of freedom against the `prob`
+/// quantile of `χ²(dof)`: the NIS if under it, `over` if not (a NaN NIS
+/// too).
+fn chi2_check(nis: f64, dof: usize, prob: f64, over: Reject) -> Result<f64, Reject> {
+    if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(prob, dof) {
+        Err(over)
+    } else {
+        Ok(nis)
+    }
+}
+
+/// The χ² gate of a low-parallax track (§3e, G1 with LP4's rows):
+/// `rᵀ S⁻¹ r` with `S = H P_sub Hᵀ + I` (unit, whitened noise), through
+/// [`chi2_check`]. `hph` is `H P_sub Hᵀ`; `S` and `S⁻¹ r` are formed in the
+/// two buffers given (a failed factorisation drops `S`'s, which the next
+/// track grows again). `NonFinite` if `S` is not positive definite.
 fn chi2_gate(
     hph: nalgebra::DMatrixView<f64>,
     r: nalgebra::DVectorView<f64>,
@@ -120,11 +130,7 @@ fn chi2_gate(
     ch.solve_mut(s_inv_r);
     let nis = r.dot(s_inv_r);
     *s = ch.unpack();
-    if nis.is_nan() || nis > cmsckf_models::stats::chi2_quantile(prob, r.len()) {
-        Err(over)
-    } else {
-        Ok(nis)
-    }
+    chi2_check(nis, r.len(), prob, over)
 }
 
 /// Counts a rejected track in the frame's report and the filter's stats.
@@ -577,19 +583,13 @@ impl Estimator {
             reject(report, &mut self.stats, Reject::NonFinite);
             return None;
         }
-        // χ² gate on S = H P_sub Hᵀ + I (§3, eq. G1), H P_sub Hᵀ formed
-        // from the block-diagonal Jacobian before projection.
+        // χ² gate on S = H P_sub Hᵀ + I (§3, eqs. G1, G1′): the NIS from the
+        // unprojected rows, whose covariance is block by block.
         let idx = gate.gather((gather_buf, p_sub), &self.P, cols);
-        let keep_hph =
-            feature::projected_hph_into(&track.hx, &track.hf, obs, p_sub, (&mut track.hph_a, &mut track.hph_b));
-        debug_assert_eq!(keep_hph, keep);
-        let hph = if keep_hph == 0 {
-            track.hph_b.view((0, 0), (0, 0))
-        } else {
-            track.hph_b.view((3, 3), (keep_hph, keep_hph))
-        };
-        let gate_bufs = (&mut track.s, &mut track.s_inv_r);
-        let nis = match chi2_gate(hph, r, gate_bufs, (self.s.chi2_gate_prob, Reject::Chi2)) {
+        let system = (&track.hx, &track.hf, &track.r);
+        let nis = match feature::projected_nis_into(system, obs, p_sub, (&mut track.c, &mut track.y))
+            .and_then(|(nis, dof)| chi2_check(nis, dof, self.s.chi2_gate_prob, Reject::Chi2))
+        {
             Ok(nis) => nis,
             Err(why) => {
                 reject(report, &mut self.stats, why);

@@ -28,6 +28,22 @@ pub trait Kernels: Copy {
     fn dot(self, a: &[f64], b: &[f64]) -> f64;
     /// `y ← y + α x` over the common length.
     fn axpy(self, alpha: f64, x: &[f64], y: &mut [f64]);
+    /// `vᵀ cₖ` for four columns at once, over the shortest of `v` and the
+    /// columns (callers pass equal lengths, or columns longer than `v`): one
+    /// pass over `v` instead of four (a reflection applied to a
+    /// panel's columns reads its vector once per four columns).
+    #[inline(always)]
+    fn dot4(self, v: &[f64], c: [&[f64]; 4]) -> [f64; 4] {
+        c.map(|ck| self.dot(v, ck))
+    }
+    /// `cₖ ← cₖ + αₖ v` for four columns at once, over the shortest of `v`
+    /// and the columns (as [`Kernels::dot4`]).
+    #[inline(always)]
+    fn axpy4(self, alpha: [f64; 4], v: &[f64], c: [&mut [f64]; 4]) {
+        for (a, ck) in alpha.into_iter().zip(c) {
+            self.axpy(a, v, ck);
+        }
+    }
 }
 
 /// The portable kernels ([`super::dot`], [`super::axpy`]).
@@ -73,6 +89,102 @@ impl Kernels for Avx2Fma {
     fn axpy(self, alpha: f64, x: &[f64], y: &mut [f64]) {
         // SAFETY: as above.
         unsafe { axpy_avx2_fma(alpha, x, y) }
+    }
+    #[inline(always)]
+    fn dot4(self, v: &[f64], c: [&[f64]; 4]) -> [f64; 4] {
+        // SAFETY: as above.
+        unsafe { dot4_avx2_fma(v, c) }
+    }
+    #[inline(always)]
+    fn axpy4(self, alpha: [f64; 4], v: &[f64], c: [&mut [f64]; 4]) {
+        // SAFETY: as above.
+        unsafe { axpy4_avx2_fma(alpha, v, c) }
+    }
+}
+
+/// Four lanes summed to one.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn hsum_avx(x: std::arch::x86_64::__m256d) -> f64 {
+    use std::arch::x86_64::*;
+    let pair = _mm_add_pd(_mm256_castpd256_pd128(x), _mm256_extractf128_pd::<1>(x));
+    _mm_cvtsd_f64(_mm_add_sd(pair, _mm_unpackhi_pd(pair, pair)))
+}
+
+/// [`Kernels::dot4`] in four-lane fused multiply-adds: each load of `v`
+/// serves four columns, and the four columns' chains keep the units busy.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn dot4_avx2_fma(v: &[f64], c: [&[f64]; 4]) -> [f64; 4] {
+    use std::arch::x86_64::*;
+    let n = c.iter().fold(v.len(), |n, ck| n.min(ck.len()));
+    let pv = v.as_ptr();
+    let pc = c.map(|ck| ck.as_ptr());
+    let mut acc = [[_mm256_setzero_pd(); 4]; 2];
+    let mut i = 0;
+    // SAFETY (the loads): every index read is below `n`, within `v` and
+    // each column.
+    while i + 8 <= n {
+        for (h, acc_h) in acc.iter_mut().enumerate() {
+            let o = i + 4 * h;
+            let x = unsafe { _mm256_loadu_pd(pv.add(o)) };
+            for (a, p) in acc_h.iter_mut().zip(pc) {
+                *a = _mm256_fmadd_pd(x, unsafe { _mm256_loadu_pd(p.add(o)) }, *a);
+            }
+        }
+        i += 8;
+    }
+    if i + 4 <= n {
+        let x = unsafe { _mm256_loadu_pd(pv.add(i)) };
+        for (a, p) in acc[0].iter_mut().zip(pc) {
+            *a = _mm256_fmadd_pd(x, unsafe { _mm256_loadu_pd(p.add(i)) }, *a);
+        }
+        i += 4;
+    }
+    let mut out = [0.0; 4];
+    for (k, o) in out.iter_mut().enumerate() {
+        let mut s = hsum_avx(_mm256_add_pd(acc[0][k], acc[1][k]));
+        for r in i..n {
+            s = v[r].mul_add(c[k][r], s);
+        }
+        *o = s;
+    }
+    out
+}
+
+/// [`Kernels::axpy4`] in four-lane fused multiply-adds, `v` loaded once
+/// for the four columns.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn axpy4_avx2_fma(alpha: [f64; 4], v: &[f64], c: [&mut [f64]; 4]) {
+    use std::arch::x86_64::*;
+    let n = c.iter().fold(v.len(), |n, ck| n.min(ck.len()));
+    let pv = v.as_ptr();
+    let [c0, c1, c2, c3] = c;
+    let pc = [c0.as_mut_ptr(), c1.as_mut_ptr(), c2.as_mut_ptr(), c3.as_mut_ptr()];
+    let va = alpha.map(|a| _mm256_set1_pd(a));
+    let mut i = 0;
+    // SAFETY (the loads and stores): every index is below `n`, within `v`
+    // and each column; the columns are distinct mutable borrows, so none
+    // overlaps another or `v`.
+    while i + 4 <= n {
+        let x = unsafe { _mm256_loadu_pd(pv.add(i)) };
+        for (a, p) in va.iter().zip(pc) {
+            unsafe {
+                let r = _mm256_fmadd_pd(*a, x, _mm256_loadu_pd(p.add(i)));
+                _mm256_storeu_pd(p.add(i), r);
+            }
+        }
+        i += 4;
+    }
+    for r in i..n {
+        for (a, p) in alpha.iter().zip(pc) {
+            // SAFETY: `r < n`, within each column.
+            unsafe { *p.add(r) = a.mul_add(v[r], *p.add(r)) };
+        }
     }
 }
 
@@ -174,6 +286,34 @@ mod tests {
                     (d - plain).abs() <= 1e-14 * scale,
                     "{name} dot, lengths {case}, at n = {n}: {d} vs {plain}"
                 );
+            }
+            // Four columns at once: each as its own dot and axpy, with the
+            // columns of different lengths (the shortest bounds each).
+            let cols: Vec<Vec<f64>> = (0..4)
+                .map(|c| (0..n + c).map(|i| ((i * (c + 3) % 11) as f64 - 5.0) / 4.0).collect())
+                .collect();
+            // Columns longer than `a`: `a`'s length bounds each.
+            let d4 = k.dot4(&a, [&cols[0], &cols[1], &cols[2], &cols[3]]);
+            for (c, d) in d4.iter().enumerate() {
+                let want: f64 = a.iter().zip(&cols[c]).map(|(x, y)| x * y).sum();
+                assert!(
+                    (d - want).abs() <= 1e-14 * scale.max(want.abs()) * 4.0,
+                    "{name} dot4 column {c} at n = {n}"
+                );
+            }
+            let mut four = cols.clone();
+            let [c0, c1, c2, c3] = &mut four[..] else {
+                unreachable!()
+            };
+            k.axpy4([0.5, -1.0, 2.0, 0.25], &a, [c0, c1, c2, c3]);
+            for (c, alpha) in [0.5, -1.0, 2.0, 0.25].iter().enumerate() {
+                for i in 0..cols[c].len() {
+                    let want = if i < n { cols[c][i] + alpha * a[i] } else { cols[c][i] };
+                    assert!(
+                        (four[c][i] - want).abs() <= 1e-14 * 16.0,
+                        "{name} axpy4 column {c} at {i} of {n}"
+                    );
+                }
             }
             let mut y = b.clone();
             y.push(42.0);

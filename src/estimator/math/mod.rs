@@ -117,6 +117,58 @@ pub fn gather_block(src: &nalgebra::DMatrix<f64>, idx: &[usize], out: &mut nalge
     }
 }
 
+/// The lower Cholesky factor of a small symmetric matrix, in place
+/// (`a = L Lᵀ`, read from and written to the lower triangle; the upper is
+/// left as it was), right-looking so that every step is a contiguous column
+/// operation. `false` when `a` is not positive definite (a non-finite entry
+/// included); `a` is then half-factored. For the per-track gate's
+/// `2m × 2m` matrices; the update's large factor is [`LowerSolver`]'s.
+pub fn cholesky_lower_in_place(a: &mut nalgebra::DMatrix<f64>) -> bool {
+    let n = a.nrows();
+    debug_assert_eq!(n, a.ncols());
+    let d = a.as_mut_slice();
+    for j in 0..n {
+        let pivot = d[j * n + j];
+        // NaN fails this too.
+        if !(pivot > 0.0 && pivot.is_finite()) {
+            return false;
+        }
+        let l_jj = pivot.sqrt();
+        let inv = 1.0 / l_jj;
+        d[j * n + j] = l_jj;
+        for v in &mut d[j * n + j + 1..(j + 1) * n] {
+            *v *= inv;
+        }
+        // Trailing columns: a[k.., k] −= a[k, j] a[k.., j].
+        let (head, tail) = d.split_at_mut((j + 1) * n);
+        let col_j = &head[j * n..];
+        for (kk, col_k) in tail.chunks_exact_mut(n).enumerate() {
+            let k = j + 1 + kk;
+            let f = col_j[k];
+            if f != 0.0 {
+                axpy(-f, &col_j[k..], &mut col_k[k..]);
+            }
+        }
+    }
+    true
+}
+
+/// `b ← L⁻¹ b` for the lower-triangular `l` of [`cholesky_lower_in_place`]
+/// (forward substitution, column by column of `b`).
+pub fn solve_lower_in_place(l: &nalgebra::DMatrix<f64>, b: &mut nalgebra::DMatrix<f64>) {
+    let n = l.nrows();
+    let ls = l.as_slice();
+    for col in b.as_mut_slice().chunks_exact_mut(n.max(1)) {
+        for j in 0..n {
+            let x = col[j] / ls[j * n + j];
+            col[j] = x;
+            if x != 0.0 {
+                axpy(-x, &ls[j * n + j + 1..(j + 1) * n], &mut col[j + 1..]);
+            }
+        }
+    }
+}
+
 /// Whether every entry is finite, without an early exit so that it runs
 /// as vector code: `x · 0` is zero for a finite `x` and NaN otherwise.
 pub fn all_finite(x: &[f64]) -> bool {
@@ -163,6 +215,32 @@ pub fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The gate's small Cholesky: `L Lᵀ` gives back the lower triangle of
+    /// an SPD matrix, the forward solve inverts `L`, and a matrix that is
+    /// not positive definite (indefinite, or with a NaN) is refused.
+    #[test]
+    fn small_cholesky_factors_solves_and_refuses() {
+        for n in [1usize, 2, 5, 22, 37] {
+            let g = nalgebra::DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 17) as f64 / 9.0 - 0.8);
+            let a = &g * g.transpose() + nalgebra::DMatrix::identity(n, n);
+            let mut l = a.clone();
+            assert!(cholesky_lower_in_place(&mut l), "n = {n}");
+            let l = l.lower_triangle();
+            assert!((&l * l.transpose() - &a).amax() <= 1e-12 * a.amax(), "n = {n}");
+            let b = nalgebra::DMatrix::from_fn(n, 3, |i, j| (i + 2 * j) as f64 - 1.5);
+            let mut x = b.clone();
+            solve_lower_in_place(&l, &mut x);
+            assert!((&l * &x - &b).amax() <= 1e-11 * b.amax().max(1.0), "n = {n}");
+            let mut bad = a.clone();
+            bad[(n - 1, n - 1)] = -1.0;
+            assert!(!cholesky_lower_in_place(&mut bad), "indefinite, n = {n}");
+            let mut nan = a.clone();
+            nan[(n / 2, 0)] = f64::NAN;
+            nan[(0, n / 2)] = f64::NAN;
+            assert!(!cholesky_lower_in_place(&mut nan), "NaN, n = {n}");
+        }
+    }
 
     #[test]
     fn left_jacobian_matches_finite_differences() {

@@ -157,10 +157,21 @@ fn reduce_panel<K: Kernels>(
         }
         data[j * m + j] = beta;
         data[j * m + j + 1..(j + 1) * m].fill(0.0);
-        // The rest of the panel (or of the matrix), column by column.
+        // The rest of the panel (or of the matrix), four columns at a
+        // time (one pass over `v` serves four), then one by one.
         let vj = &v[jj * rows + jj..(jj + 1) * rows];
-        for col_k in j + 1..apply_end {
-            let c = &mut data[col_k * m + j..(col_k + 1) * m];
+        let rest = &mut data[(j + 1) * m..apply_end * m];
+        let mut quads = rest.chunks_exact_mut(4 * m);
+        for quad in &mut quads {
+            let (c01, c23) = quad.split_at_mut(2 * m);
+            let (c0, c1) = c01.split_at_mut(m);
+            let (c2, c3) = c23.split_at_mut(m);
+            let (c0, c1, c2, c3) = (&mut c0[j..], &mut c1[j..], &mut c2[j..], &mut c3[j..]);
+            let d = k.dot4(vj, [c0, c1, c2, c3]);
+            k.axpy4(d.map(|x| -t * x), vj, [c0, c1, c2, c3]);
+        }
+        for col in quads.into_remainder().chunks_exact_mut(m) {
+            let c = &mut col[j..];
             let s = t * k.dot(vj, c);
             k.axpy(-s, vj, c);
         }
@@ -195,10 +206,20 @@ fn apply_block_reflector<K: Kernels>(kern: K, a: &mut nalgebra::DMatrix<f64>, j0
         if i == 0 || tau[i] == 0.0 {
             continue;
         }
+        // V[:, 0..i]ᵀ v_i, four columns of V to a pass over v_i.
         let vi = &v[i * rows..(i + 1) * rows];
         let w = zeroed(t_col, i);
-        for (k, wk) in w.iter_mut().enumerate() {
-            *wk = -tau[i] * kern.dot(&v[k * rows..(k + 1) * rows], vi);
+        let col = |k: usize| &v[k * rows..(k + 1) * rows];
+        let mut k = 0;
+        while k + 4 <= i {
+            let d = kern.dot4(vi, [col(k), col(k + 1), col(k + 2), col(k + 3)]);
+            for (wk, dk) in w[k..k + 4].iter_mut().zip(d) {
+                *wk = -tau[i] * dk;
+            }
+            k += 4;
+        }
+        for (kk, wk) in w.iter_mut().enumerate().skip(k) {
+            *wk = -tau[i] * kern.dot(col(kk), vi);
         }
         for r in 0..i {
             t[r + i * jb] = (r..i).map(|k| t[r + k * jb] * w[k]).sum();
