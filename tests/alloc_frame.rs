@@ -85,6 +85,6 @@ fn camera_frames_allocate_within_todays_count() {
     assert!(per_frame <= MAX_PER_FRAME, "{per_frame:.0} allocations a frame");
 }
 
-/// Today's count (128 a frame, 2.1 MB) with a margin for another CPU's
+/// Today's count (101 a frame, 2.0 MB) with a margin for another CPU's
 /// round-off taking other tracks: the ratchet to lower as allocations go.
-const MAX_PER_FRAME: f64 = 160.0;
+const MAX_PER_FRAME: f64 = 125.0;

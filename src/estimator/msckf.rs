@@ -39,10 +39,44 @@ const LOW_PARALLAX_MAX_SPEED_MPS: f64 = 1.0;
 /// (§3e, LP3).
 const REMEMBERED_INVERSE_DEPTH_SIGMA: f64 = 0.6;
 
-/// One gated track's rows: its projected Jacobian over the columns `idx` of
-/// `P`, and its projected residual. The columns are shared with the other
-/// tracks over the same views (most span the whole window).
-type TrackRows = (DMatrix<f64>, DVector<f64>, Rc<[usize]>);
+/// The gated tracks' rows of one frame, in buffers the filter keeps (issue
+/// 43: each passing track's rows were two allocations, and the stack one
+/// more): each track's projected Jacobian, column-major over its columns
+/// `idx` of `P`, and its projected residual, appended in order; the columns
+/// are shared with the other tracks over the same views (most span the
+/// whole window). Also the stack `[H | r]` they are written into and its
+/// union of columns.
+#[derive(Default)]
+pub(super) struct StackRows {
+    h: Vec<f64>,
+    r: Vec<f64>,
+    tracks: Vec<(usize, Rc<[usize]>)>,
+    union: Vec<usize>,
+    hr: DMatrix<f64>,
+}
+
+impl StackRows {
+    fn clear(&mut self) {
+        self.h.clear();
+        self.r.clear();
+        self.tracks.clear();
+    }
+
+    /// Appends one track's `rows` rows: its Jacobian's columns (one slice
+    /// of `rows` entries for each of `idx`) and its residual.
+    fn push<'a>(&mut self, columns: impl Iterator<Item = &'a [f64]>, r: &[f64], idx: Rc<[usize]>) {
+        for c in columns {
+            debug_assert_eq!(c.len(), r.len());
+            self.h.extend_from_slice(c);
+        }
+        self.r.extend_from_slice(r);
+        self.tracks.push((r.len(), idx));
+    }
+
+    fn len(&self) -> usize {
+        self.tracks.len()
+    }
+}
 
 /// The columns of the last gated track's `P_sub`, shared with the rows of
 /// every track over the same views (most span the whole window): a frame's
@@ -92,6 +126,7 @@ pub(super) struct GateScratch {
     track: feature::TrackScratch,
     cols: Vec<usize>,
     p_sub: DMatrix<f64>,
+    stack: StackRows,
 }
 
 /// The χ² test of a NIS of `dof` degrees of freedom against the `prob`
@@ -350,32 +385,33 @@ impl Estimator {
         if self.s.mode == Mode::Compressed {
             self.promote_for_tracks(&mut kf_use, report);
         }
-        let mut rows: Vec<TrackRows> = Vec::new();
         let mut involved = BTreeSet::new();
         let mut gate = GateCache::default();
         let mut scratch = std::mem::take(&mut self.gate_scratch.0);
+        scratch.stack.clear();
         let cap = self.track_capacity();
         for ((l, tr), ks) in ready.drain(..).zip(kf_use) {
-            let row = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report);
+            let passed = self.gate_track(l, &tr, &ks, (&mut gate, &mut scratch), report);
             recycle(pool, tr.obs, cap);
-            let Some(row) = row else {
-                continue;
-            };
-            involved.extend(ks.iter().copied());
-            rows.push(row);
+            if passed {
+                involved.extend(ks.iter().copied());
+            }
         }
-        self.gate_scratch.0 = scratch;
         self.forget_landmarks();
-        report.tracks_used = rows.len();
-        self.stats.tracks_used += rows.len() as u64;
+        let used = scratch.stack.len();
+        report.tracks_used = used;
+        self.stats.tracks_used += used as u64;
         self.stats.low_parallax_tracks += report.low_parallax_tracks as u64;
         self.stats.loop_closure_updates += report.loop_closure_tracks as u64;
-        if rows.is_empty() {
+        if used > 0 {
+            self.stacked_update(&mut scratch.stack, report);
+        }
+        self.gate_scratch.0 = scratch;
+        if used == 0 {
             return;
         }
-        self.stacked_update(&rows, report);
         report.events.push(FilterEvent::Update {
-            tracks: rows.len(),
+            tracks: used,
             keyframes: involved.into_iter().collect(),
         });
     }
@@ -526,7 +562,7 @@ impl Estimator {
         ks: &[u64],
         (gate, w): (&mut GateCache, &mut GateScratch),
         report: &mut FrameReport,
-    ) -> Option<TrackRows> {
+    ) -> bool {
         let clone_obs = self.track_views(l, tr, ks, w);
         let GateScratch {
             views,
@@ -535,11 +571,12 @@ impl Estimator {
             track,
             cols: gather_buf,
             p_sub,
+            stack,
         } = w;
         let (views, cols, obs) = (&views[..], &cols[..], &obs[..]);
         if clone_obs == 0 || obs.len() < self.s.min_track_len || cols.contains(&usize::MAX) {
             reject(report, &mut self.stats, Reject::TooFewObservations);
-            return None;
+            return false;
         }
         // Too little parallax to triangulate (a hover, a standstill, a far
         // landmark): skipped, and not a sign of inconsistency (§3c). Pixel
@@ -554,7 +591,12 @@ impl Estimator {
         let parallax = feature::parallax_rad(views, &self.s.ext, obs);
         // NaN (a non-finite bearing) is not enough parallax either.
         if parallax.is_nan() || parallax < min_parallax {
-            return self.gate_low_parallax((l, ks), (views, cols, obs), (gate, gather_buf, p_sub, track), report);
+            return self.gate_low_parallax(
+                (l, ks),
+                (views, cols, obs),
+                (gate, gather_buf, p_sub, track, stack),
+                report,
+            );
         }
         let p_f = match feature::triangulate(views, &self.s.ext, obs, &self.s.tri) {
             Ok(p) => p,
@@ -562,11 +604,16 @@ impl Estimator {
             // or a fit that does not settle is the geometry's weakness, not
             // the poses' inconsistency: a low-parallax track.
             Err(Reject::BadDepth | Reject::NotConverged) if parallax < WEAK_PARALLAX_FACTOR * min_parallax => {
-                return self.gate_low_parallax((l, ks), (views, cols, obs), (gate, gather_buf, p_sub, track), report);
+                return self.gate_low_parallax(
+                    (l, ks),
+                    (views, cols, obs),
+                    (gate, gather_buf, p_sub, track, stack),
+                    report,
+                );
             }
             Err(r) => {
                 reject(report, &mut self.stats, r);
-                return None;
+                return false;
             }
         };
         // The projected rows, in `track`'s buffers until the track passes.
@@ -581,7 +628,7 @@ impl Estimator {
         let r = r_col.rows(r0, keep);
         if !finite {
             reject(report, &mut self.stats, Reject::NonFinite);
-            return None;
+            return false;
         }
         // χ² gate on S = H P_sub Hᵀ + I (§3, eqs. G1, G1′): the NIS from the
         // unprojected rows, whose covariance is block by block.
@@ -593,7 +640,7 @@ impl Estimator {
             Ok(nis) => nis,
             Err(why) => {
                 reject(report, &mut self.stats, why);
-                return None;
+                return false;
             }
         };
         report.nis.push((nis, r.len()));
@@ -616,10 +663,11 @@ impl Estimator {
                 }
             }
         }
-        // The rows leave the buffers only for a track that passed.
-        let hx = math::block_owned(&track.projected, r0, 3, keep, nx);
-        let r = DVector::from_column_slice(&track.projected.column(3 + nx).as_slice()[r0..r0 + keep]);
-        Some((hx, r, idx))
+        // The rows leave the track's buffers only for a track that passed.
+        let (all, rows) = (track.projected.as_slice(), track.projected.nrows());
+        let column = |c: usize| &all[c * rows + r0..c * rows + r0 + keep];
+        stack.push((3..3 + nx).map(column), column(3 + nx), idx);
+        true
     }
 
     /// A track with too little parallax to triangulate (§3e): used where
@@ -632,14 +680,15 @@ impl Estimator {
         &mut self,
         (l, ks): (u64, &[u64]),
         (views, cols, obs): (&[View], &[usize], &[Obs]),
-        (gate, gather_buf, p_sub, track): (
+        (gate, gather_buf, p_sub, track, stack): (
             &mut GateCache,
             &mut Vec<usize>,
             &mut DMatrix<f64>,
             &mut feature::TrackScratch,
+            &mut StackRows,
         ),
         report: &mut FrameReport,
-    ) -> Option<TrackRows> {
+    ) -> bool {
         // A still track says "no motion" as firmly as its remembered depth
         // allows. On a vehicle that is moving it is likelier a frozen camera
         // or a scene that moves with the vehicle than a distant landmark:
@@ -653,18 +702,18 @@ impl Estimator {
             },
             _ => {
                 reject(report, &mut self.stats, Reject::PoorParallax);
-                return None;
+                return false;
             }
         };
         let Ok(feature::LowParallaxRows { hx, r, .. }) =
             feature::low_parallax_system(views, &self.s.ext, obs, prior, self.s.tri.min_depth_m)
         else {
             reject(report, &mut self.stats, Reject::PoorParallax);
-            return None;
+            return false;
         };
         if !(math::all_finite(hx.as_slice()) && math::all_finite(r.as_slice())) {
             reject(report, &mut self.stats, Reject::NonFinite);
-            return None;
+            return false;
         }
         // G1 with the whitened rows of LP4: S = H P_sub Hᵀ + I.
         let idx = gate.gather((gather_buf, p_sub), &self.P, cols);
@@ -680,12 +729,17 @@ impl Estimator {
             Ok(nis) => nis,
             Err(why) => {
                 reject(report, &mut self.stats, why);
-                return None;
+                return false;
             }
         };
         self.low_parallax_nis.push((nis, r.len()));
         report.low_parallax_tracks += 1;
-        Some((hx, r, idx))
+        stack.push(
+            hx.as_slice().chunks_exact(r.len().max(1)).take(hx.ncols()),
+            r.as_slice(),
+            idx,
+        );
+        true
     }
 
     /// Forgets the landmarks triangulated more than `LANDMARK_MEMORY_S`
@@ -705,34 +759,44 @@ impl Estimator {
     /// order (keyframes by id, then clones by age), so every mode builds the
     /// same matrix whatever else its state holds; compresses it by QR when
     /// taller than the state (§3, eq. Q1) and applies it.
-    fn stacked_update(&mut self, rows: &[TrackRows], report: &mut FrameReport) {
-        let mut union: Vec<usize> = rows.iter().flat_map(|r| r.2.iter().copied()).collect();
+    fn stacked_update(&mut self, rows: &mut StackRows, report: &mut FrameReport) {
+        let StackRows {
+            h,
+            r: rs,
+            tracks,
+            union,
+            hr,
+        } = rows;
+        union.clear();
+        union.extend(tracks.iter().flat_map(|t| t.1.iter().copied()));
         union.sort_unstable();
         union.dedup();
-        let m: usize = rows.iter().map(|r| r.1.len()).sum();
+        let m = rs.len();
         let nc = union.len();
         // [H | r]: the residual rides along as the last column.
-        let mut hr = DMatrix::zeros(m, nc + 1);
-        let mut row = 0;
-        for (hx, rr, idx) in rows {
-            for (c, col) in idx.iter().enumerate() {
+        math::reshape_zeroed(hr, m, nc + 1);
+        let (mut row, mut at) = (0, 0);
+        for (rows_k, idx) in tracks.iter() {
+            for col in idx.iter() {
                 let uc = union.binary_search(col).expect("column in union");
-                hr.view_mut((row, uc), (hx.nrows(), 1)).copy_from(&hx.column(c));
+                hr.view_mut((row, uc), (*rows_k, 1))
+                    .copy_from_slice(&h[at..at + rows_k]);
+                at += rows_k;
             }
-            hr.view_mut((row, nc), (rr.len(), 1)).copy_from(rr);
-            row += rr.len();
+            row += rows_k;
         }
+        hr.column_mut(nc).copy_from_slice(rs);
         report.residual_rms = (hr.column(nc).norm_squared() / m as f64).sqrt();
         // Qᵀ [H | r] = [T r_T; 0 r_⊥], keep (T, r_T).
         let keep = if m > nc {
-            math::householder_in_place(&mut hr, nc);
+            math::householder_in_place(hr, nc);
             nc
         } else {
             m
         };
-        let h = math::block_owned(&hr, 0, 0, keep, nc);
+        let hk = math::block_owned(hr, 0, 0, keep, nc);
         let r = DVector::from_column_slice(&hr.column(nc).as_slice()[..keep]);
-        self.ekf_update(&h, &union, &r, m > nc);
+        self.ekf_update(&hk, union, &r, m > nc);
         self.stats.updates += 1;
     }
 }
