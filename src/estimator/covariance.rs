@@ -23,9 +23,9 @@ impl Estimator {
         let paa: MatActive = self.P.fixed_view::<ACTIVE_DIM, ACTIVE_DIM>(0, 0).into_owned();
         let fp = f.mul_left(&paa);
         let fpf = f.mul_left(&fp.transpose());
-        // `Q` added and the sum symmetrised as it is written back: no
-        // temporaries of the block's size (issue 43's profile: copies were
-        // a third of this step).
+        // `Q` added and the sum symmetrised as it is written back, without
+        // the three more temporaries of the block's size the sum and its
+        // transpose took (issue 43's profile: copies were a third of this step).
         let n = self.P.nrows();
         let out = self.P.as_mut_slice();
         for j in 0..ACTIVE_DIM {

@@ -506,7 +506,8 @@ pub fn low_parallax_system(
     Ok(LowParallaxRows { hx, r, p_f: p })
 }
 
-/// `C = H_x P H_xᵀ + I` into `c`, its lower triangle only (README §3, G1′):
+/// `C = H_x P H_xᵀ + I` into `c`, its lower triangle (and the diagonal
+/// blocks whole; the upper triangle is never read) (README §3, G1′):
 /// `H_x` from `track_system` is block diagonal, one 2×6 block `J_i` per
 /// observation, so `M_ij = J_i P_ij J_jᵀ` is `O(m²)` products of 2×6 by 6×6.
 fn whitened_innovation_covariance(hx: &DMatrix<f64>, obs: &[Obs], p: &DMatrix<f64>, c: &mut DMatrix<f64>) {
@@ -555,8 +556,11 @@ fn whitened_innovation_covariance(hx: &DMatrix<f64>, obs: &[Obs], p: &DMatrix<f6
 /// part in the span of `F`: the last `2m − 3` entries of `y` after the
 /// three reflections that triangularise `F`, squared and summed (no
 /// subtraction, so no cancellation). `r`, `hx`, `hf` are the unprojected,
-/// whitened rows of `track_system`; `p` the covariance of the track's
-/// views in `hx`'s column order. `Ok((nis, dof))`; `Err` when `C` is not
+/// whitened rows of `track_system`, whose `H_x` is block diagonal (one
+/// 2×6 block per observation; a low-parallax track's rows are not, and
+/// take the dense gate); `p` the covariance of the track's views in `hx`'s
+/// column order. `H_f` must have full column rank, as a triangulated
+/// track's has. `Ok((nis, dof))`; `Err` when `C` is not
 /// positive definite (a non-finite entry, or a covariance that lost its
 /// definiteness). Works in `(c, y)`, which keep their capacity.
 pub fn projected_nis_into(
@@ -795,13 +799,26 @@ mod tests {
     fn gate_nis_matches_the_dense_projection_on_long_and_shared_tracks() {
         let e = ext();
         let p_f = Vector3::new(15.0, 2.0, -1.0);
-        for (n_obs, n_views) in [(12usize, 12usize), (24, 24), (40, 40), (9, 4)] {
+        for (n_obs, n_views, reverse) in [
+            (12usize, 12usize, false),
+            (24, 24, false),
+            (40, 40, false),
+            (9, 4, false),
+            (9, 4, true),
+            (12, 12, true),
+        ] {
             let views: Vec<_> = (0..n_views)
                 .map(|i| view(0.01 * i as f64, Vector3::new(0.05 * i as f64, 0.3 * i as f64, -3.0)))
                 .collect();
             let obs: Vec<_> = (0..n_obs)
                 .map(|i| {
-                    let v = i * n_views / n_obs;
+                    // Views in decreasing order too, so that both triangles
+                    // of P's blocks are read.
+                    let v = if reverse {
+                        n_views - 1 - i * n_views / n_obs
+                    } else {
+                        i * n_views / n_obs
+                    };
                     Obs {
                         view: v,
                         xn: measure(&views[v], &e, &p_f).0 + Vector2::new(1e-3 * i as f64, -2e-3),

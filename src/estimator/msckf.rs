@@ -113,10 +113,11 @@ impl GateCache {
 
 /// What a track's gate works in, kept by the filter across tracks and
 /// frames so that its working buffers allocate nothing once they have grown
-/// (issue 43; a passing track's rows, a new column set's index list and a
-/// low-parallax track's system still do): the track's views, their columns in `P` and its
+/// (issue 43; a new column set's index list and a low-parallax track's
+/// system still do): the track's views, their columns in `P` and its
 /// observations as [`Estimator::track_views`] lays them out, its matrices
-/// ([`feature::TrackScratch`]), and the gathered `P_sub` with its columns.
+/// ([`feature::TrackScratch`]), the gathered `P_sub` with its columns, and
+/// the frame's passing rows ([`StackRows`]).
 /// The filter holds it in a [`math::Scratch`]: a clone starts empty.
 #[derive(Default)]
 pub(super) struct GateScratch {
@@ -785,6 +786,8 @@ impl Estimator {
             }
             row += rows_k;
         }
+        debug_assert_eq!(at, h.len(), "each track pushed rows × its columns");
+        debug_assert_eq!(row, m);
         hr.column_mut(nc).copy_from_slice(rs);
         report.residual_rms = (hr.column(nc).norm_squared() / m as f64).sqrt();
         // Qᵀ [H | r] = [T r_T; 0 r_⊥], keep (T, r_T).

@@ -28,20 +28,22 @@ pub trait Kernels: Copy {
     fn dot(self, a: &[f64], b: &[f64]) -> f64;
     /// `y ← y + α x` over the common length.
     fn axpy(self, alpha: f64, x: &[f64], y: &mut [f64]);
-    /// `vᵀ cₖ` for four columns at once, over the shortest of `v` and the
-    /// columns (callers pass equal lengths, or columns longer than `v`): one
+    /// `vᵀ cₖ` for four columns at once, all over the shortest length of
+    /// `v` and the columns (on every path; callers pass equal lengths): one
     /// pass over `v` instead of four (a reflection applied to a
     /// panel's columns reads its vector once per four columns).
     #[inline(always)]
     fn dot4(self, v: &[f64], c: [&[f64]; 4]) -> [f64; 4] {
-        c.map(|ck| self.dot(v, ck))
+        let n = c.iter().fold(v.len(), |n, ck| n.min(ck.len()));
+        c.map(|ck| self.dot(&v[..n], ck))
     }
     /// `cₖ ← cₖ + αₖ v` for four columns at once, over the shortest of `v`
     /// and the columns (as [`Kernels::dot4`]).
     #[inline(always)]
     fn axpy4(self, alpha: [f64; 4], v: &[f64], c: [&mut [f64]; 4]) {
+        let n = c.iter().fold(v.len(), |n, ck| n.min(ck.len()));
         for (a, ck) in alpha.into_iter().zip(c) {
-            self.axpy(a, v, ck);
+            self.axpy(a, &v[..n], ck);
         }
     }
 }
@@ -292,7 +294,8 @@ mod tests {
             let cols: Vec<Vec<f64>> = (0..4)
                 .map(|c| (0..n + c).map(|i| ((i * (c + 3) % 11) as f64 - 5.0) / 4.0).collect())
                 .collect();
-            // Columns longer than `a`: `a`'s length bounds each.
+            // Columns longer than `a`: `a`'s length bounds each. (A shorter
+            // column bounds all four, on both paths: checked below.)
             let d4 = k.dot4(&a, [&cols[0], &cols[1], &cols[2], &cols[3]]);
             for (c, d) in d4.iter().enumerate() {
                 let want: f64 = a.iter().zip(&cols[c]).map(|(x, y)| x * y).sum();
@@ -312,6 +315,31 @@ mod tests {
                     assert!(
                         (four[c][i] - want).abs() <= 1e-14 * 16.0,
                         "{name} axpy4 column {c} at {i} of {n}"
+                    );
+                }
+            }
+            // One column shorter than `a` bounds all four, on every path.
+            if n > 0 {
+                let short: Vec<f64> = cols[2][..n - 1].to_vec();
+                let d4 = k.dot4(&a, [&cols[0], &cols[1], &short, &cols[3]]);
+                for (c, d) in d4.iter().enumerate() {
+                    let want: f64 = a[..n - 1].iter().zip(&cols[c]).map(|(x, y)| x * y).sum();
+                    assert!(
+                        (d - want).abs() <= 1e-14 * scale.max(want.abs()) * 4.0,
+                        "{name} dot4 with a short column: column {c} at n = {n}"
+                    );
+                }
+                let mut four = cols.clone();
+                four[2].truncate(n - 1);
+                let [c0, c1, c2, c3] = &mut four[..] else {
+                    unreachable!()
+                };
+                k.axpy4([1.0; 4], &a, [c0, c1, c2, c3]);
+                for c in [0, 1, 3] {
+                    assert_eq!(
+                        four[c][n - 1],
+                        cols[c][n - 1],
+                        "{name} axpy4 past the short column, {c}"
                     );
                 }
             }
