@@ -275,7 +275,8 @@ pub fn triangulate(
 /// `nullspace_project_into`, `projected_nis_into` and the χ² gate's
 /// factor), kept across tracks and frames so that a track's working
 /// matrices allocate nothing once they have grown to the longest track
-/// (issue 43; a passing track's rows are still copied out). Kept inside the
+/// (issue 43; a passing track's rows are copied out, into the frame's
+/// `msckf::StackRows`). Kept inside the
 /// filter's [`super::math::Scratch`].
 #[derive(Default)]
 pub struct TrackScratch {
@@ -734,9 +735,7 @@ mod tests {
         assert!(hx2.amax() > 1.0);
         // The gate's NIS from the unprojected rows (G1′) equals the dense
         // projected one (G1), for a covariance correlating all the views.
-        let n = hx.ncols();
-        let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
-        let p = &g * g.transpose() + DMatrix::identity(n, n) * 0.01;
+        let p = correlated_covariance(hx.ncols());
         // A residual away from the triangulated point, so that the landmark's
         // own correction is not zero and the identity is exercised.
         let r = r + DVector::from_fn(2 * obs.len(), |i, _| 30.0 * ((i * 5 % 7) as f64 - 3.0));
@@ -762,6 +761,13 @@ mod tests {
     fn projected_hph(hx: &DMatrix<f64>, hf: &DMatrix<f64>, p: &DMatrix<f64>) -> DMatrix<f64> {
         let (hx2, _) = nullspace_project(hx, hf, &DVector::zeros(hx.nrows()));
         &hx2 * p * hx2.transpose()
+    }
+
+    /// A positive-definite `n × n` covariance that correlates every pair of
+    /// entries, and whose off-diagonal blocks are not symmetric.
+    fn correlated_covariance(n: usize) -> DMatrix<f64> {
+        let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
+        &g * g.transpose() + DMatrix::identity(n, n) * 0.01
     }
 
     /// G1 the long way: the projected rows `Q₂ᵀ H_x`, `Q₂ᵀ r`, and
@@ -827,9 +833,7 @@ mod tests {
                 })
                 .collect();
             let (hx, hf, r) = track_system(&views, &e, &obs, &p_f);
-            let n = hx.ncols();
-            let g = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.01 - 0.05);
-            let p = &g * g.transpose() + DMatrix::identity(n, n) * 0.01;
+            let p = correlated_covariance(hx.ncols());
             let r = r + DVector::from_fn(2 * n_obs, |i, _| 30.0 * ((i * 3 % 5) as f64 - 2.0));
             let (want, dof) = dense_projected_nis(&hx, &hf, &r, &p);
             let bufs = (&mut DMatrix::zeros(0, 0), &mut DMatrix::zeros(0, 0));

@@ -15,8 +15,8 @@ mod triangular;
 
 pub use qr::householder_in_place;
 pub use triangular::{
-    add_gram_outside_block, add_symmetric_product, add_symmetric_product_t, lower_of_times_upper_t, upper_mul,
-    LowerSolver,
+    add_gram_outside_block, add_symmetric_product, add_symmetric_product_t, cholesky_lower_in_place,
+    lower_of_times_upper_t, upper_mul, LowerSolver,
 };
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
@@ -115,42 +115,6 @@ pub fn gather_block(src: &nalgebra::DMatrix<f64>, idx: &[usize], out: &mut nalge
             r += len;
         }
     }
-}
-
-/// The lower Cholesky factor of a small symmetric matrix, in place
-/// (`a = L Lᵀ`, read from and written to the lower triangle; the upper is
-/// left as it was), right-looking so that every step is a contiguous column
-/// operation. `false` when `a` is not positive definite (a non-finite entry
-/// included); `a` is then half-factored. For the per-track gate's
-/// `2m × 2m` matrices; the update's large factor is [`LowerSolver`]'s.
-pub fn cholesky_lower_in_place(a: &mut nalgebra::DMatrix<f64>) -> bool {
-    let n = a.nrows();
-    debug_assert_eq!(n, a.ncols());
-    let d = a.as_mut_slice();
-    for j in 0..n {
-        let pivot = d[j * n + j];
-        // NaN fails this too.
-        if !(pivot > 0.0 && pivot.is_finite()) {
-            return false;
-        }
-        let l_jj = pivot.sqrt();
-        let inv = 1.0 / l_jj;
-        d[j * n + j] = l_jj;
-        for v in &mut d[j * n + j + 1..(j + 1) * n] {
-            *v *= inv;
-        }
-        // Trailing columns: a[k.., k] −= a[k, j] a[k.., j].
-        let (head, tail) = d.split_at_mut((j + 1) * n);
-        let col_j = &head[j * n..];
-        for (kk, col_k) in tail.chunks_exact_mut(n).enumerate() {
-            let k = j + 1 + kk;
-            let f = col_j[k];
-            if f != 0.0 {
-                axpy(-f, &col_j[k..], &mut col_k[k..]);
-            }
-        }
-    }
-    true
 }
 
 /// `b ← L⁻¹ b` for the lower-triangular `l` of [`cholesky_lower_in_place`]

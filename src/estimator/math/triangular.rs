@@ -101,6 +101,18 @@ impl LowerSolver {
     }
 }
 
+/// The lower Cholesky factor of a small symmetric matrix, in place
+/// (`a = L Lᵀ`, read from and written to the lower triangle; the upper is
+/// left as it was): [`cholesky_unblocked`] over the whole matrix. `false`
+/// when `a` is not positive definite (a non-finite entry included); `a` is
+/// then half-factored. For the per-track gate's `2m × 2m` matrices, which
+/// need no inverses kept; the update's large factor is [`LowerSolver`]'s.
+pub fn cholesky_lower_in_place(a: &mut nalgebra::DMatrix<f64>) -> bool {
+    let n = a.nrows();
+    debug_assert_eq!(n, a.ncols());
+    cholesky_unblocked(a, 0, n).is_some()
+}
+
 /// Cholesky factor of the diagonal block at `(k0, k0)` of size `kb`, in
 /// place in its lower triangle (left-looking, column by column; the block's
 /// earlier columns are already final). `None` on a pivot that is not
