@@ -81,6 +81,9 @@ counters! {
     MavlinkRejectedForeignLandedState = "mavlink_rejected_foreign_landed_state", reject;
     MavlinkRejectedForeignSimState = "mavlink_rejected_foreign_sim_state", reject;
     MavlinkRejectedForeignEstimatorStatus = "mavlink_rejected_foreign_estimator_status", reject;
+    /// A `PARAM_VALUE` from another system or component (a ground
+    /// station's parameter editor): not the autopilot's.
+    MavlinkRejectedForeignParam = "mavlink_rejected_foreign_param", reject;
     /// A STATUSTEXT from another system (a ground station): not the autopilot's.
     MavlinkStatusTextOther = "mavlink_statustext_other", event;
     LinkDown = "link_down", event;
@@ -288,6 +291,14 @@ counters! {
     /// Our filter runs, the autopilot reports no EKF origin: said (with
     /// what to do) each time this is counted.
     AutopilotOriginMissing = "autopilot_origin_missing", event;
+    /// One of the autopilot's navigation parameters came (`PARAM_VALUE`).
+    AutopilotParamValue = "autopilot_param_value", event;
+    /// A parameter that makes the autopilot's EKF ignore, or mis-weigh, our
+    /// estimates: said with its fix (`daemon/nav_params.rs`).
+    AutopilotParamMisconfigured = "autopilot_param_misconfigured", event;
+    /// A navigation parameter the autopilot never answered for, after
+    /// every request: the check went on without it.
+    AutopilotParamUnanswered = "autopilot_param_unanswered", event;
     /// A start on the ground again when the origin came late, so that the
     /// compass yaw has its declination.
     RestartLocated = "restart_located", event;

@@ -157,6 +157,11 @@ fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
                 kind: None,
                 mode: Some(m),
             },
+            AutopilotRecord::Param(p) => FusionMsg::AutopilotParam(crate::io::messages::ParamValue {
+                name: p.name,
+                raw: f32::from_bits(p.raw_bits),
+                param_type: p.param_type,
+            }),
             AutopilotRecord::StatusText(t) => FusionMsg::AutopilotText {
                 severity: t.severity,
                 text: t.text,

@@ -299,3 +299,27 @@ async fn overlapping_faults_with_a_blind_imu_spike() {
         report.output_gap_total_s
     );
 }
+
+/// The daemon reads the autopilot's navigation parameters over MAVLink
+/// (`daemon/nav_params.rs`): beside the mock ArduPilot, set up as
+/// docs/setup-ardupilot.md says, each of the five comes and nothing is
+/// wrong; with its visual odometry off (`VISO_TYPE` 0, the `viso_off`
+/// fault) that is said and counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_autopilots_navigation_parameters_are_read_and_a_wrong_one_said() {
+    let (_, good) = fly(&[], 2, 10.0).await;
+    let (_, viso_off) = fly(&["viso_off@0+1000"], 2, 10.0).await;
+    let c = |s: &RunSummary, name: &str| s.counters.get(name).copied().unwrap_or(0);
+    for s in [&good, &viso_off] {
+        assert_eq!(c(s, "autopilot_param_value"), 5, "{:?}", s.counters);
+        assert_eq!(c(s, "autopilot_param_unanswered"), 0, "{:?}", s.counters);
+        assert_eq!(c(s, "mavlink_rejected_foreign_param"), 0, "{:?}", s.counters);
+    }
+    assert_eq!(c(&good, "autopilot_param_misconfigured"), 0, "{:?}", good.counters);
+    assert_eq!(
+        c(&viso_off, "autopilot_param_misconfigured"),
+        1,
+        "{:?}",
+        viso_off.counters
+    );
+}

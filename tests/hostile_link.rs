@@ -76,6 +76,8 @@ async fn only_the_autopilot_is_heard_and_answered() {
                 }),
                 #[allow(deprecated)]
                 apm::MavMessage::GPS_GLOBAL_ORIGIN(apm::GPS_GLOBAL_ORIGIN_DATA::default()),
+                // A parameter editor's word that ArduPilot ignores us.
+                param_value("VISO_TYPE".into(), 0.0),
             ] {
                 stranger.send(&m).await;
                 foreign_other += 1;
@@ -97,6 +99,12 @@ async fn only_the_autopilot_is_heard_and_answered() {
         // Three of the autopilot's frames are lost on the way.
         if k == 300 {
             ap.seq = ap.seq.wrapping_add(3);
+        }
+        // The autopilot's own parameters, broken: a value that is not a
+        // number (ignored) and a name that is not ASCII (rejected).
+        if k == 350 {
+            ap.send(&param_value("VISO_TYPE".into(), f32::NAN)).await;
+            ap.send(&param_value([0xffu8; 16].into(), 1.0)).await;
         }
         t += 0.01;
         if k % 4 == 0 {
@@ -125,10 +133,20 @@ async fn only_the_autopilot_is_heard_and_answered() {
         forged_ids,
         "the forged ids after the autopilot was learned"
     );
-    let other: u64 = ["system_time", "attitude", "local_position", "timesync", "origin"]
-        .iter()
-        .map(|k| c(&format!("mavlink_rejected_foreign_{k}")))
-        .sum();
+    assert_eq!(c("autopilot_param_value"), 0, "a broken or foreign parameter was taken");
+    assert_eq!(c("autopilot_param_misconfigured"), 0);
+    assert!(c("mavlink_rejected_other") >= 1, "the parameter without a name");
+    let other: u64 = [
+        "system_time",
+        "attitude",
+        "local_position",
+        "timesync",
+        "origin",
+        "param",
+    ]
+    .iter()
+    .map(|k| c(&format!("mavlink_rejected_foreign_{k}")))
+    .sum();
     assert_eq!(other, foreign_other);
     assert_eq!(c("mavlink_rejected_garbage_datagram"), garbage);
     assert_eq!(c("imu_time_outlier"), 2, "the two hiccups, and nothing else");
@@ -140,6 +158,17 @@ async fn only_the_autopilot_is_heard_and_answered() {
     assert_eq!(c("mavlink_autopilot_address_learned"), 1);
     assert_eq!(c("mavlink_before_autopilot_heartbeat"), 0);
     assert_eq!(c("gnss_origin_from_autopilot"), 0);
+}
+
+/// A `PARAM_VALUE` as ArduPilot sends an `INT8` (the value cast).
+fn param_value(param_id: mavlink::types::CharArray<16>, value: f32) -> apm::MavMessage {
+    apm::MavMessage::PARAM_VALUE(apm::PARAM_VALUE_DATA {
+        param_value: value,
+        param_count: 1,
+        param_index: 0,
+        param_id,
+        param_type: apm::MavParamType::MAV_PARAM_TYPE_INT8,
+    })
 }
 
 /// Reproducer 2 with signing on: unsigned garbage and unsigned frames from

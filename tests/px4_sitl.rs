@@ -241,9 +241,11 @@ fn px4_flies_on_cmsckf_alone() {
     cfg.gnss.origin_llh = vec![HOME[0], HOME[1], geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2])];
     cfg.output.set_gps_origin = true;
     // EKF2's heading is ours alone (`EKF2_EV_CTRL` bit 3, no GPS, no
-    // compass): our position's covariance goes to it given our yaw
-    // (estimator README eq. O2, docs/setup-px4.md).
-    cfg.output.position_covariance = cmsckf::config::PositionCovariance::GivenYaw;
+    // compass): the daemon reads that from EKF2's parameters, and with
+    // `output.position_covariance = "auto"` (the default) sends our
+    // position's covariance given our yaw (estimator README eq. O2,
+    // docs/setup-px4.md), checked below.
+    assert_eq!(cfg.output.position_covariance, cmsckf::config::PositionCovariance::Auto);
     // The origin is where the vehicle stands: its start's position in our
     // frame is known to centimetres. PX4 has no position of its own (its
     // GPS_RAW_INT fix is SIH's, not fused), so the daemon starts at PX4's
@@ -692,6 +694,14 @@ fn px4_flies_on_cmsckf_alone() {
         (1, 0),
         "our origin must not reach PX4"
     );
+    // EKF2's navigation parameters read over MAVLink (`daemon/nav_params.rs`):
+    // all six came, and none of them drops or misweighs our estimates.
+    assert!(
+        c("autopilot_param_value") >= 6 && c("autopilot_param_unanswered") == 0,
+        "EKF2's parameters were not read: {:?}",
+        summary.counters
+    );
+    assert_eq!(c("autopilot_param_misconfigured"), 0, "{:?}", summary.counters);
 
     // PX4 kept our stamps: its time synchronisation converged on our
     // replies, to an offset of about zero (we answer in its own boot

@@ -654,10 +654,16 @@ pub enum PoseCovariance {
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum PositionCovariance {
+    /// `GivenYaw` towards PX4 once its parameters say that its heading is
+    /// ours alone (`EKF2_EV_CTRL` bit 3 on, `EKF2_GPS_CTRL` bit 0 off,
+    /// `EKF2_MAG_TYPE` 5, read over MAVLink: `daemon/nav_params.rs`);
+    /// `Absolute` until they are read, when they say otherwise, and towards
+    /// any other autopilot (conditioning was measured beside PX4 only).
+    #[default]
+    Auto,
     /// The position's whole uncertainty, our yaw's share included (the
     /// compass's bias, 3° by default: 0.6 m at 12 m from the start). Right
     /// whatever the autopilot takes its heading from.
-    #[default]
     Absolute,
     /// The position's uncertainty given our yaw: the share that a turn of
     /// our whole frame by our yaw's error explains is taken out, and the
@@ -738,7 +744,7 @@ impl Default for OutputConfig {
             message: OutputMessage::Odometry,
             set_gps_origin: false,
             covariance: PoseCovariance::Auto,
-            position_covariance: PositionCovariance::Absolute,
+            position_covariance: PositionCovariance::Auto,
             odometry: None,
         }
     }

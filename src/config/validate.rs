@@ -381,22 +381,22 @@ mod tests {
     use super::super::OutputMessage;
     use super::*;
 
-    /// `[output]`: the position's covariance whole by default, given our
-    /// yaw when asked, and a wrong value refused with the two it may be.
+    /// `[output]`: the position's covariance by the autopilot's parameters
+    /// by default, whole or given our yaw when asked, and a wrong value
+    /// refused with those it may be.
     #[test]
-    fn output_position_covariance_is_absolute_unless_asked() {
+    fn output_position_covariance_follows_the_autopilot_unless_asked() {
         use crate::config::PositionCovariance;
-        assert_eq!(
-            Config::default().output.position_covariance,
-            PositionCovariance::Absolute
-        );
+        assert_eq!(Config::default().output.position_covariance, PositionCovariance::Auto);
         let c = Config::from_toml("[output]\nposition_covariance = \"given_yaw\"\n", "x").unwrap();
         assert_eq!(c.output.position_covariance, PositionCovariance::GivenYaw);
-        let e = Config::from_toml("[output]\nposition_covariance = \"auto\"\n", "x")
+        let c = Config::from_toml("[output]\nposition_covariance = \"absolute\"\n", "x").unwrap();
+        assert_eq!(c.output.position_covariance, PositionCovariance::Absolute);
+        let e = Config::from_toml("[output]\nposition_covariance = \"yes\"\n", "x")
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("position_covariance") && e.contains("`absolute`") && e.contains("`given_yaw`"),
+            e.contains("position_covariance") && e.contains("`auto`") && e.contains("`given_yaw`"),
             "{e}"
         );
     }

@@ -14,11 +14,14 @@ use nalgebra::Vector3;
 
 use super::flight_log::{FlightLog, Level};
 use super::gnss_input::GnssIn;
+use super::nav_params::NavParams;
 use super::time_guard::SteadyValue;
 use super::{FusionMsg, Restart};
 use crate::counters::{Counter, Counters};
 use crate::estimator::landed::LandedGate;
-use crate::io::mcap_log::input::{AutopilotRecord, InputRecord, LocalPositionRecord, SimStateRecord, SystemTimeRecord};
+use crate::io::mcap_log::input::{
+    AutopilotRecord, InputRecord, LocalPositionRecord, ParamRecord, SimStateRecord, SystemTimeRecord,
+};
 use crate::io::messages::AutopilotKind;
 use crate::io::messages::Outbound;
 
@@ -105,6 +108,8 @@ pub(super) struct AutopilotView {
     unix_minus_boot: SteadyValue,
     /// Our origin, sent until it reports it back.
     origin: OriginSend,
+    /// Its navigation parameters, asked for and judged.
+    params: NavParams,
 }
 
 impl Default for AutopilotView {
@@ -122,6 +127,7 @@ impl Default for AutopilotView {
             fix_t: None,
             unix_minus_boot: SteadyValue::new(SYSTEM_TIME_TOL_S, SYSTEM_TIME_CONFIRM),
             origin: OriginSend::default(),
+            params: NavParams::default(),
         }
     }
 }
@@ -178,6 +184,7 @@ impl AutopilotView {
                 if let Some(k) = kind.filter(|k| Some(*k) != self.kind) {
                     log_autopilot(AutopilotRecord::Autopilot(k));
                     self.kind = kind;
+                    self.params.set_kind(k);
                 }
                 if let Some(m) = mode.filter(|m| Some(*m) != self.mode) {
                     log_autopilot(AutopilotRecord::Mode(m));
@@ -320,6 +327,44 @@ impl AutopilotView {
             }
             _ => {}
         }
+    }
+
+    /// A `PARAM_VALUE`: logged as it came (with its value decoded for the
+    /// autopilot's kind), then judged with the others it belongs to.
+    pub(super) fn on_param(
+        &mut self,
+        p: &crate::io::messages::ParamValue,
+        t_s: f64,
+        log: &FlightLog,
+        counters: &Counters,
+        out: &mpsc::Sender<Outbound>,
+    ) {
+        let record = ParamRecord {
+            name: p.name.clone(),
+            raw_bits: p.raw.to_bits(),
+            param_type: p.param_type,
+            value: self.kind.and_then(|k| p.decoded(k)),
+        };
+        log.input(t_s, &InputRecord::Autopilot(AutopilotRecord::Param(record)));
+        let armed = self.armed() == Some(true);
+        self.params.on_value(p, t_s, armed, log, counters, &|o| {
+            let _ = out.try_send(o);
+        });
+    }
+
+    /// At each IMU sample: asks for the navigation parameters not yet
+    /// answered when a round is due ([`NavParams::poll`]).
+    pub(super) fn poll_params(&mut self, t_s: f64, log: &FlightLog, counters: &Counters, out: &mpsc::Sender<Outbound>) {
+        let armed = self.armed() == Some(true);
+        self.params.poll(t_s, armed, log, counters, &|o| {
+            let _ = out.try_send(o);
+        });
+    }
+
+    /// Whether the autopilot's heading is ours alone, by its parameters
+    /// (`None` until they are judged, or when they do not say).
+    pub(super) fn heading_ours_alone(&self) -> Option<bool> {
+        self.params.heading_ours_alone()
     }
 
     /// On the ground by the autopilot's word ([`LandedGate::landed`]).

@@ -228,6 +228,10 @@ impl Fusion {
                 );
                 self.on_magnetometer(&mag_B, &ctx.counters);
             }
+            FusionMsg::AutopilotParam(p) => {
+                self.autopilot
+                    .on_param(&p, self.last_imu_t, &self.log, &ctx.counters, &ctx.out)
+            }
             other => self
                 .autopilot
                 .on_message(other, self.last_imu_t, &mut self.gnss, &self.log, &ctx.counters),
@@ -444,6 +448,7 @@ impl Fusion {
             self.autopilot
                 .watch_origin(m.t_s, !ours_coming, &self.log, counters, out);
         }
+        self.autopilot.poll_params(m.t_s, &self.log, counters, out);
         if self.located_pending && self.autopilot.disarmed_on_ground() {
             self.located_pending = false;
             counters.add(Counter::RestartLocated, 1);
@@ -470,6 +475,7 @@ impl Fusion {
         let cx = OutputCtx {
             cfg: &self.cfg,
             autopilot: self.autopilot.kind(),
+            heading_ours_alone: self.autopilot.heading_ours_alone(),
             tracker: &self.tracker,
             frame: self.gnss.frame(),
             log: self.log.logger(),

@@ -368,6 +368,7 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
         Inbound::LandedState { .. } => Counter::MavlinkRejectedForeignLandedState,
         Inbound::SimState(_) => Counter::MavlinkRejectedForeignSimState,
         Inbound::EstimatorStatus(_) => Counter::MavlinkRejectedForeignEstimatorStatus,
+        Inbound::ParamValue(_) => Counter::MavlinkRejectedForeignParam,
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
 }
@@ -518,6 +519,7 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             counters.add(Counter::EstimatorStatus, 1);
             Some(FusionMsg::EstimatorStatus(s))
         }
+        Inbound::ParamValue(p) => Some(FusionMsg::AutopilotParam(p)),
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);
             None

@@ -9,6 +9,7 @@
 //! - `heartbeat.rs`: HEARTBEAT and STATUSTEXT, stream requests, TIMESYNC;
 //! - `fusion.rs`: the fusion loop on its own thread;
 //! - `autopilot.rs`: what the autopilot tells of itself, and our origin;
+//!   `nav_params.rs`: its navigation parameters, read and judged;
 //! - `measurements.rs`: fusing the GNSS epochs and frames IMU covers;
 //! - `init.rs`: starting the filter, and the one restart path (from our
 //!   own estimate, never the autopilot's echo); `output.rs`: the estimates sent;
@@ -36,6 +37,7 @@ mod heartbeat;
 mod init;
 mod link;
 mod measurements;
+mod nav_params;
 mod output;
 mod rebase;
 mod records;
@@ -136,6 +138,9 @@ pub enum FusionMsg {
         /// Its flight mode (`HEARTBEAT.custom_mode`).
         mode: Option<u32>,
     },
+    /// One of the autopilot's parameters (`PARAM_VALUE`): its navigation
+    /// parameters are judged (`nav_params.rs`), and logged for replay.
+    AutopilotParam(crate::io::messages::ParamValue),
     /// A `STATUSTEXT` from the autopilot: only logged.
     AutopilotText {
         severity: u8,

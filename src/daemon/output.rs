@@ -43,6 +43,9 @@ pub(super) struct OutputPacer {
 pub(super) struct OutputCtx<'a> {
     pub(super) cfg: &'a Config,
     pub(super) autopilot: Option<AutopilotKind>,
+    /// The autopilot's heading is ours alone, by its parameters
+    /// (`daemon/nav_params.rs`; `None`: not known).
+    pub(super) heading_ours_alone: Option<bool>,
     pub(super) tracker: &'a Tracker,
     pub(super) frame: Option<NedFrame>,
     pub(super) log: Option<&'a McapLogger>,
@@ -116,7 +119,15 @@ impl OutputPacer {
             },
             // North-referenced unless the first yaw was a configured one.
             frame_ned: cx.autopilot == Some(AutopilotKind::Px4) && cfg.init.yaw_source != YawSource::Config,
-            position_given_yaw: cfg.output.position_covariance == PositionCovariance::GivenYaw,
+            position_given_yaw: match cfg.output.position_covariance {
+                PositionCovariance::Absolute => false,
+                PositionCovariance::GivenYaw => true,
+                // Measured beside PX4 only (docs/setup-px4.md); ArduPilot's
+                // EKF3 reduces the covariance to one number (eq. O1).
+                PositionCovariance::Auto => {
+                    cx.autopilot == Some(AutopilotKind::Px4) && cx.heading_ours_alone == Some(true)
+                }
+            },
             t_s: m.t_s,
             x,
             imu_cov,

@@ -103,6 +103,10 @@ pub enum Inbound {
     /// How the autopilot's own EKF takes our estimates: ArduPilot's
     /// `EKF_STATUS_REPORT` or PX4's `ESTIMATOR_STATUS`. Only logged.
     EstimatorStatus(EstimatorStatus),
+    /// `PARAM_VALUE`: one of the autopilot's parameters as the wire carries
+    /// it. An integer's `raw` is its value cast to `f32` (ArduPilot) or its
+    /// bytes copied into one (PX4): [`ParamValue::decoded`] knows which.
+    ParamValue(ParamValue),
     /// `VISION_POSITION_ESTIMATE` (when the peer is another estimator, or
     /// for the SITL scorer's own tests).
     Other(&'static str),
@@ -156,6 +160,10 @@ pub enum Outbound {
     SetMessageInterval {
         message_id: u32,
         interval_us: f32,
+    },
+    /// `PARAM_REQUEST_READ`: send the parameter `name` (at most 16 bytes).
+    ParamRequestRead {
+        name: &'static str,
     },
     /// `MAV_CMD_REQUEST_MESSAGE`: send `message_id` once.
     RequestMessage {
@@ -347,3 +355,36 @@ pub const MSG_ID_EKF_STATUS_REPORT: u32 = 193;
 pub const MSG_ID_ESTIMATOR_STATUS: u32 = 230;
 /// `TIMESYNC` (PX4 streams its requests).
 pub const MSG_ID_TIMESYNC: u32 = 111;
+
+/// One parameter as `PARAM_VALUE` carries it (`MAV_PARAM_TYPE` in
+/// `param_type`: 1–8 integers, 9 `f32`, 10 `f64`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamValue {
+    /// Its name, without the trailing NULs (at most 16 bytes).
+    pub name: String,
+    pub raw: f32,
+    pub param_type: u8,
+}
+
+impl ParamValue {
+    /// Its value, as the autopilot meant it: a `REAL32` as it is; an
+    /// integer of up to 32 bits cast (ArduPilot, MAVLink's "C cast"
+    /// encoding) or bit-copied into the `f32` (PX4, "bytewise"); `None` for
+    /// a 64-bit type (it does not fit) or a value that is not finite.
+    pub fn decoded(&self, kind: AutopilotKind) -> Option<f64> {
+        let bytewise = kind == AutopilotKind::Px4;
+        let bits = self.raw.to_bits();
+        let v = match self.param_type {
+            9 => f64::from(self.raw),
+            1..=6 if !bytewise => f64::from(self.raw).round(),
+            1 => f64::from(bits as u8),
+            2 => f64::from(bits as u8 as i8),
+            3 => f64::from(bits as u16),
+            4 => f64::from(bits as u16 as i16),
+            5 => f64::from(bits),
+            6 => f64::from(bits as i32),
+            _ => return None,
+        };
+        v.is_finite().then_some(v)
+    }
+}

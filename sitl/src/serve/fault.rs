@@ -47,6 +47,9 @@ pub enum FaultKind {
     /// The base loses its lowest-numbered GPS satellite (it sets, or is
     /// blocked, at the base): its satellite set changes twice.
     BaseDropsSatellite,
+    /// The autopilot's visual odometry is off: `VISO_TYPE` read as 0 (an
+    /// ArduPilot that would ignore every estimate).
+    VisoOff,
 }
 
 impl FaultKind {
@@ -68,10 +71,11 @@ impl FaultKind {
             FaultKind::BaseMoved => "base_moved",
             FaultKind::BaseClaimsRoverId => "base_claims_rover_id",
             FaultKind::BaseDropsSatellite => "base_drops_satellite",
+            FaultKind::VisoOff => "viso_off",
         }
     }
 
-    pub const ALL: [FaultKind; 16] = [
+    pub const ALL: [FaultKind; 17] = [
         FaultKind::LinkDrop,
         FaultKind::GnssOutage,
         FaultKind::CameraOutage,
@@ -88,6 +92,7 @@ impl FaultKind {
         FaultKind::BaseMoved,
         FaultKind::BaseClaimsRoverId,
         FaultKind::BaseDropsSatellite,
+        FaultKind::VisoOff,
     ];
 }
 

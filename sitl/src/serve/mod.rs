@@ -127,7 +127,15 @@ pub async fn serve(opts: &ServeOptions, ds: &Dataset) -> Result<Report, ServeErr
     let inbox = receive::Inbox::default();
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     // Receive: answer commands and time sync, collect estimates.
-    let rx = receive::spawn_receiver(conn.clone(), inbox.clone(), started, t_start, opts.speedup, stop_rx);
+    let rx = receive::spawn_receiver(
+        conn.clone(),
+        inbox.clone(),
+        started,
+        t_start,
+        opts.speedup,
+        opts.faults.clone(),
+        stop_rx,
+    );
     let receiver_port = match &opts.gnss_stream {
         Some(addr) => Some(
             receiver_port::ReceiverPort::listen(addr)

@@ -12,6 +12,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use super::clock::boot_ns;
+use super::fault::{Active, Fault, FaultKind};
 use super::{Link, HEADER};
 
 /// One estimate received from the daemon: a `VISION_POSITION_ESTIMATE` or
@@ -85,14 +86,16 @@ pub(super) struct Counts {
 }
 
 /// Spawns the task that receives until `stop_rx` changes: it answers
-/// COMMAND_LONG and TIMESYNC, and records the rest in `inbox`. `started`
-/// runs the boot clock; flight time is `t_start`'s elapsed time × `speedup`.
+/// COMMAND_LONG, TIMESYNC and PARAM_REQUEST_READ, and records the rest in
+/// `inbox`. `started` runs the boot clock; flight time is `t_start`'s
+/// elapsed time × `speedup`; `faults` may change a parameter's answer.
 pub(super) fn spawn_receiver(
     conn: Arc<Link>,
     inbox: Inbox,
     started: Instant,
     t_start: Instant,
     speedup: f64,
+    faults: Vec<Fault>,
     mut stop_rx: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     let flight_t = move || t_start.elapsed().as_secs_f64() * speedup;
@@ -110,6 +113,12 @@ pub(super) fn spawn_receiver(
                 apm::MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
                     let _ = conn.send(&HEADER, &timesync_reply(&h, &t, started)).await;
                 }
+                apm::MavMessage::PARAM_REQUEST_READ(r) => {
+                    let viso_off = Active::at(&faults, flight_t()).has(FaultKind::VisoOff);
+                    if let Some(reply) = param_value(&r, viso_off) {
+                        let _ = conn.send(&HEADER, &reply).await;
+                    }
+                }
                 msg => inbox.record(msg, &flight_t),
             }
         }
@@ -125,6 +134,39 @@ fn command_ack(h: &MavHeader, c: &apm::COMMAND_LONG_DATA) -> apm::MavMessage {
         target_component: h.component_id,
         ..Default::default()
     })
+}
+
+/// ArduPilot's parameters for external navigation as docs/setup-ardupilot.md
+/// sets them (`VISO_TYPE` 1: MAVLink; EKF3 with ExternalNav as its first
+/// source of horizontal position and yaw, the barometer for height), each
+/// `INT8` as ArduPilot sends it (the value cast to the float).
+const PARAMS: [(&str, f32); 5] = [
+    ("VISO_TYPE", 1.0),
+    ("AHRS_EKF_TYPE", 3.0),
+    ("EK3_SRC1_POSXY", 6.0),
+    ("EK3_SRC1_POSZ", 1.0),
+    ("EK3_SRC1_YAW", 6.0),
+];
+
+/// The `PARAM_VALUE` answering a read by name (`viso_off`: `VISO_TYPE` 0);
+/// none for a parameter it does not hold, as ArduPilot stays silent.
+fn param_value(r: &apm::PARAM_REQUEST_READ_DATA, viso_off: bool) -> Option<apm::MavMessage> {
+    let id: [u8; 16] = r.param_id.into();
+    let len = id.iter().position(|b| *b == 0).unwrap_or(16);
+    let name = std::str::from_utf8(&id[..len]).ok()?;
+    let index = PARAMS.iter().position(|(n, _)| *n == name)?;
+    let value = if viso_off && name == "VISO_TYPE" {
+        0.0
+    } else {
+        PARAMS[index].1
+    };
+    Some(apm::MavMessage::PARAM_VALUE(apm::PARAM_VALUE_DATA {
+        param_value: value,
+        param_count: PARAMS.len() as u16,
+        param_index: index as u16,
+        param_id: r.param_id,
+        param_type: apm::MavParamType::MAV_PARAM_TYPE_INT8,
+    }))
 }
 
 /// Answers a TIMESYNC request with the boot clock now.

@@ -168,6 +168,21 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 v_ned_mps: finite3(Vector3::new(d.vn as f64, d.ve as f64, d.vd as f64))?,
             })
         }
+        // A parameter's name is ASCII up to its first NUL (16 bytes at most,
+        // no NUL when it fills them); anything else is no name of ours.
+        M::PARAM_VALUE(d) => {
+            let bytes: [u8; 16] = d.param_id.into();
+            let len = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
+            let name = &bytes[..len];
+            if name.is_empty() || !name.iter().all(|b| b.is_ascii_graphic()) {
+                return Err(LinkError::Rejected(Counter::MavlinkRejectedOther));
+            }
+            Inbound::ParamValue(crate::io::messages::ParamValue {
+                name: String::from_utf8_lossy(name).into_owned(),
+                raw: d.param_value,
+                param_type: d.param_type as u8,
+            })
+        }
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
             unix_us: d.time_unix_usec,
             boot_ms: d.time_boot_ms,

@@ -35,6 +35,13 @@ pub(super) fn encode(out: &Outbound, target_system: u8, target_component: u8) ->
             message_id,
             interval_us,
         } => set_message_interval(*message_id, *interval_us, target_system, target_component),
+        Outbound::ParamRequestRead { name } => apm::MavMessage::PARAM_REQUEST_READ(apm::PARAM_REQUEST_READ_DATA {
+            // -1: by name.
+            param_index: -1,
+            target_system,
+            target_component,
+            param_id: (*name).into(),
+        }),
         Outbound::RequestMessage { message_id } => apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
             target_system,
             target_component,

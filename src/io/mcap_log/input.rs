@@ -163,6 +163,24 @@ pub enum AutopilotRecord {
     /// A `STATUSTEXT` it sent.
     #[serde(rename = "statustext")]
     StatusText(StatusTextRecord),
+    /// One of its navigation parameters (`PARAM_VALUE`), as the wire
+    /// carried it (`daemon/nav_params.rs` decodes it by the autopilot's
+    /// kind, logged before it).
+    Param(ParamRecord),
+}
+
+/// A `PARAM_VALUE` from the autopilot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ParamRecord {
+    pub name: String,
+    /// The bits of the wire's `f32` (an integer's own bits with PX4), so
+    /// that replay decodes exactly what came.
+    pub raw_bits: u32,
+    /// `MAV_PARAM_TYPE`.
+    pub param_type: u8,
+    /// Its value as decoded for the autopilot's kind (`null`: not a
+    /// number, or the kind not yet known).
+    pub value: Option<f64>,
 }
 
 /// A `STATUSTEXT` from the autopilot.

@@ -1,0 +1,491 @@
+//! The autopilot's navigation parameters, read and judged.
+//!
+//! An autopilot's EKF fuses our estimates only as its parameters say, and
+//! nothing on the link tells when they say no: with PX4's `EKF2_EV_CTRL =
+//! 0` or ArduPilot's `VISO_TYPE = 0` our estimates are dropped, and with
+//! `EKF2_EV_NOISE_MD = 1` EKF2 weighs them by its own numbers, not by our
+//! covariance. So the daemon asks for the few parameters that decide it
+//! (`PARAM_REQUEST_READ`, a round every [`ASK_EVERY_S`], at most
+//! [`ROUNDS`]), logs each value that comes (`/input/mavlink/autopilot`,
+//! replayed), says each one that is wrong with its fix (`/log`, and a
+//! `STATUSTEXT` to the ground station while disarmed), judges again when
+//! one changes (a ground station setting it broadcasts the new value), and
+//! tells the output whether the autopilot's heading is ours alone: with
+//! `output.position_covariance = "auto"` the position's covariance then
+//! goes to PX4 given our yaw (estimator README eq. O2).
+
+use super::flight_log::{FlightLog, Level};
+use crate::counters::{Counter, Counters};
+use crate::io::messages::{AutopilotKind, Outbound, ParamValue};
+
+/// A round of requests for the parameters not yet answered goes out this
+/// often (s of autopilot time), [`ROUNDS`] times at most; the parameters
+/// are then judged with what came.
+const ASK_EVERY_S: f64 = 2.0;
+const ROUNDS: u32 = 5;
+
+/// PX4's EKF2 (PX4 v1.14 and later; docs/setup-px4.md says why each).
+const PX4: &[&str] = &[
+    "EKF2_EV_CTRL",
+    "EKF2_GPS_CTRL",
+    "EKF2_MAG_TYPE",
+    "EKF2_HGT_REF",
+    "EKF2_EV_NOISE_MD",
+    "EKF2_EV_DELAY",
+];
+/// ArduPilot's EKF3 and its visual odometry (docs/setup-ardupilot.md).
+const ARDUPILOT: &[&str] = &[
+    "VISO_TYPE",
+    "AHRS_EKF_TYPE",
+    "EK3_SRC1_POSXY",
+    "EK3_SRC1_POSZ",
+    "EK3_SRC1_YAW",
+];
+
+/// The parameters asked of an autopilot of this kind.
+fn wanted(kind: AutopilotKind) -> &'static [&'static str] {
+    match kind {
+        AutopilotKind::Px4 => PX4,
+        AutopilotKind::ArduPilot => ARDUPILOT,
+        AutopilotKind::Other => &[],
+    }
+}
+
+/// One thing the parameters say, at the level it matters.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Finding {
+    pub(super) level: Level,
+    pub(super) text: String,
+}
+
+/// What the parameters say.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(super) struct Verdict {
+    /// Each parameter that is wrong or worth knowing, with its fix.
+    pub(super) findings: Vec<Finding>,
+    /// The autopilot's heading is ours alone (`None`: its parameters do not
+    /// say, or it is not PX4).
+    pub(super) heading_ours_alone: Option<bool>,
+}
+
+/// The parameters asked for, those answered, and their verdict.
+#[derive(Debug, Default)]
+pub(super) struct NavParams {
+    kind: Option<AutopilotKind>,
+    /// Each wanted parameter and its value once answered.
+    values: Vec<(&'static str, Option<f64>)>,
+    next_ask_t: f64,
+    rounds: u32,
+    verdict: Option<Verdict>,
+}
+
+impl NavParams {
+    /// The autopilot's kind, from its HEARTBEAT: a new kind starts the
+    /// questions again.
+    pub(super) fn set_kind(&mut self, kind: AutopilotKind) {
+        if self.kind != Some(kind) {
+            *self = Self {
+                kind: Some(kind),
+                values: wanted(kind).iter().map(|n| (*n, None)).collect(),
+                next_ask_t: f64::NEG_INFINITY,
+                ..Self::default()
+            };
+        }
+    }
+
+    /// Whether the autopilot's heading is ours alone, once judged.
+    pub(super) fn heading_ours_alone(&self) -> Option<bool> {
+        self.verdict.as_ref().and_then(|v| v.heading_ours_alone)
+    }
+
+    /// At each IMU sample `t_s`: asks for the parameters not yet answered
+    /// when a round is due, and judges with what came after the last round.
+    pub(super) fn poll(
+        &mut self,
+        t_s: f64,
+        armed: bool,
+        log: &FlightLog,
+        counters: &Counters,
+        out: &impl Fn(Outbound),
+    ) {
+        if self.verdict.is_some() || self.values.is_empty() || t_s < self.next_ask_t {
+            return;
+        }
+        if self.rounds < ROUNDS {
+            self.rounds += 1;
+            self.next_ask_t = t_s + ASK_EVERY_S;
+            for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
+                out(Outbound::ParamRequestRead { name });
+            }
+            return;
+        }
+        for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
+            counters.add(Counter::AutopilotParamUnanswered, 1);
+            tracing::warn!(
+                reason = "autopilot_param_unanswered",
+                param = name,
+                "no PARAM_VALUE came"
+            );
+        }
+        self.judge(t_s, armed, log, counters, out);
+    }
+
+    /// A `PARAM_VALUE`: kept if it is one asked for; the parameters are
+    /// judged once all have come, and again when one changes.
+    pub(super) fn on_value(
+        &mut self,
+        p: &ParamValue,
+        t_s: f64,
+        armed: bool,
+        log: &FlightLog,
+        counters: &Counters,
+        out: &impl Fn(Outbound),
+    ) {
+        let Some(kind) = self.kind else { return };
+        let Some(slot) = self.values.iter_mut().find(|(n, _)| *n == p.name) else {
+            return;
+        };
+        let Some(v) = p.decoded(kind) else { return };
+        counters.add(Counter::AutopilotParamValue, 1);
+        let changed = slot.1.is_some_and(|old| old != v);
+        slot.1 = Some(v);
+        let complete = self.values.iter().all(|(_, v)| v.is_some());
+        if (self.verdict.is_none() && complete) || (self.verdict.is_some() && changed) {
+            self.judge(t_s, armed, log, counters, out);
+        }
+    }
+
+    fn value(&self, name: &str) -> Option<f64> {
+        self.values.iter().find(|(n, _)| *n == name).and_then(|(_, v)| *v)
+    }
+
+    /// Judges the parameters as they stand and says what they say.
+    fn judge(&mut self, t_s: f64, armed: bool, log: &FlightLog, counters: &Counters, out: &impl Fn(Outbound)) {
+        let Some(kind) = self.kind else { return };
+        let verdict = verdict(kind, &|n| self.value(n));
+        let values = self
+            .values
+            .iter()
+            .map(|(n, v)| match v {
+                Some(v) => format!("{n} = {v}"),
+                None => format!("{n} unanswered"),
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        log.text(
+            Level::Info,
+            t_s,
+            &format!("the autopilot's navigation parameters: {values}"),
+        );
+        tracing::info!(%values, "the autopilot's navigation parameters");
+        if let Some(alone) = verdict.heading_ours_alone {
+            let text = if alone {
+                "the autopilot's heading is ours alone: with output.position_covariance = \"auto\" our \
+                 position's covariance goes to it given our yaw (eq. O2)"
+            } else {
+                "the autopilot has a heading or a position of its own: our position's covariance goes to it \
+                 whole"
+            };
+            log.text(Level::Info, t_s, text);
+            tracing::info!("{text}");
+        }
+        for f in &verdict.findings {
+            log.text(f.level, t_s, &f.text);
+            if f.level == Level::Info {
+                tracing::info!("{}", f.text);
+                continue;
+            }
+            counters.add(Counter::AutopilotParamMisconfigured, 1);
+            tracing::warn!(reason = "autopilot_param_misconfigured", "{}", f.text);
+            // To the pilot's screen on the ground; in the air only the log.
+            if !armed {
+                let severity = if f.level == Level::Error { 3 } else { 4 };
+                out(Outbound::StatusText {
+                    severity,
+                    text: format!("cmsckf: {}", f.text),
+                });
+            }
+        }
+        self.verdict = Some(verdict);
+    }
+}
+
+/// Bit `b` of an integer parameter.
+fn bit(v: f64, b: u32) -> bool {
+    (v as i64 >> b) & 1 == 1
+}
+
+/// What an autopilot's navigation parameters say (`value`: a parameter's
+/// value, `None` when unanswered).
+pub(super) fn verdict(kind: AutopilotKind, value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
+    match kind {
+        AutopilotKind::Px4 => px4_verdict(value),
+        AutopilotKind::ArduPilot => ardupilot_verdict(value),
+        AutopilotKind::Other => Verdict::default(),
+    }
+}
+
+fn finding(level: Level, text: String) -> Finding {
+    Finding { level, text }
+}
+
+/// PX4's EKF2 (`src/modules/ekf2/params_external_vision.yaml`;
+/// docs/setup-px4.md).
+fn px4_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
+    let mut findings = Vec::new();
+    let ev_ctrl = value("EKF2_EV_CTRL");
+    match ev_ctrl {
+        Some(c) if c as i64 & 0b1111 == 0 => findings.push(finding(
+            Level::Error,
+            format!("EKF2_EV_CTRL = {c}: EKF2 fuses none of our estimates; set it to 15"),
+        )),
+        Some(c) if !bit(c, 0) => findings.push(finding(
+            Level::Warning,
+            format!("EKF2_EV_CTRL = {c}: EKF2 does not fuse our horizontal position (bit 0); set it to 15"),
+        )),
+        _ => {}
+    }
+    if let (Some(3.0), Some(c)) = (value("EKF2_HGT_REF"), ev_ctrl) {
+        if !bit(c, 1) {
+            findings.push(finding(
+                Level::Warning,
+                format!("EKF2_HGT_REF = 3 (vision) but EKF2_EV_CTRL = {c} fuses no vertical position (bit 1)"),
+            ));
+        }
+    }
+    if value("EKF2_EV_NOISE_MD") == Some(1.0) {
+        findings.push(finding(
+            Level::Warning,
+            "EKF2_EV_NOISE_MD = 1: EKF2 ignores the covariance we send and weighs us by its EKF2_EV*_NOISE; \
+             set it to 0"
+                .to_string(),
+        ));
+    }
+    if let Some(d) = value("EKF2_EV_DELAY").filter(|d| *d > 0.0) {
+        findings.push(finding(
+            Level::Info,
+            format!(
+                "EKF2_EV_DELAY = {d} ms: once TIMESYNC has converged our stamps are each estimate's own time, \
+                 and EKF2 moves each {d} ms earlier; 0 is right then (docs/setup-px4.md)"
+            ),
+        ));
+    }
+    // Our yaw is EKF2's heading when it fuses it and has no other: no GNSS
+    // position (which would tie EKF2's frame to north) and no compass.
+    let heading_ours_alone = match (ev_ctrl, value("EKF2_GPS_CTRL"), value("EKF2_MAG_TYPE")) {
+        (Some(ev), Some(gps), Some(mag)) => Some(bit(ev, 3) && !bit(gps, 0) && mag == 5.0),
+        _ => None,
+    };
+    Verdict {
+        findings,
+        heading_ours_alone,
+    }
+}
+
+/// ArduPilot's EKF3 and its visual odometry (docs/setup-ardupilot.md).
+fn ardupilot_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
+    let mut findings = Vec::new();
+    if value("VISO_TYPE") == Some(0.0) {
+        findings.push(finding(
+            Level::Error,
+            "VISO_TYPE = 0: ArduPilot ignores our estimates; set it to 1 (MAVLink) and reboot".to_string(),
+        ));
+    }
+    if let Some(t) = value("AHRS_EKF_TYPE").filter(|t| *t != 3.0) {
+        findings.push(finding(
+            Level::Warning,
+            format!("AHRS_EKF_TYPE = {t}: only EKF3 fuses external navigation; set it to 3"),
+        ));
+    }
+    if let Some(s) = value("EK3_SRC1_POSXY").filter(|s| *s != 6.0) {
+        findings.push(finding(
+            Level::Info,
+            format!(
+                "EK3_SRC1_POSXY = {s}: EKF3's first source set does not take our horizontal position \
+                 (6 = ExternalNav); ours is used only when a source set with 6 is selected"
+            ),
+        ));
+    }
+    Verdict {
+        findings,
+        heading_ours_alone: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::cell::RefCell;
+
+    fn px4(values: &[(&str, f64)]) -> Verdict {
+        verdict(AutopilotKind::Px4, &|n| {
+            values.iter().find(|(k, _)| *k == n).map(|(_, v)| *v)
+        })
+    }
+
+    const SITL: [(&str, f64); 6] = [
+        ("EKF2_EV_CTRL", 15.0),
+        ("EKF2_GPS_CTRL", 0.0),
+        ("EKF2_MAG_TYPE", 5.0),
+        ("EKF2_HGT_REF", 3.0),
+        ("EKF2_EV_NOISE_MD", 0.0),
+        ("EKF2_EV_DELAY", 0.0),
+    ];
+
+    #[test]
+    fn px4_set_up_for_vision_alone_has_its_heading_from_us_and_nothing_to_say() {
+        let v = px4(&SITL);
+        assert_eq!(v.findings, vec![]);
+        assert_eq!(v.heading_ours_alone, Some(true));
+    }
+
+    #[test]
+    fn each_px4_parameter_that_drops_or_misweighs_us_is_said_with_its_fix() {
+        let with = |name: &str, value: f64| {
+            let mut p = SITL.to_vec();
+            p.iter_mut().find(|(n, _)| *n == name).unwrap().1 = value;
+            px4(&p)
+        };
+        let v = with("EKF2_EV_CTRL", 0.0);
+        assert_eq!(v.findings.len(), 2, "{v:?}"); // none fused, and no height under HGT_REF 3
+        assert_eq!(v.findings[0].level, Level::Error);
+        assert!(v.findings[0].text.contains("EKF2_EV_CTRL = 0") && v.findings[0].text.contains("15"));
+        assert_eq!(v.heading_ours_alone, Some(false));
+        let v = with("EKF2_EV_CTRL", 14.0);
+        assert!(v.findings[0].text.contains("horizontal"), "{v:?}");
+        assert_eq!(v.findings[0].level, Level::Warning);
+        let v = with("EKF2_EV_CTRL", 13.0);
+        assert!(v.findings[0].text.contains("vertical"), "{v:?}");
+        let v = with("EKF2_EV_NOISE_MD", 1.0);
+        assert!(v.findings[0].text.contains("ignores the covariance"), "{v:?}");
+        let v = with("EKF2_EV_DELAY", 50.0);
+        assert_eq!(v.findings[0].level, Level::Info);
+        // Another heading source: EKF2's frame is not ours alone.
+        assert_eq!(with("EKF2_GPS_CTRL", 7.0).heading_ours_alone, Some(false));
+        assert_eq!(with("EKF2_MAG_TYPE", 0.0).heading_ours_alone, Some(false));
+        assert_eq!(with("EKF2_EV_CTRL", 7.0).heading_ours_alone, Some(false));
+        // Not known without all three.
+        assert_eq!(px4(&SITL[..2]).heading_ours_alone, None);
+    }
+
+    #[test]
+    fn ardupilot_ignoring_us_is_said() {
+        let ap = |values: &[(&str, f64)]| {
+            verdict(AutopilotKind::ArduPilot, &|n| {
+                values.iter().find(|(k, _)| *k == n).map(|(_, v)| *v)
+            })
+        };
+        let good = [
+            ("VISO_TYPE", 1.0),
+            ("AHRS_EKF_TYPE", 3.0),
+            ("EK3_SRC1_POSXY", 6.0),
+            ("EK3_SRC1_POSZ", 1.0),
+            ("EK3_SRC1_YAW", 6.0),
+        ];
+        assert_eq!(ap(&good).findings, vec![]);
+        assert_eq!(ap(&good).heading_ours_alone, None);
+        let v = ap(&[("VISO_TYPE", 0.0), ("AHRS_EKF_TYPE", 2.0), ("EK3_SRC1_POSXY", 3.0)]);
+        let levels: Vec<_> = v.findings.iter().map(|f| f.level).collect();
+        assert_eq!(levels, vec![Level::Error, Level::Warning, Level::Info], "{v:?}");
+    }
+
+    /// Asks in rounds for what has not come, judges once all have come,
+    /// again on a change, and with what came when the rounds run out.
+    #[test]
+    fn parameters_are_asked_in_rounds_and_judged_when_complete_or_given_up() {
+        let log = FlightLog::new(None, false);
+        let counters = Counters::default();
+        let sent = RefCell::new(Vec::new());
+        let out = |o: Outbound| sent.borrow_mut().push(o);
+        let mut p = NavParams::default();
+        p.poll(0.0, false, &log, &counters, &out);
+        assert!(sent.borrow().is_empty(), "nothing asked before the kind is known");
+        p.set_kind(AutopilotKind::Px4);
+        p.poll(0.0, false, &log, &counters, &out);
+        assert_eq!(sent.borrow().len(), PX4.len());
+        p.poll(1.0, false, &log, &counters, &out);
+        assert_eq!(sent.borrow().len(), PX4.len(), "the next round waits its turn");
+        // Answers as PX4 sends integers: their bits in the f32.
+        let answer = |p: &mut NavParams, name: &str, v: i32| {
+            let raw = ParamValue {
+                name: name.to_string(),
+                raw: f32::from_bits(v as u32),
+                param_type: 6,
+            };
+            p.on_value(&raw, 2.5, false, &log, &counters, &out);
+        };
+        for (name, v) in SITL.iter().take(5) {
+            answer(&mut p, name, *v as i32);
+        }
+        sent.borrow_mut().clear();
+        p.poll(2.0, false, &log, &counters, &out);
+        let asked: Vec<_> = sent.borrow().clone();
+        assert!(
+            matches!(asked.as_slice(), [Outbound::ParamRequestRead { name: "EKF2_EV_DELAY" }]),
+            "only the missing one asked again: {asked:?}"
+        );
+        assert_eq!(p.heading_ours_alone(), None, "not judged before all have come");
+        p.on_value(
+            &ParamValue {
+                name: "EKF2_EV_DELAY".into(),
+                raw: 0.0,
+                param_type: 9,
+            },
+            3.0,
+            false,
+            &log,
+            &counters,
+            &out,
+        );
+        assert_eq!(p.heading_ours_alone(), Some(true));
+        // A ground station turns EV yaw off: judged again at once, and said.
+        sent.borrow_mut().clear();
+        answer(&mut p, "EKF2_EV_CTRL", 0);
+        assert_eq!(p.heading_ours_alone(), Some(false));
+        assert!(sent
+            .borrow()
+            .iter()
+            .any(|o| matches!(o, Outbound::StatusText { severity: 3, .. })));
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+        // An autopilot that never answers: judged after the last round.
+        let mut q = NavParams::default();
+        q.set_kind(AutopilotKind::ArduPilot);
+        for k in 0..=ROUNDS {
+            q.poll(k as f64 * ASK_EVERY_S, false, &log, &counters, &out);
+        }
+        assert!(q.verdict.is_some());
+        assert_eq!(counters.get(Counter::AutopilotParamUnanswered), ARDUPILOT.len() as u64);
+        // A value that is no parameter of ours, or not finite, is ignored.
+        let before = counters.get(Counter::AutopilotParamValue);
+        for (name, raw) in [("SYS_AUTOSTART", 1.0f32), ("VISO_TYPE", f32::NAN)] {
+            let v = ParamValue {
+                name: name.into(),
+                raw,
+                param_type: 9,
+            };
+            q.on_value(&v, 20.0, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamValue), before);
+    }
+
+    #[test]
+    fn integers_are_decoded_as_each_autopilot_encodes_them() {
+        let v = |raw: f32, t: u8| ParamValue {
+            name: "X".into(),
+            raw,
+            param_type: t,
+        };
+        // PX4 copies an int32's bits into the float.
+        assert_eq!(v(f32::from_bits(15), 6).decoded(AutopilotKind::Px4), Some(15.0));
+        assert_eq!(
+            v(f32::from_bits(-1i32 as u32), 6).decoded(AutopilotKind::Px4),
+            Some(-1.0)
+        );
+        assert_eq!(v(f32::from_bits(0xff), 2).decoded(AutopilotKind::Px4), Some(-1.0));
+        // ArduPilot casts.
+        assert_eq!(v(6.0, 2).decoded(AutopilotKind::ArduPilot), Some(6.0));
+        assert_eq!(v(0.5, 9).decoded(AutopilotKind::ArduPilot), Some(0.5));
+        assert_eq!(v(f32::INFINITY, 9).decoded(AutopilotKind::Px4), None);
+        assert_eq!(v(1.0, 8).decoded(AutopilotKind::Px4), None);
+    }
+}
