@@ -64,6 +64,13 @@ pub struct ModeSummary {
     pub nees_yaw_mean_second_half: f64,
     pub nees_position_mean_second_half: f64,
     pub nees_velocity_mean_second_half: f64,
+    /// The standard error of each of the four whole-flight means above,
+    /// `[tilt, yaw, position, velocity]`, from their spread across seeds
+    /// (`s/√n`, each seed's mean one sample; absent with one seed): a
+    /// mean over a handful of seeds moves by this much with another draw,
+    /// so a NEES is judged against its degrees of freedom within it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nees_parts_se: Option<[f64; 4]>,
     /// The time offset's final |estimate − truth| (ms), mean over seeds.
     pub time_offset_error_ms: f64,
     /// Per seed: the time offset's final estimate − truth, and its σ (ms).
@@ -157,6 +164,22 @@ pub fn component_nees(r: &FlightResult, from: usize) -> [f64; 4] {
     sum.map(|s| s / n.max(1) as f64)
 }
 
+/// The standard error of the mean of each of four per-seed values: the
+/// sample standard deviation (`n − 1`) over `√n`; `None` with fewer than
+/// two seeds.
+fn standard_errors(per_seed: &[[f64; 4]]) -> Option<[f64; 4]> {
+    let n = per_seed.len();
+    if n < 2 {
+        return None;
+    }
+    let nf = n as f64;
+    Some(std::array::from_fn(|k| {
+        let mean = per_seed.iter().map(|v| v[k]).sum::<f64>() / nf;
+        let var = per_seed.iter().map(|v| (v[k] - mean).powi(2)).sum::<f64>() / (nf - 1.0);
+        (var / nf).sqrt()
+    }))
+}
+
 /// Scores of one flight.
 #[derive(Clone, Copy, Debug)]
 pub struct FlightScore {
@@ -210,6 +233,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         acc
     };
     let (nees_all, nees_half) = (comp(false), comp(true));
+    let per_seed: Vec<[f64; 4]> = runs.iter().map(|r| component_nees(r, 0)).collect();
     let diff = runs
         .iter()
         .filter_map(|r| r.max_rel_diff_vs_full)
@@ -261,6 +285,7 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
         nees_yaw_mean_second_half: nees_half[1],
         nees_position_mean_second_half: nees_half[2],
         nees_velocity_mean_second_half: nees_half[3],
+        nees_parts_se: standard_errors(&per_seed),
         time_offset_error_ms: runs
             .iter()
             .map(|r| (r.time_offset_s - r.time_offset_true_s).abs() * 1e3)
@@ -445,6 +470,19 @@ impl Evaluation {
             }
         }
         for m in Mode::ALL {
+            if let Some(se) = self.modes.get(m.name()).and_then(|r| r.nees_parts_se) {
+                s += &format!(
+                    "{:<11} ± standard error across the {} seeds: tilt {:.2} · yaw {:.2} · pos {:.2} · vel {:.2}\n",
+                    m.name(),
+                    self.seeds,
+                    se[0],
+                    se[1],
+                    se[2],
+                    se[3]
+                );
+            }
+        }
+        for m in Mode::ALL {
             if let Some(r) = self.modes.get(m.name()) {
                 if let (Some(b), Some(e)) = (r.clock_bias_rmse_m, r.isb_galileo_rmse_m) {
                     s += &format!("{:<11} clock-bias RMSE {b:.3} m · Galileo ISB RMSE {e:.3} m", m.name());
@@ -478,5 +516,25 @@ impl Evaluation {
             );
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::standard_errors;
+
+    #[test]
+    fn the_standard_error_is_the_seeds_spread_over_root_n() {
+        assert_eq!(
+            standard_errors(&[[3.0; 4]]),
+            None,
+            "one seed says nothing of the spread"
+        );
+        let se = standard_errors(&[[1.0, 3.0, 0.0, 5.0], [2.0, 3.0, 0.0, 5.0], [3.0, 3.0, 6.0, 5.0]]).unwrap();
+        // [1, 2, 3]: mean 2, sample variance 1, so 1/√3; [0, 0, 6]: variance 12, so 2.
+        assert!((se[0] - 1.0 / 3f64.sqrt()).abs() < 1e-15, "{se:?}");
+        assert_eq!(se[1], 0.0);
+        assert!((se[2] - 2.0).abs() < 1e-15, "{se:?}");
+        assert_eq!(se[3], 0.0);
     }
 }
