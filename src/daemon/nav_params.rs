@@ -147,7 +147,9 @@ impl NavParams {
         };
         let Some(v) = p.decoded(kind) else { return };
         counters.add(Counter::AutopilotParamValue, 1);
-        let changed = slot.1.is_some_and(|old| old != v);
+        // New or changed: a value that comes after the rounds gave up on it
+        // is judged as much as one that changes.
+        let changed = slot.1 != Some(v);
         slot.1 = Some(v);
         let complete = self.values.iter().all(|(_, v)| v.is_some());
         if (self.verdict.is_none() && complete) || (self.verdict.is_some() && changed) {
@@ -466,6 +468,55 @@ mod tests {
             q.on_value(&v, 20.0, false, &log, &counters, &out);
         }
         assert_eq!(counters.get(Counter::AutopilotParamValue), before);
+    }
+
+    /// A PX4 `PARAM_VALUE` as PX4 sends an `INT32`: its bits in the float.
+    fn px4_int(name: &str, v: i32) -> ParamValue {
+        ParamValue {
+            name: name.to_string(),
+            raw: f32::from_bits(v as u32),
+            param_type: 6,
+        }
+    }
+
+    /// An answer that comes after the rounds gave up on it (a slow link, an
+    /// autopilot still booting) is judged: a wrong value is said, and the
+    /// heading's verdict, unknown without it, is given.
+    #[test]
+    fn a_value_that_comes_after_the_rounds_gave_up_is_judged() {
+        let log = FlightLog::new(None, false);
+        let counters = Counters::default();
+        let sent = RefCell::new(Vec::new());
+        let out = |o: Outbound| sent.borrow_mut().push(o);
+        let mut p = NavParams::default();
+        p.set_kind(AutopilotKind::Px4);
+        // Every value but EKF2_EV_CTRL comes; the rounds run out.
+        for (name, v) in SITL.iter().skip(1) {
+            p.on_value(&px4_int(name, *v as i32), 0.5, false, &log, &counters, &out);
+        }
+        for k in 0..=ROUNDS {
+            p.poll(k as f64 * ASK_EVERY_S, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamUnanswered), 1);
+        assert_eq!(p.heading_ours_alone(), None, "EKF2_EV_CTRL not known");
+        // It comes late, as 0: EKF2 drops us. Said, counted, and the heading
+        // known not to be ours.
+        sent.borrow_mut().clear();
+        p.on_value(&px4_int("EKF2_EV_CTRL", 0), 30.0, false, &log, &counters, &out);
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2, "EV_CTRL 0, and no vision height");
+        assert!(sent
+            .borrow()
+            .iter()
+            .any(|o| matches!(o, Outbound::StatusText { severity: 3, text } if text.contains("EKF2_EV_CTRL = 0"))));
+        assert_eq!(p.heading_ours_alone(), Some(false));
+        // The same value again (a ground station's list download): nothing
+        // new to say.
+        p.on_value(&px4_int("EKF2_EV_CTRL", 0), 31.0, false, &log, &counters, &out);
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+        // Set to 15 in flight: judged again, the heading now ours alone.
+        p.on_value(&px4_int("EKF2_EV_CTRL", 15), 32.0, true, &log, &counters, &out);
+        assert_eq!(p.heading_ours_alone(), Some(true));
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
     }
 
     #[test]
