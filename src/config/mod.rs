@@ -655,7 +655,7 @@ pub enum PoseCovariance {
 #[serde(rename_all = "snake_case")]
 pub enum PositionCovariance {
     /// `GivenYaw` towards PX4 once its parameters say that its heading is
-    /// ours alone (`EKF2_EV_CTRL` bit 3 on, `EKF2_GPS_CTRL` bit 0 off,
+    /// ours alone (`EKF2_EV_CTRL` bit 3 on, `EKF2_GPS_CTRL` bits 0, 2 and 3 off,
     /// `EKF2_MAG_TYPE` 5, read over MAVLink: `daemon/nav_params.rs`);
     /// `Absolute` until they are read, when they say otherwise, and towards
     /// any other autopilot (conditioning was measured beside PX4 only).

@@ -273,9 +273,13 @@ fn px4_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
         ));
     }
     // Our yaw is EKF2's heading when it fuses it and has no other: no GNSS
-    // position (which would tie EKF2's frame to north) and no compass.
+    // position, velocity or dual-antenna heading (`EKF2_GPS_CTRL` bits 0, 2,
+    // 3: each ties EKF2's frame to north; velocity alone aligns its yaw by
+    // the EKF-GSF and resets it in flight) and no compass.
     let heading_ours_alone = match (ev_ctrl, value("EKF2_GPS_CTRL"), value("EKF2_MAG_TYPE")) {
-        (Some(ev), Some(gps), Some(mag)) => Some(bit(ev, 3) && !bit(gps, 0) && mag == 5.0),
+        (Some(ev), Some(gps), Some(mag)) => {
+            Some(bit(ev, 3) && !bit(gps, 0) && !bit(gps, 2) && !bit(gps, 3) && mag == 5.0)
+        }
         _ => None,
     };
     Verdict {
@@ -517,6 +521,25 @@ mod tests {
         p.on_value(&px4_int("EKF2_EV_CTRL", 15), 32.0, true, &log, &counters, &out);
         assert_eq!(p.heading_ours_alone(), Some(true));
         assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+    }
+
+    /// EKF2 with GNSS velocity alone (`EKF2_GPS_CTRL` bit 2: it aligns and
+    /// resets its yaw by the EKF-GSF from it, `gps_control.cpp`) or a
+    /// dual-antenna heading (bit 3) has a north of its own: its heading is
+    /// not ours alone, whatever its position source. Height alone (bit 1)
+    /// ties nothing to north.
+    #[test]
+    fn px4_with_gnss_velocity_or_heading_has_a_heading_of_its_own() {
+        let with_gps = |gps: f64| {
+            let mut p = SITL.to_vec();
+            p[1] = ("EKF2_GPS_CTRL", gps);
+            px4(&p).heading_ours_alone
+        };
+        assert_eq!(with_gps(0.0), Some(true));
+        assert_eq!(with_gps(2.0), Some(true), "GNSS height alone");
+        for gps in [1.0, 4.0, 8.0, 6.0, 12.0, 7.0, 15.0] {
+            assert_eq!(with_gps(gps), Some(false), "EKF2_GPS_CTRL = {gps}");
+        }
     }
 
     #[test]
