@@ -554,7 +554,8 @@ impl AutopilotView {
 
     /// Forgets what a restart of `kind` makes stale: after an IMU gap or a
     /// reboot, its attitude and position; after a reboot, also our origin
-    /// (a rebooted autopilot has lost it) and its clock's Unix offset.
+    /// (a rebooted autopilot has lost it), its clock's Unix offset, and its
+    /// navigation parameters (asked for again: [`NavParams::restart_questions`]).
     pub(super) fn forget_for_restart(&mut self, kind: Restart) {
         if matches!(kind, Restart::Reboot | Restart::Gap) {
             self.attitude = None;
@@ -564,6 +565,7 @@ impl AutopilotView {
         if kind == Restart::Reboot {
             self.origin = OriginSend::default();
             self.unix_minus_boot.reset();
+            self.params.restart_questions();
         }
     }
 }
@@ -748,6 +750,62 @@ mod tests {
             ap.send_origin(k as f64 * 0.01, Some(frame), &log, counters, &tx);
         }
         drain(&mut rx)
+    }
+
+    /// The autopilot reboots (its clock restarts): its navigation
+    /// parameters are asked for again at once, not when the new clock
+    /// reaches the round due on the old one, and the heading is not taken
+    /// as ours alone until they have come again (a reboot is when a
+    /// parameter set since takes effect).
+    #[test]
+    fn navigation_parameters_are_asked_again_after_a_reboot() {
+        let counters = Counters::default();
+        let log = FlightLog::new(None, false);
+        let (tx, mut rx) = mpsc::channel(1024);
+        let asked = |rx: &mut mpsc::Receiver<Outbound>| {
+            drain(rx)
+                .iter()
+                .filter(|m| matches!(m, Outbound::ParamRequestRead { .. }))
+                .count()
+        };
+        let mut ap = AutopilotView {
+            kind: Some(AutopilotKind::Px4),
+            ..Default::default()
+        };
+        ap.params.set_kind(AutopilotKind::Px4);
+        // Up 600 s: the first round asks for all six, none answers yet.
+        ap.poll_params(600.0, &log, &counters, &tx);
+        assert_eq!(asked(&mut rx), 6);
+        // It reboots in the middle of the rounds: its clock starts again.
+        ap.forget_for_restart(Restart::Reboot);
+        ap.poll_params(1.0, &log, &counters, &tx);
+        assert_eq!(asked(&mut rx), 6, "asked again on the new clock");
+        // All six come, as PX4 sends them: the heading is ours alone.
+        for (name, v) in [
+            ("EKF2_EV_CTRL", 15),
+            ("EKF2_GPS_CTRL", 0),
+            ("EKF2_MAG_TYPE", 5),
+            ("EKF2_HGT_REF", 3),
+            ("EKF2_EV_NOISE_MD", 0),
+            ("EKF2_EV_DELAY", 0),
+        ] {
+            let p = crate::io::messages::ParamValue {
+                name: name.into(),
+                raw: f32::from_bits(v as u32),
+                param_type: 6,
+            };
+            ap.on_param(&p, 1.5, &log, &counters, &tx);
+        }
+        assert_eq!(ap.heading_ours_alone(), Some(true));
+        // Another reboot: not known until they come again, and asked for.
+        ap.forget_for_restart(Restart::Reboot);
+        assert_eq!(ap.heading_ours_alone(), None);
+        ap.poll_params(0.5, &log, &counters, &tx);
+        assert_eq!(asked(&mut rx), 6);
+        // An IMU gap is no reboot: nothing asked, the verdict kept.
+        ap.forget_for_restart(Restart::Gap);
+        ap.poll_params(0.6, &log, &counters, &tx);
+        assert_eq!(asked(&mut rx), 0);
     }
 
     #[test]

@@ -93,6 +93,16 @@ impl NavParams {
         }
     }
 
+    /// After the autopilot's reboot: its parameters are asked for again
+    /// from the first round (a reboot is when some take effect, and its
+    /// clock restarts, so a round due on the old clock would wait as long
+    /// as it had been up), and not known until they come.
+    pub(super) fn restart_questions(&mut self) {
+        if let Some(kind) = self.kind.take() {
+            self.set_kind(kind);
+        }
+    }
+
     /// Whether the autopilot's heading is ours alone, once judged.
     pub(super) fn heading_ours_alone(&self) -> Option<bool> {
         self.verdict.as_ref().and_then(|v| v.heading_ours_alone)
