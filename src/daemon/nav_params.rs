@@ -42,6 +42,13 @@ const ARDUPILOT: &[&str] = &[
     "EK3_SRC1_YAW",
 ];
 
+/// Whether `name` is a parameter asked of any autopilot: the others (a
+/// ground station's download of all of them, a gimbal's list) are not
+/// ours to log or judge.
+pub(super) fn is_asked(name: &str) -> bool {
+    PX4.iter().chain(ARDUPILOT).any(|n| *n == name)
+}
+
 /// The parameters asked of an autopilot of this kind.
 fn wanted(kind: AutopilotKind) -> &'static [&'static str] {
     match kind {
@@ -205,6 +212,12 @@ impl NavParams {
             log.text(f.level, t_s, &f.text);
             if f.level == Level::Info {
                 tracing::info!("{}", f.text);
+                continue;
+            }
+            // Said once: judged again for another value (one that came late,
+            // or a ground station setting another), a wrong value already
+            // said is not counted or sent to the ground again.
+            if self.verdict.as_ref().is_some_and(|v| v.findings.contains(f)) {
                 continue;
             }
             counters.add(Counter::AutopilotParamMisconfigured, 1);
@@ -530,6 +543,39 @@ mod tests {
         // Set to 15 in flight: judged again, the heading now ours alone.
         p.on_value(&px4_int("EKF2_EV_CTRL", 15), 32.0, true, &log, &counters, &out);
         assert_eq!(p.heading_ours_alone(), Some(true));
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+    }
+
+    /// Judged again for another value, a wrong value already said is not
+    /// said again: each late answer (or a ground station setting another
+    /// parameter) would otherwise repeat every finding to the ground.
+    #[test]
+    fn a_wrong_value_is_said_once_however_often_judged() {
+        let log = FlightLog::new(None, false);
+        let counters = Counters::default();
+        let sent = RefCell::new(Vec::new());
+        let out = |o: Outbound| sent.borrow_mut().push(o);
+        let mut p = NavParams::default();
+        p.set_kind(AutopilotKind::Px4);
+        let mut with_noise_md = SITL;
+        with_noise_md[4].1 = 1.0;
+        for (name, v) in with_noise_md {
+            p.on_value(&px4_int(name, v as i32), 1.0, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 1);
+        // EKF2_EV_DELAY set, then set back: judged twice, NOISE_MD not said again.
+        for d in [20, 0] {
+            p.on_value(&px4_int("EKF2_EV_DELAY", d), 2.0, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 1);
+        let texts = sent
+            .borrow()
+            .iter()
+            .filter(|o| matches!(o, Outbound::StatusText { .. }))
+            .count();
+        assert_eq!(texts, 1, "{:?}", sent.borrow());
+        // A new wrong value is said.
+        p.on_value(&px4_int("EKF2_EV_CTRL", 14), 3.0, false, &log, &counters, &out);
         assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
     }
 
