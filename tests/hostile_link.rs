@@ -571,3 +571,143 @@ async fn a_link_that_is_not_there_yet_is_waited_for() {
     let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
     assert!(c("mavlink_reconnected") >= 1, "{:?}", summary.counters);
 }
+
+/// A PX4 quadrotor's HEARTBEAT, disarmed.
+fn px4_heartbeat() -> apm::MavMessage {
+    apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
+        mavtype: apm::MavType::MAV_TYPE_QUADROTOR,
+        autopilot: apm::MavAutopilot::MAV_AUTOPILOT_PX4,
+        // (The crate's default is the flags' first: armed.)
+        base_mode: apm::MavModeFlag::empty(),
+        mavlink_version: 3,
+        ..Default::default()
+    })
+}
+
+/// A `PARAM_VALUE` as PX4 sends an `INT32` (its bits copied into the
+/// float), named by the 16 bytes `id` as they are on the wire.
+fn px4_param(id: [u8; 16], value: i32) -> apm::MavMessage {
+    apm::MavMessage::PARAM_VALUE(apm::PARAM_VALUE_DATA {
+        param_value: f32::from_bits(value as u32),
+        param_count: 1200,
+        param_index: 0,
+        param_id: id.into(),
+        param_type: apm::MavParamType::MAV_PARAM_TYPE_INT32,
+    })
+}
+
+/// `name`, NUL-padded to 16 bytes (none when it fills them).
+fn id16(name: &str) -> [u8; 16] {
+    let mut id = [0u8; 16];
+    id[..name.len()].copy_from_slice(name.as_bytes());
+    id
+}
+
+/// The autopilot's navigation parameters, late, doubled, foreign and
+/// flooded, beside a PX4 that answers none of the daemon's rounds: one sent
+/// before its HEARTBEAT is dropped; the six that come after the
+/// rounds gave up are judged (EKF2_EV_CTRL = 0 said to the ground and
+/// counted), each finding once though they come twice; one from another component
+/// of the same system is rejected; a ground station's download of all 2000
+/// of the autopilot's parameters, and of a gimbal's, neither reaches the
+/// log nor counts as a rejection. `EKF2_EV_NOISE_MD` fills its 16 bytes (no
+/// NUL), `EKF2_GPS_CTRL` has bytes after its NUL.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_autopilots_parameters_late_doubled_foreign_and_flooded() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut cfg, port) = common::loopback_config(dir.path());
+    let log_path = dir.path().join("flight.mcap");
+    cfg.log.path = log_path.display().to_string();
+    cfg.mavlink.imu_message = cmsckf::config::ImuMessageChoice::Highres;
+    let (stop_tx, daemon) = common::spawn_daemon(cfg);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut ap = MavPeer::new(port, 1, 1).await;
+    ap.send(&px4_param(id16("EKF2_EV_CTRL"), 15)).await;
+    ap.send(&px4_heartbeat()).await;
+    // 12 s of its clock: five rounds asked, none answered, given up at 20 s.
+    let mut t = 10.0;
+    for k in 0..1300u32 {
+        ap.send(&imu(t, -9.81)).await;
+        if k % 100 == 0 {
+            ap.send(&px4_heartbeat()).await;
+        }
+        t += 0.01;
+        if k % 4 == 0 {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let _ = ap.drain().await;
+    let mut gps_ctrl = id16("EKF2_GPS_CTRL");
+    gps_ctrl[14..].copy_from_slice(b"xy");
+    let late = [
+        (id16("EKF2_EV_CTRL"), 0),
+        (gps_ctrl, 0),
+        (id16("EKF2_MAG_TYPE"), 5),
+        (id16("EKF2_HGT_REF"), 3),
+        (id16("EKF2_EV_NOISE_MD"), 0),
+        (id16("EKF2_EV_DELAY"), 0),
+    ];
+    for _ in 0..2 {
+        for (id, v) in late {
+            ap.send(&px4_param(id, v)).await;
+        }
+        ap.send(&imu(t, -9.81)).await;
+        t += 0.01;
+    }
+    // Said to the ground (disarmed), once the fusion loop has caught up.
+    let mut texts = Vec::new();
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !texts.iter().any(|t: &String| t.contains("EKF2_EV_CTRL = 0")) && std::time::Instant::now() < deadline {
+        texts.extend(ap.drain_for(Duration::from_millis(50)).await.texts);
+    }
+    // Its own component 2 says EV_CTRL is 15, and lists its 300 parameters.
+    ap.send_as(1, 2, &px4_param(id16("EKF2_EV_CTRL"), 15)).await;
+    for k in 0..300 {
+        ap.send_as(1, 2, &px4_param(id16(&format!("MNT_P{k:03}")), k)).await;
+    }
+    // A ground station downloads all of the autopilot's parameters.
+    for k in 0..2000 {
+        ap.send(&px4_param(id16(&format!("PX4_PARAM_{k:04}")), k)).await;
+        if k % 50 == 0 {
+            ap.send(&imu(t, -9.81)).await;
+            t += 0.01;
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let to_ap = ap.drain().await;
+    let _ = stop_tx.send(());
+    let summary = daemon.await.unwrap().unwrap();
+    let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+    eprintln!("{:#?}\nto the autopilot: {:?}", summary.counters, to_ap.texts);
+    assert_eq!(c("autopilot_param_unanswered"), 6, "five rounds, none answered");
+    assert_eq!(c("autopilot_param_value"), 12, "the six late ones, twice");
+    assert_eq!(
+        c("autopilot_param_misconfigured"),
+        2,
+        "EV_CTRL 0 and no vision height, said once though sent twice"
+    );
+    texts.extend(to_ap.texts);
+    assert!(texts.iter().any(|t| t.contains("EKF2_EV_CTRL = 0")), "{texts:?}");
+    assert!(
+        !texts.iter().any(|t| t.contains("EKF2_EV_CTRL = 15")),
+        "component 2's word taken: {texts:?}"
+    );
+    assert_eq!(c("mavlink_rejected_foreign_param"), 1, "component 2's EKF2_EV_CTRL alone");
+    assert_eq!(c("fusion_queue_full"), 0);
+    // The log holds our parameters alone, the twelve (the one before the
+    // HEARTBEAT was dropped by the link, as everything before it).
+    let bytes = std::fs::read(&log_path).unwrap();
+    let params: Vec<serde_json::Value> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == "/input/mavlink/autopilot")
+        .map(|m| serde_json::from_slice::<serde_json::Value>(&m.data).unwrap())
+        .filter_map(|v| v.get("param").cloned())
+        .collect();
+    assert_eq!(params.len(), 12, "{:?}", &params[..params.len().min(20)]);
+    assert_eq!(c("mavlink_before_autopilot_heartbeat"), 1);
+    assert!(params.iter().any(|p| p["name"] == "EKF2_EV_NOISE_MD"));
+    assert!(params.iter().any(|p| p["name"] == "EKF2_GPS_CTRL" && p["value"] == 0.0));
+}

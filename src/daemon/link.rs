@@ -368,6 +368,9 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
         Inbound::LandedState { .. } => Counter::MavlinkRejectedForeignLandedState,
         Inbound::SimState(_) => Counter::MavlinkRejectedForeignSimState,
         Inbound::EstimatorStatus(_) => Counter::MavlinkRejectedForeignEstimatorStatus,
+        // Another component's parameter list (a gimbal's, downloaded by a
+        // ground station) is not ours: only one of our names is rejected.
+        Inbound::ParamValue(p) if !super::nav_params::is_asked(&p.name) => return None,
         Inbound::ParamValue(_) => Counter::MavlinkRejectedForeignParam,
         Inbound::RtcmFragment { .. } | Inbound::Other(_) => return None,
     })
@@ -519,7 +522,11 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
             counters.add(Counter::EstimatorStatus, 1);
             Some(FusionMsg::EstimatorStatus(s))
         }
-        Inbound::ParamValue(p) => Some(FusionMsg::AutopilotParam(p)),
+        // Only the parameters we ask for go to the fusion loop and the log:
+        // a ground station downloading all of them (a thousand and more,
+        // each broadcast) would otherwise fill both.
+        Inbound::ParamValue(p) if super::nav_params::is_asked(&p.name) => Some(FusionMsg::AutopilotParam(p)),
+        Inbound::ParamValue(_) => None,
         Inbound::Timesync { tc1_ns, ts1_ns } => {
             on_timesync(tc1_ns, ts1_ns, r);
             None
