@@ -710,4 +710,24 @@ async fn the_autopilots_parameters_late_doubled_foreign_and_flooded() {
     assert_eq!(c("mavlink_before_autopilot_heartbeat"), 1);
     assert!(params.iter().any(|p| p["name"] == "EKF2_EV_NOISE_MD"));
     assert!(params.iter().any(|p| p["name"] == "EKF2_GPS_CTRL" && p["value"] == 0.0));
+    // Replayed, the parameters are judged at the same instants to the same
+    // words: the navigation lines of /log are the flight's.
+    let replayed = dir.path().join("replay.mcap");
+    cmsckf::replay::replay(&log_path, &replayed, None, None, false, |_, _| {}).unwrap();
+    let nav_lines = |p: &std::path::Path| -> Vec<(u64, String)> {
+        let b = std::fs::read(p).unwrap();
+        mcap::MessageStream::new(&b)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .filter(|m| m.channel.topic == "/log")
+            .map(|m| {
+                let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+                (m.log_time, v["message"].as_str().unwrap_or_default().to_string())
+            })
+            .filter(|(_, t)| t.contains("EKF2_") || t.contains("heading"))
+            .collect()
+    };
+    let flown = nav_lines(&log_path);
+    assert!(flown.len() >= 4, "{flown:?}");
+    assert_eq!(nav_lines(&replayed), flown);
 }
