@@ -84,6 +84,9 @@ pub(super) struct NavParams {
     next_ask_t: f64,
     rounds: u32,
     verdict: Option<Verdict>,
+    /// The findings of the verdict that have reached the ground station
+    /// (those said in the air only in the log): sent once, while disarmed.
+    on_ground: Vec<Finding>,
 }
 
 impl NavParams {
@@ -208,6 +211,7 @@ impl NavParams {
             log.text(Level::Info, t_s, text);
             tracing::info!("{text}");
         }
+        let mut on_ground = Vec::new();
         for f in &verdict.findings {
             log.text(f.level, t_s, &f.text);
             if f.level == Level::Info {
@@ -216,21 +220,25 @@ impl NavParams {
             }
             // Said once: judged again for another value (one that came late,
             // or a ground station setting another), a wrong value already
-            // said is not counted or sent to the ground again.
-            if self.verdict.as_ref().is_some_and(|v| v.findings.contains(f)) {
-                continue;
+            // said is not counted again, nor sent to the ground again once
+            // it has reached it.
+            if !self.verdict.as_ref().is_some_and(|v| v.findings.contains(f)) {
+                counters.add(Counter::AutopilotParamMisconfigured, 1);
+                tracing::warn!(reason = "autopilot_param_misconfigured", "{}", f.text);
             }
-            counters.add(Counter::AutopilotParamMisconfigured, 1);
-            tracing::warn!(reason = "autopilot_param_misconfigured", "{}", f.text);
             // To the pilot's screen on the ground; in the air only the log.
-            if !armed {
+            if self.on_ground.contains(f) {
+                on_ground.push(f.clone());
+            } else if !armed {
                 let severity = if f.level == Level::Error { 3 } else { 4 };
                 out(Outbound::StatusText {
                     severity,
                     text: format!("cmsckf: {}", f.text),
                 });
+                on_ground.push(f.clone());
             }
         }
+        self.on_ground = on_ground;
         self.verdict = Some(verdict);
     }
 }
@@ -577,6 +585,27 @@ mod tests {
         // A new wrong value is said.
         p.on_value(&px4_int("EKF2_EV_CTRL", 14), 3.0, false, &log, &counters, &out);
         assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+        // One found in the air is counted then, and reaches the ground at
+        // the first judgement on it (not counted again), once.
+        sent.borrow_mut().clear();
+        p.on_value(&px4_int("EKF2_HGT_REF", 3), 4.0, true, &log, &counters, &out);
+        p.on_value(&px4_int("EKF2_EV_CTRL", 13), 5.0, true, &log, &counters, &out);
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 3, "EV_CTRL 13: no vision height");
+        assert!(sent.borrow().is_empty(), "{:?}", sent.borrow());
+        for d in [20, 0] {
+            p.on_value(&px4_int("EKF2_EV_DELAY", d), 6.0, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 3);
+        let texts: Vec<_> = sent
+            .borrow()
+            .iter()
+            .filter_map(|o| match o {
+                Outbound::StatusText { text, .. } => Some(text.clone()),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(texts.len(), 1, "{texts:?}");
+        assert!(texts[0].contains("EKF2_HGT_REF = 3"), "{texts:?}");
     }
 
     /// EKF2 with GNSS velocity alone (`EKF2_GPS_CTRL` bit 2: it aligns and
