@@ -694,7 +694,11 @@ async fn the_autopilots_parameters_late_doubled_foreign_and_flooded() {
         !texts.iter().any(|t| t.contains("EKF2_EV_CTRL = 15")),
         "component 2's word taken: {texts:?}"
     );
-    assert_eq!(c("mavlink_rejected_foreign_param"), 1, "component 2's EKF2_EV_CTRL alone");
+    assert_eq!(
+        c("mavlink_rejected_foreign_param"),
+        1,
+        "component 2's EKF2_EV_CTRL alone"
+    );
     assert_eq!(c("fusion_queue_full"), 0);
     // The log holds our parameters alone, the twelve (the one before the
     // HEARTBEAT was dropped by the link, as everything before it).

@@ -538,7 +538,11 @@ mod tests {
         // known not to be ours.
         sent.borrow_mut().clear();
         p.on_value(&px4_int("EKF2_EV_CTRL", 0), 30.0, false, &log, &counters, &out);
-        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2, "EV_CTRL 0, and no vision height");
+        assert_eq!(
+            counters.get(Counter::AutopilotParamMisconfigured),
+            2,
+            "EV_CTRL 0, and no vision height"
+        );
         assert!(sent
             .borrow()
             .iter()
@@ -590,7 +594,11 @@ mod tests {
         sent.borrow_mut().clear();
         p.on_value(&px4_int("EKF2_HGT_REF", 3), 4.0, true, &log, &counters, &out);
         p.on_value(&px4_int("EKF2_EV_CTRL", 13), 5.0, true, &log, &counters, &out);
-        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 3, "EV_CTRL 13: no vision height");
+        assert_eq!(
+            counters.get(Counter::AutopilotParamMisconfigured),
+            3,
+            "EV_CTRL 13: no vision height"
+        );
         assert!(sent.borrow().is_empty(), "{:?}", sent.borrow());
         for d in [20, 0] {
             p.on_value(&px4_int("EKF2_EV_DELAY", d), 6.0, false, &log, &counters, &out);
