@@ -142,8 +142,9 @@ fn mode_text(kind: Option<AutopilotKind>, m: u32) -> String {
 /// reduces them to one σ, `cbrt(c₀² + c₆² + c₁₁²)` (estimator README eq.
 /// O1, as its releases to 4.6 do), any other autopilot reads the variances
 /// `c₀, c₆, c₁₁`, before floors of its own (PX4's `EKF2_EVP_NOISE`). With
-/// `output.position_covariance = "given_yaw"` they are the position's given
-/// our yaw (eq. O2), smaller than the filter's own σ. `None` for a log
+/// `output.position_covariance = "given_yaw"`, or `"auto"` towards a PX4
+/// whose parameters say its heading is ours alone, they are the position's
+/// given our yaw (eq. O2), smaller than the filter's own σ. `None` for a log
 /// without them, or entries not finite and non-negative.
 fn sent_position_sigma(c: &Value, kind: Option<AutopilotKind>) -> Option<[f64; 3]> {
     let [c0, c6, c11] = [0, 6, 11].map(|k| c[k].as_f64().unwrap_or(f64::NAN));
