@@ -309,6 +309,15 @@ fn daemon_binary_flies_the_racetrack_with_the_sitl_autopilot() {
         rv.degraded_s
     );
     assert!((rv.input_rates_hz["/input/imu"] - ds.cfg.imu_rate_hz).abs() < 0.02 * ds.cfg.imu_rate_hz);
+    // The mock autopilot's navigation parameters (answered as ArduPilot's),
+    // as the daemon read them, and none said to be wrong.
+    assert_eq!(rv.autopilot_params.len(), 5, "{:?}", rv.autopilot_params);
+    assert_eq!(rv.autopilot_params["VISO_TYPE"], Some(1.0));
+    assert_eq!(rv.autopilot_params["EK3_SRC1_POSXY"], Some(6.0));
+    assert_eq!(
+        rv.counters.get("autopilot_param_misconfigured").copied().unwrap_or(0),
+        0
+    );
     // The error against the simulator's truth (SIM_STATE), inside the
     // filter's own 3σ most of the time.
     let rms = rv.position_error_rms_m.expect("the SITL sends its truth");

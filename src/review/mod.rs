@@ -109,6 +109,10 @@ pub struct ReviewSummary {
     pub autopilot_pos_horiz_ratio_max: Option<f64>,
     pub autopilot_pos_vert_ratio_max: Option<f64>,
     pub autopilot_rejected_reports: u64,
+    /// The autopilot's navigation parameters as the daemon last read them
+    /// (`PARAM_VALUE`, `daemon/nav_params.rs`), by name; `None` for a value
+    /// that was not a number. Empty for a log without them.
+    pub autopilot_params: BTreeMap<String, Option<f64>>,
     /// Every counter of the daemon at the log's last `/diagnostics` record
     /// (inputs, rejections by reason, drops).
     pub counters: BTreeMap<String, u64>,

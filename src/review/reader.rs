@@ -232,6 +232,9 @@ impl LogReader {
             // A typed input record: the autopilot's position, or the truth.
             match InputRecord::parse(topic, &m.data) {
                 Ok(InputRecord::Autopilot(AutopilotRecord::LocalPosition(l))) => d.autopilot.push((t, l.p_ned_m)),
+                Ok(InputRecord::Autopilot(AutopilotRecord::Param(p))) => {
+                    s.autopilot_params.insert(p.name, p.value);
+                }
                 Ok(InputRecord::Autopilot(AutopilotRecord::SimState(SimStateRecord { p_ned_m: Some(p), .. }))) => {
                     d.truth.push((t, p))
                 }

@@ -83,10 +83,26 @@ impl ReviewSummary {
                     _ => "not in the log (no EKF_STATUS_REPORT or ESTIMATOR_STATUS)".into(),
                 },
             ),
+            ("the autopilot's navigation parameters", self.params_row()),
         ]
         .map(|(k, v)| (k.to_string(), v))
         .into_iter()
         .collect()
+    }
+
+    /// The navigation parameters read, and how many were said to be wrong
+    /// (each said in `/log`, on the timeline, with its fix).
+    fn params_row(&self) -> String {
+        if self.autopilot_params.is_empty() {
+            return "not in the log (none read)".into();
+        }
+        let values: Vec<String> = self
+            .autopilot_params
+            .iter()
+            .map(|(n, v)| v.map_or_else(|| format!("{n} not a number"), |v| format!("{n} = {v}")))
+            .collect();
+        let wrong = self.counters.get("autopilot_param_misconfigured").copied().unwrap_or(0);
+        format!("{}; {wrong} said to be wrong (see the log's lines)", values.join(", "))
     }
 
     /// Each input topic's rate.
