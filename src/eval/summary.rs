@@ -221,19 +221,13 @@ pub fn summarise(runs: &[FlightResult]) -> ModeSummary {
     let mut times: Vec<f64> = runs.iter().flat_map(|r| r.frame_us.iter().copied()).collect();
     let tmean = times.iter().sum::<f64>() / times.len().max(1) as f64;
     let p99 = percentile(&mut times, 0.99).unwrap_or(0.0);
-    let comp = |half: bool| {
-        let mut acc = [0.0; 4];
-        for r in runs {
-            let from = if half { r.t_s.len() / 2 } else { 0 };
-            let c = component_nees(r, from);
-            for k in 0..4 {
-                acc[k] += c[k] / n;
-            }
-        }
-        acc
-    };
-    let (nees_all, nees_half) = (comp(false), comp(true));
+    // Each seed's mean NEES by part, over the whole flight (also the
+    // samples of their standard error) and over its second half.
     let per_seed: Vec<[f64; 4]> = runs.iter().map(|r| component_nees(r, 0)).collect();
+    let per_seed_half: Vec<[f64; 4]> = runs.iter().map(|r| component_nees(r, r.t_s.len() / 2)).collect();
+    let mean_over_seeds =
+        |v: &[[f64; 4]]| -> [f64; 4] { std::array::from_fn(|k| v.iter().map(|c| c[k] / n).sum::<f64>()) };
+    let (nees_all, nees_half) = (mean_over_seeds(&per_seed), mean_over_seeds(&per_seed_half));
     let diff = runs
         .iter()
         .filter_map(|r| r.max_rel_diff_vs_full)
