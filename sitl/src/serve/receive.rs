@@ -151,9 +151,7 @@ const PARAMS: [(&str, f32); 5] = [
 /// The `PARAM_VALUE` answering a read by name (`viso_off`: `VISO_TYPE` 0);
 /// none for a parameter it does not hold, as ArduPilot stays silent.
 fn param_value(r: &apm::PARAM_REQUEST_READ_DATA, viso_off: bool) -> Option<apm::MavMessage> {
-    let id: [u8; 16] = r.param_id.into();
-    let len = id.iter().position(|b| *b == 0).unwrap_or(16);
-    let name = std::str::from_utf8(&id[..len]).ok()?;
+    let name = r.param_id.to_str().ok()?;
     let index = PARAMS.iter().position(|(n, _)| *n == name)?;
     let value = if viso_off && name == "VISO_TYPE" {
         0.0

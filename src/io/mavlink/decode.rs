@@ -169,16 +169,15 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
             })
         }
         // A parameter's name is ASCII up to its first NUL (16 bytes at most,
-        // no NUL when it fills them); anything else is no name of ours.
+        // no NUL when it fills them: `CharArray::to_str` stops there);
+        // anything else is no name of ours.
         M::PARAM_VALUE(d) => {
-            let bytes: [u8; 16] = d.param_id.into();
-            let len = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
-            let name = &bytes[..len];
-            if name.is_empty() || !name.iter().all(|b| b.is_ascii_graphic()) {
-                return Err(LinkError::Rejected(Counter::MavlinkRejectedOther));
-            }
+            let name = match d.param_id.to_str() {
+                Ok(n) if !n.is_empty() && n.bytes().all(|b| b.is_ascii_graphic()) => n,
+                _ => return Err(LinkError::Rejected(Counter::MavlinkRejectedOther)),
+            };
             Inbound::ParamValue(crate::io::messages::ParamValue {
-                name: String::from_utf8_lossy(name).into_owned(),
+                name: name.to_string(),
                 raw: d.param_value,
                 param_type: d.param_type as u8,
             })
