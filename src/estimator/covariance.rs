@@ -291,7 +291,7 @@ impl Estimator {
             let (bt, b) = (xt.rows(n, n0), x.columns(n, n0));
             math::add_symmetric_product_t(&mut g.Psi, n0, 1.0, bt, b);
             g.q.gemv(1.0, &bt, &w, 1.0);
-            math::gemm(&mut g.Phi, -1.0, &at, &b, 1.0);
+            g.Phi.gemm(-1.0, &at, &b, 1.0);
         }
         // P ← P − Aᵀ A, exactly symmetric.
         math::add_symmetric_product_t(&mut self.P, n, -1.0, at, a);

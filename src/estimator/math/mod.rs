@@ -9,12 +9,10 @@
 //! filter logic, lets them be tested against nalgebra's references and
 //! tuned without touching the equations that use them.
 
-mod gemm;
 mod kernels;
 mod qr;
 mod triangular;
 
-pub use gemm::gemm;
 pub use qr::householder_in_place;
 pub use triangular::{
     add_gram_outside_block, add_symmetric_product, add_symmetric_product_t, cholesky_lower_in_place,

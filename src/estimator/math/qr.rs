@@ -235,10 +235,10 @@ fn apply_block_reflector<K: Kernels>(kern: K, a: &mut nalgebra::DMatrix<f64>, j0
     t.transpose_to(&mut t_tr);
     let mut c = a.view_mut((j0, j0 + jb), (rows, rest));
     let mut w = DMatrixViewMut::from_slice(zeroed(vtc, jb * rest), jb, rest);
-    super::gemm(&mut w, 1.0, &v_tr, &c, 0.0);
+    w.gemm(1.0, &v_tr, &c, 0.0);
     let mut tw = DMatrixViewMut::from_slice(zeroed(t_vtc, jb * rest), jb, rest);
-    super::gemm(&mut tw, 1.0, &t_tr, &w, 0.0);
-    super::gemm(&mut c, -1.0, &v, &tw, 1.0);
+    tw.gemm(1.0, &t_tr, &w, 0.0);
+    c.gemm(-1.0, &v, &tw, 1.0);
 }
 
 #[cfg(test)]

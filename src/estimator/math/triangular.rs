@@ -55,7 +55,7 @@ impl LowerSolver {
             if rest > 0 {
                 let s21 = block_owned(&a, k0 + kb, k0, rest, kb);
                 let lit = nalgebra::DMatrixView::from_slice_with_strides(li.as_slice(), kb, kb, kb, 1);
-                super::gemm(&mut a.view_mut((k0 + kb, k0), (rest, kb)), 1.0, &s21, &lit, 0.0);
+                a.view_mut((k0 + kb, k0), (rest, kb)).gemm(1.0, &s21, &lit, 0.0);
                 let l21 = block_owned(&a, k0 + kb, k0, rest, kb);
                 let l21t = nalgebra::DMatrixView::from_slice_with_strides(l21.as_slice(), kb, rest, rest, 1);
                 // S_22 −= L_21 L_21ᵀ, its lower triangle only: each column
@@ -63,8 +63,7 @@ impl LowerSolver {
                 let mut j0 = 0;
                 while j0 < rest {
                     let jb = TRI_BLOCK.min(rest - j0);
-                    super::gemm(
-                        &mut a.view_mut((k0 + kb + j0, k0 + kb + j0), (rest - j0, jb)),
+                    a.view_mut((k0 + kb + j0, k0 + kb + j0), (rest - j0, jb)).gemm(
                         -1.0,
                         &l21.rows(j0, rest - j0),
                         &l21t.columns(j0, jb),
@@ -92,7 +91,7 @@ impl LowerSolver {
             let bs = inv.nrows();
             if r0 > 0 {
                 let (done, mut cur) = b.rows_range_pair_mut(0..r0, r0..r0 + bs);
-                super::gemm(&mut cur, -1.0, &self.l.view((r0, 0), (bs, r0)), &done, 1.0);
+                cur.gemm(-1.0, &self.l.view((r0, 0), (bs, r0)), &done, 1.0);
             }
             let cur = inv * b.rows(r0, bs);
             b.rows_mut(r0, bs).copy_from(&cur);
@@ -191,13 +190,8 @@ pub fn upper_mul(t: &nalgebra::DMatrix<f64>, m: &nalgebra::DMatrix<f64>) -> nalg
     let mut i0 = 0;
     while i0 < k {
         let ib = TRI_BLOCK.min(k - i0);
-        super::gemm(
-            &mut out.view_mut((i0, 0), (ib, m.ncols())),
-            1.0,
-            &t.view((i0, i0), (ib, k - i0)),
-            &m.rows(i0, k - i0),
-            0.0,
-        );
+        out.view_mut((i0, 0), (ib, m.ncols()))
+            .gemm(1.0, &t.view((i0, i0), (ib, k - i0)), &m.rows(i0, k - i0), 0.0);
         i0 += ib;
     }
     out
@@ -218,8 +212,7 @@ pub fn lower_of_times_upper_t(m: &nalgebra::DMatrix<f64>, tt: &nalgebra::DMatrix
     let mut j0 = 0;
     while j0 < k {
         let jb = TRI_BLOCK.min(k - j0);
-        super::gemm(
-            &mut out.view_mut((j0, j0), (k - j0, jb)),
+        out.view_mut((j0, j0), (k - j0, jb)).gemm(
             1.0,
             &m.view((j0, j0), (k - j0, k - j0)),
             &tt.view((j0, j0), (k - j0, jb)),
@@ -286,13 +279,8 @@ pub fn add_symmetric_product_t(
     let mut j0 = 0;
     while j0 < g {
         let jb = block.min(g - j0);
-        super::gemm(
-            &mut p.view_mut((j0, j0), (g - j0, jb)),
-            alpha,
-            &at.rows(j0, g - j0),
-            &b.columns(j0, jb),
-            1.0,
-        );
+        p.view_mut((j0, j0), (g - j0, jb))
+            .gemm(alpha, &at.rows(j0, g - j0), &b.columns(j0, jb), 1.0);
         j0 += jb;
     }
     mirror_lower_leading(p, g);
@@ -323,24 +311,14 @@ pub fn add_gram_outside_block(
         let mut j0 = c0;
         while j0 < c1 {
             let jb = block.min(c1 - j0);
-            super::gemm(
-                &mut p.view_mut((j0, j0), (n - j0, jb)),
-                alpha,
-                &at.rows(j0, n - j0),
-                &a.columns(j0, jb),
-                1.0,
-            );
+            p.view_mut((j0, j0), (n - j0, jb))
+                .gemm(alpha, &at.rows(j0, n - j0), &a.columns(j0, jb), 1.0);
             j0 += jb;
         }
     }
     if s1 > s0 && n > s1 {
-        super::gemm(
-            &mut p.view_mut((s1, s0), (n - s1, s1 - s0)),
-            alpha,
-            &at.rows(s1, n - s1),
-            &a.columns(s0, s1 - s0),
-            1.0,
-        );
+        p.view_mut((s1, s0), (n - s1, s1 - s0))
+            .gemm(alpha, &at.rows(s1, n - s1), &a.columns(s0, s1 - s0), 1.0);
     }
     mirror_lower(p, 0..s0, 0, n);
     mirror_lower(p, s0..s1, s1, n);
