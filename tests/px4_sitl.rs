@@ -75,6 +75,16 @@ const EKF_POS_HORIZ_REL: u16 = 0x08;
 const EKF_POS_VERT_ABS: u16 = 0x20;
 
 /// The fixture's folder, or why the test cannot run.
+/// A camera-to-body rotation (`[x, y, z, w]`) turned about the body's y axis
+/// so that the optical axis points `deg` below where it did (FRD: +z down).
+#[allow(non_snake_case)] // names carry frames
+fn tilted_down(q_B_C_xyzw: [f64; 4], deg: f64) -> [f64; 4] {
+    let [x, y, z, w] = q_B_C_xyzw;
+    let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+    let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -deg.to_radians()) * q;
+    [q.i, q.j, q.k, q.w]
+}
+
 fn fixture() -> Result<PathBuf, String> {
     let dir = std::env::var_os("CMSCKF_PX4_SITL")
         .ok_or("CMSCKF_PX4_SITL is not set (a folder with PX4's SITL: bin/px4, its bin/px4-* links and etc/)")?;
@@ -226,6 +236,20 @@ fn px4_flies_on_cmsckf_alone() {
     // of the 36 ms between frames, and a loaded machine skipped 19-22 % of
     // them (372 of 1699 in CI at 2026-12-06); at 20 Hz, 6-24 of 1200.
     cfg.camera.rate_hz = 20.0;
+    // The camera looks 30° below the body's nose, as a drone's tracking
+    // camera is mounted to see the ground ahead. In twelve alternating
+    // flights at 2026-12-07 (SIH draws the same noise at the same instant of
+    // each flight, so only the camera differed) the box's max was 0.32-0.65 m
+    // (median 0.49) against 0.53-0.65 m (median 0.62) looking level, the
+    // hover 0.17-0.57 m against 0.21-0.54 m. At 45° each of four flights'
+    // touchdowns left the camera 0.4 m from a ground whose texture has no
+    // detail finer than 0.2 m: 150 tracks fell to 6, and PX4's position
+    // ended 3.1-3.6 m off (docs/setup-px4.md, "The camera's mount").
+    cfg.camera.q_B_C_xyzw = tilted_down(cfg.camera.q_B_C_xyzw, 30.0);
+    let [x, y, z, w] = cfg.camera.q_B_C_xyzw;
+    let optical_axis = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)) * Vector3::z();
+    let want = Vector3::new(30f64.to_radians().cos(), 0.0, 30f64.to_radians().sin());
+    assert!((optical_axis - want).norm() < 1e-12, "optical axis {optical_axis:?}");
     // SIH's IMU in flight: broadband noise of about 0.07 rad/s and 0.87
     // m/s² per sample at 250 Hz on its worst axes (measured from the
     // flight log's /input/imu, the second half of the take-off to the
@@ -614,13 +638,13 @@ fn px4_flies_on_cmsckf_alone() {
     }
     assert!(restarts <= 2, "the filter restarted: {:?}", summary.counters);
     // The issue asks for 0.5 m throughout; these bounds are what every
-    // flight measured at the defaults held, not that. In the release
-    // build at 2026-12-07 (two flights): standing 0.023/0.028 m, take-off
-    // 0.215/0.498 m, box 0.572/0.562 m, hover 0.214/0.397 m, descent and
-    // landing 0.188/0.312 m. Across the flights since the rendered camera
-    // (2026-12-05 to 2026-12-07) the box ranged 0.40-1.08 m and the hover
-    // 0.20-1.07 m, the worst in a slow hour of this machine (docs/setup-px4.md,
-    // "Measured"). What is missing, and why: our own drift across the box
+    // flight measured held, not that. With the camera 30° down (above),
+    // seven flights in the release build at 2026-12-07: standing
+    // 0.019-0.028 m, take-off 0.23-0.64 m, box 0.32-0.65 m (4 under 0.5 m),
+    // hover 0.17-0.57 m, descent and landing 0.15-0.78 m. Looking level,
+    // from 2026-12-05 to 2026-12-07, the box ranged 0.40-1.08 m and the
+    // hover 0.20-1.07 m, the worst in a slow hour of this machine
+    // (docs/setup-px4.md, "Measured"). What is missing, and why: our own drift across the box
     // (0.26-0.66 m, within its σ), made of SIH's armed IMU noise (0.5-1.7
     // m/s² a 4 ms sample) between the camera's corrections, plus EKF2's own
     // share in the decelerations (0.1-0.3 m: its tilt, which it does not
