@@ -74,7 +74,6 @@ const EKF_VEL_HORIZ: u16 = 0x02;
 const EKF_POS_HORIZ_REL: u16 = 0x08;
 const EKF_POS_VERT_ABS: u16 = 0x20;
 
-/// The fixture's folder, or why the test cannot run.
 /// A camera-to-body rotation (`[x, y, z, w]`) turned about the body's y axis
 /// so that the optical axis points `deg` below where it did (FRD: +z down).
 #[allow(non_snake_case)] // names carry frames
@@ -85,6 +84,7 @@ fn tilted_down(q_B_C_xyzw: [f64; 4], deg: f64) -> [f64; 4] {
     [q.i, q.j, q.k, q.w]
 }
 
+/// The fixture's folder, or why the test cannot run.
 fn fixture() -> Result<PathBuf, String> {
     let dir = std::env::var_os("CMSCKF_PX4_SITL")
         .ok_or("CMSCKF_PX4_SITL is not set (a folder with PX4's SITL: bin/px4, its bin/px4-* links and etc/)")?;
@@ -237,10 +237,10 @@ fn px4_flies_on_cmsckf_alone() {
     // them (372 of 1699 in CI at 2026-12-06); at 20 Hz, 6-24 of 1200.
     cfg.camera.rate_hz = 20.0;
     // The camera looks 30° below the body's nose, as a drone's tracking
-    // camera is mounted to see the ground ahead. In twelve alternating
-    // flights at 2026-12-07 (SIH draws the same noise at the same instant of
-    // each flight, so only the camera differed) the box's max was 0.32-0.65 m
-    // (median 0.49) against 0.53-0.65 m (median 0.62) looking level, the
+    // camera is mounted to see the ground ahead. In twelve flights at
+    // 2026-12-07, the mounts mostly alternating (SIH draws the same noise
+    // at the same instant of each flight, so only the camera differed),
+    // the box's max was 0.32-0.65 m (median 0.49) against 0.53-0.65 m (median 0.62) looking level, the
     // hover 0.17-0.57 m against 0.21-0.54 m. At 45° each of four flights'
     // touchdowns left the camera 0.4 m from a ground whose texture has no
     // detail finer than 0.2 m: 150 tracks fell to 6, and PX4's position
