@@ -246,8 +246,8 @@ fn px4_flies_on_cmsckf_alone() {
     // detail finer than 0.2 m: 150 tracks fell to 6, and PX4's position
     // ended 3.1-3.6 m off (docs/setup-px4.md, "The camera's mount").
     cfg.camera.q_B_C_xyzw = tilted_down(cfg.camera.q_B_C_xyzw, 30.0);
-    let [x, y, z, w] = cfg.camera.q_B_C_xyzw;
-    let optical_axis = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)) * Vector3::z();
+    // Read back as the estimator reads the config.
+    let optical_axis = cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C.rotation * Vector3::z();
     let want = Vector3::new(30f64.to_radians().cos(), 0.0, 30f64.to_radians().sin());
     assert!((optical_axis - want).norm() < 1e-12, "optical axis {optical_axis:?}");
     // SIH's IMU in flight: broadband noise of about 0.07 rad/s and 0.87

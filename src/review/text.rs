@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use super::ReviewSummary;
+use crate::counters::Counter;
 
 impl ReviewSummary {
     /// The summary table: `(what, value with its unit)`.
@@ -101,7 +102,11 @@ impl ReviewSummary {
             .iter()
             .map(|(n, v)| v.map_or_else(|| format!("{n} not a number"), |v| format!("{n} = {v}")))
             .collect();
-        let wrong = self.counters.get("autopilot_param_misconfigured").copied().unwrap_or(0);
+        let wrong = self
+            .counters
+            .get(Counter::AutopilotParamMisconfigured.as_str())
+            .copied()
+            .unwrap_or(0);
         format!("{}; {wrong} said to be wrong (see the log's lines)", values.join(", "))
     }
 
