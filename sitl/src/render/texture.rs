@@ -24,8 +24,20 @@
 const EDGE_FOOTPRINTS: f64 = 2.0;
 /// Value-noise octaves: (cell m, amplitude grey levels).
 const OCTAVES: [(f64, f64); 1] = [(1.4, 36.0)];
-/// Rectangle layers: (cell m, fill probability, offset of the grid m).
-const RECT_LAYERS: [(f64, f64, f64); 2] = [(1.3, 0.6, 0.0), (0.9, 0.45, 0.41)];
+/// Rectangle layers: (cell m, fill probability, offset of the grid m,
+/// contrast). The finer three are what a camera a few decimetres above the
+/// ground tracks (a landed drone's, or one lifting off): real ground has
+/// detail at every scale. Without them (the coarsest cells 0.9 m, the edges
+/// blurred over at least 2 cm) the view from 0.3 m held four or five
+/// blurred rectangles, and a take-off's first tracks were on far blocks
+/// only, which hid a lift-off failure (the estimator README's §3c, Z0).
+const RECT_LAYERS: [(f64, f64, f64, f64); 5] = [
+    (1.3, 0.6, 0.0, 1.0),
+    (0.9, 0.45, 0.41, 1.0),
+    (0.45, 0.4, 0.17, 0.8),
+    (0.2, 0.4, 0.07, 0.7),
+    (0.09, 0.4, 0.031, 0.6),
+];
 
 /// What one pixel covers of a surface (m): over all directions, the
 /// largest (`fade_m`, which fades detail out), and across each edge
@@ -128,11 +140,11 @@ impl Texture {
             }
         }
         // Edges are blurred over EDGE_FOOTPRINTS footprints across them, and
-        // at least 2 cm: the image is band-limited and needs no
-        // anti-aliasing.
-        let inv_edge_x = 1.0 / (EDGE_FOOTPRINTS * fx_m).max(0.02);
-        let inv_edge_y = 1.0 / (EDGE_FOOTPRINTS * fy_m).max(0.02);
-        for (l, &(cell, fill, offset)) in RECT_LAYERS.iter().enumerate() {
+        // at least 4 mm (a tenth of the finest rectangle's shortest side):
+        // the image is band-limited and needs no anti-aliasing.
+        let inv_edge_x = 1.0 / (EDGE_FOOTPRINTS * fx_m).max(0.004);
+        let inv_edge_y = 1.0 / (EDGE_FOOTPRINTS * fy_m).max(0.004);
+        for (l, &(cell, fill, offset, contrast)) in RECT_LAYERS.iter().enumerate() {
             // A rectangle under a footprint fades by itself (its blurred
             // edges meet); whole layers drop out once a footprint outgrows
             // their cells, to spare the work.
@@ -163,7 +175,7 @@ impl Texture {
             }
             let inside: f64 = d.iter().map(|&e| smoothstep(e + 0.5)).product();
             let sign = if h & (1 << 63) != 0 { 1.0 } else { -1.0 };
-            let b = sign * (40.0 + 40.0 * unit(mix(h), 0));
+            let b = sign * contrast * (40.0 + 40.0 * unit(mix(h), 0));
             v += b * keep * inside;
         }
         v.clamp(0.0, 255.0)
