@@ -153,9 +153,13 @@ fn a_vibrating_hover_is_still_only_on_the_ground_beside_an_autopilot() {
 /// (`FrameReport::camera_moved`: a frame's features moved past
 /// `zupt.max_disparity_px` since their last clone), on which the daemon
 /// ends a take-off's zero-velocity grace (`estimator/landed.rs`,
-/// `LandedGate::camera_moved`): never while the vehicle stands, and within half a
-/// second of its starting to move (0.1 s when written: the take-off's first
-/// rotation). Zero-velocity updates stay allowed throughout,
+/// `LandedGate::camera_moved`): never while the vehicle stands, and within
+/// 1.2 s of its starting to move. The simulator's features are far, so the
+/// take-off's first sign is its tilt, which counts only past twice the
+/// bound (README §3c, Z0: a rocking on the legs must not end the grace):
+/// 0.24 s after the motion for seed 1, 1.0 s for seed 2 (at 0.75 m/s, 0.19
+/// m up), where the displacement as seen alone said so within 0.1 s.
+/// Zero-velocity updates stay allowed throughout,
 /// as they are within the grace (an autopilot's "in the air" comes before
 /// the vehicle rises), so that the verdict is judged on every frame.
 #[test]
@@ -191,7 +195,7 @@ fn the_camera_says_moved_when_the_vehicle_starts_to_move_and_not_before() {
         );
         assert_eq!(moved_standing, 0, "the camera said moved while the vehicle stood");
         assert!(
-            t_seen - t_move < 0.5,
+            t_seen - t_move < 1.2,
             "the camera saw the motion {:.2} s late",
             t_seen - t_move
         );
