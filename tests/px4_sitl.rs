@@ -240,11 +240,12 @@ fn px4_flies_on_cmsckf_alone() {
     // camera is mounted to see the ground ahead. In twelve flights at
     // 2026-12-07, the mounts mostly alternating (SIH draws the same noise
     // at the same instant of each flight, so only the camera differed),
-    // the box's max was 0.32-0.65 m (median 0.49) against 0.53-0.65 m (median 0.62) looking level, the
-    // hover 0.17-0.57 m against 0.21-0.54 m. At 45° each of four flights'
-    // touchdowns left the camera 0.4 m from a ground whose texture has no
-    // detail finer than 0.2 m: 150 tracks fell to 6, and PX4's position
-    // ended 3.1-3.6 m off (docs/setup-px4.md, "The camera's mount").
+    // the box's max was 0.32-0.65 m (median 0.49) against 0.53-0.65 m
+    // (median 0.62) looking level, the hover 0.17-0.57 m against
+    // 0.21-0.54 m; at 45° every touchdown failed (docs/setup-px4.md, "The
+    // camera's mount"). Those flights were over a ground with no detail
+    // finer than 0.2 m; the renderer's ground now has some down to
+    // centimetres ("The lift-off over a textured ground").
     cfg.camera.q_B_C_xyzw = tilted_down(cfg.camera.q_B_C_xyzw, 30.0);
     // Read back as the estimator reads the config.
     let optical_axis = cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C.rotation * Vector3::z();
@@ -638,19 +639,17 @@ fn px4_flies_on_cmsckf_alone() {
     }
     assert!(restarts <= 2, "the filter restarted: {:?}", summary.counters);
     // The issue asks for 0.5 m throughout; these bounds are what every
-    // flight measured held, not that. With the camera 30° down (above),
-    // seven flights in the release build at 2026-12-07: standing
-    // 0.019-0.028 m, take-off 0.23-0.64 m, box 0.32-0.65 m (4 under 0.5 m),
-    // hover 0.17-0.57 m, descent and landing 0.15-0.78 m. Looking level,
-    // from 2026-12-05 to 2026-12-07, the box ranged 0.40-1.08 m and the
-    // hover 0.20-1.07 m, the worst in a slow hour of this machine
-    // (docs/setup-px4.md, "Measured"). What is missing, and why: our own drift across the box
-    // (0.26-0.66 m, within its σ), made of SIH's armed IMU noise (0.5-1.7
-    // m/s² a 4 ms sample) between the camera's corrections, plus EKF2's own
-    // share in the decelerations (0.1-0.3 m: its tilt, which it does not
-    // take from us); the take-off's height error is the lift-off's sliding
-    // tracks, inherited by the box (docs/setup-px4.md, "Where the box's
-    // error comes from").
+    // flight measured held, not that. Three flights of this test as it
+    // stands, in the release build at 2026-12-07: standing 0.019-0.028 m,
+    // take-off 0.56-0.69 m, box 0.52-0.56 m, hover 0.30-0.42 m, descent and
+    // landing 0.24-0.32 m; our own box 0.45-0.51 m, within its σ. What is
+    // missing, and why: the climb leaves our height 0.3-0.45 m off (SIH's
+    // IMU integrates to 0.1 m/s above the truth over the first 0.3 s of the
+    // climb, the same draw every flight, and the tracks keep the scale they
+    // took), which no later camera measurement takes out; the rest is our
+    // horizontal drift across the box (0.2-0.3 m) and EKF2's own tilt after
+    // hard decelerations (docs/setup-px4.md, "Where it stands"). Over the
+    // earlier, coarser ground the box was 0.32-0.65 m in seven flights.
     assert!(standing.max_m < 0.15, "standing error {standing:?}");
     assert!(climbing.max_m < 1.5, "take-off error {climbing:?}");
     assert!(boxing.max_m < 1.2, "box error {boxing:?}");
