@@ -97,7 +97,8 @@ impl LandedGate {
     }
 
     /// The camera saw motion at `t_s` (a frame's features moved past the
-    /// stillness bound, `FrameReport::camera_moved`): within the take-off
+    /// stillness bound as the estimator README's Z0 measures it, a small
+    /// turn mostly taken out, `FrameReport::camera_moved`): within the take-off
     /// grace, that ends it for good. The IMU's tests alone do not: the
     /// spin-up's thrust and vibration fail them on the ground (measured
     /// beside PX4's SITL: the first frame after the land detector's turn).

@@ -360,7 +360,8 @@ pub struct FrameReport {
     /// The frame was taken as a zero-velocity update (§3c), not a clone.
     pub zupt: bool,
     /// The camera saw the vehicle move: the frame's features moved past
-    /// `zupt.max_disparity_px` since their last clone, judged while
+    /// `zupt.max_disparity_px` since their last clone (as §3c's Z0
+    /// measures it: a small turn mostly taken out), judged while
     /// zero-velocity updates are enabled and allowed (§3c; `Stats::zupt_camera_moved`
     /// counts these). A take-off's zero-velocity grace ends on it
     /// (`daemon::autopilot`).

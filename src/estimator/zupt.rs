@@ -107,6 +107,13 @@ impl Estimator {
     /// gyro), and it hides a take-off whose first motion is its tilt when
     /// the features are far (the simulator's: `s` 7–11 px, `r` 2.4 px).
     fn median_disparity(&mut self, obs: &[NormObs]) -> Option<f64> {
+        self.disparity_medians(obs)
+            .map(|(seen, derotated)| seen.min(derotated).max(0.5 * seen))
+    }
+
+    /// [`Self::median_disparity`]'s two medians, `(s, r)`: as seen, and
+    /// with the camera's rotation since each track's last clone taken out.
+    fn disparity_medians(&mut self, obs: &[NormObs]) -> Option<(f64, f64)> {
         let mut d = std::mem::take(&mut self.disparity_buf);
         d.clear();
         // Z0: the last clone's bearing seen from now, `R_C_C' [x'; 1]` with
@@ -134,16 +141,16 @@ impl Estimator {
         d.extend(moved(false));
         let n = d.len();
         d.extend(moved(true));
-        let median = if n < MIN_COMMON_FEATURES {
+        let medians = if n < MIN_COMMON_FEATURES {
             None
         } else {
             let (seen, derotated) = d.split_at_mut(n);
             let a = cmsckf_models::stats::percentile(seen, 0.5);
             let b = cmsckf_models::stats::percentile(derotated, 0.5);
-            a.zip(b).map(|(seen, derotated)| seen.min(derotated).max(0.5 * seen))
+            a.zip(b)
         };
         self.disparity_buf = d;
-        median
+        medians
     }
 
     /// The frame's median feature displacement since the last clone, when
@@ -344,45 +351,63 @@ mod tests {
         for o in seen(q0, p0) {
             est.tracks.insert(o.landmark_id, Track { obs: vec![(0, o)] });
         }
-        let raw_px = |obs: &[NormObs]| {
-            let mut d: Vec<f64> = obs
-                .iter()
-                .zip(seen(q0, p0))
-                .map(|(a, b)| (a.xn - b.xn).norm() * px)
-                .collect();
-            cmsckf_models::stats::percentile(&mut d, 0.5).unwrap()
+        let medians_px = |est: &mut Estimator, obs: &[NormObs]| {
+            let (s, r) = est.disparity_medians(obs).unwrap();
+            (s * px, r * px, est.median_disparity(obs).unwrap() * px)
         };
+        // Still: nothing moved either way.
+        est.imu.q_W_B = q0;
+        let (s_px, r_px, _) = medians_px(&mut est, &seen(q0, p0));
+        assert!(s_px < 1e-9 && r_px < 1e-9, "still: {s_px} {r_px} px");
         // A turn of 0.4° about each axis, as a rocking on the legs makes:
-        // more than the bound as seen, half of it once the turn is out (the
-        // rest is the camera's own shift as the body turns about the IMU,
-        // its lever arm `p_C_in_B`: 0.7 mm).
+        // more than the bound as seen; derotated, only the camera's own
+        // shift as the body turns about the IMU (its lever arm `p_C_in_B`,
+        // 0.7 mm); the displacement is then `s/2`, under the bound.
         let turned = q0 * UnitQuaternion::from_scaled_axis(Vector3::new(0.007, -0.007, 0.005));
         est.imu.q_W_B = turned;
         let obs = seen(turned, p0);
-        let (d_px, seen_px) = (est.median_disparity(&obs).unwrap() * px, raw_px(&obs));
-        assert!(seen_px > max_disparity_px, "the turn moves the features {seen_px} px");
+        let (s_px, r_px, d_px) = medians_px(&mut est, &obs);
+        assert!(s_px > max_disparity_px, "the turn moves the features {s_px} px");
+        assert!(r_px < 0.2, "derotated, a turn leaves {r_px} px");
         assert!(
-            (d_px - 0.5 * seen_px).abs() < 1e-9,
-            "a turn alone: {d_px} px of {seen_px}"
+            (d_px - 0.5 * s_px).abs() < 1e-9 && d_px < max_disparity_px,
+            "a turn alone: {d_px} px of {s_px}"
         );
         assert!(!est.camera_disparity(&obs).1, "a turn alone said moved");
-        // A turn of 1.5°, as a take-off's tilt begins: moved.
+        // A turn of 1.5°, as a take-off's tilt begins: moved (`s/2` passes).
         let tilted = q0 * UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.026, 0.0));
         est.imu.q_W_B = tilted;
         let obs = seen(tilted, p0);
         assert!(
             est.camera_disparity(&obs).1,
-            "a take-off's tilt: {} px as seen",
-            raw_px(&obs)
+            "a take-off's tilt: {:?} px",
+            medians_px(&mut est, &obs)
         );
-        // 4 cm up and forward, turned or not: moved.
-        for q in [q0, turned] {
-            est.imu.q_W_B = q;
-            let p = p0 + Vector3::new(0.04, 0.0, -0.04);
-            let obs = seen(q, p);
-            let d_px = est.median_disparity(&obs).unwrap() * px;
-            assert!(d_px > max_disparity_px, "a translation: {d_px} px");
-            assert!(est.camera_disparity(&obs).1);
-        }
+        // 4 cm up and forward, without a turn: both medians alike, moved.
+        est.imu.q_W_B = q0;
+        let p = p0 + Vector3::new(0.04, 0.0, -0.04);
+        let obs = seen(q0, p);
+        let (s_px, r_translated_px, d_px) = medians_px(&mut est, &obs);
+        assert!(
+            (s_px - r_translated_px).abs() < 1e-9 && d_px == s_px && d_px > max_disparity_px,
+            "{s_px} {r_translated_px} {d_px}"
+        );
+        assert!(est.camera_disparity(&obs).1);
+        // The same translation with the small turn: derotated, the
+        // translation's displacement again (to the lever arm's shift); the
+        // smaller median counts (here the one as seen, which the turn
+        // partly cancels); moved.
+        est.imu.q_W_B = turned;
+        let obs = seen(turned, p);
+        let (s_px, r_px, d_px) = medians_px(&mut est, &obs);
+        assert!(
+            (r_px - r_translated_px).abs() < 0.3,
+            "derotated {r_px} px against {r_translated_px}"
+        );
+        assert!(
+            d_px == s_px.min(r_px) && (s_px - r_px).abs() > 1.0,
+            "{s_px} {r_px} {d_px}"
+        );
+        assert!(d_px > max_disparity_px && est.camera_disparity(&obs).1);
     }
 }
