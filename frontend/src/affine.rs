@@ -117,6 +117,22 @@ impl Default for Anchor {
 }
 
 impl Anchor {
+    /// An empty anchor whose buffers already have a window's sizes: a
+    /// tracker makes its pool of these at start, so that no reset in
+    /// flight allocates.
+    pub fn with_buffers() -> Self {
+        Self {
+            ring: Vec::with_capacity(RING_SIDE * RING_SIDE),
+            t: Vec::with_capacity(N),
+            j: Vec::with_capacity(6 * N),
+            e: Vec::with_capacity(N),
+            at: Vec::with_capacity(N),
+            fx: Vec::with_capacity(N),
+            fy: Vec::with_capacity(N),
+            ..Self::default()
+        }
+    }
+
     /// The window of `img` centred at `(u, v)`, or `None` if it does not
     /// fit or is too flat to hold an affine warp.
     pub fn new(img: &Gray, u: f32, v: f32) -> Option<Self> {

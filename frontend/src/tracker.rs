@@ -174,11 +174,22 @@ pub struct Tracker {
     pub stats: TrackStats,
 }
 
+/// Most features a frame holds: `max_features` from detection, and up to
+/// half as many again brought back by re-identification
+/// ([`Tracker::reacquire`]; beside the simulator's textured ground a frame
+/// reached 150 + 35). The per-feature buffers and the anchors' pool are
+/// made this large at start, so that a flight's new high allocates nothing.
+fn feature_capacity(prm: &TrackerParams) -> usize {
+    prm.max_features + prm.max_features / 2
+}
+
 impl Tracker {
     /// A tracker; with `camera`, outliers are rejected on its undistorted
     /// normalised coordinates (without one, nothing is rejected by RANSAC).
     pub fn new(prm: TrackerParams, camera: Option<Camera>) -> Self {
         let reid = prm.reid.filter(|_| camera.is_some()).map(Reid::new);
+        let cap = feature_capacity(&prm);
+        let anchored = prm.max_anchor_residual.is_some();
         Self {
             prm,
             camera,
@@ -186,22 +197,26 @@ impl Tracker {
             next: Pyramid::default(),
             smooth: Gray::default(),
             smooth_row: Vec::new(),
-            features: Vec::new(),
+            features: Vec::with_capacity(cap),
             next_id: 0,
             detector: Detector::default(),
             scratch: KltScratch::default(),
-            pairs: Vec::new(),
-            inliers: Vec::new(),
-            moved: Vec::new(),
-            existing: Vec::new(),
+            pairs: Vec::with_capacity(cap),
+            inliers: Vec::with_capacity(cap),
+            moved: Vec::with_capacity(cap),
+            existing: Vec::with_capacity(cap),
             new_corners: Vec::new(),
             frames: 0,
             reid,
-            anchors: Default::default(),
-            spare: Vec::new(),
+            anchors: std::collections::HashMap::with_capacity(if anchored { cap } else { 0 }),
+            spare: if anchored {
+                (0..cap).map(|_| Anchor::with_buffers()).collect()
+            } else {
+                Vec::new()
+            },
             check: Anchor::default(),
-            live_ids: Vec::new(),
-            reid_feats: Vec::new(),
+            live_ids: Vec::with_capacity(cap),
+            reid_feats: Vec::with_capacity(cap),
             stats: TrackStats::default(),
         }
     }
@@ -460,6 +475,9 @@ impl Tracker {
             let at = match nearest {
                 Some((d, i)) if d < SAME_POINT_PX && self.features[i].age < search_frames => Some(i),
                 Some((d, _)) if d < min_distance => continue,
+                // A new feature only while the frame has room for it
+                // (`feature_capacity`): the buffers are that large.
+                _ if self.features.len() >= feature_capacity(&self.prm) => continue,
                 _ => None,
             };
             let f = Feature {
