@@ -70,10 +70,20 @@ impl Estimator {
         ACTIVE_DIM + 6 * self.local_kfs.len()
     }
 
-    pub(super) fn clone_offset_by_seq(&self, seq: u64) -> Option<usize> {
+    /// Where clone `seq` is in the window, if it still is.
+    fn clone_index(&self, seq: u64) -> Option<usize> {
         let first = self.clones.front()?.seq;
-        let i = seq.checked_sub(first)? as usize;
-        (i < self.clones.len()).then(|| self.clones_offset() + 6 * i)
+        let i = usize::try_from(seq.checked_sub(first)?).ok()?;
+        (i < self.clones.len()).then_some(i)
+    }
+
+    pub(super) fn clone_offset_by_seq(&self, seq: u64) -> Option<usize> {
+        self.clone_index(seq).map(|i| self.clones_offset() + 6 * i)
+    }
+
+    /// Clone `seq`, if it is still in the window.
+    pub(super) fn clone_by_seq(&self, seq: u64) -> Option<&super::CloneState> {
+        self.clone_index(seq).map(|i| &self.clones[i])
     }
 
     /// Offset of the first GNSS clone: after the camera clones.

@@ -380,9 +380,10 @@ pub struct Estimator {
     s: Settings,
     /// Whether the vehicle may be still (see [`Estimator::set_zupt_allowed`]).
     zupt_allowed: bool,
-    /// The frame's feature displacements, for their median (zero-velocity
-    /// updates), kept so that a frame allocates nothing for them.
-    disparity_buf: Vec<f64>,
+    /// The frame's feature displacements, as seen and derotated, for their
+    /// medians (zero-velocity updates, §3c Z0), kept so that a frame
+    /// allocates nothing for them.
+    disparity_buf: (Vec<f64>, Vec<f64>),
     /// The buffers a track's gate works in, kept for the same reason.
     gate_scratch: math::Scratch<msckf::GateScratch>,
     /// The frame's landmark ids, its ready tracks and the track lists
@@ -530,7 +531,7 @@ impl Estimator {
             last_kf_t_s: f64::NEG_INFINITY,
             stats: Stats::default(),
             zupt_allowed: true,
-            disparity_buf: Vec::new(),
+            disparity_buf: (Vec::new(), Vec::new()),
             gate_scratch: math::Scratch::default(),
             frame_scratch: math::Scratch::default(),
             monitor: health::NisMonitor::new(health::MonitorSettings::default()),

@@ -114,42 +114,47 @@ impl Estimator {
     /// [`Self::median_disparity`]'s two medians, `(s, r)`: as seen, and
     /// with the camera's rotation since each track's last clone taken out.
     fn disparity_medians(&mut self, obs: &[NormObs]) -> Option<(f64, f64)> {
-        let mut d = std::mem::take(&mut self.disparity_buf);
-        d.clear();
+        let (mut seen, mut derotated) = std::mem::take(&mut self.disparity_buf);
+        seen.clear();
+        derotated.clear();
         // Z0: the last clone's bearing seen from now, `R_C_C' [x'; 1]` with
         // `R_C_C' = R_B_Cᵀ R_W_Bᵀ R_W_B' R_B_C` (the attitude propagated to
-        // the frame's instant), projected back to `z = 1`.
-        let R_C_W = self.s.ext.R_B_C.transpose() * self.imu.q_W_B.to_rotation_matrix().inverse().matrix();
-        let first_seq = self.clones.front().map(|c| c.seq);
-        let (tracks, clones, R_B_C) = (&self.tracks, &self.clones, &self.s.ext.R_B_C);
-        // Each common feature's displacement: `derotated` picks which.
-        let moved = |derotated: bool| {
-            obs.iter().filter_map(move |o| {
-                let (seq, last) = tracks.get(&o.landmark_id)?.obs.last()?;
-                let c = clones.get(usize::try_from(seq.checked_sub(first_seq?)?).ok()?)?;
-                if !derotated {
-                    return Some((o.xn - last.xn).norm());
+        // the frame's instant), projected back to `z = 1`. Most tracks share
+        // the last clone: `R_C_C'` is kept for the clone it was made for.
+        let R_B_C = &self.s.ext.R_B_C;
+        let R_C_W = R_B_C.transpose() * self.imu.q_W_B.to_rotation_matrix().inverse().matrix();
+        let mut R_C_Cl: Option<(u64, Matrix3<f64>)> = None;
+        for o in obs {
+            let Some((seq, last)) = self.tracks.get(&o.landmark_id).and_then(|t| t.obs.last()) else {
+                continue;
+            };
+            let Some(c) = self.clone_by_seq(*seq) else {
+                continue;
+            };
+            let R = match R_C_Cl {
+                Some((s, R)) if s == *seq => R,
+                _ => {
+                    let R = R_C_W * c.q_W_B.to_rotation_matrix().matrix() * R_B_C;
+                    R_C_Cl = Some((*seq, R));
+                    R
                 }
-                let b = R_C_W * c.q_W_B.to_rotation_matrix().matrix() * R_B_C * Vector3::new(last.xn.x, last.xn.y, 1.0);
-                Some(if b.z > 0.0 {
-                    (o.xn - b.xy() / b.z).norm()
-                } else {
-                    f64::INFINITY
-                })
-            })
-        };
-        d.extend(moved(false));
-        let n = d.len();
-        d.extend(moved(true));
-        let medians = if n < MIN_COMMON_FEATURES {
+            };
+            let b = R * Vector3::new(last.xn.x, last.xn.y, 1.0);
+            seen.push((o.xn - last.xn).norm());
+            derotated.push(if b.z > 0.0 {
+                (o.xn - b.xy() / b.z).norm()
+            } else {
+                f64::INFINITY
+            });
+        }
+        let medians = if seen.len() < MIN_COMMON_FEATURES {
             None
         } else {
-            let (seen, derotated) = d.split_at_mut(n);
-            let a = cmsckf_models::stats::percentile(seen, 0.5);
-            let b = cmsckf_models::stats::percentile(derotated, 0.5);
-            a.zip(b)
+            let s = cmsckf_models::stats::percentile(&mut seen, 0.5);
+            let r = cmsckf_models::stats::percentile(&mut derotated, 0.5);
+            s.zip(r)
         };
-        self.disparity_buf = d;
+        self.disparity_buf = (seen, derotated);
         medians
     }
 
