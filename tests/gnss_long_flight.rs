@@ -18,6 +18,18 @@ use cmsckf::eval;
 use cmsckf_models::gnss::{SatMeas, System};
 use cmsckf_sitl::dataset::Dataset;
 
+/// The racetrack with GNSS, beside an autopilot's landed state.
+fn spec(modes: &[Mode], seeds: u64, duration_s: f64) -> eval::EvalSpec {
+    eval::EvalSpec {
+        scenario: "racetrack".into(),
+        modes: modes.to_vec(),
+        seeds: eval::Seeds::UpTo(seeds),
+        duration_s: Some(duration_s),
+        gnss: true,
+        landed_state: true,
+    }
+}
+
 fn evaluate(
     cfg: &Config,
     sim: &cmsckf_sitl::config::SimConfig,
@@ -25,20 +37,7 @@ fn evaluate(
     seeds: u64,
     duration_s: f64,
 ) -> eval::Evaluation {
-    eval::evaluate(
-        &eval::EvalSpec {
-            scenario: "racetrack".into(),
-            modes: modes.to_vec(),
-            seeds: eval::Seeds::UpTo(seeds),
-            duration_s: Some(duration_s),
-            gnss: true,
-            landed_state: true,
-        },
-        cfg,
-        sim,
-        |_| {},
-    )
-    .unwrap()
+    eval::evaluate(&spec(modes, seeds, duration_s), cfg, sim, |_| {}).unwrap()
 }
 
 /// The racetrack for 15 minutes, GNSS at 1 Hz, compressed with its map:
@@ -77,16 +76,15 @@ fn range_bias_states_keep_compressed_equal_to_full_through_a_canyon() {
     let mut sim = eval::sim_config_for(&cfg);
     sim.gnss.canyon_s = vec![20.0, 80.0];
     sim.gnss.canyon_keep = 3;
-    let ev = evaluate(&cfg, &sim, &[Mode::Full, Mode::Compressed], 1, 90.0);
-    eprintln!("{}", ev.table());
-    let m = &ev.modes["compressed"];
+    // One lockstep flight: its compressed run's differences from full, then
+    // its summary.
+    let flown = eval::fly_seed(&spec(&[Mode::Full, Mode::Compressed], 1, 90.0), &cfg, &sim, 1, |_| {}).unwrap();
+    let c = flown.flights.iter().find(|f| f.mode == Mode::Compressed).unwrap();
     // Compressed against full after every global update, the covariance
     // and the nominal state apart, bounded as `compressed_exactness.rs`
     // bounds them: the covariance to 1e-9, the state to 1e-8 of its σ
     // (round-off that the filter amplifies about tenfold every 50 s; this
     // flight's worst was 2.1e-9 at 2026-12-07).
-    let ds = Dataset::generate("racetrack", 1, Some(90.0), &sim).unwrap();
-    let (c, _) = eval::run_compressed_vs_full(&ds, &cfg, 1, true);
     let cov = c.diff_vs_full.iter().map(|d| d.1).fold(0.0, f64::max);
     let state = c.diff_vs_full.iter().map(|d| d.2).fold(0.0, f64::max);
     eprintln!(
@@ -95,6 +93,9 @@ fn range_bias_states_keep_compressed_equal_to_full_through_a_canyon() {
     );
     assert!(cov <= 1e-9, "compressed's covariance differs from full by {cov:e}");
     assert!(state <= 1e-8, "compressed's state differs from full by {state:e} σ");
+    let ev = eval::merge(vec![flown]).unwrap();
+    eprintln!("{}", ev.table());
+    let m = &ev.modes["compressed"];
     assert!(m.global_updates >= 3.0, "{} global updates", m.global_updates);
     let (created, dropped) = (m.range_bias_states_created, m.range_bias_states_dropped);
     assert!(
