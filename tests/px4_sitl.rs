@@ -1,7 +1,8 @@
 //! PX4's own SITL (SIH physics, quadrotor X, airframe 10040) flown on the
 //! daemon's output, with cmsckf as EKF2's only position, velocity, height
 //! and yaw source (`EKF2_EV_CTRL = 15`, `EKF2_HGT_REF = 3`, no GPS, no
-//! compass). The camera is the one a drone carries: SIH's ground truth
+//! compass, no range finder, no barometer: asserted through EKF2's
+//! ESTIMATOR_STATUS, which never shows a terrain estimate). The camera is the one a drone carries: SIH's ground truth
 //! (`HIL_STATE_QUATERNION`) rendered as images of a textured world built
 //! around the route, tracked by the real front-end (`cmsckf-frontend`'s
 //! tracker) into the daemon's socket, each track scored against its world
@@ -73,6 +74,9 @@ const BUDGET: Duration = Duration::from_secs(200);
 const EKF_VEL_HORIZ: u16 = 0x02;
 const EKF_POS_HORIZ_REL: u16 = 0x08;
 const EKF_POS_VERT_ABS: u16 = 0x20;
+/// `ESTIMATOR_STATUS.flags` bit 6: EKF2 has a terrain estimate, which it
+/// makes only from a range finder or optical flow, neither ours.
+const EKF_POS_VERT_AGL: u16 = 0x40;
 
 /// A camera-to-body rotation (`[x, y, z, w]`) turned about the body's y axis
 /// so that the optical axis points `deg` below where it did (FRD: +z down).
@@ -126,9 +130,17 @@ impl Drop for Sitl {
 /// PX4's parameters for external vision as its only position, height and
 /// yaw source (docs/setup-px4.md gives each one's reason). rcS applies
 /// each `PX4_PARAM_<NAME>` with `param set` on start.
-const PARAMS: [(&str, &str); 8] = [
+const PARAMS: [(&str, &str); 10] = [
     ("EKF2_EV_CTRL", "15"),
     ("EKF2_HGT_REF", "3"),
+    // Ours the only height: SIH has a range finder that reads the truth
+    // (`send_dist_snsr`: the height over its flat ground, no noise) and a
+    // barometer, and by default EKF2 fuses both beside ours (its
+    // ESTIMATOR_STATUS said a terrain estimate, bit 6, in every flight
+    // until these were set). The daemon says either one in the log
+    // (`daemon/nav_params.rs`).
+    ("EKF2_RNG_CTRL", "0"),
+    ("EKF2_BARO_CTRL", "0"),
     ("EKF2_GPS_CTRL", "0"),
     ("SENS_EN_GPSSIM", "0"),
     ("EKF2_MAG_TYPE", "5"),
@@ -319,6 +331,7 @@ fn px4_flies_on_cmsckf_alone() {
     // reports, how many without our position fused, the largest ratios.
     let (mut ekf_reports, mut ekf_not_fusing) = (0usize, 0usize);
     let (mut ekf_pos_ratio_max, mut ekf_flags_flying) = (0.0f32, None::<u16>);
+    let mut ekf_terrain_reports = 0usize;
     // PX4's time synchronisation and its EV delay, read while flying.
     let mut timesync = Vec::new();
     let mut listened = false;
@@ -398,6 +411,7 @@ fn px4_flies_on_cmsckf_alone() {
                     if phase > Phase::WaitEkf && phase < Phase::Done {
                         ekf_reports += 1;
                         ekf_not_fusing += usize::from(!fusing);
+                        ekf_terrain_reports += usize::from(flags & EKF_POS_VERT_AGL != 0);
                         ekf_pos_ratio_max = ekf_pos_ratio_max.max(e.pos_horiz_ratio).max(e.pos_vert_ratio);
                         if matches!(phase, Phase::Box(_)) {
                             ekf_flags_flying = Some(flags);
@@ -623,6 +637,10 @@ fn px4_flies_on_cmsckf_alone() {
         ekf_pos_ratio_max < 1.0,
         "EKF2 rejected our position: ratio {ekf_pos_ratio_max}"
     );
+    assert_eq!(
+        ekf_terrain_reports, 0,
+        "EKF2 fused a height source of its own (a terrain estimate, from SIH's range finder)"
+    );
     assert!(
         standing.n > 100 && climbing.n > 20 && boxing.n > 100 && hovering.n > 50 && landing.n > 50,
         "too few samples: {standing:?} {climbing:?} {boxing:?} {hovering:?} {landing:?}"
@@ -640,16 +658,18 @@ fn px4_flies_on_cmsckf_alone() {
     assert!(restarts <= 2, "the filter restarted: {:?}", summary.counters);
     // The issue asks for 0.5 m throughout; these bounds are what every
     // flight measured held, not that. Three flights of this test as it
-    // stands, in the release build at 2026-12-07: standing 0.019-0.028 m,
-    // take-off 0.56-0.69 m, box 0.52-0.56 m, hover 0.30-0.42 m, descent and
-    // landing 0.24-0.32 m; our own box 0.45-0.51 m, within its σ. What is
-    // missing, and why: the climb leaves our height 0.3-0.45 m off (SIH's
-    // IMU integrates to 0.1 m/s above the truth over the first 0.3 s of the
-    // climb, the same draw every flight, and the tracks keep the scale they
-    // took), which no later camera measurement takes out; the rest is our
-    // horizontal drift across the box (0.2-0.3 m) and EKF2's own tilt after
-    // hard decelerations (docs/setup-px4.md, "Where it stands"). Over the
-    // earlier, coarser ground the box was 0.32-0.65 m in seven flights.
+    // stands (EKF2 on our height alone: no range finder, no barometer), in
+    // the release build at 2026-12-07: standing 0.021-0.027 m, take-off
+    // 0.56-1.20 m, box 0.66-1.05 m, hover 0.59-0.85 m, descent and landing
+    // 0.36-0.73 m; our own box 0.59-0.92 m. What is missing, and why: the
+    // climb leaves our height 0.4-0.9 m off, which no later camera
+    // measurement takes out. SIH's IMU over the climb's first second is a
+    // 2-3 σ draw of its own noise (the same at the same instant of each
+    // flight), the tracks keep the scale the climb began with, and in one
+    // flight of three the first updates after the lift-off shrank our
+    // velocity's σ to 0.05 m/s while it was 0.2 m/s off (docs/setup-px4.md,
+    // "Where it stands"). Before EKF2's own range finder and barometer were
+    // turned off, the box was 0.52-0.56 m in three flights.
     assert!(standing.max_m < 0.15, "standing error {standing:?}");
     assert!(climbing.max_m < 1.5, "take-off error {climbing:?}");
     assert!(boxing.max_m < 1.2, "box error {boxing:?}");
@@ -673,9 +693,9 @@ fn px4_flies_on_cmsckf_alone() {
         "our origin must not reach PX4"
     );
     // EKF2's navigation parameters read over MAVLink (`daemon/nav_params.rs`):
-    // all six came, and none of them drops or misweighs our estimates.
+    // all eight came, and none of them drops or misweighs our estimates.
     assert!(
-        c("autopilot_param_value") >= 6 && c("autopilot_param_unanswered") == 0,
+        c("autopilot_param_value") >= 8 && c("autopilot_param_unanswered") == 0,
         "EKF2's parameters were not read: {:?}",
         summary.counters
     );

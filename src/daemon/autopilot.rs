@@ -773,14 +773,14 @@ mod tests {
             ..Default::default()
         };
         ap.params.set_kind(AutopilotKind::Px4);
-        // Up 600 s: the first round asks for all six, none answers yet.
+        // Up 600 s: the first round asks for all eight, none answers yet.
         ap.poll_params(600.0, &log, &counters, &tx);
-        assert_eq!(asked(&mut rx), 6);
+        assert_eq!(asked(&mut rx), 8);
         // It reboots in the middle of the rounds: its clock starts again.
         ap.forget_for_restart(Restart::Reboot);
         ap.poll_params(1.0, &log, &counters, &tx);
-        assert_eq!(asked(&mut rx), 6, "asked again on the new clock");
-        // All six come, as PX4 sends them: the heading is ours alone.
+        assert_eq!(asked(&mut rx), 8, "asked again on the new clock");
+        // All eight come, as PX4 sends them: the heading is ours alone.
         for (name, v) in [
             ("EKF2_EV_CTRL", 15),
             ("EKF2_GPS_CTRL", 0),
@@ -788,6 +788,8 @@ mod tests {
             ("EKF2_HGT_REF", 3),
             ("EKF2_EV_NOISE_MD", 0),
             ("EKF2_EV_DELAY", 0),
+            ("EKF2_RNG_CTRL", 0),
+            ("EKF2_BARO_CTRL", 0),
         ] {
             let p = crate::io::messages::ParamValue {
                 name: name.into(),
@@ -801,7 +803,7 @@ mod tests {
         ap.forget_for_restart(Restart::Reboot);
         assert_eq!(ap.heading_ours_alone(), None);
         ap.poll_params(0.5, &log, &counters, &tx);
-        assert_eq!(asked(&mut rx), 6);
+        assert_eq!(asked(&mut rx), 8);
         // An IMU gap is no reboot: nothing asked, the verdict kept.
         ap.forget_for_restart(Restart::Gap);
         ap.poll_params(0.6, &log, &counters, &tx);

@@ -32,6 +32,8 @@ const PX4: &[&str] = &[
     "EKF2_HGT_REF",
     "EKF2_EV_NOISE_MD",
     "EKF2_EV_DELAY",
+    "EKF2_RNG_CTRL",
+    "EKF2_BARO_CTRL",
 ];
 /// ArduPilot's EKF3 and its visual odometry (docs/setup-ardupilot.md).
 const ARDUPILOT: &[&str] = &[
@@ -303,6 +305,30 @@ fn px4_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
             ),
         ));
     }
+    // Height sources of EKF2's own beside ours (`params_range_finder.yaml`,
+    // `params_barometer.yaml`): not wrong, but its height is then a blend,
+    // and a review that finds PX4's height off ours must know it. PX4's
+    // SIH has a range finder that reads the truth: with `EKF2_RNG_CTRL = 1`
+    // EKF2 fused it in each of `tests/px4_sitl.rs`'s flights until that
+    // test set 0 (docs/setup-px4.md).
+    if let Some(c) = value("EKF2_RNG_CTRL").filter(|c| *c != 0.0) {
+        findings.push(finding(
+            Level::Info,
+            format!(
+                "EKF2_RNG_CTRL = {c}: EKF2 also fuses a range finder if one is fitted (1: when low and slow), \
+                 so its height and terrain are not ours alone; 0 leaves ours its only height"
+            ),
+        ));
+    }
+    if let Some(c) = value("EKF2_BARO_CTRL").filter(|c| *c != 0.0) {
+        findings.push(finding(
+            Level::Info,
+            format!(
+                "EKF2_BARO_CTRL = {c}: EKF2 also fuses its barometer, with an offset it learns against our \
+                 height, so its height is not ours alone; 0 leaves ours its only height"
+            ),
+        ));
+    }
     // Our yaw is EKF2's heading when it fuses it and has no other: no GNSS
     // position, velocity or dual-antenna heading (`EKF2_GPS_CTRL` bits 0, 2,
     // 3: each ties EKF2's frame to north; velocity alone aligns its yaw by
@@ -360,13 +386,15 @@ mod tests {
         })
     }
 
-    const SITL: [(&str, f64); 6] = [
+    const SITL: [(&str, f64); 8] = [
         ("EKF2_EV_CTRL", 15.0),
         ("EKF2_GPS_CTRL", 0.0),
         ("EKF2_MAG_TYPE", 5.0),
         ("EKF2_HGT_REF", 3.0),
         ("EKF2_EV_NOISE_MD", 0.0),
         ("EKF2_EV_DELAY", 0.0),
+        ("EKF2_RNG_CTRL", 0.0),
+        ("EKF2_BARO_CTRL", 0.0),
     ];
 
     #[test]
@@ -397,6 +425,17 @@ mod tests {
         assert!(v.findings[0].text.contains("ignores the covariance"), "{v:?}");
         let v = with("EKF2_EV_DELAY", 50.0);
         assert_eq!(v.findings[0].level, Level::Info);
+        // EKF2's own height sources: said, as facts, not counted as wrong.
+        for (name, value) in [("EKF2_RNG_CTRL", 1.0), ("EKF2_RNG_CTRL", 2.0), ("EKF2_BARO_CTRL", 1.0)] {
+            let v = with(name, value);
+            assert_eq!(v.findings.len(), 1, "{v:?}");
+            assert_eq!(v.findings[0].level, Level::Info);
+            assert!(
+                v.findings[0].text.contains(name) && v.findings[0].text.contains("not ours alone"),
+                "{v:?}"
+            );
+            assert_eq!(v.heading_ours_alone, Some(true));
+        }
         // Another heading source: EKF2's frame is not ours alone.
         assert_eq!(with("EKF2_GPS_CTRL", 7.0).heading_ours_alone, Some(false));
         assert_eq!(with("EKF2_MAG_TYPE", 0.0).heading_ours_alone, Some(false));
@@ -451,7 +490,7 @@ mod tests {
             };
             p.on_value(&raw, 2.5, false, &log, &counters, &out);
         };
-        for (name, v) in SITL.iter().take(5) {
+        for (name, v) in SITL.iter().filter(|(n, _)| *n != "EKF2_EV_DELAY") {
             answer(&mut p, name, *v as i32);
         }
         sent.borrow_mut().clear();
