@@ -44,6 +44,17 @@ const ARDUPILOT: &[&str] = &[
     "EK3_SRC1_YAW",
 ];
 
+/// Parameters a build may lack: PX4 compiles EKF2's range finder and
+/// barometer out on boards short of flash (`CONFIG_EKF2_RANGE_FINDER`,
+/// `CONFIG_EKF2_BAROMETER`), and then never answers for them. The verdict
+/// waits one round for them, not all five, and their silence is not
+/// counted as unanswered.
+const OPTIONAL: &[&str] = &["EKF2_RNG_CTRL", "EKF2_BARO_CTRL"];
+
+fn is_optional(name: &str) -> bool {
+    OPTIONAL.contains(&name)
+}
+
 /// Whether `name` is a parameter asked of any autopilot: the others (a
 /// ground station's download of all of them, a gimbal's list) are not
 /// ours to log or judge.
@@ -133,7 +144,10 @@ impl NavParams {
         if self.verdict.is_some() || self.values.is_empty() || t_s < self.next_ask_t {
             return;
         }
-        if self.rounds < ROUNDS {
+        // Every required one answered a round ago: judged without the
+        // optional ones still missing.
+        let required_came = self.values.iter().all(|(n, v)| v.is_some() || is_optional(n));
+        if self.rounds < ROUNDS && !(required_came && self.rounds > 0) {
             self.rounds += 1;
             self.next_ask_t = t_s + ASK_EVERY_S;
             for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
@@ -142,6 +156,10 @@ impl NavParams {
             return;
         }
         for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
+            if is_optional(name) {
+                tracing::info!(param = name, "no PARAM_VALUE came: not in this autopilot's build");
+                continue;
+            }
             counters.add(Counter::AutopilotParamUnanswered, 1);
             tracing::warn!(
                 reason = "autopilot_param_unanswered",
@@ -309,14 +327,14 @@ fn px4_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
     // `params_barometer.yaml`): not wrong, but its height is then a blend,
     // and a review that finds PX4's height off ours must know it. PX4's
     // SIH has a range finder that reads the truth: with `EKF2_RNG_CTRL = 1`
-    // EKF2 fused it in each of `tests/px4_sitl.rs`'s flights until that
-    // test set 0 (docs/setup-px4.md).
+    // EKF2 made a terrain estimate from it in each of `tests/px4_sitl.rs`'s
+    // flights until that test set 0 (docs/setup-px4.md).
     if let Some(c) = value("EKF2_RNG_CTRL").filter(|c| *c != 0.0) {
         findings.push(finding(
             Level::Info,
             format!(
-                "EKF2_RNG_CTRL = {c}: EKF2 also fuses a range finder if one is fitted (1: when low and slow), \
-                 so its height and terrain are not ours alone; 0 leaves ours its only height"
+                "EKF2_RNG_CTRL = {c}: EKF2 also fuses a range finder if one is fitted (its terrain, and with 1 \
+                 its height when low and slow), so its height is not ours alone; 0 takes it out of EKF2's height"
             ),
         ));
     }
@@ -325,7 +343,7 @@ fn px4_verdict(value: &dyn Fn(&str) -> Option<f64>) -> Verdict {
             Level::Info,
             format!(
                 "EKF2_BARO_CTRL = {c}: EKF2 also fuses its barometer, with an offset it learns against our \
-                 height, so its height is not ours alone; 0 leaves ours its only height"
+                 height, so its height is not ours alone; 0 takes it out of EKF2's height"
             ),
         ));
     }
@@ -595,6 +613,50 @@ mod tests {
         p.on_value(&px4_int("EKF2_EV_CTRL", 15), 32.0, true, &log, &counters, &out);
         assert_eq!(p.heading_ours_alone(), Some(true));
         assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 2);
+    }
+
+    /// A PX4 built without EKF2's range finder and barometer never answers
+    /// for their parameters: judged at the round after the required ones
+    /// came (not after all five), those two not counted as unanswered; one
+    /// of them that comes later is judged then.
+    #[test]
+    fn a_px4_without_the_optional_parameters_is_judged_a_round_later() {
+        let log = FlightLog::new(None, false);
+        let counters = Counters::default();
+        let sent = RefCell::new(Vec::new());
+        let out = |o: Outbound| sent.borrow_mut().push(o);
+        let mut p = NavParams::default();
+        p.set_kind(AutopilotKind::Px4);
+        p.poll(0.0, false, &log, &counters, &out);
+        assert_eq!(sent.borrow().len(), PX4.len(), "the optional ones asked too");
+        for (name, v) in SITL.iter().filter(|(n, _)| !is_optional(n)) {
+            p.on_value(&px4_int(name, *v as i32), 0.5, false, &log, &counters, &out);
+        }
+        assert_eq!(p.heading_ours_alone(), None, "waits a round for the optional ones");
+        sent.borrow_mut().clear();
+        p.poll(1.0, false, &log, &counters, &out);
+        assert_eq!(p.heading_ours_alone(), None, "the next round is not due yet");
+        p.poll(ASK_EVERY_S, false, &log, &counters, &out);
+        assert_eq!(p.heading_ours_alone(), Some(true), "judged without them");
+        assert!(sent.borrow().is_empty(), "nothing asked again: {:?}", sent.borrow());
+        assert_eq!(counters.get(Counter::AutopilotParamUnanswered), 0);
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 0);
+        // A required one missing is still asked for five rounds and counted.
+        let mut q = NavParams::default();
+        q.set_kind(AutopilotKind::Px4);
+        for (name, v) in SITL.iter().skip(1).filter(|(n, _)| !is_optional(n)) {
+            q.on_value(&px4_int(name, *v as i32), 0.5, false, &log, &counters, &out);
+        }
+        for k in 0..=ROUNDS {
+            q.poll(k as f64 * ASK_EVERY_S, false, &log, &counters, &out);
+        }
+        assert_eq!(counters.get(Counter::AutopilotParamUnanswered), 1, "EKF2_EV_CTRL alone");
+        // The range finder's parameter comes late, as 1: said, as information.
+        p.on_value(&px4_int("EKF2_RNG_CTRL", 1), 30.0, false, &log, &counters, &out);
+        let v = p.verdict.as_ref().unwrap();
+        assert_eq!(v.findings.len(), 1, "{v:?}");
+        assert_eq!(v.findings[0].level, Level::Info);
+        assert_eq!(counters.get(Counter::AutopilotParamMisconfigured), 0);
     }
 
     /// Judged again for another value, a wrong value already said is not
