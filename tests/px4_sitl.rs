@@ -659,16 +659,16 @@ fn px4_flies_on_cmsckf_alone() {
     }
     assert!(restarts <= 2, "the filter restarted: {:?}", summary.counters);
     // The issue asks for 0.5 m throughout; these bounds are what every
-    // flight measured held, with room, not that. Four flights of this test
+    // flight measured held, with room, not that. Five flights of this test
     // as it stands (EKF2 on our height alone: no range finder, no
-    // barometer), in the release build at 2026-12-07: standing 0.021-0.027
+    // barometer), in the release build at 2026-12-07: standing 0.020-0.027
     // m, take-off 0.56-1.36 m, box 0.66-1.07 m, hover 0.59-1.03 m, descent
     // and landing 0.36-0.80 m; our own box 0.59-1.13 m. What is missing,
     // and why: the climb leaves our height 0.4-1.0 m off, which no later
     // camera measurement takes out. SIH's IMU over the climb's first second
     // is 0.15-0.25 m/s fast (four times what its scatter gives, the same at
     // the same instant of each flight), the tracks keep the scale the climb
-    // began with, and in two flights of four the first updates after the
+    // began with, and in two flights of five the first updates after the
     // lift-off shrank our velocity's σ to 0.05 m/s while it was 0.2 m/s off,
     // leaving 60 % of our estimates beyond 3 σ (docs/setup-px4.md, "Where it
     // stands"). Before EKF2's own range finder and barometer were turned
