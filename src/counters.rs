@@ -66,6 +66,8 @@ counters! {
     MavlinkSendNoAutopilot = "mavlink_send_no_autopilot", event;
     MavlinkRejectedNonFinite = "mavlink_rejected_non_finite", reject;
     MavlinkRejectedImuOutOfRange = "mavlink_rejected_imu_out_of_range", reject;
+    /// A `SCALED_PRESSURE` no barometer reads (0, or outside 100–1200 hPa).
+    MavlinkRejectedPressureOutOfRange = "mavlink_rejected_pressure_out_of_range", reject;
     MavlinkRejectedUnsigned = "mavlink_rejected_unsigned", reject;
     MavlinkRejectedBadSignature = "mavlink_rejected_bad_signature", reject;
     MavlinkRejectedGarbageDatagram = "mavlink_rejected_garbage_datagram", reject;
@@ -74,6 +76,7 @@ counters! {
     MavlinkRejectedForeignImu = "mavlink_rejected_foreign_imu", reject;
     MavlinkRejectedForeignAttitude = "mavlink_rejected_foreign_attitude", reject;
     MavlinkRejectedForeignLocalPosition = "mavlink_rejected_foreign_local_position", reject;
+    MavlinkRejectedForeignPressure = "mavlink_rejected_foreign_pressure", reject;
     MavlinkRejectedForeignGps = "mavlink_rejected_foreign_gps", reject;
     MavlinkRejectedForeignSystemTime = "mavlink_rejected_foreign_system_time", reject;
     MavlinkRejectedForeignTimesync = "mavlink_rejected_foreign_timesync", reject;
@@ -105,6 +108,8 @@ counters! {
     ImuMessageSwitched = "imu_message_switched", event;
     Attitude = "attitude", event;
     LocalPosition = "local_position", event;
+    /// `SCALED_PRESSURE` readings taken (logged, not fused).
+    Pressure = "pressure", event;
     GpsAccuracy = "gps_accuracy", event;
     SimState = "sim_state", event;
     EstimatorStatus = "autopilot_estimator_status", event;

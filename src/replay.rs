@@ -140,6 +140,7 @@ fn to_msg(rec: InputRecord<'static>, normaliser: &Normaliser) -> FusionMsg {
                 h_acc_m: h.unwrap_or(f64::NAN),
                 v_acc_m: v.unwrap_or(f64::NAN),
             },
+            AutopilotRecord::Pressure(p) => FusionMsg::Pressure(p),
             AutopilotRecord::LocalPosition(l) => FusionMsg::LocalPosition {
                 t_s: l.t_s,
                 p_ned_m: v3(l.p_ned_m),

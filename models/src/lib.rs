@@ -6,6 +6,7 @@
 //! noise, in `cmsckf-sitl`) and what is the filter's alone (in `cmsckf`).
 //! Nothing here does I/O, keeps a clock or draws random numbers.
 //!
+//! - [`atmosphere`]: the standard atmosphere's pressure and height
 //! - [`check`]: configuration checks that name the field and the fix
 //! - [`sensors`]: the IMU's and the camera's descriptions (units in the names)
 //! - [`camera`]: pinhole projection with radial-tangential or equidistant
@@ -19,6 +20,7 @@
 //! - [`stats`]: normal and χ² quantiles for gates and consistency bounds
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
 
+pub mod atmosphere;
 pub mod camera;
 pub mod check;
 pub mod feature_wire;

@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 /// noise, 3 camera tracks, 4 GNSS, 5 camera latency, 6 GNSS latency, 7 the
 /// mock autopilot's EKF errors (drawn while serving), 8 the base station's
 /// noise and clock, 9 its latency, 10 the gusts, 11 the rendered world's
-/// blocks, 12 the true lens.
+/// blocks, 12 the true lens, 13 the mock autopilot's barometer.
 pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);

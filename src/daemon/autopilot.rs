@@ -162,6 +162,7 @@ impl AutopilotView {
                 }));
                 self.local = Some((p_ned_m, v_ned_mps, t_s))
             }
+            FusionMsg::Pressure(p) => log_autopilot(AutopilotRecord::Pressure(p)),
             FusionMsg::Magnetometer { mag_B } => {
                 log_autopilot(AutopilotRecord::Magnetometer(mag_B.into()));
                 if self.mag_B.len() == MAG_READINGS {

@@ -74,7 +74,7 @@ const STREAM_STALE_TICKS: u32 = 3;
 const SLOW_ASKS: u32 = 5;
 
 /// The streams asked for (see `wanted` in [`spawn_periodic`]).
-const WANTED: usize = 8;
+const WANTED: usize = 9;
 
 /// How a stream is asked for.
 #[derive(Clone, Copy)]
@@ -86,6 +86,11 @@ enum Ask {
     /// two messages each autopilot sends, each asked for at most
     /// [`DIAGNOSTIC_ASKS`] times until it flows.
     Diagnostic,
+    /// A sensor the autopilot may not have (its barometer): asked for at
+    /// most [`DIAGNOSTIC_ASKS`] times until it flows, and made faster as
+    /// [`Ask::Always`] while it flows slowly (PX4 sends `SCALED_PRESSURE`
+    /// at 1 Hz unasked).
+    Optional,
     /// Only made faster, never started: PX4 streams its TIMESYNC requests
     /// at 10 Hz; ArduPilot sends one every few seconds and answers a request
     /// for it with a "No ap_message" on the pilot's screen.
@@ -169,6 +174,9 @@ pub(super) fn spawn_periodic(
                     200_000.0,
                     Ask::Diagnostic,
                 ),
+                // The autopilot's barometer, for the log and the review's
+                // height check (never fused).
+                (Counter::Pressure, mav::MSG_ID_SCALED_PRESSURE, 100_000.0, Ask::Optional),
                 // PX4's own TIMESYNC requests, which we answer: it keeps our
                 // estimates' stamps only after 500 good round trips
                 // (`Timesync::sync_converged`), 50 s at its default 10 Hz,
@@ -201,7 +209,7 @@ pub(super) fn spawn_periodic(
                 // counts 1 or 3 on some ticks), is asked again, a few
                 // times: an autopilot may cap it below.
                 let too_slow = match ask {
-                    Ask::Always => rate_hz > 0.0,
+                    Ask::Always | Ask::Optional => rate_hz > 0.0,
                     Ask::Diagnostic => false,
                     Ask::FasterOnly => rate_hz >= FASTER_ONLY_MIN_HZ,
                 } && rate_hz < 0.8e6 / interval - 1.0;
@@ -217,7 +225,7 @@ pub(super) fn spawn_periodic(
                 }
                 let max_asks = match ask {
                     Ask::Always => u32::MAX,
-                    Ask::Diagnostic => DIAGNOSTIC_ASKS,
+                    Ask::Diagnostic | Ask::Optional => DIAGNOSTIC_ASKS,
                     Ask::FasterOnly => 0,
                 };
                 if (count == 0 || seen[k].1 >= STREAM_STALE_TICKS) && asked[k] < max_asks {

@@ -116,12 +116,13 @@ struct RxState {
     /// The last IMU sample taken: PX4 sends its last `SCALED_IMU` again,
     /// the same sample, when only its magnetometer has a new reading.
     last_imu: Option<(u64, Vector3<f64>, Vector3<f64>)>,
-    /// `SCALED_IMU`'s, `LOCAL_POSITION_NED`'s and `SYSTEM_TIME`'s
-    /// `time_boot_ms`, unwrapped: a u32 of milliseconds wraps after 49.7
+    /// `SCALED_IMU`'s, `LOCAL_POSITION_NED`'s, `SCALED_PRESSURE`'s and
+    /// `SYSTEM_TIME`'s `time_boot_ms`, unwrapped: a u32 of milliseconds wraps after 49.7
     /// days of uptime, which would otherwise read as a reboot (a filter
     /// restart in flight), and shift GNSS time by the wrap.
     scaled_imu_clock: BootMsClock,
     local_position_clock: BootMsClock,
+    pressure_clock: BootMsClock,
     system_time_clock: BootMsClock,
     /// The journal's limit on rejection warnings, shared by the link's
     /// rejections and the IMU's.
@@ -227,6 +228,7 @@ pub(super) fn spawn_receiver(cfg: &Config, link: Arc<Link>, mut r: Receive) -> J
         last_imu: None,
         scaled_imu_clock: BootMsClock::default(),
         local_position_clock: BootMsClock::default(),
+        pressure_clock: BootMsClock::default(),
         system_time_clock: BootMsClock::default(),
         warn: WarnLimit::default(),
     };
@@ -359,6 +361,7 @@ fn foreign_rejection(msg: &Inbound) -> Option<Counter> {
         Inbound::Imu { .. } => Counter::MavlinkRejectedForeignImu,
         Inbound::Attitude { .. } => Counter::MavlinkRejectedForeignAttitude,
         Inbound::LocalPosition { .. } => Counter::MavlinkRejectedForeignLocalPosition,
+        Inbound::Pressure { .. } => Counter::MavlinkRejectedForeignPressure,
         Inbound::GpsAccuracy { .. } => Counter::MavlinkRejectedForeignGps,
         Inbound::SystemTime { .. } => Counter::MavlinkRejectedForeignSystemTime,
         Inbound::Timesync { .. } => Counter::MavlinkRejectedForeignTimesync,
@@ -509,6 +512,18 @@ fn to_fusion(msg: Inbound, src: Source, st: &mut RxState, r: &Receive) -> Option
                 p_ned_m,
                 v_ned_mps,
             })
+        }
+        Inbound::Pressure {
+            t_boot_ms,
+            p_abs_pa,
+            temperature_c,
+        } => {
+            counters.add(Counter::Pressure, 1);
+            Some(FusionMsg::Pressure(crate::io::mcap_log::input::PressureRecord {
+                t_s: st.pressure_clock.unwrap(t_boot_ms) as f64 * 1e-3,
+                p_abs_pa,
+                temperature_c,
+            }))
         }
         Inbound::GpsAccuracy { h_acc_m, v_acc_m } => {
             counters.add(Counter::GpsAccuracy, 1);
@@ -812,6 +827,7 @@ mod tests {
             last_imu: None,
             scaled_imu_clock: BootMsClock::default(),
             local_position_clock: BootMsClock::default(),
+            pressure_clock: BootMsClock::default(),
             system_time_clock: BootMsClock::default(),
             warn: WarnLimit::default(),
         };

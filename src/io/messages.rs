@@ -53,6 +53,14 @@ pub enum Inbound {
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
+    /// `SCALED_PRESSURE`: the autopilot's barometer (Pa, °C) at boot time
+    /// (ms). Only logged: the review sets its height changes beside ours;
+    /// the filter does not fuse it.
+    Pressure {
+        t_boot_ms: u32,
+        p_abs_pa: f64,
+        temperature_c: f64,
+    },
     /// The autopilot's GNSS accuracy (`GPS_RAW_INT`'s `h_acc`, `v_acc`; m,
     /// one sigma), when it reports one: the uncertainty of its local
     /// position, which an in-flight start takes as its own.
@@ -355,6 +363,8 @@ pub const MSG_ID_EKF_STATUS_REPORT: u32 = 193;
 pub const MSG_ID_ESTIMATOR_STATUS: u32 = 230;
 /// `TIMESYNC` (PX4 streams its requests).
 pub const MSG_ID_TIMESYNC: u32 = 111;
+/// `SCALED_PRESSURE` (the autopilot's barometer).
+pub const MSG_ID_SCALED_PRESSURE: u32 = 29;
 
 /// One parameter as `PARAM_VALUE` carries it (`MAV_PARAM_TYPE` in
 /// `param_type`: 1–8 integers, 9 `f32`, 10 `f64`).

@@ -26,6 +26,7 @@
 //! segments cover, and the time series keep plausible times only
 //! (`timeline.rs`), so one far-future or backwards record changes neither.
 
+mod barometer;
 mod chart;
 mod error;
 mod html;
@@ -43,6 +44,7 @@ use serde::Serialize;
 
 use cmsckf_models::stats::{chi2_quantile, percentile};
 
+pub use barometer::BarometerGap;
 use plots::plot_all;
 use reader::{Data, LogReader};
 
@@ -109,6 +111,10 @@ pub struct ReviewSummary {
     pub autopilot_pos_horiz_ratio_max: Option<f64>,
     pub autopilot_pos_vert_ratio_max: Option<f64>,
     pub autopilot_rejected_reports: u64,
+    /// Our height's changes against the autopilot's barometer's
+    /// (`SCALED_PRESSURE`; `None` without it): our height's drift, and the
+    /// barometer's own.
+    pub barometer_gap: Option<barometer::BarometerGap>,
     /// The autopilot's navigation parameters as the daemon last read them
     /// (`PARAM_VALUE`, `daemon/nav_params.rs`), by name; `None` for a value
     /// that was not a number. Empty for a log without them.
@@ -184,6 +190,7 @@ fn review_data(
     nis_statistics(&mut s, &d);
     timing_statistics(&mut s, &d);
     error::error_statistics(&mut s, &d);
+    s.barometer_gap = barometer::gap(&d);
 
     if let Some(path) = tum {
         write_tum(path, &d)?;

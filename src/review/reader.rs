@@ -26,6 +26,9 @@ pub(super) struct Data {
     pub autopilot: Vec<(f64, [f64; 3])>,
     /// A simulator's truth (`SIM_STATE`) in our world frame: `t, n, e, d`.
     pub truth: Vec<(f64, [f64; 3])>,
+    /// The autopilot's barometer as the standard atmosphere's height:
+    /// `t, h` (m; [`super::barometer::isa_height_m`]).
+    pub baro: Vec<(f64, f64)>,
     /// The estimate's position σ (north, east, down; m) at each
     /// `/filter/state` record: `t, σ`.
     pub sigma_p: Vec<(f64, [f64; 3])>,
@@ -232,6 +235,12 @@ impl LogReader {
             // A typed input record: the autopilot's position, or the truth.
             match InputRecord::parse(topic, &m.data) {
                 Ok(InputRecord::Autopilot(AutopilotRecord::LocalPosition(l))) => d.autopilot.push((t, l.p_ned_m)),
+                // At the reading's own time (the autopilot's boot clock, as
+                // the log time), unless that is not near its arrival.
+                Ok(InputRecord::Autopilot(AutopilotRecord::Pressure(p))) => {
+                    let at = if (p.t_s - t).abs() < 1.0 { p.t_s } else { t };
+                    d.baro.push((at, super::barometer::isa_height_m(p.p_abs_pa)))
+                }
                 Ok(InputRecord::Autopilot(AutopilotRecord::Param(p))) => {
                     s.autopilot_params.insert(p.name, p.value);
                 }
@@ -409,6 +418,7 @@ impl Data {
         self.sigma_p.retain(|p| ok(p.0));
         self.autopilot.retain(|p| ok(p.0));
         self.truth.retain(|p| ok(p.0));
+        self.baro.retain(|p| ok(p.0));
         self.autopilot_ratios.retain(|p| ok(p.0));
         self.sent.retain(|p| ok(p.0));
         self.sent_sigma_p.retain(|p| ok(p.0));

@@ -84,6 +84,18 @@ impl ReviewSummary {
                     _ => "not in the log (no EKF_STATUS_REPORT or ESTIMATOR_STATUS)".into(),
                 },
             ),
+            (
+                "our height's change against the barometer's (max / at the end)",
+                self.barometer_gap.map_or_else(
+                    || "not in the log (no SCALED_PRESSURE)".into(),
+                    |g| {
+                        format!(
+                            "{:.2} m at {:.0} s / {:+.2} m over {} s (a barometer drifts by decimetres too)",
+                            g.max_abs_m, g.max_at_s, g.last_m, g.samples
+                        )
+                    },
+                ),
+            ),
             ("the autopilot's navigation parameters", self.params_row()),
         ]
         .map(|(k, v)| (k.to_string(), v))

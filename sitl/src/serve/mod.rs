@@ -3,7 +3,8 @@
 //! scores what the daemon sends back against the truth.
 //!
 //! Over MAVLink it sends HEARTBEAT (an armed quadrotor), SYSTEM_TIME,
-//! HIGHRES_IMU, EXTENDED_SYS_STATE (landed or in the air), ATTITUDE and
+//! HIGHRES_IMU, EXTENDED_SYS_STATE (landed or in the air), SCALED_PRESSURE
+//! (a barometer: `barometer`), ATTITUDE and
 //! LOCAL_POSITION_NED (its own EKF's view, with a real EKF's
 //! errors, following the daemon's estimates as EK3 does: see `autopilot`),
 //! answers SET_MESSAGE_INTERVAL and TIMESYNC, and receives
@@ -30,6 +31,7 @@
 //! - `report`: the scoring
 
 mod autopilot;
+mod barometer;
 mod camera;
 mod clock;
 mod fault;

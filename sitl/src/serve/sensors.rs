@@ -3,8 +3,8 @@
 //! detector: on the ground or in the air, `Dataset::landed_at`), ATTITUDE and
 //! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
 //! [`super::autopilot`]), EKF_STATUS_REPORT (that EKF's test ratios of our
-//! estimates) and SIM_STATE (the truth, as ArduPilot's SITL sends it, for
-//! review) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! estimates), SIM_STATE (the truth, as ArduPilot's SITL sends it, for
+//! review) and SCALED_PRESSURE (its barometer, [`super::barometer`]) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
 //! the IMU faults applied. GPS_RAW_INT says the autopilot has a 3D fix of
 //! its own (none during a GNSS outage), with its accuracy unknown (0), so
 //! the daemon knows the autopilot's position is not only the echo of its
@@ -94,6 +94,15 @@ impl Streamer<'_> {
         }))
         .await;
         self.send(sim_state(&self.ds.cfg.gnss, &s)).await;
+        let p_pa = self.baro.read(t, truth_llh(&self.ds.cfg.gnss, &s).2);
+        self.send(apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
+            time_boot_ms: ms,
+            press_abs: (p_pa * 0.01) as f32,
+            press_diff: 0.0,
+            temperature: 2_000,
+            ..Default::default()
+        }))
+        .await;
         // As ArduPilot's EKF_STATUS_REPORT: the square roots of the position
         // test ratios of the estimates it tested (0 when none were).
         let (h, v) = self.ekf.take_ratios().unwrap_or((0.0, 0.0));
@@ -219,12 +228,22 @@ fn gps_global_origin(g: &GnssSimConfig, boot_us: u64) -> apm::MavMessage {
 /// only (the daemon logs it and never fuses it). Latitude and longitude in
 /// the MAVLink 2 extensions `lat_int`/`lon_int` (degE7) as well as the f32
 /// degrees; the altitude above mean sea level.
-fn sim_state(g: &GnssSimConfig, s: &TruthSample) -> apm::MavMessage {
+/// The truth's latitude, longitude (deg) and height above mean sea level
+/// (m).
+fn truth_llh(g: &GnssSimConfig, s: &TruthSample) -> (f64, f64, f64) {
     let o = g.origin_llh;
     let frame = NedFrame::from_llh_deg(o[0], o[1], o[2]);
     let (lat, lon, h) = ecef_to_llh(&(frame.origin_ecef + frame.R_ecef_ned * s.p_B_in_W));
     let (lat_deg, lon_deg) = (lat.to_degrees(), lon.to_degrees());
-    let alt_msl_m = cmsckf_models::geoid::msl_from_ellipsoid(lat_deg, lon_deg, h);
+    (
+        lat_deg,
+        lon_deg,
+        cmsckf_models::geoid::msl_from_ellipsoid(lat_deg, lon_deg, h),
+    )
+}
+
+fn sim_state(g: &GnssSimConfig, s: &TruthSample) -> apm::MavMessage {
+    let (lat_deg, lon_deg, alt_msl_m) = truth_llh(g, s);
     let q = s.q_W_B;
     let (roll, pitch, yaw) = q.euler_angles();
     apm::MavMessage::SIM_STATE(apm::SIM_STATE_DATA {

@@ -42,6 +42,12 @@ fn field(v: Vector3<f64>) -> Option<Vector3<f64>> {
 const MAX_ACCEL_MPS2: f64 = 1600.0;
 const MAX_GYRO_RADPS: f64 = 70.0;
 
+/// Believable barometric pressure (Pa): 300 hPa is 9 km above sea level,
+/// 1100 hPa below the Dead Sea's shore; a margin either side. An autopilot
+/// without a barometer sends 0.
+const MIN_PRESSURE_PA: f64 = 10_000.0;
+const MAX_PRESSURE_PA: f64 = 120_000.0;
+
 /// An IMU sample's accelerometer and gyro, finite and within sensor range.
 fn imu_checked(accel: Vector3<f64>, gyro: Vector3<f64>) -> Result<(Vector3<f64>, Vector3<f64>), LinkError> {
     let (a, g) = (finite3(accel)?, finite3(gyro)?);
@@ -182,6 +188,18 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 param_type: d.param_type as u8,
             })
         }
+        // hPa and c°C on the wire.
+        M::SCALED_PRESSURE(d) => {
+            let p_abs_pa = finite(d.press_abs)? * 100.0;
+            if !(MIN_PRESSURE_PA..=MAX_PRESSURE_PA).contains(&p_abs_pa) {
+                return Err(LinkError::Rejected(Counter::MavlinkRejectedPressureOutOfRange));
+            }
+            Inbound::Pressure {
+                t_boot_ms: d.time_boot_ms,
+                p_abs_pa,
+                temperature_c: f64::from(d.temperature) * 0.01,
+            }
+        }
         M::SYSTEM_TIME(d) => Inbound::SystemTime {
             unix_us: d.time_unix_usec,
             boot_ms: d.time_boot_ms,
@@ -236,6 +254,44 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `SCALED_PRESSURE` in SI units; one that is not a number, or no
+    /// barometer's reading (0, an absurd value), is refused and counted.
+    #[test]
+    fn a_barometer_reading_is_taken_in_pascals_and_a_wrong_one_refused() {
+        let m = |press_abs: f32| {
+            apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
+                time_boot_ms: 12_345,
+                press_abs,
+                press_diff: 0.0,
+                temperature: 2_150,
+                ..Default::default()
+            })
+        };
+        let Ok(Inbound::Pressure {
+            t_boot_ms,
+            p_abs_pa,
+            temperature_c,
+        }) = decode(m(1013.25))
+        else {
+            panic!("not taken")
+        };
+        assert_eq!(t_boot_ms, 12_345);
+        assert!((p_abs_pa - 101_325.0).abs() < 0.01, "{p_abs_pa}");
+        assert!((temperature_c - 21.5).abs() < 1e-12);
+        let refused = |x: f32, why: Counter| {
+            assert!(
+                matches!(decode(m(x)), Err(LinkError::Rejected(c)) if c == why),
+                "{x} hPa: {:?}",
+                decode(m(x))
+            )
+        };
+        refused(f32::NAN, Counter::MavlinkRejectedNonFinite);
+        refused(f32::INFINITY, Counter::MavlinkRejectedNonFinite);
+        refused(0.0, Counter::MavlinkRejectedPressureOutOfRange);
+        refused(-1013.0, Counter::MavlinkRejectedPressureOutOfRange);
+        refused(5_000.0, Counter::MavlinkRejectedPressureOutOfRange);
+    }
 
     /// Red-team 08: a NaN in a field we do not use (the compass ratio) used
     /// to drop an EKF_STATUS_REPORT that said the EKF rejected our position.

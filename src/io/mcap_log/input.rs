@@ -134,6 +134,9 @@ pub enum AutopilotRecord {
     Attitude([f64; 3]),
     /// `LOCAL_POSITION_NED`.
     LocalPosition(LocalPositionRecord),
+    /// `SCALED_PRESSURE`: the autopilot's barometer, for the review (never
+    /// fused).
+    Pressure(PressureRecord),
     /// The magnetometer in the body frame (its direction is what is used).
     #[serde(rename = "mag_B")]
     Magnetometer([f64; 3]),
@@ -200,6 +203,17 @@ pub struct LocalPositionRecord {
     pub t_s: f64,
     pub p_ned_m: [f64; 3],
     pub v_ned_mps: [f64; 3],
+}
+
+/// The autopilot's barometer at its own time.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PressureRecord {
+    /// Autopilot boot time of the reading (s).
+    pub t_s: f64,
+    /// Absolute pressure (Pa).
+    pub p_abs_pa: f64,
+    /// The barometer's temperature (°C).
+    pub temperature_c: f64,
 }
 
 /// `SIM_STATE`, and its position in our world frame once the origin is
