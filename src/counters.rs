@@ -66,7 +66,9 @@ counters! {
     MavlinkSendNoAutopilot = "mavlink_send_no_autopilot", event;
     MavlinkRejectedNonFinite = "mavlink_rejected_non_finite", reject;
     MavlinkRejectedImuOutOfRange = "mavlink_rejected_imu_out_of_range", reject;
-    /// A `SCALED_PRESSURE` no barometer reads (0, or outside 100–1200 hPa).
+    /// A `SCALED_PRESSURE` no barometer reads (outside 100–1200 hPa; 0, the
+    /// message of an airspeed sensor without a barometer reading, is not
+    /// counted).
     MavlinkRejectedPressureOutOfRange = "mavlink_rejected_pressure_out_of_range", reject;
     MavlinkRejectedUnsigned = "mavlink_rejected_unsigned", reject;
     MavlinkRejectedBadSignature = "mavlink_rejected_bad_signature", reject;

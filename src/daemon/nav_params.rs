@@ -47,7 +47,7 @@ const ARDUPILOT: &[&str] = &[
 /// Parameters a build may lack: PX4 compiles EKF2's range finder and
 /// barometer out on boards short of flash (`CONFIG_EKF2_RANGE_FINDER`,
 /// `CONFIG_EKF2_BAROMETER`), and then never answers for them. The verdict
-/// waits one round for them, not all five, and their silence is not
+/// waits two rounds for them, not all five, and their silence is not
 /// counted as unanswered.
 const OPTIONAL: &[&str] = &["EKF2_RNG_CTRL", "EKF2_BARO_CTRL"];
 
@@ -144,10 +144,11 @@ impl NavParams {
         if self.verdict.is_some() || self.values.is_empty() || t_s < self.next_ask_t {
             return;
         }
-        // Every required one answered a round ago: judged without the
-        // optional ones still missing.
+        // Every required one answered, and the optional ones still missing
+        // asked once more (a request or an answer can be lost): judged
+        // without them.
         let required_came = self.values.iter().all(|(n, v)| v.is_some() || is_optional(n));
-        if self.rounds < ROUNDS && !(required_came && self.rounds > 0) {
+        if self.rounds < ROUNDS && !(required_came && self.rounds > 1) {
             self.rounds += 1;
             self.next_ask_t = t_s + ASK_EVERY_S;
             for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
@@ -157,7 +158,10 @@ impl NavParams {
         }
         for (name, _) in self.values.iter().filter(|(_, v)| v.is_none()) {
             if is_optional(name) {
-                tracing::info!(param = name, "no PARAM_VALUE came: not in this autopilot's build");
+                tracing::info!(
+                    param = name,
+                    "no PARAM_VALUE came in two rounds: not in this autopilot's build, or lost"
+                );
                 continue;
             }
             counters.add(Counter::AutopilotParamUnanswered, 1);
@@ -616,9 +620,9 @@ mod tests {
     }
 
     /// A PX4 built without EKF2's range finder and barometer never answers
-    /// for their parameters: judged at the round after the required ones
-    /// came (not after all five), those two not counted as unanswered; one
-    /// of them that comes later is judged then.
+    /// for their parameters: asked once more once the required ones came,
+    /// then judged (not after all five rounds), those two not counted as
+    /// unanswered; one of them that comes later is judged then.
     #[test]
     fn a_px4_without_the_optional_parameters_is_judged_a_round_later() {
         let log = FlightLog::new(None, false);
@@ -637,6 +641,10 @@ mod tests {
         p.poll(1.0, false, &log, &counters, &out);
         assert_eq!(p.heading_ours_alone(), None, "the next round is not due yet");
         p.poll(ASK_EVERY_S, false, &log, &counters, &out);
+        assert_eq!(p.heading_ours_alone(), None, "the optional ones asked once more");
+        assert_eq!(sent.borrow().len(), OPTIONAL.len(), "{:?}", sent.borrow());
+        sent.borrow_mut().clear();
+        p.poll(2.0 * ASK_EVERY_S, false, &log, &counters, &out);
         assert_eq!(p.heading_ours_alone(), Some(true), "judged without them");
         assert!(sent.borrow().is_empty(), "nothing asked again: {:?}", sent.borrow());
         assert_eq!(counters.get(Counter::AutopilotParamUnanswered), 0);

@@ -15,41 +15,52 @@ pub(super) use cmsckf_models::atmosphere::isa_height_m;
 /// The gaps are averaged over bins of this length (s): a barometer
 /// scatters by decimetres a reading.
 const BIN_S: f64 = 1.0;
-/// Fewest readings in a bin for it to count.
-const MIN_READINGS: u32 = 3;
 /// Our estimates further apart than this (s) are not interpolated between.
 const MAX_TRACK_GAP_S: f64 = 0.5;
 
 /// Our height change against the barometer's over the flight.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct BarometerGap {
-    /// Bins with a gap.
-    pub samples: u64,
+    /// Bins (of [`BIN_S`]) with a gap.
+    pub bins: u64,
     /// Largest `|our height change − the barometer's|` (m), and when (s of
     /// log time, the bin's start).
     pub max_abs_m: f64,
     pub max_at_s: f64,
     /// The gap in the last bin (m; positive: we are higher).
     pub last_m: f64,
+    /// The autopilot's clock went back (a reboot): only what came before it
+    /// is compared, since our height's origin and the bins' times start
+    /// again there.
+    pub stopped_at_reboot: bool,
+}
+
+/// The first stretch of `series` whose times do not go back.
+fn first_run<T>(series: &[T], t: impl Fn(&T) -> f64) -> (&[T], bool) {
+    let end = series
+        .windows(2)
+        .position(|w| t(&w[1]) < t(&w[0]))
+        .map_or(series.len(), |i| i + 1);
+    (&series[..end], end < series.len())
 }
 
 /// At each of the barometer's readings (`Data::baro`), our height
 /// interpolated from our estimates (`Data::track`) at the reading's time,
 /// less the barometer's; those differences averaged over each [`BIN_S`] bin
-/// with at least [`MIN_READINGS`] of them, and taken from the first such
-/// bin's. `None` for a log without a barometer or an estimate.
+/// holding one or more, and taken from the first bin's. Up to the first
+/// time either series goes back. `None` for a log without a barometer or
+/// an estimate.
 pub(super) fn gap(d: &Data) -> Option<BarometerGap> {
-    let track = &d.track;
+    let (track, track_cut) = first_run(&d.track, |p| p.0);
+    let (baro, baro_cut) = first_run(&d.baro, |p| p.0);
     let mut bins = std::collections::BTreeMap::<i64, (f64, u32)>::new();
-    let mut j = 0;
-    for &(t, h_baro_m) in d.baro.iter().filter(|(t, h)| t.is_finite() && h.is_finite()) {
-        while j + 1 < track.len() && track[j + 1].0 < t {
-            j += 1;
-        }
-        let (Some(a), Some(b)) = (track.get(j), track.get(j + 1)) else {
+    for &(t, h_baro_m) in baro.iter().filter(|(t, h)| t.is_finite() && h.is_finite()) {
+        // The pair of estimates around the reading.
+        let i = track.partition_point(|p| p.0 <= t);
+        let (Some(a), Some(b)) = (i.checked_sub(1).and_then(|k| track.get(k)), track.get(i)) else {
             continue;
         };
-        if !(a.0 <= t && t <= b.0 && b.0 - a.0 <= MAX_TRACK_GAP_S) {
+        if b.0 - a.0 > MAX_TRACK_GAP_S {
             continue;
         }
         let w = if b.0 > a.0 { (t - a.0) / (b.0 - a.0) } else { 0.0 };
@@ -61,20 +72,20 @@ pub(super) fn gap(d: &Data) -> Option<BarometerGap> {
         (bin.0, bin.1) = (bin.0 - down_m - h_baro_m, bin.1 + 1);
     }
     let mut start = None;
-    let mut out = BarometerGap::default();
+    let mut out = BarometerGap {
+        stopped_at_reboot: track_cut || baro_cut,
+        ..BarometerGap::default()
+    };
     for (k, (sum, n)) in bins {
-        if n < MIN_READINGS {
-            continue;
-        }
         let diff = sum / f64::from(n);
         let g = diff - *start.get_or_insert(diff);
-        out.samples += 1;
+        out.bins += 1;
         if g.abs() >= out.max_abs_m {
             (out.max_abs_m, out.max_at_s) = (g.abs(), k as f64 * BIN_S);
         }
         out.last_m = g;
     }
-    (out.samples > 0).then_some(out)
+    (out.bins > 0).then_some(out)
 }
 
 #[cfg(test)]
@@ -98,7 +109,7 @@ mod tests {
             d.track.push((t, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], -climb(t)));
         }
         let g = gap(&d).unwrap();
-        assert_eq!(g.samples, 20, "{g:?}");
+        assert_eq!(g.bins, 20, "{g:?}");
         // A reading between two estimates is set beside ours there, not
         // beside the bin's mean: a climb's slope makes no gap.
         assert!(g.max_abs_m < 0.01, "{g:?}");
@@ -115,5 +126,33 @@ mod tests {
         let mut no_barometer = Data::default();
         no_barometer.track = d.track.clone();
         assert_eq!(gap(&no_barometer), None);
+        // The autopilot reboots at 12 s: its clock starts again at 0, and
+        // only the first 12 s are compared.
+        let mut rebooted = Data::default();
+        rebooted.baro = d
+            .baro
+            .iter()
+            .map(|&(t, h)| if t >= 12.0 { (t - 12.0, h) } else { (t, h) })
+            .collect();
+        rebooted.track = high
+            .track
+            .iter()
+            .map(|&(t, n, e, q, down)| {
+                if t >= 12.0 {
+                    (t - 12.0, n, e, q, down)
+                } else {
+                    (t, n, e, q, down)
+                }
+            })
+            .collect();
+        let g = gap(&rebooted).unwrap();
+        assert!(g.stopped_at_reboot && g.bins == 12, "{g:?}");
+        // Its last bin, 11-12 s: 8 % of the mean climb of its readings (6.475 m).
+        assert!((g.max_abs_m - 0.08 * 6.475).abs() < 0.01 && g.max_at_s == 11.0, "{g:?}");
+        // A barometer read at 1 Hz still counts.
+        let mut slow = Data::default();
+        slow.baro = d.baro.iter().step_by(20).copied().collect();
+        slow.track = d.track.clone();
+        assert_eq!(gap(&slow).map(|g| g.bins), Some(20));
     }
 }

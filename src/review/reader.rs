@@ -236,10 +236,10 @@ impl LogReader {
             match InputRecord::parse(topic, &m.data) {
                 Ok(InputRecord::Autopilot(AutopilotRecord::LocalPosition(l))) => d.autopilot.push((t, l.p_ned_m)),
                 // At the reading's own time (the autopilot's boot clock, as
-                // the log time), unless that is not near its arrival.
-                Ok(InputRecord::Autopilot(AutopilotRecord::Pressure(p))) => {
-                    let at = if (p.t_s - t).abs() < 1.0 { p.t_s } else { t };
-                    d.baro.push((at, super::barometer::isa_height_m(p.p_abs_pa)))
+                // the log time); one stamped far from its arrival (a clock
+                // that restarted between them) is not placed.
+                Ok(InputRecord::Autopilot(AutopilotRecord::Pressure(p))) if (p.t_s - t).abs() < 1.0 => {
+                    d.baro.push((p.t_s, super::barometer::isa_height_m(p.p_abs_pa)))
                 }
                 Ok(InputRecord::Autopilot(AutopilotRecord::Param(p))) => {
                     s.autopilot_params.insert(p.name, p.value);

@@ -90,8 +90,16 @@ impl ReviewSummary {
                     || "not in the log (no SCALED_PRESSURE)".into(),
                     |g| {
                         format!(
-                            "{:.2} m at {:.0} s / {:+.2} m over {} s (a barometer drifts by decimetres too)",
-                            g.max_abs_m, g.max_at_s, g.last_m, g.samples
+                            "{:.2} m at {:.0} s / {:+.2} m over {} s{} (a barometer drifts by decimetres too)",
+                            g.max_abs_m,
+                            g.max_at_s,
+                            g.last_m,
+                            g.bins,
+                            if g.stopped_at_reboot {
+                                ", up to the autopilot's reboot"
+                            } else {
+                                ""
+                            }
                         )
                     },
                 ),

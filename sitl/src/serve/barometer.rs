@@ -33,7 +33,7 @@ impl Barometer {
 
     /// The pressure (Pa) it reads at flight time `t_s` at the true height
     /// `alt_msl_m` (m above mean sea level).
-    pub(super) fn read(&mut self, t_s: f64, alt_msl_m: f64) -> f64 {
+    pub(super) fn read_pa(&mut self, t_s: f64, alt_msl_m: f64) -> f64 {
         let dt_s = self.last_t_s.map_or(0.0, |last| (t_s - last).max(0.0));
         self.last_t_s = Some(t_s);
         self.offset_m += OFFSET_RW_M_PER_SQRT_S * dt_s.sqrt() * self.rng.sample::<f64, _>(StandardNormal);
@@ -54,7 +54,7 @@ mod tests {
         let mut b = Barometer::new(crate::rng::rng_for(1, 13));
         let (mut worst_m, mut last_m) = (0.0f64, 0.0);
         for k in 0..6000 {
-            let h_m = isa_height_m(b.read(k as f64 * 0.1, 500.0)) - 500.0;
+            let h_m = isa_height_m(b.read_pa(k as f64 * 0.1, 500.0)) - 500.0;
             worst_m = worst_m.max(h_m.abs());
             last_m = h_m;
         }

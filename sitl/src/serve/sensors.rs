@@ -94,7 +94,7 @@ impl Streamer<'_> {
         }))
         .await;
         self.send(sim_state(&self.ds.cfg.gnss, &s)).await;
-        let p_pa = self.baro.read(t, truth_llh(&self.ds.cfg.gnss, &s).2);
+        let p_pa = self.baro.read_pa(t, truth_llh(&self.ds.cfg.gnss, &s).2);
         self.send(apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
             time_boot_ms: ms,
             press_abs: (p_pa * 0.01) as f32,

@@ -43,8 +43,7 @@ const MAX_ACCEL_MPS2: f64 = 1600.0;
 const MAX_GYRO_RADPS: f64 = 70.0;
 
 /// Believable barometric pressure (Pa): 300 hPa is 9 km above sea level,
-/// 1100 hPa below the Dead Sea's shore; a margin either side. An autopilot
-/// without a barometer sends 0.
+/// 1100 hPa below the Dead Sea's shore; a margin either side.
 const MIN_PRESSURE_PA: f64 = 10_000.0;
 const MAX_PRESSURE_PA: f64 = 120_000.0;
 
@@ -188,7 +187,10 @@ pub(super) fn decode(msg: apm::MavMessage) -> Result<Inbound, LinkError> {
                 param_type: d.param_type as u8,
             })
         }
-        // hPa and c°C on the wire.
+        // hPa and c°C on the wire. PX4 and ArduPilot send this message
+        // for their airspeed sensor too, with 0 where no barometer reading
+        // is: no reading, not a malformed one.
+        M::SCALED_PRESSURE(d) if d.press_abs == 0.0 => Inbound::Other("SCALED_PRESSURE without a barometer reading"),
         M::SCALED_PRESSURE(d) => {
             let p_abs_pa = finite(d.press_abs)? * 100.0;
             if !(MIN_PRESSURE_PA..=MAX_PRESSURE_PA).contains(&p_abs_pa) {
@@ -256,7 +258,9 @@ mod tests {
     use super::*;
 
     /// `SCALED_PRESSURE` in SI units; one that is not a number, or no
-    /// barometer's reading (0, an absurd value), is refused and counted.
+    /// barometer's reading (an absurd value), is refused and counted; 0
+    /// (the message sent for an airspeed sensor, with no barometer reading)
+    /// is no reading, neither taken nor refused.
     #[test]
     fn a_barometer_reading_is_taken_in_pascals_and_a_wrong_one_refused() {
         let m = |press_abs: f32| {
@@ -288,9 +292,10 @@ mod tests {
         };
         refused(f32::NAN, Counter::MavlinkRejectedNonFinite);
         refused(f32::INFINITY, Counter::MavlinkRejectedNonFinite);
-        refused(0.0, Counter::MavlinkRejectedPressureOutOfRange);
         refused(-1013.0, Counter::MavlinkRejectedPressureOutOfRange);
+        refused(50.0, Counter::MavlinkRejectedPressureOutOfRange);
         refused(5_000.0, Counter::MavlinkRejectedPressureOutOfRange);
+        assert!(matches!(decode(m(0.0)), Ok(Inbound::Other(_))), "{:?}", decode(m(0.0)));
     }
 
     /// Red-team 08: a NaN in a field we do not use (the compass ratio) used
