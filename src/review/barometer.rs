@@ -35,11 +35,16 @@ pub struct BarometerGap {
     pub stopped_at_reboot: bool,
 }
 
-/// The first stretch of `series` whose times do not go back.
+/// A clock going back by more than this (s) has restarted; less is a
+/// record written out of order.
+const REBOOT_STEP_S: f64 = 1.0;
+
+/// The first stretch of `series` whose times do not go back by more than
+/// [`REBOOT_STEP_S`].
 fn first_run<T>(series: &[T], t: impl Fn(&T) -> f64) -> (&[T], bool) {
     let end = series
         .windows(2)
-        .position(|w| t(&w[1]) < t(&w[0]))
+        .position(|w| t(&w[1]) < t(&w[0]) - REBOOT_STEP_S)
         .map_or(series.len(), |i| i + 1);
     (&series[..end], end < series.len())
 }
