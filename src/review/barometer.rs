@@ -10,8 +10,6 @@ use serde::Serialize;
 
 use super::reader::Data;
 
-pub(super) use cmsckf_models::atmosphere::isa_height_m;
-
 /// The gaps are averaged over bins of this length (s): a barometer
 /// scatters by decimetres a reading.
 const BIN_S: f64 = 1.0;
@@ -96,6 +94,7 @@ pub(super) fn gap(d: &Data) -> Option<BarometerGap> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use cmsckf_models::atmosphere::isa_height_m;
 
     /// A climb of 10 m that the barometer sees as we do has no gap; ours
     /// 8 % high from t = 10 s shows by how much, when, and at the end; a

@@ -27,7 +27,7 @@ pub(super) struct Data {
     /// A simulator's truth (`SIM_STATE`) in our world frame: `t, n, e, d`.
     pub truth: Vec<(f64, [f64; 3])>,
     /// The autopilot's barometer as the standard atmosphere's height:
-    /// `t, h` (m; [`super::barometer::isa_height_m`]).
+    /// `t, h` (m; [`cmsckf_models::atmosphere::isa_height_m`]).
     pub baro: Vec<(f64, f64)>,
     /// The estimate's position σ (north, east, down; m) at each
     /// `/filter/state` record: `t, σ`.
@@ -238,9 +238,9 @@ impl LogReader {
                 // At the reading's own time (the autopilot's boot clock, as
                 // the log time); one stamped far from its arrival (a clock
                 // that restarted between them) is not placed.
-                Ok(InputRecord::Autopilot(AutopilotRecord::Pressure(p))) if (p.t_s - t).abs() < 1.0 => {
-                    d.baro.push((p.t_s, super::barometer::isa_height_m(p.p_abs_pa)))
-                }
+                Ok(InputRecord::Autopilot(AutopilotRecord::Pressure(p))) if (p.t_s - t).abs() < 1.0 => d
+                    .baro
+                    .push((p.t_s, cmsckf_models::atmosphere::isa_height_m(p.p_abs_pa))),
                 Ok(InputRecord::Autopilot(AutopilotRecord::Param(p))) => {
                     s.autopilot_params.insert(p.name, p.value);
                 }
