@@ -480,9 +480,17 @@ impl SimConfig {
         }
     }
 
-    /// Parses TOML, rejecting unknown keys, and validates every value.
+    /// Parses TOML over [`Self::new`]'s defaults, rejecting unknown keys,
+    /// and validates every value.
     pub fn from_toml(text: &str) -> Result<Self, String> {
-        let mut base: toml::Value = toml::Value::try_from(Self::new()).map_err(|e| e.to_string())?;
+        Self::from_toml_onto(&Self::new(), text)
+    }
+
+    /// Parses TOML over `base`: what the text names replaces base's, the
+    /// rest stays base's (a table's keys one by one). Rejects unknown keys
+    /// and validates every value.
+    pub fn from_toml_onto(base: &Self, text: &str) -> Result<Self, String> {
+        let mut base: toml::Value = toml::Value::try_from(base).map_err(|e| e.to_string())?;
         let over: toml::Value = toml::from_str(text).map_err(|e| e.to_string())?;
         merge(&mut base, over);
         let cfg: Self = base.try_into().map_err(|e: toml::de::Error| e.to_string())?;
@@ -538,6 +546,26 @@ impl Validate for SimConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What a TOML leaves out stays the base's: an evaluation's camera and
+    /// IMU are its `--config`'s unless its `--sim-config` names them.
+    #[test]
+    fn toml_onto_a_base_keeps_what_it_does_not_name() {
+        let mut base = SimConfig::new();
+        base.camera.q_B_C_xyzw = [0.35, 0.35, 0.61, 0.61];
+        base.imu.accel_noise_density = 0.12;
+        let c = SimConfig::from_toml_onto(
+            &base,
+            "[features]\noutlier_prob = 0.0\n[imu]\ngyro_noise_density = 0.008\n",
+        )
+        .unwrap();
+        assert_eq!(c.camera, base.camera);
+        assert_eq!(c.imu.accel_noise_density, 0.12);
+        assert_eq!(c.imu.gyro_noise_density, 0.008);
+        assert_eq!(c.features.outlier_prob, 0.0);
+        let e = SimConfig::from_toml_onto(&base, "[camera]\nrate_hz = -1.0\n").unwrap_err();
+        assert!(e.contains("camera.rate_hz"), "{e}");
+    }
     use nalgebra::Vector3;
 
     #[test]

@@ -98,7 +98,7 @@ pub fn demo(args: DemoArgs) -> anyhow::Result<()> {
     if let Some(p) = sim_config {
         // The daemon's config describes the sensors; the simulator's, how
         // they and the world behave.
-        sim = super::load_sim_config(&p)?;
+        sim = super::load_sim_config(&p, &sim)?;
         sim.camera = cfg.camera.clone();
         sim.imu = cfg.imu.clone();
     }

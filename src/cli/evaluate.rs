@@ -39,7 +39,8 @@ pub struct EvaluateArgs {
     /// Config file (TOML); the defaults otherwise.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Simulator settings (TOML) overriding the defaults.
+    /// Simulator settings (TOML) over those the config gives: the simulated
+    /// camera and IMU are the config's unless the file names them
     #[arg(long)]
     sim_config: Option<PathBuf>,
     /// Print one JSON object instead of the table.
@@ -96,7 +97,7 @@ pub fn evaluate(args: EvaluateArgs) -> anyhow::Result<()> {
     let modes = parse_modes(&modes)?;
     let mut sim = eval::sim_config_for(&cfg);
     if let Some(p) = sim_config {
-        sim = super::load_sim_config(&p)?;
+        sim = super::load_sim_config(&p, &sim)?;
     }
     let quiet = json;
     let spec = eval::EvalSpec {

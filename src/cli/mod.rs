@@ -73,13 +73,18 @@ fn load_config(path: &Option<PathBuf>) -> anyhow::Result<Config> {
     })
 }
 
-/// `--sim-config`: simulator settings (TOML) replacing those derived from
-/// the config.
+/// `--sim-config`: simulator settings (TOML) over `derived`, those derived
+/// from the config: what the file leaves out stays as the config says (its
+/// camera and IMU among them, so that the simulated sensors are the ones
+/// the filter is told of unless the file says otherwise).
 #[cfg(feature = "sim")]
-fn load_sim_config(p: &std::path::Path) -> anyhow::Result<cmsckf_sitl::config::SimConfig> {
+fn load_sim_config(
+    p: &std::path::Path,
+    derived: &cmsckf_sitl::config::SimConfig,
+) -> anyhow::Result<cmsckf_sitl::config::SimConfig> {
     use anyhow::Context;
     let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-    cmsckf_sitl::config::SimConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+    cmsckf_sitl::config::SimConfig::from_toml_onto(derived, &text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
 }
 
 /// Refuses a flight length outside (1, 86400] s.
