@@ -79,16 +79,6 @@ const EKF_POS_VERT_ABS: u16 = 0x20;
 /// makes only from a range finder or optical flow, neither ours.
 const EKF_POS_VERT_AGL: u16 = 0x40;
 
-/// A camera-to-body rotation (`[x, y, z, w]`) turned about the body's y axis
-/// so that the optical axis points `deg` below where it did (FRD: +z down).
-#[allow(non_snake_case)] // names carry frames
-fn tilted_down(q_B_C_xyzw: [f64; 4], deg: f64) -> [f64; 4] {
-    let [x, y, z, w] = q_B_C_xyzw;
-    let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-    let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -deg.to_radians()) * q;
-    [q.i, q.j, q.k, q.w]
-}
-
 /// The fixture's folder, or why the test cannot run.
 fn fixture() -> Result<PathBuf, String> {
     let dir = std::env::var_os("CMSCKF_PX4_SITL")
@@ -244,38 +234,25 @@ fn px4_flies_on_cmsckf_alone() {
     // SIH's IMU runs at 250 Hz: all of it, as on a real PX4 at its
     // IMU_INTEG_RATE (docs/setup-px4.md).
     cfg.mavlink.imu_rate_hz = 250.0;
-    // The camera at 20 Hz, as EuRoC's: the renderer draws each frame on the
-    // same two cores as PX4, the daemon and the tracker. At 30 Hz, in the
-    // tests' build (`cargo test`, not `--release`), rendering took 28-34 ms
-    // of the 36 ms between frames, and a loaded machine skipped 19-22 % of
-    // them (372 of 1699 in CI at 2026-12-06); at 20 Hz, 6-24 of 1200.
-    cfg.camera.rate_hz = 20.0;
-    // The camera looks 30° below the body's nose, as a drone's tracking
-    // camera is mounted to see the ground ahead. In twelve flights at
-    // 2026-12-07, the mounts mostly alternating (SIH draws the same noise
-    // at the same instant of each flight, so only the camera differed),
-    // the box's max was 0.32-0.65 m (median 0.49) against 0.53-0.65 m
-    // (median 0.62) looking level, the hover 0.17-0.57 m against
-    // 0.21-0.54 m; at 45° every touchdown failed (docs/setup-px4.md, "The
-    // camera's mount"). Those flights were over a ground with no detail
-    // finer than 0.2 m; the renderer's ground now has some down to
-    // centimetres ("The lift-off over a textured ground").
-    cfg.camera.q_B_C_xyzw = tilted_down(cfg.camera.q_B_C_xyzw, 30.0);
-    // Read back as the estimator reads the config.
-    let optical_axis = cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C.rotation * Vector3::z();
-    let want = Vector3::new(30f64.to_radians().cos(), 0.0, 30f64.to_radians().sin());
-    assert!((optical_axis - want).norm() < 1e-12, "optical axis {optical_axis:?}");
-    // SIH's IMU in flight: broadband noise of about 0.07 rad/s and 0.87
-    // m/s² per sample at 250 Hz on its worst axes (measured from the
-    // flight log's /input/imu, the second half of the take-off to the
-    // landing; 0.005 rad/s and 0.05 m/s² standing), 0.0045 rad/s/√Hz and
-    // 0.055 m/s²/√Hz: 26 and 27 times the defaults, which are a
-    // calibrated IMU's. A user sets them from their own flight's log
-    // (docs/setup-px4.md); with the defaults the filter trusts the IMU 26
-    // times too much and its tracks fail their gates within 4 s of the
-    // take-off.
-    cfg.imu.gyro_noise_density = 0.008;
-    cfg.imu.accel_noise_density = 0.12;
+    // The sensors as the daemon is told of them beside SIH, from the file a
+    // user (and `cmsckf evaluate --config`, which flies them in the
+    // simulator) reads them from: the camera 30° below the body's nose at
+    // 20 Hz, SIH's IMU noise (config/px4-sih.toml says why each; the
+    // config's tests check that it reads back 30° down). In
+    // twelve flights at 2026-12-07, the mounts mostly alternating (SIH
+    // draws the same noise at the same instant of each flight, so only the
+    // camera differed), the box's max was 0.32-0.65 m (median 0.49) at 30°
+    // against 0.53-0.65 m (median 0.62) looking level, the hover 0.17-0.57
+    // m against 0.21-0.54 m; at 45° every touchdown failed
+    // (docs/setup-px4.md, "The camera's mount"). Those flights were over a
+    // ground with no detail finer than 0.2 m; the renderer's ground now has
+    // some down to centimetres ("The lift-off over a textured ground").
+    let px4 = cmsckf::config::Config::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/px4-sih.toml"))
+        .expect("config/px4-sih.toml");
+    cfg.camera.rate_hz = px4.camera.rate_hz;
+    cfg.camera.q_B_C_xyzw = px4.camera.q_B_C_xyzw;
+    cfg.imu.accel_noise_density = px4.imu.accel_noise_density;
+    cfg.imu.gyro_noise_density = px4.imu.gyro_noise_density;
     cfg.gnss.source = cmsckf::config::GnssSource::Off;
     cfg.gnss.origin_llh = vec![HOME[0], HOME[1], geoid::ellipsoid_from_msl(HOME[0], HOME[1], HOME[2])];
     cfg.output.set_gps_origin = true;

@@ -111,3 +111,22 @@ fn signing_key_file_must_be_private_and_hex() {
         .to_string();
     assert!(e.contains("cannot read"), "{e}");
 }
+
+/// `config/px4-sih.toml` (the sensors beside PX4's SIH, read by
+/// tests/px4_sitl.rs and given to `cmsckf evaluate --config`) is the
+/// defaults but for the keys it names: the camera 30° below the nose at
+/// 20 Hz, and SIH's IMU noise.
+#[test]
+fn the_px4_sih_file_changes_only_the_camera_mount_its_rate_and_the_imu_noise() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/px4-sih.toml");
+    let cfg = Config::load(&path).unwrap();
+    let mut want = Config::default();
+    want.camera.q_B_C_xyzw = cfg.camera.q_B_C_xyzw;
+    want.camera.rate_hz = 20.0;
+    want.imu.accel_noise_density = 0.12;
+    want.imu.gyro_noise_density = 0.008;
+    assert_eq!(cfg, want);
+    let axis = cmsckf_models::camera::Camera::from_config(&cfg.camera).T_B_C.rotation * nalgebra::Vector3::z();
+    let down_30 = nalgebra::Vector3::new(30f64.to_radians().cos(), 0.0, 30f64.to_radians().sin());
+    assert!((axis - down_30).norm() < 1e-12, "optical axis {axis:?}");
+}
