@@ -552,7 +552,12 @@ mod tests {
     #[test]
     fn toml_onto_a_base_keeps_what_it_does_not_name() {
         let mut base = SimConfig::new();
-        base.camera.q_B_C_xyzw = [0.35, 0.35, 0.61, 0.61];
+        base.camera.q_B_C_xyzw = [
+            0.3535533905932738,
+            0.3535533905932738,
+            0.6123724356957945,
+            0.6123724356957945,
+        ];
         base.imu.accel_noise_density = 0.12;
         let c = SimConfig::from_toml_onto(
             &base,
