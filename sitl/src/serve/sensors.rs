@@ -93,8 +93,10 @@ impl Streamer<'_> {
             vz: v_B_in_W.z as f32,
         }))
         .await;
-        self.send(sim_state(&self.ds.cfg.gnss, &s)).await;
-        let p_pa = self.baro.read_pa(t, truth_llh(&self.ds.cfg.gnss, &s).2);
+        // The truth's place, once for the two messages that carry it.
+        let llh = truth_llh(&self.ds.cfg.gnss, &s);
+        self.send(sim_state(&s, llh)).await;
+        let p_pa = self.baro.read_pa(t, llh.2);
         self.send(apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
             time_boot_ms: ms,
             press_abs: (p_pa * 0.01) as f32,
@@ -224,10 +226,6 @@ fn gps_global_origin(g: &GnssSimConfig, boot_us: u64) -> apm::MavMessage {
     })
 }
 
-/// The truth as `SIM_STATE`, as ArduPilot's SITL sends it: for review
-/// only (the daemon logs it and never fuses it). Latitude and longitude in
-/// the MAVLink 2 extensions `lat_int`/`lon_int` (degE7) as well as the f32
-/// degrees; the altitude above mean sea level.
 /// The truth's latitude, longitude (deg) and height above mean sea level
 /// (m).
 fn truth_llh(g: &GnssSimConfig, s: &TruthSample) -> (f64, f64, f64) {
@@ -242,8 +240,11 @@ fn truth_llh(g: &GnssSimConfig, s: &TruthSample) -> (f64, f64, f64) {
     )
 }
 
-fn sim_state(g: &GnssSimConfig, s: &TruthSample) -> apm::MavMessage {
-    let (lat_deg, lon_deg, alt_msl_m) = truth_llh(g, s);
+/// The truth as `SIM_STATE`, as ArduPilot's SITL sends it: for review
+/// only (the daemon logs it and never fuses it), at `llh` ([`truth_llh`]).
+/// Latitude and longitude in the MAVLink 2 extensions `lat_int`/`lon_int`
+/// (degE7) as well as the f32 degrees; the altitude above mean sea level.
+fn sim_state(s: &TruthSample, (lat_deg, lon_deg, alt_msl_m): (f64, f64, f64)) -> apm::MavMessage {
     let q = s.q_W_B;
     let (roll, pitch, yaw) = q.euler_angles();
     apm::MavMessage::SIM_STATE(apm::SIM_STATE_DATA {
