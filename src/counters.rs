@@ -195,6 +195,17 @@ counters! {
     ZuptUpdates = "zupt_updates", event;
     /// A zero-velocity update failed its χ² gate.
     ZuptChi2 = "zupt_chi2", event;
+    /// Barometer readings fused as a height (§3g), refused by their χ²
+    /// gate, and refused as older than the filter by more than 0.2 s.
+    BaroUpdates = "baro_updates", event;
+    BaroRefused = "baro_refused", event;
+    BaroLate = "baro_late", event;
+    /// The gate refused five readings in a row: the height's variance was
+    /// raised and the reading fused (estimator README §3g, B3).
+    BaroHeightReset = "baro_height_reset", event;
+    /// A reading stamped over 1 s ahead of the IMU or 5 s behind it, or
+    /// whose pressure gives no height: not fused.
+    BaroTimeOff = "baro_time_off", event;
     /// The accepted tracks' NIS, summed (in thousandths), and their degrees
     /// of freedom: their ratio is the NIS per degree of freedom, 1 for a
     /// consistent filter (`demo --json`'s `nis_per_dof`).

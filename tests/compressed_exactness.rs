@@ -528,3 +528,47 @@ fn a_rebase_with_no_global_part_left_keeps_no_base_space() {
     assert!(empty_seen > 0, "no rebase left an empty global part");
     assert!(worst <= STATE_DRIFT, "differs from full by {worst:e}");
 }
+
+/// The barometer's offset set while keyframes are global (README §3g, eq.
+/// B2: its row of `Φ̃` is the height's) and a reading then fused give in
+/// compressed mode what they give in full mode, from a common state, to
+/// round-off. (Over whole flights the readings come from the first second,
+/// before any global part: `compressed_equals_full_after_every_global_update`.)
+#[test]
+fn a_barometer_anchored_with_global_keyframes_equals_full() {
+    let (ds, mut cfg) = racetrack(1, 75.0);
+    cfg.barometer.fuse = false;
+    let mut c = eval::Runner::new(&ds, &cfg, Mode::Compressed, 1);
+    let mut k = 0;
+    while k < ds.frames.len() && c.est.n_global_keyframes() < 3 {
+        c.step_frame(k);
+        k += 1;
+    }
+    assert!(c.est.n_global_keyframes() >= 3, "no global part by the end");
+    let mut f = c.clone();
+    f.est = f.est.into_mode(Mode::Full);
+    let t_s = c.est.time_s();
+    let h_m = -c.est.imu_state().p_B_in_W.z + 0.3;
+    for r in [&mut c, &mut f] {
+        assert!(matches!(
+            r.est.process_baro(t_s, h_m).unwrap(),
+            cmsckf::estimator::BaroOutcome::Anchored { .. }
+        ));
+        assert!(matches!(
+            r.est.process_baro(t_s, h_m + 0.2).unwrap(),
+            cmsckf::estimator::BaroOutcome::Fused { .. }
+        ));
+    }
+    let (cov, state) = c.est.snapshot().max_rel_diff_parts(&f.est.snapshot());
+    eprintln!("barometer on a global part: covariance {cov:e}, state {state:e} (normalised)");
+    assert!(cov <= 1e-12, "covariance differs from full by {cov:e}");
+    assert!(state <= 5e-12, "state differs from full by {state:e} σ");
+    // And through the next global update.
+    let mut cc = c.clone();
+    cc.force_global_update();
+    let (cov, state) = cc.est.snapshot().max_rel_diff_parts(&f.est.snapshot());
+    assert!(
+        cov <= 1e-12 && state <= 5e-12,
+        "after a global update: {cov:e}, {state:e}"
+    );
+}

@@ -20,6 +20,7 @@
 #![allow(non_snake_case)] // names carry frames: p_B_in_W, R_W_B, T_B_C
 #![allow(clippy::needless_range_loop)] // index loops mirror the equations
 
+pub mod barometer;
 pub mod config;
 pub mod dataset;
 pub mod euroc;

@@ -56,6 +56,7 @@ pub struct Config {
     pub compressed: CompressedConfig,
     pub gnss: GnssConfig,
     pub zupt: ZuptConfig,
+    pub barometer: BarometerConfig,
     pub output: OutputConfig,
     pub log: LogConfig,
     pub live_view: LiveViewConfig,
@@ -626,6 +627,33 @@ impl Default for ZuptConfig {
             max_disparity_px: 3.0,
             max_speed_mps: 0.5,
             sigma_mps: 0.01,
+        }
+    }
+}
+
+/// The autopilot's barometer (`SCALED_PRESSURE`) as a height with an
+/// offset the filter estimates (estimator README §3g). It is logged
+/// whether or not it is fused.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct BarometerConfig {
+    /// Fuse it: the height's changes then follow the barometer's, and a
+    /// climb flown at the wrong scale is pulled back.
+    pub fuse: bool,
+    /// One reading's white noise (m, 1σ): about 0.1 for a MEMS barometer
+    /// at 10 Hz; more beside propellers' wash.
+    pub noise_m: f64,
+    /// How fast its zero wanders with temperature and weather (m/√s).
+    pub offset_rw_m_per_sqrt_s: f64,
+}
+
+impl Default for BarometerConfig {
+    fn default() -> Self {
+        let b = crate::estimator::BaroSettings::default();
+        Self {
+            fuse: true,
+            noise_m: b.noise_m,
+            offset_rw_m_per_sqrt_s: b.offset_rw_m_per_sqrt_s,
         }
     }
 }

@@ -67,6 +67,11 @@ impl Config {
                 max_speed_mps: c.zupt.max_speed_mps,
                 sigma_mps: c.zupt.sigma_mps,
             },
+            baro: crate::estimator::BaroSettings {
+                noise_m: c.barometer.noise_m,
+                offset_rw_m_per_sqrt_s: c.barometer.offset_rw_m_per_sqrt_s,
+                ..Default::default()
+            },
             health_grace_s: c.estimator.health_grace_s,
             imu_gap: crate::estimator::propagate::GapNoise {
                 sigma_rate_radps: c.estimator.imu_gap_sigma_rate_radps,

@@ -15,6 +15,7 @@ impl Config {
         self.imu.validate("imu")?;
         self.validate_estimator()?;
         self.validate_zupt()?;
+        self.validate_barometer()?;
         self.validate_init()?;
         self.validate_keyframe()?;
         self.validate_compressed()?;
@@ -177,6 +178,14 @@ impl Config {
         c.positive("max_disparity_px", z.max_disparity_px, 1000.0)?;
         c.positive("max_speed_mps", z.max_speed_mps, 100.0)?;
         c.positive("sigma_mps", z.sigma_mps, 10.0)
+    }
+
+    /// `[barometer]`: the reading's noise and the offset's walk.
+    fn validate_barometer(&self) -> Result<(), FieldError> {
+        let b = &self.barometer;
+        let c = Check::new("barometer");
+        c.positive("noise_m", b.noise_m, 100.0)?;
+        c.positive("offset_rw_m_per_sqrt_s", b.offset_rw_m_per_sqrt_s, 10.0)
     }
 
     /// `[init]`: the static window, the yaw and the initial sigmas.

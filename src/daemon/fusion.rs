@@ -87,6 +87,9 @@ pub struct Fusion {
     /// A compass start's running mean while the vehicle stands, and the
     /// attitude it stood at (`on_magnetometer`).
     compass: Option<(CompassMean, StillSinceStart)>,
+    /// The barometer's offset `(m, m², s)` a filter restarted in flight
+    /// had learned, for the next one (estimator README §3g, B4).
+    baro_carry: Option<(f64, f64, f64)>,
     log: FlightLog,
 }
 
@@ -183,6 +186,7 @@ impl Fusion {
             pacer: OutputPacer::new(&cfg),
             cross_check: VelocityCrossCheck::default(),
             compass: None,
+            baro_carry: None,
             log: FlightLog::new(log, cfg.log.new_log_on_disarm),
             cfg,
         }
@@ -227,6 +231,18 @@ impl Fusion {
                     &ctx.counters,
                 );
                 self.on_magnetometer(&mag_B, &ctx.counters);
+            }
+            // Logged whether or not it is fused; fused in time order once
+            // IMU covers it (§3g).
+            FusionMsg::Pressure(p) => {
+                self.autopilot.on_message(
+                    FusionMsg::Pressure(p),
+                    self.last_imu_t,
+                    &mut self.gnss,
+                    &self.log,
+                    &ctx.counters,
+                );
+                self.on_pressure(&p, &ctx.counters);
             }
             FusionMsg::AutopilotParam(p) => {
                 self.autopilot
@@ -274,6 +290,23 @@ impl Fusion {
 
     /// RTCM: logged, then each completed epoch's measurements wait in time
     /// order for IMU to cover them.
+    /// A barometer reading to fuse (`barometer.fuse`), queued at its time:
+    /// one stamped more than [`FRAME_MAX_LAG_S`] behind the IMU or
+    /// [`FRAME_MAX_LEAD_S`] ahead of it (another clock) is refused and
+    /// counted, as is one whose pressure gives no finite height.
+    fn on_pressure(&mut self, p: &crate::io::mcap_log::input::PressureRecord, counters: &Counters) {
+        if !self.cfg.barometer.fuse || self.est.is_none() {
+            return;
+        }
+        let h_m = cmsckf_models::atmosphere::isa_height_m(p.p_abs_pa);
+        let dt_s = p.t_s - self.last_imu_t;
+        if !(h_m.is_finite() && dt_s.is_finite() && dt_s < FRAME_MAX_LEAD_S && dt_s > -FRAME_MAX_LAG_S) {
+            counters.add(Counter::BaroTimeOff, 1);
+            return;
+        }
+        self.queue.enqueue(p.t_s, Pending::Baro(h_m), counters);
+    }
+
     fn on_rtcm(&mut self, bytes: &[u8], stream: RtcmStream, counters: &Counters) {
         self.log.input(
             self.last_imu_t,
@@ -556,6 +589,11 @@ impl Fusion {
             .filter(|_| est.mode() != crate::estimator::Mode::Schmidt)
             .map(|c| (c, StillSinceStart::new(&est.imu_state().q_W_B)));
         est.set_async_rebase(!matches!(self.rebase, RebaseExec::Inline));
+        if let Some((b, var, t0)) = self.baro_carry.take() {
+            // What the offset walked while no filter held it.
+            let walk = self.cfg.barometer.offset_rw_m_per_sqrt_s.powi(2) * (t_s - t0).max(0.0);
+            est.carry_baro_offset(b, var + walk);
+        }
         self.est_gen += 1;
         self.est = Some(est);
         self.started_unlocated = self.gnss.frame().is_none();
@@ -685,6 +723,16 @@ impl Fusion {
             text: format!("cmsckf reset: {why}"),
         });
         self.end_compass_mean(t_s, "the filter restarted");
+        // The barometer's offset is the sensor's: kept through a restart in
+        // the same world frame and clock (not a reboot's, not a new origin's).
+        self.baro_carry = match kind {
+            Restart::Reboot | Restart::Located => None,
+            Restart::Gap | Restart::Unhealthy => self
+                .est
+                .as_ref()
+                .and_then(|e| e.baro_offset())
+                .map(|(b, var)| (b, var, t_s)),
+        };
         self.est = None;
         self.cross_check.reset();
         self.starter.plan_restart(t_s, kind, &self.cfg, &self.autopilot);

@@ -15,7 +15,7 @@ use super::rebase::{dispatch_rebase, RebaseExec};
 use super::PENDING_FRAMES;
 use crate::counters::{Counter, Counters};
 use crate::estimator::frontend::NormFrame;
-use crate::estimator::{Estimator, FilterEvent, FrameReport};
+use crate::estimator::{BaroOutcome, Estimator, FilterEvent, FrameReport};
 use crate::io::mcap_log::{McapLogger, Topic};
 use crate::status::Tracker;
 
@@ -24,6 +24,8 @@ use crate::status::Tracker;
 pub(super) enum Pending {
     Frame(NormFrame),
     Gnss(Vec<SatMeas>),
+    /// A barometer reading as the standard atmosphere's height (m, up).
+    Baro(f64),
 }
 
 /// The measurements waiting for IMU, in time order (bounded: the oldest is
@@ -119,6 +121,7 @@ impl MeasurementQueue {
                     fused.camera_moved |= fuse_frame(est, t, &fr, &mut self.landmarks, &mut cx);
                 }
                 Pending::Gnss(sats) => fuse_gnss(est, t, &sats, &mut cx),
+                Pending::Baro(h_m) => fuse_baro(est, t, h_m, &cx),
             }
         }
         fused
@@ -131,6 +134,65 @@ impl MeasurementQueue {
 pub(super) struct Fused {
     /// A frame's features said the vehicle moved (`FrameReport::camera_moved`).
     pub camera_moved: bool,
+}
+
+/// One barometer reading into the filter (§3g), its update to the log.
+fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
+    let counters = cx.counters;
+    let outcome = match est.process_baro(t, h_m) {
+        Ok(o) => o,
+        Err(e) => {
+            counters.add(Counter::BaroLate, 1);
+            tracing::warn!(reason = "baro_late", error = %e, "barometer reading not fused");
+            return;
+        }
+    };
+    let (name, residual, sigma) = match outcome {
+        BaroOutcome::Anchored { .. } => ("anchored", None, None),
+        BaroOutcome::Fused {
+            residual_m, sigma_m, ..
+        } => {
+            counters.add(Counter::BaroUpdates, 1);
+            ("fused", Some(residual_m), Some(sigma_m))
+        }
+        BaroOutcome::Refused {
+            residual_m, sigma_m, ..
+        } => {
+            counters.add(Counter::BaroRefused, 1);
+            ("refused", Some(residual_m), Some(sigma_m))
+        }
+        BaroOutcome::HeightReset {
+            residual_m,
+            sigma_m,
+            added_var_m2,
+        } => {
+            counters.add(Counter::BaroUpdates, 1);
+            counters.add(Counter::BaroHeightReset, 1);
+            tracing::warn!(
+                reason = "baro_height_reset",
+                residual_m,
+                sigma_m,
+                added_sigma_m = added_var_m2.sqrt(),
+                "the barometer disagreed with our height beyond its gate five times in a row: the height's \
+                 variance was raised and the barometer fused"
+            );
+            ("height_reset", Some(residual_m), Some(sigma_m))
+        }
+    };
+    if let Some(l) = cx.log {
+        let offset = est.baro_offset();
+        l.log(
+            Topic::FilterBaro,
+            t,
+            &json!({
+                "t_s": t, "h_m": h_m, "outcome": name,
+                "residual_m": residual.filter(|x| x.is_finite()),
+                "sigma_m": sigma.filter(|x| x.is_finite()),
+                "offset_m": offset.map(|o| o.0),
+                "offset_sigma_m": offset.map(|o| o.1.max(0.0).sqrt()),
+            }),
+        );
+    }
 }
 
 /// One GNSS epoch into the filter (once the world origin is known).

@@ -11,7 +11,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use super::math::{self, exp_so3};
 use super::propagate;
-use super::{Estimator, MatActive, Mode, ACTIVE_DIM, CLK_B, CLOCK_DIM, GNSS_CLONE_DIM, IMU_DIM, POSE_IDX, TD};
+use super::{Estimator, MatActive, Mode, ACTIVE_DIM, BARO, CLK_B, CLOCK_DIM, GNSS_CLONE_DIM, IMU_DIM, POSE_IDX, TD};
 
 impl Estimator {
     /// Propagates the active block with the transition `f` and noise `q` of
@@ -331,6 +331,7 @@ impl Estimator {
         self.fej_dp += dx.fixed_rows::<3>(propagate::P);
         self.clock += dx.fixed_rows::<CLOCK_DIM>(CLK_B);
         self.t_d_s += dx[TD];
+        self.baro.value_m += dx[BARO];
         for (j, id) in self.local_kfs.clone().iter().enumerate() {
             let o = self.kf_offset(j);
             let kf = self.keyframes.get_mut(id).expect("local keyframe exists");

@@ -26,6 +26,7 @@
 //! [`Global`]: `P_LG(0)`, `P_GG(0)` frozen at the last global update plus the
 //! accumulated `Φ`, `Ψ` and `q` (§5).
 
+pub mod barometer;
 pub mod compressed;
 mod covariance;
 pub mod feature;
@@ -51,6 +52,7 @@ mod zupt;
 use crate::counters::Counter;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
+pub use barometer::BaroOutcome;
 use compressed::Global;
 pub use compressed::{InstallError, RebaseJob, RebaseResult};
 
@@ -67,7 +69,7 @@ pub use inspect::SchmidtDowndate;
 use math::exp_so3;
 pub use propagate::{ImuMeas, ImuState, Mat15, IMU_DIM};
 pub use range_bias::RangeBiasEstimate;
-pub use settings::{Mode, Settings, ZuptSettings};
+pub use settings::{BaroSettings, Mode, Settings, ZuptSettings};
 pub use snapshot::Snapshot;
 
 /// The constellations with an inter-system bias state, in state order:
@@ -82,8 +84,9 @@ pub const CLOCK_DIM: usize = 2 + ISB_SYSTEMS.len();
 pub type ClockVec = nalgebra::SVector<f64, CLOCK_DIM>;
 /// Active (always-local) states: the IMU, then the GNSS receiver clock
 /// ([`CLOCK_DIM`]), then the camera–IMU time offset `t_d` (s,
-/// `t_imu = t_cam + t_d`, §3b).
-pub const ACTIVE_DIM: usize = IMU_DIM + CLOCK_DIM + 1;
+/// `t_imu = t_cam + t_d`, §3b), then the barometer's offset `b_h` (m,
+/// §3g).
+pub const ACTIVE_DIM: usize = IMU_DIM + CLOCK_DIM + 2;
 /// Offsets of the clock bias, drift and the first inter-system bias
 /// (Galileo's; the others follow in [`ISB_SYSTEMS`] order).
 pub const CLK_B: usize = IMU_DIM;
@@ -91,6 +94,8 @@ pub const CLK_D: usize = IMU_DIM + 1;
 pub const CLK_E: usize = IMU_DIM + 2;
 /// Offset of the camera–IMU time offset.
 pub const TD: usize = IMU_DIM + CLOCK_DIM;
+/// Offset of the barometer's offset `b_h` (§3g).
+pub const BARO: usize = TD + 1;
 
 /// The inter-system-bias slot of a constellation (its index in
 /// [`ISB_SYSTEMS`]); `None` for GPS and QZSS, which use GPS's bias.
@@ -149,6 +154,10 @@ pub enum InputError {
     FrameTimeBackwards { t_s: f64, filter_s: f64 },
     #[error("IMU buffer full ({0} samples); oldest dropped")]
     ImuOverflow(usize),
+    #[error("non-finite barometer height {h_m} m at t = {t_s} s")]
+    NonFiniteBaro { t_s: f64, h_m: f64 },
+    #[error("barometer reading at {t_s} s is {late_s:.3} s behind the filter (at most {max_s} s)")]
+    BaroLate { t_s: f64, late_s: f64, max_s: f64 },
     #[error("GNSS epoch at {t_s} s is {late_s:.3} s behind the filter: past the {max_s} s it may be late, or no clone was taken at its instant")]
     GnssLate { t_s: f64, late_s: f64, max_s: f64 },
 }
@@ -271,6 +280,8 @@ pub struct Stats {
     pub loop_closure_deferred: u64,
     pub keyframes_created: u64,
     pub keyframes_marginalised: u64,
+    /// Barometer readings fused (§3g).
+    pub baro_updates: u64,
     /// GNSS epochs fused (on time or through their clone).
     pub gnss_epochs_fused: u64,
     /// Of those, fused at their own time through a clone (late arrivals).
@@ -442,6 +453,9 @@ pub struct Estimator {
     last_kf_t_s: f64,
     /// Camera–IMU time offset `t_d` (s), the nominal of state [`TD`].
     t_d_s: f64,
+    /// The barometer's offset, the nominal of state [`BARO`], and what
+    /// its gate has said (§3g).
+    baro: barometer::BaroOffset,
     /// Corrections to the velocity and position since the last IMU step:
     /// the next step's transition is taken from the first estimates, the
     /// values before them (§3d, eq. F5).
@@ -486,8 +500,11 @@ impl Estimator {
             P[(CLK_E + k, CLK_E + k)] = 1.0;
         }
         P[(TD, TD)] = s.time_offset_sigma_s.powi(2).max(1e-12);
+        // Unknown until the first reading sets it (§3g, eq. B2).
+        P[(BARO, BARO)] = 1.0;
         Self {
             t_d_s: s.time_offset_s,
+            baro: barometer::BaroOffset::default(),
             fej_dv: Vector3::zeros(),
             fej_dp: Vector3::zeros(),
             gnss_clones: VecDeque::new(),
@@ -579,6 +596,12 @@ impl Estimator {
     /// §8).
     pub fn process_gnss(&mut self, t_s: f64, frame: &NedFrame, sats: &[SatMeas]) -> Result<GnssReport, InputError> {
         self.update_with_gnss(t_s, frame, sats)
+    }
+
+    /// One barometer reading: the height `h_m` (m, up, the standard
+    /// atmosphere's) at `t_s` (`barometer.rs`, §3g).
+    pub fn process_baro(&mut self, t_s: f64, h_m: f64) -> Result<BaroOutcome, InputError> {
+        self.update_with_baro(t_s, h_m)
     }
 
     /// Whether zero-velocity updates may be taken now: on the ground only

@@ -14,7 +14,7 @@ use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
 use super::math::{exp_so3, skew};
 use cmsckf_models::sensors::ImuConfig;
 
-use super::{Estimator, InputError, MatActive, ACTIVE_DIM, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP, ISB_SYSTEMS};
+use super::{Estimator, InputError, MatActive, ACTIVE_DIM, BARO, CLK_B, CLK_D, CLK_E, IMU_BUFFER_CAP, ISB_SYSTEMS};
 
 pub type Mat15 = SMatrix<f64, 15, 15>;
 
@@ -419,6 +419,8 @@ impl Estimator {
         for k in 0..ISB_SYSTEMS.len() {
             q[(CLK_E + k, CLK_E + k)] = self.s.isb_rw.powi(2) * dt;
         }
+        // The barometer's offset walks (§3g, B1).
+        q[(BARO, BARO)] = self.s.baro.offset_rw_m_per_sqrt_s.powi(2) * dt;
         self.still.push(&m, dt, &self.imu, &self.g_W);
         self.imu = integrate(&self.imu, &m0, &m, &self.g_W);
         self.clock.x += self.clock.y * dt;

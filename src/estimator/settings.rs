@@ -123,11 +123,37 @@ pub struct Settings {
     /// from the gyro (§3f, eq. V2).
     pub vibration_jitter: bool,
     pub zupt: ZuptSettings,
+    /// The barometer's height (§3g).
+    pub baro: BaroSettings,
     /// The motion an IMU gap hides (eq. N3).
     pub imu_gap: super::propagate::GapNoise,
     /// Time after the start during which the divergence monitor does not
     /// judge (s): the first tracks are short and the prior still settling.
     pub health_grace_s: f64,
+}
+
+/// The barometer as a height with an offset the filter estimates (§3g).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BaroSettings {
+    /// Each reading's white noise (m, 1σ).
+    pub noise_m: f64,
+    /// The offset's random walk (m/√s): temperature and weather move a
+    /// barometer's zero by decimetres over minutes.
+    pub offset_rw_m_per_sqrt_s: f64,
+    /// Readings refused by the χ² gate in a row after which the height is
+    /// taken to be what was wrong (eq. B3): its variance is raised by the
+    /// residual's excess and the reading fused.
+    pub refusals_before_height_reset: u32,
+}
+
+impl Default for BaroSettings {
+    fn default() -> Self {
+        Self {
+            noise_m: 0.15,
+            offset_rw_m_per_sqrt_s: 0.02,
+            refusals_before_height_reset: 5,
+        }
+    }
 }
 
 /// When a frame is a zero-velocity update instead of a clone (§3c): the

@@ -16,7 +16,8 @@ use super::{Estimator, ACTIVE_DIM, GNSS_CLONE_DIM};
 /// in compressed mode (G3) than in full mode.
 const STATE_ULPS: f64 = 64.0;
 
-/// The full state in a fixed order (IMU, clock, time offset, clones,
+/// The full state in a fixed order (IMU, clock, time offset, barometer
+/// offset, clones,
 /// keyframes by id, GNSS clones), for comparing modes: the nominal values
 /// (rotations as rotation vectors, one number per error state) and the
 /// covariance.
@@ -106,6 +107,7 @@ impl Estimator {
         }
         x.extend(est.clock.iter());
         x.push(est.t_d_s);
+        x.push(est.baro.value_m);
         for c in &est.clones {
             push_q(&mut x, &c.q_W_B);
             x.extend(c.p_B_in_W.iter());

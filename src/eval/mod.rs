@@ -166,6 +166,10 @@ pub struct Runner<'a> {
     imu_next: usize,
     buf: Vec<NormObs>,
     gnss: Option<GnssInput>,
+    /// The barometer's readings `(t_s, h_m)` (`barometer.fuse`), and the
+    /// next one to fuse.
+    baro: Vec<(f64, f64)>,
+    baro_next: usize,
     /// `(t, estimated − true clock bias, estimated − true Galileo ISB)` at
     /// each GNSS epoch (m).
     pub clock_errors: Vec<(f64, f64, f64)>,
@@ -216,6 +220,13 @@ impl<'a> Runner<'a> {
             imu_next: 0,
             buf: Vec::with_capacity(c.features.max_features),
             gnss: None,
+            // The autopilot's SCALED_PRESSURE rate.
+            baro: if c.barometer.fuse {
+                cmsckf_sitl::barometer::readings(ds, 10.0)
+            } else {
+                Vec::new()
+            },
+            baro_next: 0,
             clock_errors: Vec::new(),
             resets: 0,
             healthy: true,
@@ -320,6 +331,19 @@ impl<'a> Runner<'a> {
         }
     }
 
+    /// The barometer's readings up to `t_s`, each once the IMU covers it
+    /// (the daemon's queue does the same).
+    fn step_baro(&mut self, t_s: f64) {
+        while let Some(&(t_b, h_m)) = self.baro.get(self.baro_next) {
+            if t_b > t_s {
+                break;
+            }
+            self.baro_next += 1;
+            self.feed_imu(t_b);
+            let _ = self.est.process_baro(t_b, h_m);
+        }
+    }
+
     /// The GNSS epochs that reach the host by `t_s`, in delivery order.
     fn step_gnss(&mut self, t_s: f64) {
         let Some(mut g) = self.gnss.take() else { return };
@@ -386,6 +410,7 @@ impl<'a> Runner<'a> {
         // epoch delivered before it are in.
         let t_f = self.ds.frames[k].t_delivered_s;
         self.step_gnss(t_f);
+        self.step_baro(self.ds.frames[k].t_s);
         // Everything up to the delivery, plus the first sample after it so
         // the estimator can interpolate at the frame time.
         self.feed_imu(t_f);

@@ -4,7 +4,7 @@
 //!
 //! Over MAVLink it sends HEARTBEAT (an armed quadrotor), SYSTEM_TIME,
 //! HIGHRES_IMU, EXTENDED_SYS_STATE (landed or in the air), SCALED_PRESSURE
-//! (a barometer: `barometer`), ATTITUDE and
+//! (a barometer: `crate::barometer`), ATTITUDE and
 //! LOCAL_POSITION_NED (its own EKF's view, with a real EKF's
 //! errors, following the daemon's estimates as EK3 does: see `autopilot`),
 //! answers SET_MESSAGE_INTERVAL and TIMESYNC, and receives
@@ -31,7 +31,6 @@
 //! - `report`: the scoring
 
 mod autopilot;
-mod barometer;
 mod camera;
 mod clock;
 mod fault;

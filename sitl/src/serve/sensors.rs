@@ -4,7 +4,7 @@
 //! LOCAL_POSITION_NED (its EKF's view, with that EKF's errors: see
 //! [`super::autopilot`]), EKF_STATUS_REPORT (that EKF's test ratios of our
 //! estimates), SIM_STATE (the truth, as ArduPilot's SITL sends it, for
-//! review) and SCALED_PRESSURE (its barometer, [`super::barometer`]) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
+//! review) and SCALED_PRESSURE (its barometer, [`crate::barometer`]) at 10 Hz, and HIGHRES_IMU at the IMU rate, with
 //! the IMU faults applied. GPS_RAW_INT says the autopilot has a 3D fix of
 //! its own (none during a GNSS outage), with its accuracy unknown (0), so
 //! the daemon knows the autopilot's position is not only the echo of its

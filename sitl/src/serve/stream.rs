@@ -66,7 +66,7 @@ pub(super) struct Streamer<'a> {
     /// The autopilot's own EKF, what its attitude and position report.
     pub(super) ekf: AutopilotEkf,
     /// Its barometer (`SCALED_PRESSURE` at 10 Hz).
-    pub(super) baro: super::barometer::Barometer,
+    pub(super) baro: crate::barometer::Barometer,
     /// What the daemon sent, and how many of its estimates the EKF has seen.
     pub(super) inbox: Inbox,
     pub(super) estimates_seen: usize,
@@ -105,7 +105,7 @@ impl<'a> Streamer<'a> {
             rtcm_seq: 0,
             frames_sent: 0,
             ekf: AutopilotEkf::new(&ds.cfg.autopilot, rng_for(ds.seed, 7)),
-            baro: super::barometer::Barometer::new(rng_for(ds.seed, 13)),
+            baro: crate::barometer::Barometer::new(rng_for(ds.seed, 13)),
             inbox,
             estimates_seen: 0,
             vpe_clock: FlightClock::new(reboot_s),

@@ -15,6 +15,8 @@ pub enum Topic {
     InputRebase,
     FilterVision,
     FilterGnss,
+    /// Each barometer reading's update (when `barometer.fuse`).
+    FilterBaro,
     FilterGlobal,
     FilterKeyframes,
     FilterState,
@@ -39,7 +41,7 @@ pub enum Topic {
 use super::schemas::*;
 
 impl Topic {
-    pub const ALL: [Topic; 20] = [
+    pub const ALL: [Topic; 21] = [
         Topic::InputImu,
         Topic::InputFeatures,
         Topic::InputRtcm,
@@ -48,6 +50,7 @@ impl Topic {
         Topic::InputRebase,
         Topic::FilterVision,
         Topic::FilterGnss,
+        Topic::FilterBaro,
         Topic::FilterGlobal,
         Topic::FilterKeyframes,
         Topic::FilterState,
@@ -96,6 +99,7 @@ impl Topic {
             Topic::InputRebase => ("/input/rebase_installed", "cmsckf.RebaseInstalled", SCHEMA_REBASE),
             Topic::FilterVision => ("/filter/update/vision", "cmsckf.VisionUpdate", SCHEMA_VISION),
             Topic::FilterGnss => ("/filter/update/gnss", "cmsckf.GnssUpdate", SCHEMA_GNSS),
+            Topic::FilterBaro => ("/filter/update/baro", "cmsckf.BaroUpdate", SCHEMA_BARO),
             Topic::FilterGlobal => ("/filter/update/global", "cmsckf.GlobalUpdate", SCHEMA_GLOBAL),
             Topic::FilterKeyframes => ("/filter/keyframes", "cmsckf.Keyframe", SCHEMA_KEYFRAME),
             Topic::FilterState => ("/filter/state", "cmsckf.State", SCHEMA_STATE),
