@@ -1,5 +1,5 @@
 //! Criterion benchmarks of the real-time path. Workloads:
-//! - `propagate`: one 100 Hz IMU sample through the filter (21 active states: IMU 15, clock 5, time offset 1;
+//! - `propagate`: one 100 Hz IMU sample through the filter (22 active states: IMU 15, clock 5, time offset 1, barometer offset 1;
 //!   11 clones, 3 keyframes);
 //! - `msckf_update/N`: one camera frame with N = 50, 100, 200 simulated features, 11 clones, compressed mode,
 //!   taken from a racetrack flight after 10 s (2–3 keyframes);

@@ -110,7 +110,7 @@ counters! {
     ImuMessageSwitched = "imu_message_switched", event;
     Attitude = "attitude", event;
     LocalPosition = "local_position", event;
-    /// `SCALED_PRESSURE` readings taken (logged, not fused).
+    /// `SCALED_PRESSURE` readings taken (logged; fused with `barometer.fuse`).
     Pressure = "pressure", event;
     GpsAccuracy = "gps_accuracy", event;
     SimState = "sim_state", event;
@@ -203,6 +203,15 @@ counters! {
     /// The gate refused five readings in a row: the height's variance was
     /// raised and the reading fused (estimator README §3g, B3).
     BaroHeightReset = "baro_height_reset", event;
+    /// Five refused in a row while the offset was suspect (set, carried or
+    /// the height reset to it within 10 s): the offset took the excess.
+    BaroOffsetReset = "baro_offset_reset", event;
+    /// A reading more than 10 m from our height: the offset set afresh
+    /// from it.
+    BaroReanchored = "baro_reanchored", event;
+    /// A reading stamped at or before the last one (a duplicate, or out
+    /// of order): not fused.
+    BaroOutOfOrder = "baro_out_of_order", event;
     /// A reading stamped over 1 s ahead of the IMU or 5 s behind it, or
     /// whose pressure gives no height: not fused.
     BaroTimeOff = "baro_time_off", event;

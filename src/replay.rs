@@ -76,7 +76,15 @@ pub fn logged_config(metadata: &Metadata, name: &str) -> Result<Config, ReplayEr
         .as_ref()
         .map_err(|e| ReplayError::Mcap(name.into(), e.to_string()))?;
     match m.as_ref().and_then(|m| m.get("config_toml")) {
-        Some(t) => Ok(Config::from_toml(t, name)?),
+        Some(t) => {
+            let mut cfg = Config::from_toml(t, name)?;
+            // A log from before the barometer was fused (its config has no
+            // `[barometer]`) replays as it flew: without it.
+            if !t.lines().any(|l| l.trim() == "[barometer]") {
+                cfg.barometer.fuse = false;
+            }
+            Ok(cfg)
+        }
         None => Err(ReplayError::NoConfig(name.into())),
     }
 }

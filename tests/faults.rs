@@ -323,3 +323,41 @@ async fn the_autopilots_navigation_parameters_are_read_and_a_wrong_one_said() {
         viso_off.counters
     );
 }
+
+/// A barometer that reads 3 m high for 20 s (the autopilot switched to
+/// another barometer, or the rotor wash near the ground), fused as the
+/// height's reference (estimator README §3g): its readings are refused by
+/// the gate, the height is first taken to be what moved (B3), and when the
+/// barometer disagrees again the offset takes the step. With GNSS (which
+/// holds the height) and without it (the camera alone): no restart, the
+/// error bounded by the step, and back after it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_barometer_that_steps_by_three_metres() {
+    for (what, faults) in [
+        ("with GNSS", &["baro_step@25+20"][..]),
+        ("without GNSS", &["baro_step@25+20", "gnss_outage@0+1000"][..]),
+    ] {
+        let (report, summary) = fly(faults, 4, 60.0).await;
+        let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
+        let f = report.faults.iter().find(|f| f.name == "baro_step").unwrap();
+        eprintln!(
+            "{what}: {f:?}; baro updates {}, refused {}, height resets {}, offset resets {}, late {}",
+            c("baro_updates"),
+            c("baro_refused"),
+            c("baro_height_reset"),
+            c("baro_offset_reset"),
+            c("baro_late")
+        );
+        assert!(c("baro_updates") > 400, "{what}: {}", c("baro_updates"));
+        assert!(c("baro_refused") >= 4, "{what}");
+        assert!(c("baro_height_reset") + c("baro_offset_reset") >= 1, "{what}");
+        assert_eq!(c("baro_late"), 0, "{what}");
+        assert_eq!(report.reset_count, 0, "{what}");
+        assert!(f.peak_error_m < 4.0, "{what}: peak {} m", f.peak_error_m);
+        assert!(
+            f.recovery_s.is_finite() && f.recovery_s <= 10.0,
+            "{what}: recovery {} s",
+            f.recovery_s
+        );
+    }
+}

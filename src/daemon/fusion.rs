@@ -90,6 +90,9 @@ pub struct Fusion {
     /// The barometer's offset `(m, m², s)` a filter restarted in flight
     /// had learned, for the next one (estimator README §3g, B4).
     baro_carry: Option<(f64, f64, f64)>,
+    /// The last barometer reading's time (s): one at or before it is a
+    /// duplicate or out of order.
+    last_baro_t: f64,
     log: FlightLog,
 }
 
@@ -187,6 +190,7 @@ impl Fusion {
             cross_check: VelocityCrossCheck::default(),
             compass: None,
             baro_carry: None,
+            last_baro_t: f64::NEG_INFINITY,
             log: FlightLog::new(log, cfg.log.new_log_on_disarm),
             cfg,
         }
@@ -288,12 +292,11 @@ impl Fusion {
         }
     }
 
-    /// RTCM: logged, then each completed epoch's measurements wait in time
-    /// order for IMU to cover them.
     /// A barometer reading to fuse (`barometer.fuse`), queued at its time:
     /// one stamped more than [`FRAME_MAX_LAG_S`] behind the IMU or
     /// [`FRAME_MAX_LEAD_S`] ahead of it (another clock) is refused and
-    /// counted, as is one whose pressure gives no finite height.
+    /// counted, as is one whose pressure gives no finite height, and one at
+    /// or before the last (a duplicate, or out of order).
     fn on_pressure(&mut self, p: &crate::io::mcap_log::input::PressureRecord, counters: &Counters) {
         if !self.cfg.barometer.fuse || self.est.is_none() {
             return;
@@ -304,9 +307,16 @@ impl Fusion {
             counters.add(Counter::BaroTimeOff, 1);
             return;
         }
+        if p.t_s <= self.last_baro_t {
+            counters.add(Counter::BaroOutOfOrder, 1);
+            return;
+        }
+        self.last_baro_t = p.t_s;
         self.queue.enqueue(p.t_s, Pending::Baro(h_m), counters);
     }
 
+    /// RTCM: logged, then each completed epoch's measurements wait in time
+    /// order for IMU to cover them.
     fn on_rtcm(&mut self, bytes: &[u8], stream: RtcmStream, counters: &Counters) {
         self.log.input(
             self.last_imu_t,
@@ -744,6 +754,7 @@ impl Fusion {
             self.queue.clear();
             self.pacer.restart_clock();
             self.last_imu_t = f64::NEG_INFINITY;
+            self.last_baro_t = f64::NEG_INFINITY;
         }
         self.tracker.hold_reason(Degraded::FilterReset, t_s);
     }

@@ -174,8 +174,8 @@ pub(super) fn spawn_periodic(
                     200_000.0,
                     Ask::Diagnostic,
                 ),
-                // The autopilot's barometer, for the log and the review's
-                // height check (never fused).
+                // The autopilot's barometer: our height's reference
+                // (`barometer.fuse`), and the review's height check.
                 (Counter::Pressure, mav::MSG_ID_SCALED_PRESSURE, 100_000.0, Ask::Optional),
                 // PX4's own TIMESYNC requests, which we answer: it keeps our
                 // estimates' stamps only after 500 good round trips

@@ -74,10 +74,19 @@ impl MeasurementQueue {
         self.enqueue(t, Pending::Frame(frame), counters);
     }
 
-    /// Queues a measurement in time order (bounded; the oldest is dropped).
+    /// Queues a measurement in time order (bounded: the oldest barometer
+    /// reading is dropped first, a 10 Hz height being worth less than a
+    /// frame or an epoch; else the oldest).
     pub(super) fn enqueue(&mut self, t: f64, item: Pending, counters: &Counters) {
         if self.pending.len() == PENDING_FRAMES {
-            self.pending.pop_front();
+            match self.pending.iter().position(|(_, p)| matches!(p, Pending::Baro(_))) {
+                Some(i) => {
+                    self.pending.remove(i);
+                }
+                None => {
+                    self.pending.pop_front();
+                }
+            }
             counters.add(Counter::PendingOverflow, 1);
         }
         let at = self.pending.partition_point(|(u, _)| *u <= t);
@@ -139,16 +148,34 @@ pub(super) struct Fused {
 /// One barometer reading into the filter (§3g), its update to the log.
 fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
     let counters = cx.counters;
+    let had_offset = est.baro_offset().is_some();
     let outcome = match est.process_baro(t, h_m) {
         Ok(o) => o,
         Err(e) => {
-            counters.add(Counter::BaroLate, 1);
-            tracing::warn!(reason = "baro_late", error = %e, "barometer reading not fused");
+            counters.add(
+                if matches!(e, crate::estimator::InputError::BaroLate { .. }) {
+                    Counter::BaroLate
+                } else {
+                    Counter::BaroTimeOff
+                },
+                1,
+            );
+            tracing::warn!(error = %e, "barometer reading not fused");
             return;
         }
     };
     let (name, residual, sigma) = match outcome {
-        BaroOutcome::Anchored { .. } => ("anchored", None, None),
+        BaroOutcome::Anchored { offset_m } => {
+            if had_offset {
+                counters.add(Counter::BaroReanchored, 1);
+                tracing::warn!(
+                    reason = "baro_reanchored",
+                    offset_m,
+                    "a barometer reading more than 10 m from our height: its offset set afresh"
+                );
+            }
+            ("anchored", None, None)
+        }
         BaroOutcome::Fused {
             residual_m, sigma_m, ..
         } => {
@@ -177,6 +204,22 @@ fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
                  variance was raised and the barometer fused"
             );
             ("height_reset", Some(residual_m), Some(sigma_m))
+        }
+        BaroOutcome::OffsetReset {
+            residual_m,
+            sigma_m,
+            added_var_m2,
+        } => {
+            counters.add(Counter::BaroUpdates, 1);
+            counters.add(Counter::BaroOffsetReset, 1);
+            tracing::warn!(
+                reason = "baro_offset_reset",
+                residual_m,
+                sigma_m,
+                added_sigma_m = added_var_m2.sqrt(),
+                "the barometer disagreed again within 10 s of a height reset: its offset took the excess"
+            );
+            ("offset_reset", Some(residual_m), Some(sigma_m))
         }
     };
     if let Some(l) = cx.log {

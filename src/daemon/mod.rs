@@ -122,7 +122,8 @@ pub enum FusionMsg {
         p_ned_m: Vector3<f64>,
         v_ned_mps: Vector3<f64>,
     },
-    /// The autopilot's barometer: logged for review, not fused.
+    /// The autopilot's barometer: logged, and fused as a height with
+    /// `barometer.fuse` (estimator README §3g).
     Pressure(crate::io::mcap_log::input::PressureRecord),
     /// The autopilot's magnetometer: the field in the body frame, its
     /// direction only (for the compass yaw of the first start).

@@ -9,8 +9,8 @@
 //! readings hold the height's changes, not its value.
 //!
 //! Eq. B1: `h_m = −p_z(t) + b_h + n`, `n ~ N(0, σ_h²)`, `W` being NED.
-//! A reading up to [`MAX_BARO_LAG_S`] older than the filter is predicted
-//! back along the velocity: `p_z(t) = p_z − v_z τ`, `τ` the lag.
+//! A reading up to [`MAX_BARO_LAG_S`] older or newer than the filter is
+//! predicted along the velocity: `p_z(t) = p_z − v_z τ`, `τ = t_filter − t`.
 //! Eq. B2: the first reading sets the offset, `b̂_h = h_m + p̂_z(t)`, whose
 //! error `δb_h = δp_z(t) − n` is the position's plus the reading's: its
 //! covariance row is the position's, its variance `P_zz + σ_h²`. The
@@ -23,8 +23,16 @@ use super::{Estimator, InputError, BARO};
 use crate::counters::Counter;
 
 /// A reading older than the filter by more than this (s) is refused as
-/// late: a barometer's 10 Hz readings come within a frame's latency.
+/// late (a barometer's 10 Hz readings come within a frame's latency); one
+/// newer than the filter by up to this is predicted forward to it.
 pub const MAX_BARO_LAG_S: f64 = 0.2;
+/// A residual this large (m) is no barometer that drifted or stepped but
+/// another height altogether (a pressure far off, another sensor): the
+/// offset is set afresh from the reading, which is not fused.
+pub const BARO_REANCHOR_M: f64 = 10.0;
+/// A run of refusals this soon after the offset was set or carried, or
+/// the height reset to it (s), blames the barometer (B3).
+pub const BARO_SECOND_STRIKE_S: f64 = 10.0;
 /// Probability of the reading's χ² gate (one degree of freedom).
 const BARO_GATE_PROB: f64 = 0.999;
 
@@ -37,12 +45,18 @@ pub(super) struct BaroOffset {
     pub anchored: bool,
     /// Readings refused by the gate in a row.
     pub refused_in_a_row: u32,
+    /// Until when (s) a run of refusals blames the offset first (B3):
+    /// for a while after it was set from one reading or carried from a
+    /// filter that failed, and after the height was reset to it.
+    pub offset_suspect_until_s: f64,
 }
 
 /// What became of one reading.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum BaroOutcome {
-    /// It set the offset (the first reading of this filter).
+    /// It set the offset: the first reading of this filter, or one more
+    /// than [`BARO_REANCHOR_M`] from the height (counted
+    /// `baro_reanchored`).
     Anchored { offset_m: f64 },
     /// Fused: its residual (m), the residual's σ (m) and its NIS.
     Fused { residual_m: f64, sigma_m: f64, nis: f64 },
@@ -56,6 +70,14 @@ pub enum BaroOutcome {
         sigma_m: f64,
         added_var_m2: f64,
     },
+    /// As [`Self::HeightReset`], but the offset was suspect (set or
+    /// carried, or the height reset to it, within
+    /// [`BARO_SECOND_STRIKE_S`]): the offset took the excess (B3).
+    OffsetReset {
+        residual_m: f64,
+        sigma_m: f64,
+        added_var_m2: f64,
+    },
 }
 
 impl Estimator {
@@ -65,10 +87,17 @@ impl Estimator {
         if !(t_s.is_finite() && h_m.is_finite()) {
             return Err(InputError::NonFiniteBaro { t_s, h_m });
         }
-        if t_s > self.t_s {
-            self.propagate_filter_to(t_s);
+        // A reading is not a reason to move the filter on: camera frames
+        // stamped before it may still be on their way (their tracking
+        // takes longer than a barometer's message), and a filter moved past
+        // them would drop them as late. One ahead of the filter is
+        // predicted forward along the velocity, as a late one back (B1);
+        // only one more than `MAX_BARO_LAG_S` ahead moves the filter, to
+        // that far behind it (frames later than that are late anyway).
+        if t_s - self.t_s > MAX_BARO_LAG_S {
+            self.propagate_filter_to(t_s - MAX_BARO_LAG_S);
         }
-        let lag_s = (self.t_s - t_s).max(0.0);
+        let lag_s = self.t_s - t_s;
         if lag_s > MAX_BARO_LAG_S {
             *self.stats.rejected.entry(Counter::BaroLate).or_default() += 1;
             return Err(InputError::BaroLate {
@@ -80,18 +109,22 @@ impl Estimator {
         self.sync();
         let (h_pred_m, cols, h_x) = self.baro_height_model(lag_s);
         let noise_var = self.s.baro.noise_m.powi(2);
-        if !self.baro.anchored {
+        let residual_m = h_m - (h_pred_m + self.baro.value_m);
+        if !self.baro.anchored || residual_m.abs() > BARO_REANCHOR_M {
+            if self.baro.anchored {
+                *self.stats.rejected.entry(Counter::BaroReanchored).or_default() += 1;
+            }
             self.anchor_baro(&cols, &h_x, noise_var);
             self.baro = BaroOffset {
                 value_m: h_m - h_pred_m,
                 anchored: true,
                 refused_in_a_row: 0,
+                offset_suspect_until_s: t_s + BARO_SECOND_STRIKE_S,
             };
             return Ok(BaroOutcome::Anchored {
                 offset_m: self.baro.value_m,
             });
         }
-        let residual_m = h_m - (h_pred_m + self.baro.value_m);
         // S = H P Hᵀ + σ², H = [h_x on cols, 1 on BARO].
         let all = [cols[0], cols[1], BARO];
         let hv = [h_x[0], h_x[1], 1.0];
@@ -111,7 +144,7 @@ impl Estimator {
         }
         let nis = residual_m * residual_m / s;
         let sigma_m = s.sqrt();
-        let mut height_reset_m2 = None;
+        let mut reset = None;
         if nis > cmsckf_models::stats::chi2_quantile(BARO_GATE_PROB, 1) {
             self.baro.refused_in_a_row += 1;
             if self.baro.refused_in_a_row < self.s.baro.refusals_before_height_reset {
@@ -124,17 +157,28 @@ impl Estimator {
             }
             // Eq. B3: the barometer has disagreed beyond its gate for
             // half a second, more than its noise and its offset's walk
-            // allow. What the filter's height was not told of (a climb
-            // integrated at the wrong scale) is the residual's excess
-            // over its predicted variance, `E[r²] = S + Δ`: added to the
-            // height's variance as process noise, the reading is then
-            // fused at NIS 1, and the height goes most of the way to the
-            // barometer's (EKF2 resets its height to its height
-            // reference alike).
+            // allow. Whatever was not told of it holds the residual's
+            // excess over its predicted variance, `E[r²] = S + Δ`: added
+            // as process noise to that state's variance, the reading is
+            // fused at NIS 1 and that state goes most of the way. The
+            // height (a climb integrated at the wrong scale; EKF2 resets
+            // its height to its height reference alike), unless the offset
+            // is suspect: set from one reading or carried from a failed
+            // filter within `BARO_SECOND_STRIKE_S`, or the height already
+            // reset to it that recently (then it is the barometer that
+            // moved: another one switched in, the rotor wash).
             let add_m2 = residual_m * residual_m - s;
-            self.P[(P + 2, P + 2)] += add_m2;
-            height_reset_m2 = Some(add_m2);
-            *self.stats.rejected.entry(Counter::BaroHeightReset).or_default() += 1;
+            let offset = t_s < self.baro.offset_suspect_until_s;
+            let (state, counter) = if offset {
+                self.baro.offset_suspect_until_s = f64::NEG_INFINITY;
+                (BARO, Counter::BaroOffsetReset)
+            } else {
+                self.baro.offset_suspect_until_s = t_s + BARO_SECOND_STRIKE_S;
+                (P + 2, Counter::BaroHeightReset)
+            };
+            self.P[(state, state)] += add_m2;
+            reset = Some((offset, add_m2));
+            *self.stats.rejected.entry(counter).or_default() += 1;
         }
         self.baro.refused_in_a_row = 0;
         // Whitened (unit noise): H/σ_h, r/σ_h.
@@ -143,8 +187,13 @@ impl Estimator {
         let r = DVector::from_element(1, residual_m / sd);
         self.ekf_update(&h, &all, &r, false);
         self.stats.baro_updates += 1;
-        Ok(match height_reset_m2 {
-            Some(added_var_m2) => BaroOutcome::HeightReset {
+        Ok(match reset {
+            Some((false, added_var_m2)) => BaroOutcome::HeightReset {
+                residual_m,
+                sigma_m,
+                added_var_m2,
+            },
+            Some((true, added_var_m2)) => BaroOutcome::OffsetReset {
                 residual_m,
                 sigma_m,
                 added_var_m2,
@@ -215,6 +264,7 @@ impl Estimator {
             value_m,
             anchored: true,
             refused_in_a_row: 0,
+            offset_suspect_until_s: self.t_s + BARO_SECOND_STRIKE_S,
         };
         true
     }
@@ -319,8 +369,10 @@ mod tests {
         }
     }
 
-    /// A reading older than the filter is predicted back along the
-    /// velocity; beyond `MAX_BARO_LAG_S` it is refused as late; a
+    /// A reading older or newer than the filter is predicted along the
+    /// velocity without moving the filter (frames stamped before it may
+    /// still come); beyond `MAX_BARO_LAG_S` behind it is refused as late,
+    /// beyond it ahead the filter is moved to that far behind it; a
     /// non-finite one is refused.
     #[test]
     fn late_and_non_finite_readings() {
@@ -336,18 +388,27 @@ mod tests {
             Err(InputError::NonFiniteBaro { .. })
         ));
         assert!(est.baro_offset().is_none());
-        // 0.1 s late at 1.2 m/s up: the vehicle was 0.12 m lower then.
+        // 0.1 s late at 1.2 m/s up: the vehicle was 0.12 m lower then;
+        // 0.1 s early, 0.12 m higher; neither moves the filter's clock.
         est.process_baro(1.0, 10.0).unwrap();
-        match est.process_baro(0.9, 10.0 - 0.12).unwrap() {
-            BaroOutcome::Fused { residual_m, .. } => assert!(residual_m.abs() < 1e-9, "{residual_m}"),
-            other => panic!("{other:?}"),
+        for (t_s, h_m) in [(0.9, 10.0 - 0.12), (1.1, 10.0 + 0.12)] {
+            match est.process_baro(t_s, h_m).unwrap() {
+                BaroOutcome::Fused { residual_m, .. } => assert!(residual_m.abs() < 1e-6, "{residual_m}"),
+                other => panic!("{other:?}"),
+            }
+            assert_eq!(est.time_s(), 1.0);
         }
+        // One more than 0.2 s ahead moves the filter to 0.2 s behind it.
+        est.process_baro(2.0, 10.0 + 1.2).unwrap();
+        assert!((est.time_s() - 1.8).abs() < 1e-12, "{}", est.time_s());
     }
 
-    /// B3: a barometer 3 m away from the height the filter holds is
-    /// refused four times, and the fifth time the height's variance is
-    /// raised by the residual's excess and the reading fused, which takes
-    /// the height most of the way to it.
+    /// B3: a barometer 3 m away from the height the filter holds (set
+    /// more than 10 s before) is refused four times, and the fifth time the
+    /// height's variance is raised by the residual's excess and the reading
+    /// fused, which takes the height most of the way to it. Disagreeing
+    /// again within 10 s, it is the barometer that moved: its offset takes
+    /// the excess.
     #[test]
     fn five_refusals_in_a_row_raise_the_heights_variance() {
         let mut est = estimator();
@@ -355,15 +416,16 @@ mod tests {
         for _ in 0..20 {
             est.process_baro(0.0, 3.0).unwrap();
         }
+        est.t_s = 11.0;
         let z0 = est.imu_state().p_B_in_W.z;
         for k in 0..4 {
             assert!(
-                matches!(est.process_baro(0.0, 6.0).unwrap(), BaroOutcome::Refused { .. }),
+                matches!(est.process_baro(11.0, 6.0).unwrap(), BaroOutcome::Refused { .. }),
                 "reading {k}"
             );
         }
         assert_eq!(est.imu_state().p_B_in_W.z, z0);
-        match est.process_baro(0.0, 6.0).unwrap() {
+        match est.process_baro(11.0, 6.0).unwrap() {
             BaroOutcome::HeightReset {
                 residual_m,
                 sigma_m,
@@ -378,7 +440,123 @@ mod tests {
         assert_eq!(est.stats.rejected.get(&Counter::BaroRefused), Some(&4));
         assert_eq!(est.stats.rejected.get(&Counter::BaroHeightReset), Some(&1));
         // The count starts again: the next reading agrees.
-        assert!(matches!(est.process_baro(0.0, 6.0).unwrap(), BaroOutcome::Fused { .. }));
+        assert!(matches!(
+            est.process_baro(11.0, 6.0).unwrap(),
+            BaroOutcome::Fused { .. }
+        ));
+        // The second strike: 3 m more within 10 s of the height's reset.
+        // The offset takes it; the height stays within a decimetre.
+        let (b0, _) = est.baro_offset().unwrap();
+        let z1 = est.imu_state().p_B_in_W.z;
+        for _ in 0..4 {
+            assert!(matches!(
+                est.process_baro(11.0, 9.0).unwrap(),
+                BaroOutcome::Refused { .. }
+            ));
+        }
+        assert!(matches!(
+            est.process_baro(11.0, 9.0).unwrap(),
+            BaroOutcome::OffsetReset { .. }
+        ));
+        let (b1, _) = est.baro_offset().unwrap();
+        assert!(b1 - b0 > 2.0 && b1 - b0 < 3.0, "offset moved {}", b1 - b0);
+        assert!((est.imu_state().p_B_in_W.z - z1).abs() < 0.1);
+        assert_eq!(est.stats.rejected.get(&Counter::BaroOffsetReset), Some(&1));
+    }
+
+    /// B3 past the suspect window: a new disagreement 11 s after a height
+    /// reset is the height's again.
+    #[test]
+    fn a_disagreement_long_after_a_height_reset_is_the_heights_again() {
+        let mut est = estimator();
+        est.process_baro(0.0, 3.0).unwrap();
+        est.t_s = 11.0;
+        for k in 0..5 {
+            let out = est.process_baro(11.0, 6.0).unwrap();
+            assert_eq!(matches!(out, BaroOutcome::HeightReset { .. }), k == 4, "{out:?}");
+        }
+        est.t_s = 22.0;
+        let z = -est.imu_state().p_B_in_W.z;
+        let off = est.baro_offset().unwrap().0;
+        for k in 0..5 {
+            let out = est.process_baro(22.0, z + off + 3.0).unwrap();
+            assert_eq!(matches!(out, BaroOutcome::HeightReset { .. }), k == 4, "{out:?}");
+        }
+    }
+
+    /// A first reading 5 m off (a spike) sets the offset wrong; the
+    /// readings that follow within 10 s disagree, and it is the offset, not
+    /// the height, that takes it (B3).
+    #[test]
+    fn a_spiked_first_reading_is_the_offsets_fault() {
+        let mut est = estimator();
+        est.process_baro(0.0, 8.0).unwrap();
+        let z0 = est.imu_state().p_B_in_W.z;
+        let mut outcomes = Vec::new();
+        for _ in 0..5 {
+            est.t_s += 0.1;
+            outcomes.push(est.process_baro(est.t_s, 3.0).unwrap());
+        }
+        assert!(matches!(outcomes[4], BaroOutcome::OffsetReset { .. }), "{outcomes:?}");
+        assert!((est.imu_state().p_B_in_W.z - z0).abs() < 0.1);
+        let (b, _) = est.baro_offset().unwrap();
+        assert!((b - 0.0).abs() < 1.0, "offset {b}");
+    }
+
+    /// A reading more than 10 m from the height (a pressure far off) sets
+    /// the offset afresh and moves nothing; the readings after it are
+    /// fused against the new offset.
+    #[test]
+    fn a_reading_kilometres_off_sets_the_offset_afresh() {
+        let mut est = estimator();
+        est.process_baro(0.0, 3.0).unwrap();
+        let z0 = est.imu_state().p_B_in_W.z;
+        assert!(matches!(
+            est.process_baro(0.0, 1003.0).unwrap(),
+            BaroOutcome::Anchored { .. }
+        ));
+        assert_eq!(est.imu_state().p_B_in_W.z, z0);
+        assert_eq!(est.stats.rejected.get(&Counter::BaroReanchored), Some(&1));
+        assert!(matches!(
+            est.process_baro(0.0, 1003.0).unwrap(),
+            BaroOutcome::Fused { .. }
+        ));
+    }
+
+    /// The world origin placed at a fix moves every position by one
+    /// unknown offset, and the barometer's offset with the height (B2):
+    /// the reading's residual and its σ are unchanged by it.
+    #[test]
+    fn the_offset_moves_with_the_worlds_origin() {
+        let mut est = estimator();
+        est.process_baro(0.0, 3.0).unwrap();
+        let mut before = est.clone();
+        let pz = P + 2;
+        let cross = est.P[(BARO, pz)];
+        assert!(est.add_world_offset_variance(4.0));
+        assert!((est.P[(BARO, pz)] - cross - 4.0).abs() < 1e-12);
+        assert!((est.P[(BARO, BARO)] - before.P[(BARO, BARO)] - 4.0).abs() < 1e-12);
+        let (a, b) = (
+            est.process_baro(0.0, 3.2).unwrap(),
+            before.process_baro(0.0, 3.2).unwrap(),
+        );
+        match (a, b) {
+            (
+                BaroOutcome::Fused {
+                    residual_m: r1,
+                    sigma_m: s1,
+                    ..
+                },
+                BaroOutcome::Fused {
+                    residual_m: r2,
+                    sigma_m: s2,
+                    ..
+                },
+            ) => {
+                assert!((r1 - r2).abs() < 1e-12 && (s1 - s2).abs() < 1e-9, "{r1} {r2} {s1} {s2}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     /// B4: a fresh filter takes a carried offset once, and not after a

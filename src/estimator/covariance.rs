@@ -200,8 +200,11 @@ impl Estimator {
     /// state, the body's, the clones', the keyframes' and the GNSS clones',
     /// shares that one offset, so each pair of same-axis position entries
     /// gains `var_m2`: `P ← P + σ² Σ_a e_a e_aᵀ` with `e_a` the indicator of
-    /// axis `a`'s positions. Refused (`false`) once keyframes are in a
-    /// compressed global part, whose frozen covariance it cannot reach.
+    /// axis `a`'s positions. The barometer's offset, once set, shares the
+    /// vertical one (`b_h = h_m + p_z`: its error is `δp_z` plus the
+    /// reading's, §3g B2), so it joins the down axis's indicator. Refused
+    /// (`false`) once keyframes are in a compressed global part, whose
+    /// frozen covariance it cannot reach.
     pub fn add_world_offset_variance(&mut self, var_m2: f64) -> bool {
         if !(var_m2.is_finite() && var_m2 >= 0.0) || self.global.as_ref().is_some_and(|g| !g.live.is_empty()) {
             return false;
@@ -214,9 +217,13 @@ impl Estimator {
         let go = self.gnss_clones_offset();
         starts.extend((0..self.gnss_clones.len()).map(|i| go + GNSS_CLONE_DIM * i + 6));
         for a in 0..3 {
-            for &i in &starts {
-                for &j in &starts {
-                    self.P[(i + a, j + a)] += var_m2;
+            let mut idx: Vec<usize> = starts.iter().map(|&i| i + a).collect();
+            if a == 2 && self.baro.anchored {
+                idx.push(BARO);
+            }
+            for &i in &idx {
+                for &j in &idx {
+                    self.P[(i, j)] += var_m2;
                 }
             }
         }

@@ -202,7 +202,7 @@ pub const TRANSITION_BLOCKS: [(usize, usize); 8] =
 /// One step's transition of the active block (§2, eqs. F2 and K1) kept as
 /// what it is: the identity plus the IMU's eight 3×3 blocks
 /// ([`TRANSITION_BLOCKS`]) and the clock's `∂b/∂d = Δt`. `F X` then costs
-/// 8 × 9 multiply-adds a column instead of a dense product's 21 × 21: the
+/// 8 × 9 multiply-adds a column instead of a dense product's 22 × 22: the
 /// covariance step runs at every IMU sample (400 Hz on OpenVINS's
 /// simulator), where the dense products were a quarter of the estimator's
 /// time (issue 43's profile, docs/performance.md).

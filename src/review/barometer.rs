@@ -4,7 +4,11 @@
 //! other independent height to show it. The barometer's height changes are
 //! set beside ours from the first instant both exist; their gap is our
 //! height's drift plus the barometer's own (weather, temperature, and the
-//! rotor wash near the ground, typically decimetres over a flight).
+//! rotor wash near the ground, typically decimetres over a flight). With
+//! `barometer.fuse` (the default) our height follows the barometer's, and
+//! the gap is then how far the filter held out against it (the offset's
+//! walk and its resets, README §3g): an independent check needs the log
+//! replayed with `fuse = false` (`cmsckf replay --config`).
 
 use serde::Serialize;
 

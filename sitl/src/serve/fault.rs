@@ -50,6 +50,9 @@ pub enum FaultKind {
     /// The autopilot's visual odometry is off: `VISO_TYPE` read as 0 (an
     /// ArduPilot that would ignore every estimate).
     VisoOff,
+    /// The barometer reads 3 m high (the autopilot switched to another
+    /// barometer, or the rotor wash near the ground).
+    BaroStep,
 }
 
 impl FaultKind {
@@ -72,10 +75,11 @@ impl FaultKind {
             FaultKind::BaseClaimsRoverId => "base_claims_rover_id",
             FaultKind::BaseDropsSatellite => "base_drops_satellite",
             FaultKind::VisoOff => "viso_off",
+            FaultKind::BaroStep => "baro_step",
         }
     }
 
-    pub const ALL: [FaultKind; 17] = [
+    pub const ALL: [FaultKind; 18] = [
         FaultKind::LinkDrop,
         FaultKind::GnssOutage,
         FaultKind::CameraOutage,
@@ -93,8 +97,12 @@ impl FaultKind {
         FaultKind::BaseClaimsRoverId,
         FaultKind::BaseDropsSatellite,
         FaultKind::VisoOff,
+        FaultKind::BaroStep,
     ];
 }
+
+/// How far the `baro_step` barometer reads high (m).
+pub(super) const BARO_STEP_M: f64 = 3.0;
 
 /// `NAME@START+DURATION` (seconds of flight).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -96,7 +96,12 @@ impl Streamer<'_> {
         // The truth's place, once for the two messages that carry it.
         let llh = truth_llh(&self.ds.cfg.gnss, &s);
         self.send(sim_state(&s, llh)).await;
-        let p_pa = self.baro.read_pa(t, llh.2);
+        let step_m = if active.has(FaultKind::BaroStep) {
+            super::fault::BARO_STEP_M
+        } else {
+            0.0
+        };
+        let p_pa = self.baro.read_pa(t, llh.2 + step_m);
         self.send(apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
             time_boot_ms: ms,
             press_abs: (p_pa * 0.01) as f32,
