@@ -329,35 +329,63 @@ async fn the_autopilots_navigation_parameters_are_read_and_a_wrong_one_said() {
 /// height's reference (estimator README §3g): its readings are refused by
 /// the gate, the height is first taken to be what moved (B3), and when the
 /// barometer disagrees again the offset takes the step. With GNSS (which
-/// holds the height) and without it (the camera alone): no restart, the
-/// error bounded by the step, and back after it.
+/// holds the height): no restart, the error bounded by the step, and back
+/// within 2 s of its end (0.4 s measured). Without GNSS (the camera alone, as beside
+/// PX4) against the same flight without the step: no restart, and the step
+/// adds at most itself to the worst error and a metre to the ATE.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_barometer_that_steps_by_three_metres() {
-    for (what, faults) in [
-        ("with GNSS", &["baro_step@25+20"][..]),
-        ("without GNSS", &["baro_step@25+20", "gnss_outage@0+1000"][..]),
-    ] {
-        let (report, summary) = fly(faults, 4, 60.0).await;
-        let c = |k: &str| summary.counters.get(k).copied().unwrap_or(0);
-        let f = report.faults.iter().find(|f| f.name == "baro_step").unwrap();
-        eprintln!(
-            "{what}: {f:?}; baro updates {}, refused {}, height resets {}, offset resets {}, late {}",
+    let baro = |s: &RunSummary| {
+        let c = |k: &str| s.counters.get(k).copied().unwrap_or(0);
+        (
             c("baro_updates"),
             c("baro_refused"),
-            c("baro_height_reset"),
-            c("baro_offset_reset"),
-            c("baro_late")
-        );
-        assert!(c("baro_updates") > 400, "{what}: {}", c("baro_updates"));
-        assert!(c("baro_refused") >= 4, "{what}");
-        assert!(c("baro_height_reset") + c("baro_offset_reset") >= 1, "{what}");
-        assert_eq!(c("baro_late"), 0, "{what}");
-        assert_eq!(report.reset_count, 0, "{what}");
-        assert!(f.peak_error_m < 4.0, "{what}: peak {} m", f.peak_error_m);
-        assert!(
-            f.recovery_s.is_finite() && f.recovery_s <= 10.0,
-            "{what}: recovery {} s",
-            f.recovery_s
-        );
-    }
+            c("baro_height_reset") + c("baro_offset_reset"),
+            c("baro_late"),
+        )
+    };
+    let (report, summary) = fly(&["baro_step@25+20"], 4, 60.0).await;
+    let f = report.faults.iter().find(|f| f.name == "baro_step").unwrap();
+    let (updates, refused, resets, late) = baro(&summary);
+    eprintln!("with GNSS: {f:?}; baro updates {updates}, refused {refused}, resets {resets}, late {late}");
+    assert!(updates > 400 && refused >= 4 && resets >= 1 && late == 0);
+    assert_eq!(report.reset_count, 0);
+    assert!(f.peak_error_m < 4.0, "peak {} m", f.peak_error_m);
+    assert!(
+        f.recovery_s.is_finite() && f.recovery_s <= 2.0,
+        "recovery {} s",
+        f.recovery_s
+    );
+
+    let (control, _) = fly(&["gnss_outage@0+1000"], 4, 60.0).await;
+    let (stepped, summary) = fly(&["gnss_outage@0+1000", "baro_step@25+20"], 4, 60.0).await;
+    // The worst error over the flight (the outage's window is all of it).
+    let peak = |r: &Report| {
+        r.faults
+            .iter()
+            .find(|f| f.name == "gnss_outage")
+            .map_or(f64::NAN, |f| f.peak_error_m)
+    };
+    let (updates, refused, resets, late) = baro(&summary);
+    eprintln!(
+        "without GNSS: ATE {:.2} m (without the step {:.2} m), worst {:.2} m ({:.2} m); baro updates {updates}, refused {refused}, resets {resets}, late {late}",
+        stepped.ate_m,
+        control.ate_m,
+        peak(&stepped),
+        peak(&control)
+    );
+    assert!(updates > 400 && refused >= 4 && resets >= 1 && late == 0);
+    assert_eq!(stepped.reset_count, 0);
+    assert!(
+        stepped.ate_m < control.ate_m + 1.0,
+        "ATE {} against {}",
+        stepped.ate_m,
+        control.ate_m
+    );
+    assert!(
+        peak(&stepped) < peak(&control) + 3.0,
+        "worst {} against {}",
+        peak(&stepped),
+        peak(&control)
+    );
 }
