@@ -530,7 +530,8 @@ fn a_rebase_with_no_global_part_left_keeps_no_base_space() {
 }
 
 /// The barometer's offset set while keyframes are global (README §3g, eq.
-/// B2: its row of `Φ̃` is the height's) and a reading then fused give in
+/// B2: its row of `Φ̃` is the height's), a reading then fused, and a height
+/// reset over the body and its window (B3) give in
 /// compressed mode what they give in full mode, from a common state, to
 /// round-off. (Over whole flights the readings come from the first second,
 /// before any global part: `compressed_equals_full_after_every_global_update`.)
@@ -570,5 +571,28 @@ fn a_barometer_anchored_with_global_keyframes_equals_full() {
     assert!(
         cov <= 1e-12 && state <= 5e-12,
         "after a global update: {cov:e}, {state:e}"
+    );
+    // Both flown on past the offset's suspect 10 s, then five readings 3 m
+    // off: the body's and its window's heights take the excess (B3), in
+    // compressed mode as in full, to the drift of two filters flown apart.
+    while k < ds.frames.len() && c.est.time_s() < t_s + 10.5 {
+        c.step_frame(k);
+        f.step_frame(k);
+        k += 1;
+    }
+    for r in [&mut c, &mut f] {
+        let t_b = r.est.time_s();
+        let h_b = -r.est.imu_state().p_B_in_W.z + r.est.baro_offset().unwrap().0 + 3.0;
+        let outs: Vec<_> = (0..5).map(|_| r.est.process_baro(t_b, h_b).unwrap()).collect();
+        assert!(
+            matches!(outs[4], cmsckf::estimator::BaroOutcome::HeightReset { .. }),
+            "{outs:?}"
+        );
+    }
+    let (cov, state) = c.est.snapshot().max_rel_diff_parts(&f.est.snapshot());
+    eprintln!("after a height reset: covariance {cov:e}, state {state:e} (normalised)");
+    assert!(
+        cov <= 1e-9 && state <= STATE_DRIFT,
+        "after a height reset: {cov:e}, {state:e}"
     );
 }

@@ -808,15 +808,23 @@ fn px4_flies_on_cmsckf_alone() {
         "the covariance sent is not the position's given our yaw: {records} estimates, {over} axes above the \
          filter's, smallest horizontal share {min_share}"
     );
-    // The autopilot's barometer in the log (`SCALED_PRESSURE`), and the
-    // review's row that sets our height beside it: SIH's barometer reads
-    // its truth (1 Pa of noise, no drift), so the largest gap it shows is
+    // The autopilot's barometer in the log (`SCALED_PRESSURE`), fused as
+    // our height's reference (estimator README §3g), and the review's row
+    // that sets our height beside it: SIH's barometer reads its truth
+    // (about 0.1 m a reading, no drift), so the largest gap it shows is
     // our height's largest drift, to the 1 s bins' averaging, which takes
-    // up to a fifth off a fast climb's peak (kept flights at 2026-12-07:
-    // 0.14 against 0.09 m, 0.46 against 0.55 m, 1.45 against 1.71 m).
+    // up to a fifth off a fast climb's peak (kept flights at 2026-12-07,
+    // before it was fused: 0.14 against 0.09 m, 0.46 against 0.55 m, 1.45
+    // against 1.71 m).
     let baro = review.barometer_gap.expect("the barometer is not in the log");
     eprintln!("our height against the barometer: {baro:?}; against the truth, largest drift {drift_max:.2} m");
     assert!(c("pressure") > 300, "SCALED_PRESSURE readings: {:?}", summary.counters);
+    assert!(
+        c("baro_updates") > 300,
+        "barometer readings fused: {:?}",
+        summary.counters
+    );
+    assert_eq!(c("baro_late") + c("baro_time_off"), 0, "{:?}", summary.counters);
     assert!(
         baro.bins > 40 && !baro.stopped_at_reboot && (baro.max_abs_m - drift_max).abs() < 0.1 + 0.2 * drift_max,
         "the review's barometer row ({baro:?}) is not our height's drift ({drift_max:.2} m)"
