@@ -287,9 +287,9 @@ fn px4_flies_on_cmsckf_alone() {
     // front-end.
     let mut camera = RenderedCamera::new(&cfg, &route_points(), 1, flight_dir.kept_file("tracks.csv"));
     let mut truth = Truth::new(HOME);
-    // The truth's height over the whole flight (t, down), for the review's
-    // barometer check at the end.
-    let mut truth_down: Vec<(f64, f64)> = Vec::new();
+    // The truth over the whole flight (t, NED position), for the checks of
+    // our own estimate and of the review's barometer row at the end.
+    let mut truth_ned: Vec<(f64, Vector3<f64>)> = Vec::new();
 
     let mut phase = Phase::WaitEkf;
     let mut phase_since = Instant::now();
@@ -359,7 +359,7 @@ fn px4_flies_on_cmsckf_alone() {
                     );
                     let v_true = Vector3::new(s.vx as f64, s.vy as f64, s.vz as f64) * 0.01;
                     let p = truth.push(t_s, truth.frame.to_ned(&r), v_true);
-                    truth_down.push((t_s, p.z));
+                    truth_ned.push((t_s, p));
                     let [w, x, y, z] = s.attitude_quaternion.map(|c| c as f64);
                     if let Some(f) = flight_dir.truth_csv.as_mut() {
                         writeln!(
@@ -652,27 +652,23 @@ fn px4_flies_on_cmsckf_alone() {
     }
     assert!(restarts <= 2, "the filter restarted: {:?}", summary.counters);
     // The issue asks for 0.5 m throughout; these bounds are what the
-    // flights measured held, with room, not that. Eleven flights of this
-    // test as it stands (EKF2 on our height alone: no range finder, no
-    // barometer), release and CI builds, 2026-12-07: standing 0.019-0.029
-    // m; in nine, take-off 0.16-1.36 m, box 0.42-1.07 m, hover 0.33-1.03
-    // m, descent and landing 0.17-0.80 m; in two, after a lift-off our
-    // estimate flew confidently wrong, EKF2 rejected our height for 6 s
-    // (take-off 1.93 and 2.73 m, box 2.01 and 3.19 m, hover 0.98 and 0.99
-    // m). What is missing, and why: the climb leaves our height up to 1 m
-    // off, which no later camera measurement takes out; SIH's IMU over the
-    // climb's first second is 0.15-0.25 m/s fast in some flights, the
-    // tracks keep the scale the climb began with, and in five flights of
-    // nine scored the first updates after the lift-off shrank our
-    // velocity's σ to 0.05 m/s while it was 0.2-0.35 m/s off, leaving
-    // 24-67 % of our estimates beyond 3 σ (docs/setup-px4.md, "Where it
-    // stands"). Before EKF2's own range finder and barometer were turned
-    // off, the box was 0.52-0.56 m in three flights.
+    // flights measured held, with room, not that. With the barometer fused
+    // (estimator README §3g), release and CI builds, 2026-12-08, eight
+    // flights: standing 0.020-0.029 m; in seven, take-off 0.20-0.85 m, box
+    // 0.36-0.58 m, hover 0.12-0.47 m, descent and landing 0.14-0.27 m; in
+    // one, flown before a height reset raised the window's heights with the
+    // body's, the tracks pulled our height back 0.6 m off after it and
+    // PX4's box was 1.41 m off, its hover 1.22 m (that flight's log replayed
+    // with the reset as it is: our box 0.53 m, hover 0.13 m). Before the
+    // barometer, thirteen flights had the box 0.42-3.19 m, the hover up to
+    // 1.03 m. What is left: the lift-off's first updates are still
+    // confidently wrong for a second, and the box's error is across the
+    // ground, inside our σ (docs/setup-px4.md, "The barometer").
     assert!(standing.max_m < 0.15, "standing error {standing:?}");
-    assert!(climbing.max_m < 4.0, "take-off error {climbing:?}");
-    assert!(boxing.max_m < 4.0, "box error {boxing:?}");
-    assert!(hovering.max_m < 1.5, "hover error {hovering:?}");
-    assert!(landing.max_m < 2.0, "descent and landing error {landing:?}");
+    assert!(climbing.max_m < 2.5, "take-off error {climbing:?}");
+    assert!(boxing.max_m < 1.5, "box error {boxing:?}");
+    assert!(hovering.max_m < 1.0, "hover error {hovering:?}");
+    assert!(landing.max_m < 1.5, "descent and landing error {landing:?}");
     assert!(yaw_err_max_deg < 3.0, "yaw {yaw_err_max_deg}° off while standing");
     // SIH's magnetometer scatters 1.7-2.9° a (100 ms) reading: the start's
     // mean of 10 was 0.6-1.7° off; the mean of the 85-110 readings while
@@ -783,10 +779,8 @@ fn px4_flies_on_cmsckf_alone() {
         let entry = |key: &str, k: usize| v[key][k].as_f64().unwrap_or(f64::NAN);
         records += 1;
         let t_s = v["usec"].as_f64().unwrap_or(f64::NAN) * 1e-6;
-        let i = truth_down.partition_point(|(u, _)| *u <= t_s);
-        if let (Some(a), Some(b)) = (i.checked_sub(1).and_then(|j| truth_down.get(j)), truth_down.get(i)) {
-            let w = if b.0 > a.0 { (t_s - a.0) / (b.0 - a.0) } else { 0.0 };
-            let err = a.1 + (b.1 - a.1) * w - entry("p_ned_m", 2);
+        if let Some(p) = truth_at(&truth_ned, t_s) {
+            let err = p.z - entry("p_ned_m", 2);
             let first = *first_height_err.get_or_insert(err);
             drift_max = drift_max.max((err - first).abs());
         }
@@ -807,6 +801,45 @@ fn px4_flies_on_cmsckf_alone() {
         records > 1000 && over == 0 && min_share < 0.5,
         "the covariance sent is not the position's given our yaw: {records} estimates, {over} axes above the \
          filter's, smallest horizontal share {min_share}"
+    );
+    // Our own estimate is honest (`/filter/state` against the truth): at
+    // most a fifth of the estimates from the take-off on beyond 3 σ on an
+    // axis. Flights of this test before the barometer was fused had 24-67 %
+    // in six of eleven (the lift-off's first updates confidently wrong);
+    // with it, ten kept flights replayed had 0-3.2 %, and the first flight
+    // with this check 0 of 338 (docs/setup-px4.md, "The barometer").
+    let (mut scored, mut beyond, mut nees_sum) = (0usize, 0usize, 0.0f64);
+    let takeoff_s = truth_ned
+        .iter()
+        .find(|(_, p)| p.z < -0.1)
+        .map_or(f64::INFINITY, |(t, _)| *t);
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic != "/filter/state" {
+            continue;
+        }
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        let t_s = v["t_s"].as_f64().unwrap_or(f64::NAN);
+        let Some(p) = truth_at(&truth_ned, t_s).filter(|_| t_s >= takeoff_s) else {
+            continue;
+        };
+        let z: Vec<f64> = (0..3)
+            .map(|k| {
+                (v["p_B_in_W"][k].as_f64().unwrap_or(f64::NAN) - p[k]) / v["sigma_p_m"][k].as_f64().unwrap_or(f64::NAN)
+            })
+            .collect();
+        scored += 1;
+        // A NaN (no σ) counts as beyond.
+        beyond += usize::from(z.iter().any(|e| e.is_nan() || e.abs() > 3.0));
+        nees_sum += z.iter().map(|e| e * e).sum::<f64>() / 3.0;
+    }
+    eprintln!(
+        "our estimate from the take-off: {beyond} of {scored} beyond 3 σ on an axis, position NEES per axis {:.2}",
+        nees_sum / scored.max(1) as f64
+    );
+    assert!(
+        scored > 300 && (beyond as f64) <= 0.2 * scored as f64,
+        "our estimate was confidently wrong: {beyond} of {scored} beyond 3 σ"
     );
     // The autopilot's barometer in the log (`SCALED_PRESSURE`), fused as
     // our height's reference (estimator README §3g), and the review's row
@@ -837,4 +870,14 @@ fn px4_flies_on_cmsckf_alone() {
         page.contains("mode OFFBOARD (0x60000)") && page.contains("mode AUTO.LAND (0x6040000)"),
         "the timeline names PX4's modes"
     );
+}
+
+/// The truth at `t_s`, interpolated in `(t, NED)` samples in time order;
+/// `None` outside them.
+fn truth_at(truth: &[(f64, Vector3<f64>)], t_s: f64) -> Option<Vector3<f64>> {
+    let i = truth.partition_point(|(u, _)| *u <= t_s);
+    let (t1, p1) = truth.get(i)?;
+    let (t0, p0) = truth.get(i.checked_sub(1)?)?;
+    let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
+    Some(p0 + (p1 - p0) * w)
 }

@@ -192,34 +192,36 @@ fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
             residual_m,
             sigma_m,
             added_var_m2,
-        } => {
-            counters.add(Counter::BaroUpdates, 1);
-            counters.add(Counter::BaroHeightReset, 1);
-            tracing::warn!(
-                reason = "baro_height_reset",
-                residual_m,
-                sigma_m,
-                added_sigma_m = added_var_m2.sqrt(),
-                "the barometer disagreed with our height beyond its gate five times in a row: the height's \
-                 variance was raised and the barometer fused"
-            );
-            ("height_reset", Some(residual_m), Some(sigma_m))
         }
-        BaroOutcome::OffsetReset {
+        | BaroOutcome::OffsetReset {
             residual_m,
             sigma_m,
             added_var_m2,
         } => {
+            let (name, counter, what) = if matches!(outcome, BaroOutcome::HeightReset { .. }) {
+                (
+                    "height_reset",
+                    Counter::BaroHeightReset,
+                    "the height's (and its window's)",
+                )
+            } else {
+                (
+                    "offset_reset",
+                    Counter::BaroOffsetReset,
+                    "the barometer's offset's (it was suspect)",
+                )
+            };
             counters.add(Counter::BaroUpdates, 1);
-            counters.add(Counter::BaroOffsetReset, 1);
+            counters.add(counter, 1);
             tracing::warn!(
-                reason = "baro_offset_reset",
+                reason = name,
                 residual_m,
                 sigma_m,
                 added_sigma_m = added_var_m2.sqrt(),
-                "the barometer disagreed again within 10 s of a height reset: its offset took the excess"
+                "the barometer disagreed with our height beyond its gate five times in a row: {what} variance \
+                 was raised and the reading fused"
             );
-            ("offset_reset", Some(residual_m), Some(sigma_m))
+            (name, Some(residual_m), Some(sigma_m))
         }
     };
     if let Some(l) = cx.log {
