@@ -200,8 +200,9 @@ counters! {
     BaroUpdates = "baro_updates", event;
     BaroRefused = "baro_refused", event;
     BaroLate = "baro_late", event;
-    /// The gate refused five readings in a row: the height's variance was
-    /// raised and the reading fused (estimator README §3g, B3).
+    /// The gate refused five readings in a row: the variance of the body's
+    /// and its window's heights was raised and the reading fused
+    /// (estimator README §3g, B3).
     BaroHeightReset = "baro_height_reset", event;
     /// Five refused in a row while the offset was suspect (set, carried or
     /// the height reset to it within 10 s): the offset took the excess.

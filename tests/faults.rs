@@ -329,7 +329,7 @@ async fn the_autopilots_navigation_parameters_are_read_and_a_wrong_one_said() {
 /// height's reference (estimator README §3g): its readings are refused by
 /// the gate, the height is first taken to be what moved (B3), and when the
 /// barometer disagrees again the offset takes the step. With GNSS (which
-/// holds the height): no restart, the error bounded by the step, and back
+/// holds the height): no restart, the error within the step and a metre, and back
 /// within 2 s of its end (0.4 s measured). Without GNSS (the camera alone, as beside
 /// PX4) against the same flight without the step: no restart, and the step
 /// adds at most itself to the worst error and a metre to the ATE.

@@ -837,8 +837,13 @@ fn px4_flies_on_cmsckf_alone() {
         "our estimate from the take-off: {beyond} of {scored} beyond 3 σ on an axis, position NEES per axis {:.2}",
         nees_sum / scored.max(1) as f64
     );
+    // 10 Hz from the take-off to the landing, less a restart or two.
     assert!(
-        scored > 300 && (beyond as f64) <= 0.2 * scored as f64,
+        scored > 150,
+        "too few of our estimates scored from the take-off: {scored}"
+    );
+    assert!(
+        (beyond as f64) <= 0.2 * scored as f64,
         "our estimate was confidently wrong: {beyond} of {scored} beyond 3 σ"
     );
     // The autopilot's barometer in the log (`SCALED_PRESSURE`), fused as

@@ -584,6 +584,43 @@ mod tests {
         }
     }
 
+    /// B3's height: on a filter in flight, with clones and a GNSS clone,
+    /// the body's height and each clone's gain one common error, and
+    /// nothing else moves (the keyframes, the offset, every other state).
+    #[test]
+    fn a_height_reset_raises_the_windows_heights_together() {
+        let cfg = crate::config::Config::default();
+        let sim = crate::eval::sim_config_for(&cfg);
+        let ds = cmsckf_sitl::dataset::Dataset::generate("racetrack", 1, Some(15.0), &sim).unwrap();
+        let mut r = crate::eval::Runner::new(&ds, &cfg, crate::estimator::Mode::Full, 1).with_gnss();
+        let mut k = 0;
+        while k < ds.frames.len() && !(ds.frames[k].t_s > 10.0 && r.est.n_gnss_clones() > 0) {
+            r.step_frame(k);
+            k += 1;
+        }
+        let est = &mut r.est;
+        assert!(est.n_clones() > 3 && est.n_gnss_clones() > 0 && est.keyframes().count() > 0);
+        let before = est.P.clone();
+        est.add_window_height_variance(0.5);
+        let co = est.clones_offset();
+        let go = est.gnss_clones_offset();
+        let mut heights = vec![P + 2];
+        heights.extend((0..est.n_clones()).map(|i| co + 6 * i + 5));
+        heights.extend((0..est.n_gnss_clones()).map(|i| go + GNSS_CLONE_DIM * i + 8));
+        let n = est.P.nrows();
+        for i in 0..n {
+            for j in 0..n {
+                let want = if heights.contains(&i) && heights.contains(&j) {
+                    0.5
+                } else {
+                    0.0
+                };
+                let got = est.P[(i, j)] - before[(i, j)];
+                assert!((got - want).abs() < 1e-12, "P[{i}, {j}] moved by {got}, not {want}");
+            }
+        }
+    }
+
     /// B4: a fresh filter takes a carried offset once, and not after a
     /// reading set its own; a carried value that is not finite is refused.
     #[test]
