@@ -23,6 +23,7 @@
 
 mod common;
 
+use std::collections::VecDeque;
 use std::io::Write;
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
@@ -31,7 +32,7 @@ use std::time::{Duration, Instant};
 
 use cmsckf_models::geodesy::llh_to_ecef;
 use cmsckf_models::geoid;
-use common::sitl::{free_udp_port, Errors, FlightDir, Gcs, RenderedCamera, Scoring, Truth};
+use common::sitl::{free_udp_port, interpolate_at, Errors, FlightDir, Gcs, RenderedCamera, Scoring, Truth};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::Message;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -289,7 +290,7 @@ fn px4_flies_on_cmsckf_alone() {
     let mut truth = Truth::new(HOME);
     // The truth over the whole flight (t, NED position), for the checks of
     // our own estimate and of the review's barometer row at the end.
-    let mut truth_ned: Vec<(f64, Vector3<f64>)> = Vec::new();
+    let mut truth_ned: VecDeque<(f64, Vector3<f64>)> = VecDeque::new();
 
     let mut phase = Phase::WaitEkf;
     let mut phase_since = Instant::now();
@@ -359,7 +360,7 @@ fn px4_flies_on_cmsckf_alone() {
                     );
                     let v_true = Vector3::new(s.vx as f64, s.vy as f64, s.vz as f64) * 0.01;
                     let p = truth.push(t_s, truth.frame.to_ned(&r), v_true);
-                    truth_ned.push((t_s, p));
+                    truth_ned.push_back((t_s, p));
                     let [w, x, y, z] = s.attitude_quaternion.map(|c| c as f64);
                     if let Some(f) = flight_dir.truth_csv.as_mut() {
                         writeln!(
@@ -779,7 +780,7 @@ fn px4_flies_on_cmsckf_alone() {
         let entry = |key: &str, k: usize| v[key][k].as_f64().unwrap_or(f64::NAN);
         records += 1;
         let t_s = v["usec"].as_f64().unwrap_or(f64::NAN) * 1e-6;
-        if let Some(p) = truth_at(&truth_ned, t_s) {
+        if let Some(p) = interpolate_at(&truth_ned, t_s) {
             let err = p.z - entry("p_ned_m", 2);
             let first = *first_height_err.get_or_insert(err);
             drift_max = drift_max.max((err - first).abs());
@@ -820,7 +821,7 @@ fn px4_flies_on_cmsckf_alone() {
         }
         let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
         let t_s = v["t_s"].as_f64().unwrap_or(f64::NAN);
-        let Some(p) = truth_at(&truth_ned, t_s).filter(|_| t_s >= takeoff_s) else {
+        let Some(p) = interpolate_at(&truth_ned, t_s).filter(|_| t_s >= takeoff_s) else {
             continue;
         };
         let z: Vec<f64> = (0..3)
@@ -875,14 +876,4 @@ fn px4_flies_on_cmsckf_alone() {
         page.contains("mode OFFBOARD (0x60000)") && page.contains("mode AUTO.LAND (0x6040000)"),
         "the timeline names PX4's modes"
     );
-}
-
-/// The truth at `t_s`, interpolated in `(t, NED)` samples in time order;
-/// `None` outside them.
-fn truth_at(truth: &[(f64, Vector3<f64>)], t_s: f64) -> Option<Vector3<f64>> {
-    let i = truth.partition_point(|(u, _)| *u <= t_s);
-    let (t1, p1) = truth.get(i)?;
-    let (t0, p0) = truth.get(i.checked_sub(1)?)?;
-    let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
-    Some(p0 + (p1 - p0) * w)
 }

@@ -148,7 +148,6 @@ pub(super) struct Fused {
 /// One barometer reading into the filter (§3g), its update to the log.
 fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
     let counters = cx.counters;
-    let had_offset = est.baro_offset().is_some();
     let outcome = match est.process_baro(t, h_m) {
         Ok(o) => o,
         Err(e) => {
@@ -165,8 +164,8 @@ fn fuse_baro(est: &mut Estimator, t: f64, h_m: f64, cx: &FuseCtx<'_>) {
         }
     };
     let (name, residual, sigma) = match outcome {
-        BaroOutcome::Anchored { offset_m } => {
-            if had_offset {
+        BaroOutcome::Anchored { offset_m, reanchored } => {
+            if reanchored {
                 counters.add(Counter::BaroReanchored, 1);
                 tracing::warn!(
                     reason = "baro_reanchored",

@@ -19,7 +19,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::propagate::{P, V};
-use super::{Estimator, InputError, BARO, GNSS_CLONE_DIM};
+use super::{Estimator, InputError, BARO};
 use crate::counters::Counter;
 
 /// A reading older than the filter by more than this (s) is refused as
@@ -55,9 +55,9 @@ pub(super) struct BaroOffset {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum BaroOutcome {
     /// It set the offset: the first reading of this filter, or one more
-    /// than [`BARO_REANCHOR_M`] from the height (counted
+    /// than [`BARO_REANCHOR_M`] from the height (`reanchored`, counted
     /// `baro_reanchored`).
-    Anchored { offset_m: f64 },
+    Anchored { offset_m: f64, reanchored: bool },
     /// Fused: its residual (m), the residual's σ (m) and its NIS.
     Fused { residual_m: f64, sigma_m: f64, nis: f64 },
     /// Refused by the χ² gate.
@@ -111,7 +111,8 @@ impl Estimator {
         let noise_var = self.s.baro.noise_m.powi(2);
         let residual_m = h_m - (h_pred_m + self.baro.value_m);
         if !self.baro.anchored || residual_m.abs() > BARO_REANCHOR_M {
-            if self.baro.anchored {
+            let reanchored = self.baro.anchored;
+            if reanchored {
                 *self.stats.rejected.entry(Counter::BaroReanchored).or_default() += 1;
             }
             self.anchor_baro(&cols, &h_x, noise_var);
@@ -123,17 +124,13 @@ impl Estimator {
             };
             return Ok(BaroOutcome::Anchored {
                 offset_m: self.baro.value_m,
+                reanchored,
             });
         }
         // S = H P Hᵀ + σ², H = [h_x on cols, 1 on BARO].
         let all = [cols[0], cols[1], BARO];
         let hv = [h_x[0], h_x[1], 1.0];
-        let mut s = noise_var;
-        for (a, &i) in all.iter().enumerate() {
-            for (b, &j) in all.iter().enumerate() {
-                s += hv[a] * hv[b] * self.P[(i, j)];
-            }
-        }
+        let s = self.row_variance(&all, &hv) + noise_var;
         if !(s.is_finite() && s > 0.0) {
             *self.stats.rejected.entry(Counter::UpdateNotPd).or_default() += 1;
             return Ok(BaroOutcome::Refused {
@@ -144,7 +141,11 @@ impl Estimator {
         }
         let nis = residual_m * residual_m / s;
         let sigma_m = s.sqrt();
-        let mut reset = None;
+        let mut outcome = BaroOutcome::Fused {
+            residual_m,
+            sigma_m,
+            nis,
+        };
         if nis > cmsckf_models::stats::chi2_quantile(BARO_GATE_PROB, 1) {
             self.baro.refused_in_a_row += 1;
             if self.baro.refused_in_a_row < self.s.baro.refusals_before_height_reset {
@@ -167,18 +168,31 @@ impl Estimator {
             // filter within `BARO_SECOND_STRIKE_S`, or the height already
             // reset to it that recently (then it is the barometer that
             // moved: another one switched in, the rotor wash).
-            let add_m2 = residual_m * residual_m - s;
-            let offset = t_s < self.baro.offset_suspect_until_s;
-            let counter = if offset {
+            let added_var_m2 = residual_m * residual_m - s;
+            let (counter, reset) = if t_s < self.baro.offset_suspect_until_s {
                 self.baro.offset_suspect_until_s = f64::NEG_INFINITY;
-                self.P[(BARO, BARO)] += add_m2;
-                Counter::BaroOffsetReset
+                self.P[(BARO, BARO)] += added_var_m2;
+                (
+                    Counter::BaroOffsetReset,
+                    BaroOutcome::OffsetReset {
+                        residual_m,
+                        sigma_m,
+                        added_var_m2,
+                    },
+                )
             } else {
                 self.baro.offset_suspect_until_s = t_s + BARO_SECOND_STRIKE_S;
-                self.add_window_height_variance(add_m2);
-                Counter::BaroHeightReset
+                self.add_window_height_variance(added_var_m2);
+                (
+                    Counter::BaroHeightReset,
+                    BaroOutcome::HeightReset {
+                        residual_m,
+                        sigma_m,
+                        added_var_m2,
+                    },
+                )
             };
-            reset = Some((offset, add_m2));
+            outcome = reset;
             *self.stats.rejected.entry(counter).or_default() += 1;
         }
         self.baro.refused_in_a_row = 0;
@@ -188,23 +202,7 @@ impl Estimator {
         let r = DVector::from_element(1, residual_m / sd);
         self.ekf_update(&h, &all, &r, false);
         self.stats.baro_updates += 1;
-        Ok(match reset {
-            Some((false, added_var_m2)) => BaroOutcome::HeightReset {
-                residual_m,
-                sigma_m,
-                added_var_m2,
-            },
-            Some((true, added_var_m2)) => BaroOutcome::OffsetReset {
-                residual_m,
-                sigma_m,
-                added_var_m2,
-            },
-            None => BaroOutcome::Fused {
-                residual_m,
-                sigma_m,
-                nis,
-            },
-        })
+        Ok(outcome)
     }
 
     /// B1 without the offset: the height `−(p_z − v_z τ)` a reading `τ`
@@ -225,18 +223,21 @@ impl Estimator {
     /// 8 σ). The keyframes, the map, keep theirs. Process noise
     /// on the local part only.
     fn add_window_height_variance(&mut self, var_m2: f64) {
-        let co = self.clones_offset();
-        let go = self.gnss_clones_offset();
-        let mut idx = Vec::with_capacity(1 + self.clones.len() + self.gnss_clones.len());
-        idx.push(P + 2);
-        idx.extend((0..self.clones.len()).map(|i| co + 6 * i + 5));
-        // A GNSS clone is `[δθ, δv, δp, …]`: its height is its 9th state.
-        idx.extend((0..self.gnss_clones.len()).map(|i| go + GNSS_CLONE_DIM * i + P + 2));
-        for &a in &idx {
-            for &b in &idx {
-                self.P[(a, b)] += var_m2;
-            }
-        }
+        let heights: Vec<usize> = self.position_starts(false).iter().map(|&i| i + 2).collect();
+        self.add_common_error(&heights, var_m2);
+    }
+
+    /// `h P hᵀ` of one row `h` on the states `cols`.
+    fn row_variance(&self, cols: &[usize], h: &[f64]) -> f64 {
+        cols.iter()
+            .zip(h)
+            .map(|(&i, &hi)| {
+                cols.iter()
+                    .zip(h)
+                    .map(|(&j, &hj)| hi * hj * self.P[(i, j)])
+                    .sum::<f64>()
+            })
+            .sum()
     }
 
     /// Eq. B2's covariance: `δb_h = −H_x δx − n`, so the offset's row is
@@ -251,13 +252,7 @@ impl Estimator {
         for (&c, &h) in cols.iter().zip(h_x) {
             row -= self.P.column(c) * h;
         }
-        let mut var = noise_var;
-        for (a, &i) in cols.iter().enumerate() {
-            for (b, &j) in cols.iter().enumerate() {
-                var += h_x[a] * h_x[b] * self.P[(i, j)];
-            }
-        }
-        row[BARO] = var;
+        row[BARO] = self.row_variance(cols, h_x) + noise_var;
         self.P.row_mut(BARO).copy_from(&row.transpose());
         self.P.column_mut(BARO).copy_from(&row);
         if let Some(g) = self.global.as_mut() {
@@ -304,7 +299,7 @@ impl Estimator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimator::{ImuState, Mat15, ACTIVE_DIM};
+    use crate::estimator::{ImuState, Mat15, ACTIVE_DIM, GNSS_CLONE_DIM};
     use nalgebra::{UnitQuaternion, Vector3};
 
     /// A filter at rest at 3 m up, climbing at 1.2 m/s, with a full
@@ -360,7 +355,13 @@ mod tests {
         let mut est = estimator();
         let p_before = est.P.clone();
         let out = est.process_baro(0.0, 503.0).unwrap();
-        assert_eq!(out, BaroOutcome::Anchored { offset_m: 500.0 });
+        assert_eq!(
+            out,
+            BaroOutcome::Anchored {
+                offset_m: 500.0,
+                reanchored: false
+            }
+        );
         let noise_var = est.s.baro.noise_m.powi(2);
         let pz = P + 2;
         for j in 0..est.P.nrows() {
@@ -538,7 +539,7 @@ mod tests {
         let z0 = est.imu_state().p_B_in_W.z;
         assert!(matches!(
             est.process_baro(0.0, 1003.0).unwrap(),
-            BaroOutcome::Anchored { .. }
+            BaroOutcome::Anchored { reanchored: true, .. }
         ));
         assert_eq!(est.imu_state().p_B_in_W.z, z0);
         assert_eq!(est.stats.rejected.get(&Counter::BaroReanchored), Some(&1));

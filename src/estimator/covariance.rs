@@ -195,6 +195,32 @@ impl Estimator {
         }
     }
 
+    /// Where each position block `δp` starts in `P`: the body's, the local
+    /// keyframes' (with `keyframes`), the clones' and the GNSS clones'
+    /// (`[δθ, δv, δp, …]`).
+    pub(super) fn position_starts(&self, keyframes: bool) -> Vec<usize> {
+        let mut starts: Vec<usize> = vec![POSE_IDX[3]];
+        if keyframes {
+            starts.extend((0..self.local_kfs.len()).map(|j| self.kf_offset(j) + 3));
+        }
+        let co = self.clones_offset();
+        starts.extend((0..self.clones.len()).map(|i| co + 6 * i + 3));
+        let go = self.gnss_clones_offset();
+        starts.extend((0..self.gnss_clones.len()).map(|i| go + GNSS_CLONE_DIM * i + 6));
+        starts
+    }
+
+    /// One error of variance `var_m2` common to the states `idx`:
+    /// `P += var · u uᵀ`, `u` one at each of them (process noise, so the
+    /// local part only).
+    pub(super) fn add_common_error(&mut self, idx: &[usize], var_m2: f64) {
+        for &a in idx {
+            for &b in idx {
+                self.P[(a, b)] += var_m2;
+            }
+        }
+    }
+
     /// The world frame's origin became uncertain by `var_m2` per axis (it
     /// was placed at a single-point fix, §7 eq. I2): every position in the
     /// state, the body's, the clones', the keyframes' and the GNSS clones',
@@ -210,22 +236,13 @@ impl Estimator {
             return false;
         }
         self.sync();
-        let mut starts: Vec<usize> = vec![POSE_IDX[3]];
-        starts.extend((0..self.local_kfs.len()).map(|j| self.kf_offset(j) + 3));
-        let co = self.clones_offset();
-        starts.extend((0..self.clones.len()).map(|i| co + 6 * i + 3));
-        let go = self.gnss_clones_offset();
-        starts.extend((0..self.gnss_clones.len()).map(|i| go + GNSS_CLONE_DIM * i + 6));
+        let starts = self.position_starts(true);
         for a in 0..3 {
             let mut idx: Vec<usize> = starts.iter().map(|&i| i + a).collect();
             if a == 2 && self.baro.anchored {
                 idx.push(BARO);
             }
-            for &i in &idx {
-                for &j in &idx {
-                    self.P[(i, j)] += var_m2;
-                }
-            }
+            self.add_common_error(&idx, var_m2);
         }
         true
     }
@@ -422,11 +439,7 @@ impl Estimator {
         for i in 0..self.gnss_clones.len() {
             idx.push(go + GNSS_CLONE_DIM * i + 12 + (k - CLK_B));
         }
-        for &a in &idx {
-            for &b in &idx {
-                self.P[(a, b)] += var_m2;
-            }
-        }
+        self.add_common_error(&idx, var_m2);
     }
 }
 

@@ -275,12 +275,18 @@ impl Truth {
     /// The position at `t_s`, interpolated; `None` before the first sample
     /// or after the last.
     pub fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
-        let i = self.hist.partition_point(|(u, _)| *u <= t_s);
-        let (t1, p1) = self.hist.get(i)?;
-        let (t0, p0) = self.hist.get(i.checked_sub(1)?)?;
-        let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
-        Some(p0 + (p1 - p0) * w)
+        interpolate_at(&self.hist, t_s)
     }
+}
+
+/// The position at `t_s` in `(t, position)` samples in time order,
+/// interpolated; `None` before the first sample or after the last.
+pub fn interpolate_at(samples: &VecDeque<(f64, Vector3<f64>)>, t_s: f64) -> Option<Vector3<f64>> {
+    let i = samples.partition_point(|(u, _)| *u <= t_s);
+    let (t1, p1) = samples.get(i)?;
+    let (t0, p0) = samples.get(i.checked_sub(1)?)?;
+    let w = if t1 > t0 { (t_s - t0) / (t1 - t0) } else { 0.0 };
+    Some(p0 + (p1 - p0) * w)
 }
 
 /// When a camera of `rate_hz` takes its next frame from a stream of truth
